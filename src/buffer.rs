@@ -1,0 +1,178 @@
+//! A plain row-major 2-D buffer ([`Image`]) used by every stage, and the colour conventions.
+//!
+//! Colour convention: images inside the pipeline are **linear** light, `f32` per channel in `[0, 1]`
+//! (HDR environments may exceed 1). RGBA images are **premultiplied** by alpha. sRGB encoding happens only at
+//! the file/display edge ([`srgb_to_linear`], [`linear_to_srgb`]).
+
+use glam::{Vec3, Vec4};
+
+/// A row-major image of `T`: pixel `(col, row)` lives at `data[row * width + col]`, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image<T> {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// `width * height` pixels, row-major, top row first.
+    pub data: Vec<T>,
+}
+
+impl<T: Clone> Image<T> {
+    /// An image of `width x height` pixels, all set to `fill`.
+    pub fn new(width: usize, height: usize, fill: T) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![fill; width * height],
+        }
+    }
+
+    /// Builds an image by calling `f(col, row)` for every pixel.
+    pub fn from_fn(width: usize, height: usize, mut f: impl FnMut(usize, usize) -> T) -> Self {
+        let mut data = Vec::with_capacity(width * height);
+        for row in 0..height {
+            for col in 0..width {
+                data.push(f(col, row));
+            }
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// The pixel at `(col, row)`. Panics when out of range (a programming error, never user input).
+    #[inline]
+    pub fn get(&self, col: usize, row: usize) -> &T {
+        &self.data[row * self.width + col]
+    }
+
+    /// Mutable pixel at `(col, row)`.
+    #[inline]
+    pub fn get_mut(&mut self, col: usize, row: usize) -> &mut T {
+        &mut self.data[row * self.width + col]
+    }
+
+    /// Sets the pixel at `(col, row)`.
+    #[inline]
+    pub fn set(&mut self, col: usize, row: usize, value: T) {
+        self.data[row * self.width + col] = value;
+    }
+
+    /// Applies `f` to every pixel, producing a new image of the same size.
+    pub fn map<U>(&self, f: impl Fn(&T) -> U) -> Image<U> {
+        Image {
+            width: self.width,
+            height: self.height,
+            data: self.data.iter().map(f).collect(),
+        }
+    }
+
+    /// Rows as slices, top first.
+    pub fn rows(&self) -> std::slice::ChunksExact<'_, T> {
+        self.data.chunks_exact(self.width.max(1))
+    }
+}
+
+/// Linear RGB image (`Vec3` per pixel).
+pub type RgbImage = Image<Vec3>;
+/// Linear, premultiplied RGBA image (`Vec4` per pixel).
+pub type RgbaImage = Image<Vec4>;
+/// Single-channel float image (masks in `[0, 1]`, depths).
+pub type GrayImage = Image<f32>;
+
+/// Bilinear sample of an image at continuous pixel coordinates (pixel centres at `+0.5`).
+///
+/// Samples outside the image read `outside` (the reference warps with zeros outside), and any non-finite
+/// coordinate reads `outside` too, so NaN never propagates from a bad flow.
+pub fn sample_bilinear<T>(img: &Image<T>, x: f32, y: f32, outside: T) -> T
+where
+    T: Copy + std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
+{
+    if !(x.is_finite() && y.is_finite()) {
+        return outside;
+    }
+    let fx = x - 0.5;
+    let fy = y - 0.5;
+    let x0 = fx.floor();
+    let y0 = fy.floor();
+    let tx = fx - x0;
+    let ty = fy - y0;
+    let (w, h) = (img.width as i64, img.height as i64);
+    let fetch = |c: i64, r: i64| -> T {
+        if c < 0 || r < 0 || c >= w || r >= h {
+            outside
+        } else {
+            img.data[(r * w + c) as usize]
+        }
+    };
+    let (c0, r0) = (x0 as i64, y0 as i64);
+    let top = fetch(c0, r0) * (1.0 - tx) + fetch(c0 + 1, r0) * tx;
+    let bottom = fetch(c0, r0 + 1) * (1.0 - tx) + fetch(c0 + 1, r0 + 1) * tx;
+    top * (1.0 - ty) + bottom * ty
+}
+
+/// sRGB (IEC 61966-2-1) encoded value in `[0, 1]` to linear light.
+#[inline]
+pub fn srgb_to_linear(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear light to sRGB encoded value in `[0, 1]`; clamps out-of-range and maps NaN to 0.
+#[inline]
+pub fn linear_to_srgb(v: f32) -> f32 {
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+    if v <= 0.003_130_8 {
+        v * 12.92
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Premultiplies a straight-alpha colour.
+#[inline]
+pub fn premultiply(rgb: Vec3, alpha: f32) -> Vec4 {
+    (rgb * alpha).extend(alpha)
+}
+
+/// Undoes premultiplication (colour of a fully transparent pixel is black).
+#[inline]
+pub fn unpremultiply(rgba: Vec4) -> Vec3 {
+    if rgba.w > 1e-6 {
+        rgba.truncate() / rgba.w
+    } else {
+        Vec3::ZERO
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trip() {
+        for i in 0..=255 {
+            let v = i as f32 / 255.0;
+            assert!((linear_to_srgb(srgb_to_linear(v)) - v).abs() < 1e-5);
+        }
+        assert_eq!(linear_to_srgb(f32::NAN), 0.0);
+    }
+
+    #[test]
+    fn bilinear_hits_pixel_centres_and_interpolates() {
+        let img = Image::from_fn(3, 2, |c, r| (c + 10 * r) as f32);
+        assert_eq!(sample_bilinear(&img, 0.5, 0.5, -1.0), 0.0);
+        assert_eq!(sample_bilinear(&img, 2.5, 1.5, -1.0), 12.0);
+        assert!((sample_bilinear(&img, 1.0, 0.5, -1.0) - 0.5).abs() < 1e-6);
+        assert!((sample_bilinear(&img, 1.5, 1.0, -1.0) - 6.0).abs() < 1e-6);
+        assert_eq!(sample_bilinear(&img, f32::NAN, 0.5, -1.0), -1.0);
+        // Outside: blends towards the `outside` value.
+        assert!((sample_bilinear(&img, 0.0, 0.5, 0.0) - 0.0).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,188 @@
+//! Triangle meshes in body-cube coordinates.
+
+use glam::Vec3;
+
+/// An indexed triangle mesh. Triangles are counter-clockwise seen from outside (outward normals).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TriMesh {
+    /// Vertex positions (body cube coordinates).
+    pub positions: Vec<Vec3>,
+    /// Triangles as vertex indices, counter-clockwise seen from outside.
+    pub triangles: Vec<[u32; 3]>,
+    /// Unit vertex normals (area-weighted face normals); empty until [`TriMesh::compute_normals`].
+    pub normals: Vec<Vec3>,
+    /// Optional per-vertex linear RGB colour (for meshes that carry appearance, e.g. synthetic subjects).
+    pub colors: Vec<Vec3>,
+}
+
+impl TriMesh {
+    /// A mesh from positions and triangles, with vertex normals computed.
+    pub fn new(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Self {
+        let mut mesh = Self {
+            positions,
+            triangles,
+            normals: Vec::new(),
+            colors: Vec::new(),
+        };
+        mesh.compute_normals();
+        mesh
+    }
+
+    /// Recomputes unit vertex normals as the area-weighted sum of adjacent face normals. Vertices with no
+    /// area around them get +z (the source view direction) rather than NaN.
+    pub fn compute_normals(&mut self) {
+        let mut normals = vec![Vec3::ZERO; self.positions.len()];
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.positions[i as usize]);
+            let n = (b - a).cross(c - a); // length = 2 * area: area weighting for free
+            for &i in t {
+                normals[i as usize] += n;
+            }
+        }
+        for n in &mut normals {
+            *n = n.try_normalize().unwrap_or(Vec3::Z);
+        }
+        self.normals = normals;
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Whether the mesh has no triangles.
+    pub fn is_empty(&self) -> bool {
+        self.triangles.is_empty()
+    }
+
+    /// Axis-aligned bounds `(min, max)`; `None` for an empty mesh.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let first = *self.positions.first()?;
+        Some(
+            self.positions
+                .iter()
+                .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
+        )
+    }
+
+    /// Checks that every vertex is finite and every index in range.
+    pub fn validate(&self) -> Result<(), String> {
+        if let Some(i) = self.positions.iter().position(|p| !p.is_finite()) {
+            return Err(format!(
+                "vertex {i} is not finite ({:?})",
+                self.positions[i]
+            ));
+        }
+        let n = self.positions.len() as u32;
+        if let Some(t) = self
+            .triangles
+            .iter()
+            .position(|t| t.iter().any(|&i| i >= n))
+        {
+            return Err(format!("triangle {t} indexes past the {n} vertices"));
+        }
+        Ok(())
+    }
+
+    /// A UV sphere (for tests and analytic checks), outward-facing.
+    pub fn uv_sphere(center: Vec3, radius: f32, stacks: u32, slices: u32) -> Self {
+        let mut positions = Vec::new();
+        for i in 0..=stacks {
+            let theta = std::f32::consts::PI * i as f32 / stacks as f32;
+            for j in 0..slices {
+                let phi = std::f32::consts::TAU * j as f32 / slices as f32;
+                positions.push(
+                    center
+                        + radius
+                            * Vec3::new(
+                                theta.sin() * phi.sin(),
+                                theta.cos(),
+                                theta.sin() * phi.cos(),
+                            ),
+                );
+            }
+        }
+        let mut triangles = Vec::new();
+        for i in 0..stacks {
+            for j in 0..slices {
+                let a = i * slices + j;
+                let b = i * slices + (j + 1) % slices;
+                let c = (i + 1) * slices + j;
+                let d = (i + 1) * slices + (j + 1) % slices;
+                if i != 0 {
+                    triangles.push([a, c, b]);
+                }
+                if i != stacks - 1 {
+                    triangles.push([b, c, d]);
+                }
+            }
+        }
+        Self::new(positions, triangles)
+    }
+
+    /// An axis-aligned box (for tests and analytic checks), outward-facing.
+    pub fn cuboid(min: Vec3, max: Vec3) -> Self {
+        let c = |x: bool, y: bool, z: bool| {
+            Vec3::new(
+                if x { max.x } else { min.x },
+                if y { max.y } else { min.y },
+                if z { max.z } else { min.z },
+            )
+        };
+        let positions = vec![
+            c(false, false, false),
+            c(true, false, false),
+            c(true, true, false),
+            c(false, true, false),
+            c(false, false, true),
+            c(true, false, true),
+            c(true, true, true),
+            c(false, true, true),
+        ];
+        let quads = [
+            [4, 5, 6, 7],
+            [1, 0, 3, 2],
+            [5, 1, 2, 6],
+            [0, 4, 7, 3],
+            [7, 6, 2, 3],
+            [0, 1, 5, 4],
+        ];
+        let triangles = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        Self::new(positions, triangles)
+    }
+
+    /// Signed volume (positive for a closed outward-facing mesh).
+    pub fn signed_volume(&self) -> f32 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| self.positions[i as usize]);
+                a.dot(b.cross(c)) / 6.0
+            })
+            .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn primitives_are_closed_and_outward() {
+        let s = TriMesh::uv_sphere(Vec3::ZERO, 0.5, 32, 64);
+        let v = s.signed_volume();
+        let exact = 4.0 / 3.0 * std::f32::consts::PI * 0.125;
+        assert!(
+            v > 0.0 && (v - exact).abs() / exact < 0.02,
+            "{v} vs {exact}"
+        );
+        let b = TriMesh::cuboid(Vec3::splat(-0.5), Vec3::new(0.5, 0.5, 0.25));
+        assert!((b.signed_volume() - 0.75).abs() < 1e-5);
+        // Outward normals: the top vertex of the sphere points up.
+        assert!(s.normals[0].y > 0.99);
+        assert!(s.validate().is_ok());
+    }
+}

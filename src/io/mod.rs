@@ -1,0 +1,1 @@
+//! File input and output: images (with atomic writes), environments, meshes.

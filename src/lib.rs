@@ -1,0 +1,29 @@
+//! r2human: real-time novel-view rendering of a person from one photo, after R²Human (ISMAR 2024).
+//!
+//! One input frame is segmented, normalised into the body cube, turned into geometry (a Fourier occupancy
+//! field, then a mesh) and — with a neural model — into encoder features. Each view (an orbit camera, a
+//! desktop window or an XR eye) then rasterises target depth and normals, computes the flow and Z-map of
+//! paper Eq. 4, warps the source appearance, fuses with the previous view (Eq. 8) and composites the person
+//! into a panorama (VR) or a premultiplied alpha layer (AR).
+//!
+//! Layers (dependencies point downward only):
+//! - [`cli`]: command-line commands; no algorithm lives there.
+//! - [`app`]: live loops (desktop mirror, XR session, capture) that schedule the pipeline.
+//! - [`xr`], [`gpu`]: OpenXR client and the Vulkan renderer.
+//! - [`pipeline`]: the stages as plain functions over images, with the CPU reference for each.
+//! - [`neural`], [`geometry`], [`compose`], [`io`], [`eval`], [`synth`], [`capture`]: the building blocks.
+//! - [`buffer`]: the 2-D image buffer every stage passes around.
+
+pub mod app;
+pub mod buffer;
+pub mod capture;
+pub mod cli;
+pub mod compose;
+pub mod eval;
+pub mod geometry;
+pub mod gpu;
+pub mod io;
+pub mod neural;
+pub mod pipeline;
+pub mod synth;
+pub mod xr;

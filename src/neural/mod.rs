@@ -1,0 +1,1 @@
+//! `neural` layer (see DESIGN in the README). Filled in by its own issue.

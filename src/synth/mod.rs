@@ -1,0 +1,1 @@
+//! `synth` layer (see DESIGN in the README). Filled in by its own issue.
