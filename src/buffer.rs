@@ -20,11 +20,7 @@ pub struct Image<T> {
 impl<T: Clone> Image<T> {
     /// An image of `width x height` pixels, all set to `fill`.
     pub fn new(width: usize, height: usize, fill: T) -> Self {
-        Self {
-            width,
-            height,
-            data: vec![fill; width * height],
-        }
+        Self { width, height, data: vec![fill; width * height] }
     }
 
     /// Builds an image by calling `f(col, row)` for every pixel.
@@ -35,11 +31,7 @@ impl<T: Clone> Image<T> {
                 data.push(f(col, row));
             }
         }
-        Self {
-            width,
-            height,
-            data,
-        }
+        Self { width, height, data }
     }
 
     /// The pixel at `(col, row)`. Panics when out of range (a programming error, never user input).
@@ -62,11 +54,7 @@ impl<T: Clone> Image<T> {
 
     /// Applies `f` to every pixel, producing a new image of the same size.
     pub fn map<U>(&self, f: impl Fn(&T) -> U) -> Image<U> {
-        Image {
-            width: self.width,
-            height: self.height,
-            data: self.data.iter().map(f).collect(),
-        }
+        Image { width: self.width, height: self.height, data: self.data.iter().map(f).collect() }
     }
 
     /// Rows as slices, top first.

@@ -37,12 +37,7 @@ impl Fov {
     pub fn symmetric(vertical: f32, aspect: f32) -> Self {
         let tan_half_v = (vertical * 0.5).tan();
         let half_h = (tan_half_v * aspect).atan();
-        Self {
-            angle_left: -half_h,
-            angle_right: half_h,
-            angle_up: vertical * 0.5,
-            angle_down: -vertical * 0.5,
-        }
+        Self { angle_left: -half_h, angle_right: half_h, angle_up: vertical * 0.5, angle_down: -vertical * 0.5 }
     }
 }
 
@@ -94,19 +89,11 @@ impl Camera {
     }
 
     /// An orthographic camera with the given pose and half extent (vertical), aspect from the image size.
-    pub fn orthographic(
-        view_from_world: Affine3A,
-        half_height: f32,
-        width: usize,
-        height: usize,
-    ) -> Self {
+    pub fn orthographic(view_from_world: Affine3A, half_height: f32, width: usize, height: usize) -> Self {
         let aspect = width as f32 / height.max(1) as f32;
         Self {
             view_from_world,
-            projection: Projection::Orthographic {
-                half_width: half_height * aspect,
-                half_height,
-            },
+            projection: Projection::Orthographic { half_width: half_height * aspect, half_height },
             width,
             height,
         }
@@ -122,29 +109,18 @@ impl Camera {
     /// The view-from-world rotation of an orbit view (see [`Camera::orbit`]).
     pub fn orbit_rotation(yaw_deg: f32, pitch_deg: f32) -> Affine3A {
         // camera-to-world = Ry(yaw) * Rx(-pitch); view-from-world is its inverse.
-        let world_from_view = Quat::from_rotation_y(yaw_deg.to_radians())
-            * Quat::from_rotation_x(-pitch_deg.to_radians());
+        let world_from_view =
+            Quat::from_rotation_y(yaw_deg.to_radians()) * Quat::from_rotation_x(-pitch_deg.to_radians());
         Affine3A::from_quat(world_from_view.inverse())
     }
 
     /// A perspective camera from an eye pose in world (body cube) coordinates — position and orientation of
     /// the eye, looking down its local -z — and a field of view, as OpenXR's `XrView` gives them.
-    pub fn perspective(
-        position: Vec3,
-        orientation: Quat,
-        fov: Fov,
-        near: f32,
-        width: usize,
-        height: usize,
-    ) -> Self {
-        let world_from_view =
-            Affine3A::from_rotation_translation(orientation.normalize(), position);
+    pub fn perspective(position: Vec3, orientation: Quat, fov: Fov, near: f32, width: usize, height: usize) -> Self {
+        let world_from_view = Affine3A::from_rotation_translation(orientation.normalize(), position);
         Self {
             view_from_world: world_from_view.inverse(),
-            projection: Projection::Perspective {
-                fov,
-                near: near.max(1e-6),
-            },
+            projection: Projection::Perspective { fov, near: near.max(1e-6) },
             width,
             height,
         }
@@ -174,10 +150,9 @@ impl Camera {
     /// View-space point to normalised device coordinates (x right, y up, `[-1, 1]` over the image).
     pub fn view_to_ndc(&self, p: Vec3) -> Option<Vec2> {
         match self.projection {
-            Projection::Orthographic {
-                half_width,
-                half_height,
-            } => Some(Vec2::new(p.x / half_width, p.y / half_height)),
+            Projection::Orthographic { half_width, half_height } => {
+                Some(Vec2::new(p.x / half_width, p.y / half_height))
+            }
             Projection::Perspective { fov, near } => {
                 if -p.z < near {
                     return None;
@@ -185,10 +160,7 @@ impl Camera {
                 let (tl, tr, tu, td) = tangents(&fov);
                 let tx = p.x / -p.z;
                 let ty = p.y / -p.z;
-                Some(Vec2::new(
-                    (2.0 * tx - (tr + tl)) / (tr - tl),
-                    (2.0 * ty - (tu + td)) / (tu - td),
-                ))
+                Some(Vec2::new((2.0 * tx - (tr + tl)) / (tr - tl), (2.0 * ty - (tu + td)) / (tu - td)))
             }
         }
     }
@@ -196,29 +168,22 @@ impl Camera {
     /// NDC to continuous pixel coordinates.
     #[inline]
     pub fn ndc_to_pixel(&self, ndc: Vec2) -> (f32, f32) {
-        (
-            (ndc.x + 1.0) * 0.5 * self.width as f32,
-            (1.0 - ndc.y) * 0.5 * self.height as f32,
-        )
+        ((ndc.x + 1.0) * 0.5 * self.width as f32, (1.0 - ndc.y) * 0.5 * self.height as f32)
     }
 
     /// Continuous pixel coordinates to NDC.
     #[inline]
     pub fn pixel_to_ndc(&self, u: f32, v: f32) -> Vec2 {
-        Vec2::new(
-            u / (0.5 * self.width as f32) - 1.0,
-            1.0 - v / (0.5 * self.height as f32),
-        )
+        Vec2::new(u / (0.5 * self.width as f32) - 1.0, 1.0 - v / (0.5 * self.height as f32))
     }
 
     /// The view-space point at pixel `(u, v)` with view depth `depth` (inverse of [`Camera::project`]).
     pub fn unproject_view(&self, u: f32, v: f32, depth: f32) -> Vec3 {
         let ndc = self.pixel_to_ndc(u, v);
         match self.projection {
-            Projection::Orthographic {
-                half_width,
-                half_height,
-            } => Vec3::new(ndc.x * half_width, ndc.y * half_height, depth),
+            Projection::Orthographic { half_width, half_height } => {
+                Vec3::new(ndc.x * half_width, ndc.y * half_height, depth)
+            }
             Projection::Perspective { fov, .. } => {
                 let (tx, ty) = ndc_to_tangent(&fov, ndc);
                 let dist = -depth;
@@ -229,9 +194,7 @@ impl Camera {
 
     /// The world point at pixel `(u, v)` with view depth `depth`: `(Pi)^-1(v, D)` of paper Eq. 4.
     pub fn unproject(&self, u: f32, v: f32, depth: f32) -> Vec3 {
-        self.view_from_world
-            .inverse()
-            .transform_point3(self.unproject_view(u, v, depth))
+        self.view_from_world.inverse().transform_point3(self.unproject_view(u, v, depth))
     }
 
     /// The world-space viewing ray through pixel `(u, v)`. Orthographic rays start on the plane view z = 0
@@ -240,24 +203,15 @@ impl Camera {
         let world_from_view = self.view_from_world.inverse();
         let ndc = self.pixel_to_ndc(u, v);
         match self.projection {
-            Projection::Orthographic {
-                half_width,
-                half_height,
-            } => Ray {
-                origin: world_from_view.transform_point3(Vec3::new(
-                    ndc.x * half_width,
-                    ndc.y * half_height,
-                    0.0,
-                )),
+            Projection::Orthographic { half_width, half_height } => Ray {
+                origin: world_from_view.transform_point3(Vec3::new(ndc.x * half_width, ndc.y * half_height, 0.0)),
                 direction: world_from_view.transform_vector3(Vec3::NEG_Z).normalize(),
             },
             Projection::Perspective { fov, .. } => {
                 let (tx, ty) = ndc_to_tangent(&fov, ndc);
                 Ray {
                     origin: world_from_view.translation.into(),
-                    direction: world_from_view
-                        .transform_vector3(Vec3::new(tx, ty, -1.0))
-                        .normalize(),
+                    direction: world_from_view.transform_vector3(Vec3::new(tx, ty, -1.0)).normalize(),
                 }
             }
         }
@@ -270,20 +224,12 @@ impl Camera {
 }
 
 fn tangents(fov: &Fov) -> (f32, f32, f32, f32) {
-    (
-        fov.angle_left.tan(),
-        fov.angle_right.tan(),
-        fov.angle_up.tan(),
-        fov.angle_down.tan(),
-    )
+    (fov.angle_left.tan(), fov.angle_right.tan(), fov.angle_up.tan(), fov.angle_down.tan())
 }
 
 fn ndc_to_tangent(fov: &Fov, ndc: Vec2) -> (f32, f32) {
     let (tl, tr, tu, td) = tangents(fov);
-    (
-        tl + (ndc.x + 1.0) * 0.5 * (tr - tl),
-        td + (ndc.y + 1.0) * 0.5 * (tu - td),
-    )
+    (tl + (ndc.x + 1.0) * 0.5 * (tr - tl), td + (ndc.y + 1.0) * 0.5 * (tu - td))
 }
 
 #[cfg(test)]
@@ -304,11 +250,7 @@ mod tests {
             let y = 1.0 - (row as f32 + 0.5) / 256.0;
             assert!(close(p, Vec3::new(x, y, 0.3), 1e-6), "{p:?}");
             let back = cam.project(p).unwrap();
-            assert!(close(
-                back,
-                Vec3::new(col as f32 + 0.5, row as f32 + 0.5, 0.3),
-                1e-4
-            ));
+            assert!(close(back, Vec3::new(col as f32 + 0.5, row as f32 + 0.5, 0.3), 1e-4));
         }
     }
 
@@ -319,10 +261,7 @@ mod tests {
         let near = cam.project(Vec3::new(0.5, 0.0, 0.0)).unwrap();
         let far = cam.project(Vec3::new(-0.5, 0.0, 0.0)).unwrap();
         assert!(near.z > far.z);
-        assert!(
-            close(cam.position().normalize_or_zero(), Vec3::ZERO, 1e-6)
-                || cam.position().length() < 1e-6
-        );
+        assert!(close(cam.position().normalize_or_zero(), Vec3::ZERO, 1e-6) || cam.position().length() < 1e-6);
         // World +z (the person's front) now appears on the left of the image.
         let front = cam.project(Vec3::new(0.0, 0.0, 0.5)).unwrap();
         assert!(front.x < 32.0);
@@ -355,19 +294,10 @@ mod tests {
 
     #[test]
     fn perspective_round_trip_and_centre_ray() {
-        let fov = Fov {
-            angle_left: -0.7,
-            angle_right: 0.6,
-            angle_up: 0.65,
-            angle_down: -0.75,
-        };
+        let fov = Fov { angle_left: -0.7, angle_right: 0.6, angle_up: 0.65, angle_down: -0.75 };
         let q = Quat::from_rotation_y(0.3) * Quat::from_rotation_x(-0.2);
         let cam = Camera::perspective(Vec3::new(0.2, 0.1, 3.0), q, fov, 0.05, 100, 90);
-        for &(u, v, d) in &[
-            (10.0f32, 20.0f32, -2.0f32),
-            (50.0, 45.0, -3.5),
-            (99.0, 1.0, -0.5),
-        ] {
+        for &(u, v, d) in &[(10.0f32, 20.0f32, -2.0f32), (50.0, 45.0, -3.5), (99.0, 1.0, -0.5)] {
             let w = cam.unproject(u, v, d);
             let p = cam.project(w).unwrap();
             assert!(close(p, Vec3::new(u, v, d), 1e-3), "{p:?}");

@@ -18,12 +18,7 @@ pub struct TriMesh {
 impl TriMesh {
     /// A mesh from positions and triangles, with vertex normals computed.
     pub fn new(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Self {
-        let mut mesh = Self {
-            positions,
-            triangles,
-            normals: Vec::new(),
-            colors: Vec::new(),
-        };
+        let mut mesh = Self { positions, triangles, normals: Vec::new(), colors: Vec::new() };
         mesh.compute_normals();
         mesh
     }
@@ -58,27 +53,16 @@ impl TriMesh {
     /// Axis-aligned bounds `(min, max)`; `None` for an empty mesh.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         let first = *self.positions.first()?;
-        Some(
-            self.positions
-                .iter()
-                .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
-        )
+        Some(self.positions.iter().fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))))
     }
 
     /// Checks that every vertex is finite and every index in range.
     pub fn validate(&self) -> Result<(), String> {
         if let Some(i) = self.positions.iter().position(|p| !p.is_finite()) {
-            return Err(format!(
-                "vertex {i} is not finite ({:?})",
-                self.positions[i]
-            ));
+            return Err(format!("vertex {i} is not finite ({:?})", self.positions[i]));
         }
         let n = self.positions.len() as u32;
-        if let Some(t) = self
-            .triangles
-            .iter()
-            .position(|t| t.iter().any(|&i| i >= n))
-        {
+        if let Some(t) = self.triangles.iter().position(|t| t.iter().any(|&i| i >= n)) {
             return Err(format!("triangle {t} indexes past the {n} vertices"));
         }
         Ok(())
@@ -91,15 +75,8 @@ impl TriMesh {
             let theta = std::f32::consts::PI * i as f32 / stacks as f32;
             for j in 0..slices {
                 let phi = std::f32::consts::TAU * j as f32 / slices as f32;
-                positions.push(
-                    center
-                        + radius
-                            * Vec3::new(
-                                theta.sin() * phi.sin(),
-                                theta.cos(),
-                                theta.sin() * phi.cos(),
-                            ),
-                );
+                positions
+                    .push(center + radius * Vec3::new(theta.sin() * phi.sin(), theta.cos(), theta.sin() * phi.cos()));
             }
         }
         let mut triangles = Vec::new();
@@ -123,11 +100,7 @@ impl TriMesh {
     /// An axis-aligned box (for tests and analytic checks), outward-facing.
     pub fn cuboid(min: Vec3, max: Vec3) -> Self {
         let c = |x: bool, y: bool, z: bool| {
-            Vec3::new(
-                if x { max.x } else { min.x },
-                if y { max.y } else { min.y },
-                if z { max.z } else { min.z },
-            )
+            Vec3::new(if x { max.x } else { min.x }, if y { max.y } else { min.y }, if z { max.z } else { min.z })
         };
         let positions = vec![
             c(false, false, false),
@@ -139,18 +112,8 @@ impl TriMesh {
             c(true, true, true),
             c(false, true, true),
         ];
-        let quads = [
-            [4, 5, 6, 7],
-            [1, 0, 3, 2],
-            [5, 1, 2, 6],
-            [0, 4, 7, 3],
-            [7, 6, 2, 3],
-            [0, 1, 5, 4],
-        ];
-        let triangles = quads
-            .iter()
-            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-            .collect();
+        let quads = [[4, 5, 6, 7], [1, 0, 3, 2], [5, 1, 2, 6], [0, 4, 7, 3], [7, 6, 2, 3], [0, 1, 5, 4]];
+        let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
         Self::new(positions, triangles)
     }
 
@@ -175,10 +138,7 @@ mod tests {
         let s = TriMesh::uv_sphere(Vec3::ZERO, 0.5, 32, 64);
         let v = s.signed_volume();
         let exact = 4.0 / 3.0 * std::f32::consts::PI * 0.125;
-        assert!(
-            v > 0.0 && (v - exact).abs() / exact < 0.02,
-            "{v} vs {exact}"
-        );
+        assert!(v > 0.0 && (v - exact).abs() / exact < 0.02, "{v} vs {exact}");
         let b = TriMesh::cuboid(Vec3::splat(-0.5), Vec3::new(0.5, 0.5, 0.25));
         assert!((b.signed_volume() - 0.75).abs() < 1e-5);
         // Outward normals: the top vertex of the sphere points up.
