@@ -9,7 +9,7 @@
 //! Layers (dependencies point downward only):
 //! - [`cli`]: command-line commands; no algorithm lives there.
 //! - [`app`]: live loops (desktop mirror, XR session, capture) that schedule the pipeline.
-//! - [`xr`], [`gpu`]: OpenXR client and the Vulkan renderer.
+//! - [`xr`], [`gpu`], [`window`]: OpenXR client, the Vulkan renderer and the desktop window.
 //! - [`pipeline`]: the stages as plain functions over images, with the CPU reference for each.
 //! - [`neural`], [`geometry`], [`compose`], [`io`], [`eval`], [`synth`], [`capture`]: the building blocks.
 //! - [`buffer`]: the 2-D image buffer every stage passes around.
@@ -26,4 +26,5 @@ pub mod io;
 pub mod neural;
 pub mod pipeline;
 pub mod synth;
+pub mod window;
 pub mod xr;

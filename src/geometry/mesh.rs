@@ -1,6 +1,6 @@
 //! Triangle meshes in body-cube coordinates.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 /// An indexed triangle mesh. Triangles are counter-clockwise seen from outside (outward normals).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -11,14 +11,17 @@ pub struct TriMesh {
     pub triangles: Vec<[u32; 3]>,
     /// Unit vertex normals (area-weighted face normals); empty until [`TriMesh::compute_normals`].
     pub normals: Vec<Vec3>,
-    /// Optional per-vertex linear RGB colour (for meshes that carry appearance, e.g. synthetic subjects).
+    /// Optional per-vertex linear RGB colour (for meshes that carry appearance); empty when absent.
     pub colors: Vec<Vec3>,
+    /// Optional per-vertex texture coordinates (glTF convention: origin top-left, v down); empty when absent.
+    /// Vertices on UV seams are duplicated so every vertex has one UV.
+    pub uvs: Vec<Vec2>,
 }
 
 impl TriMesh {
     /// A mesh from positions and triangles, with vertex normals computed.
     pub fn new(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Self {
-        let mut mesh = Self { positions, triangles, normals: Vec::new(), colors: Vec::new() };
+        let mut mesh = Self { positions, triangles, normals: Vec::new(), colors: Vec::new(), uvs: Vec::new() };
         mesh.compute_normals();
         mesh
     }

@@ -1,1 +1,6 @@
-//! File input and output: images (with atomic writes), environments, meshes.
+//! File input and output: images (with atomic writes), environments, meshes (glTF/OBJ) and `.npy` arrays.
+
+pub mod environment;
+pub mod image_io;
+pub mod mesh_io;
+pub mod npy;
