@@ -213,12 +213,7 @@ impl Fof {
 
     /// Encodes front/back depth maps: one interval `[back, front]` per pixel whose mask is above 0.5 (depth =
     /// body-cube z in `[-1, 1]`, clamped; pixels with `front <= back` stay empty).
-    pub fn from_depth_maps(
-        front: &GrayImage,
-        back: &GrayImage,
-        mask: &GrayImage,
-        n: usize,
-    ) -> Result<Self, FofError> {
+    pub fn from_depth_maps(front: &GrayImage, back: &GrayImage, mask: &GrayImage, n: usize) -> Result<Self, FofError> {
         check_order(n)?;
         check_size(mask.width, mask.height)?;
         for (what, img) in [("front depth map", front), ("back depth map", back)] {
@@ -373,70 +368,62 @@ pub fn intervals_from_mesh(mesh: &TriMesh, width: usize, height: usize) -> Image
             binned[band].push(ti as u32);
         }
     }
-    result.data.par_chunks_mut(BAND_ROWS * width).zip(binned.par_iter()).enumerate().for_each(
-        |(band, (out, tris))| {
-            let row0 = band * BAND_ROWS;
-            let rows = out.len() / width;
-            let mut hits: Vec<Hit> = Vec::new();
-            for &ti in tris {
-                let t = mesh.triangles[ti as usize];
-                let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-                let nz = (b - a).cross(c - a).z;
-                if nz == 0.0 || !nz.is_finite() {
-                    continue;
-                }
-                let entering = nz > 0.0;
-                // Counter-clockwise in (x, y) so the inside test is "all edge functions positive".
-                let (p0, mut p1, mut p2) = (a, b, c);
-                if nz < 0.0 {
-                    std::mem::swap(&mut p1, &mut p2);
-                }
-                let v = [[p0.x, p0.y], [p1.x, p1.y], [p2.x, p2.y]];
-                let (xmin, xmax) = (p0.x.min(p1.x).min(p2.x), p0.x.max(p1.x).max(p2.x));
-                let (ymin, ymax) = (p0.y.min(p1.y).min(p2.y), p0.y.max(p1.y).max(p2.y));
-                let col_lo = ((xmin + 1.0) * sx - 0.5).ceil().max(0.0) as usize;
-                let col_hi = ((xmax + 1.0) * sx - 0.5).floor().min(width as f32 - 1.0);
-                let r_lo = (((1.0 - ymax) * sy - 0.5).ceil().max(row0 as f32)) as usize;
-                let r_hi = ((1.0 - ymin) * sy - 0.5).floor().min((row0 + rows) as f32 - 1.0);
-                if col_hi < col_lo as f32 || r_hi < r_lo as f32 {
-                    continue;
-                }
-                let area = edge_fn(v[0], v[1], v[2]);
-                if area <= 0.0 {
-                    continue;
-                }
-                let owns = [owns_boundary(v[1], v[2]), owns_boundary(v[2], v[0]), owns_boundary(v[0], v[1])];
-                for row in r_lo..=r_hi as usize {
-                    let y = 1.0 - (row as f32 + 0.5) / sy;
-                    for col in col_lo..=col_hi as usize {
-                        let p = [(col as f32 + 0.5) / sx - 1.0, y];
-                        let w = [edge_fn(v[1], v[2], p), edge_fn(v[2], v[0], p), edge_fn(v[0], v[1], p)];
-                        let inside = (0..3).all(|e| w[e] > 0.0 || (w[e] == 0.0 && owns[e]));
-                        if !inside {
-                            continue;
-                        }
-                        let z = (w[0] * p0.z + w[1] * p1.z + w[2] * p2.z) / area;
-                        if !z.is_finite() {
-                            continue;
-                        }
-                        hits.push(Hit {
-                            pixel: ((row - row0) * width + col) as u32,
-                            z: z.clamp(-1.0, 1.0),
-                            entering,
-                        });
+    result.data.par_chunks_mut(BAND_ROWS * width).zip(binned.par_iter()).enumerate().for_each(|(band, (out, tris))| {
+        let row0 = band * BAND_ROWS;
+        let rows = out.len() / width;
+        let mut hits: Vec<Hit> = Vec::new();
+        for &ti in tris {
+            let t = mesh.triangles[ti as usize];
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let nz = (b - a).cross(c - a).z;
+            if nz == 0.0 || !nz.is_finite() {
+                continue;
+            }
+            let entering = nz > 0.0;
+            // Counter-clockwise in (x, y) so the inside test is "all edge functions positive".
+            let (p0, mut p1, mut p2) = (a, b, c);
+            if nz < 0.0 {
+                std::mem::swap(&mut p1, &mut p2);
+            }
+            let v = [[p0.x, p0.y], [p1.x, p1.y], [p2.x, p2.y]];
+            let (xmin, xmax) = (p0.x.min(p1.x).min(p2.x), p0.x.max(p1.x).max(p2.x));
+            let (ymin, ymax) = (p0.y.min(p1.y).min(p2.y), p0.y.max(p1.y).max(p2.y));
+            let col_lo = ((xmin + 1.0) * sx - 0.5).ceil().max(0.0) as usize;
+            let col_hi = ((xmax + 1.0) * sx - 0.5).floor().min(width as f32 - 1.0);
+            let r_lo = (((1.0 - ymax) * sy - 0.5).ceil().max(row0 as f32)) as usize;
+            let r_hi = ((1.0 - ymin) * sy - 0.5).floor().min((row0 + rows) as f32 - 1.0);
+            if col_hi < col_lo as f32 || r_hi < r_lo as f32 {
+                continue;
+            }
+            let area = edge_fn(v[0], v[1], v[2]);
+            if area <= 0.0 {
+                continue;
+            }
+            let owns = [owns_boundary(v[1], v[2]), owns_boundary(v[2], v[0]), owns_boundary(v[0], v[1])];
+            for row in r_lo..=r_hi as usize {
+                let y = 1.0 - (row as f32 + 0.5) / sy;
+                for col in col_lo..=col_hi as usize {
+                    let p = [(col as f32 + 0.5) / sx - 1.0, y];
+                    let w = [edge_fn(v[1], v[2], p), edge_fn(v[2], v[0], p), edge_fn(v[0], v[1], p)];
+                    let inside = (0..3).all(|e| w[e] > 0.0 || (w[e] == 0.0 && owns[e]));
+                    if !inside {
+                        continue;
                     }
+                    let z = (w[0] * p0.z + w[1] * p1.z + w[2] * p2.z) / area;
+                    if !z.is_finite() {
+                        continue;
+                    }
+                    hits.push(Hit { pixel: ((row - row0) * width + col) as u32, z: z.clamp(-1.0, 1.0), entering });
                 }
             }
-            // From the camera inward: z descending; at equal depth, leaving before entering so touching solids
-            // give two adjacent intervals.
-            hits.sort_unstable_by(|p, q| {
-                p.pixel.cmp(&q.pixel).then(q.z.total_cmp(&p.z)).then(p.entering.cmp(&q.entering))
-            });
-            for group in hits.chunk_by(|p, q| p.pixel == q.pixel) {
-                out[group[0].pixel as usize] = pair_hits(group);
-            }
-        },
-    );
+        }
+        // From the camera inward: z descending; at equal depth, leaving before entering so touching solids
+        // give two adjacent intervals.
+        hits.sort_unstable_by(|p, q| p.pixel.cmp(&q.pixel).then(q.z.total_cmp(&p.z)).then(p.entering.cmp(&q.entering)));
+        for group in hits.chunk_by(|p, q| p.pixel == q.pixel) {
+            out[group[0].pixel as usize] = pair_hits(group);
+        }
+    });
     result
 }
 
