@@ -748,4 +748,141 @@ mod tests {
         rasterize_into(&mut g, &small, &cam);
         assert_eq!(g, rasterize(&small, &cam));
     }
+
+    /// Ortho sphere: depth sqrt(r^2 - x^2 - y^2) and normal (x, y, z) / r, up to the tessellation error.
+    #[test]
+    fn sphere_depth_and_normals_are_closed_form() {
+        let r = 0.7;
+        let mesh = TriMesh::uv_sphere(Vec3::ZERO, r, 64, 128);
+        for cam in [Camera::source(128), Camera::orbit(123.0, 40.0, 128, 128)] {
+            let g = rasterize(&mesh, &cam);
+            let mut n = 0;
+            for row in 0..128 {
+                for col in 0..128 {
+                    let i = g.index(col, row);
+                    let ndc = cam.pixel_to_ndc(col as f32 + 0.5, row as f32 + 0.5);
+                    let rr = ndc.length_squared();
+                    if rr > (r * 0.97) * (r * 0.97) {
+                        continue;
+                    }
+                    assert!(g.mask[i]);
+                    let z = (r * r - rr).sqrt();
+                    assert!((g.depth[i] - z).abs() < 2e-3 * (r / z), "depth {} vs {z}", g.depth[i]);
+                    let expect = Vec3::new(ndc.x, ndc.y, z) / r;
+                    // The UV sphere's pole vertices each touch a single face: skip the two stacks around a pole.
+                    let world = cam.view_from_world.inverse().transform_vector3(expect);
+                    if world.y.abs() > (2.0 * std::f32::consts::PI / 64.0).cos() {
+                        continue;
+                    }
+                    assert!((g.normal[i] - expect).length() < 0.01, "{} vs {expect}", g.normal[i]);
+                    assert!((g.normal[i].length() - 1.0).abs() < 1e-5);
+                    n += 1;
+                }
+            }
+            assert!(n > 5000);
+            // Coverage area ~ pi r^2 in pixels.
+            let area = std::f32::consts::PI * r * r * 64.0 * 64.0;
+            assert!((g.coverage() as f32 - area).abs() / area < 0.01);
+        }
+    }
+
+    /// Perspective sphere: depth from the ray-sphere intersection.
+    #[test]
+    fn perspective_sphere_depth_matches_ray_intersection() {
+        let r = 0.6;
+        let mesh = TriMesh::uv_sphere(Vec3::ZERO, r, 64, 128);
+        let fov = Fov::symmetric(0.8, 1.0);
+        let cam = Camera::perspective(Vec3::new(0.3, 0.2, 2.5), Quat::from_rotation_y(0.1), fov, 0.05, 96, 96);
+        let g = rasterize(&mesh, &cam);
+        let eye = cam.position();
+        let mut n = 0;
+        for row in 0..96 {
+            for col in 0..96 {
+                let ray = cam.ray(col as f32 + 0.5, row as f32 + 0.5);
+                // |eye + t d|^2 = r^2
+                let b = eye.dot(ray.direction);
+                let c = eye.length_squared() - r * r;
+                let disc = b * b - c;
+                let i = g.index(col, row);
+                if disc < 0.02 {
+                    if disc < -0.02 {
+                        assert!(!g.mask[i]);
+                    }
+                    continue;
+                }
+                let t = -b - disc.sqrt();
+                let hit = eye + ray.direction * t;
+                let depth = cam.view_from_world.transform_point3(hit).z;
+                assert!(g.mask[i]);
+                assert!((g.depth[i] - depth).abs() < 4e-3, "{} vs {depth}", g.depth[i]);
+                let nv = cam.view_from_world.transform_vector3(hit / r);
+                assert!((g.normal[i] - nv).length() < 0.02);
+                n += 1;
+            }
+        }
+        assert!(n > 1000);
+    }
+
+    /// A box seen at yaw 45: two planar faces, depth a*sqrt(2) - |x| exactly (orthographic is linear).
+    #[test]
+    fn box_depth_is_exact_and_face_normals_without_vertex_normals() {
+        let a = 0.5;
+        let mut mesh = TriMesh::cuboid(Vec3::splat(-a), Vec3::splat(a));
+        mesh.normals.clear(); // face normals
+        let cam = Camera::orbit(45.0, 0.0, 64, 64);
+        let g = rasterize(&mesh, &cam);
+        let s2 = std::f32::consts::SQRT_2;
+        for row in 0..64 {
+            for col in 0..64 {
+                let ndc = cam.pixel_to_ndc(col as f32 + 0.5, row as f32 + 0.5);
+                let i = g.index(col, row);
+                let inside = ndc.x.abs() < a * s2 - 0.02 && ndc.y.abs() < a - 0.02;
+                let outside = ndc.x.abs() > a * s2 + 0.02 || ndc.y.abs() > a + 0.02;
+                if inside {
+                    assert!((g.depth[i] - (a * s2 - ndc.x.abs())).abs() < 2e-4, "{col},{row}: {} vs {}", g.depth[i], a * s2 - ndc.x.abs());
+                    // Left half shows the +z face (normal rotated to view: (-1,0,1)/sqrt2), right half +x.
+                    let expect = if ndc.x < -0.02 {
+                        Vec3::new(-1.0, 0.0, 1.0) / s2
+                    } else if ndc.x > 0.02 {
+                        Vec3::new(1.0, 0.0, 1.0) / s2
+                    } else {
+                        continue;
+                    };
+                    assert!((g.normal[i] - expect).length() < 1e-5, "{}", g.normal[i]);
+                }
+                if outside {
+                    assert!(!g.mask[i] && g.depth[i] == BACKGROUND_DEPTH);
+                }
+            }
+        }
+    }
+
+    /// A camera inside a box sees the inside faces (both-sided), clipped at the near plane without NaN.
+    #[test]
+    fn camera_inside_a_box_sees_every_pixel() {
+        let mesh = TriMesh::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let fov = Fov::symmetric(1.6, 1.0);
+        let cam = Camera::perspective(Vec3::new(0.2, -0.1, 0.3), Quat::from_rotation_x(0.4), fov, 0.01, 48, 48);
+        let g = rasterize(&mesh, &cam);
+        assert_eq!(g.coverage(), 48 * 48);
+        assert!(g.depth.iter().all(|d| d.is_finite() && *d < 0.0));
+        assert!(g.normal.iter().all(|n| (n.length() - 1.0).abs() < 1e-4));
+    }
+
+    /// Per-vertex colours are interpolated perspective-correctly.
+    #[test]
+    fn colours_are_interpolated() {
+        let cam = Camera::source(32);
+        let mut mesh = TriMesh::cuboid(Vec3::new(-0.8, -0.8, -0.1), Vec3::new(0.8, 0.8, 0.1));
+        mesh.colors = mesh.positions.iter().map(|p| Vec3::new(p.x * 0.5 + 0.5, p.y * 0.5 + 0.5, 0.25)).collect();
+        let g = rasterize(&mesh, &cam);
+        let c = g.color.as_ref().unwrap();
+        for row in 8..24 {
+            for col in 8..24 {
+                let ndc = cam.pixel_to_ndc(col as f32 + 0.5, row as f32 + 0.5);
+                let expect = Vec3::new(ndc.x * 0.5 + 0.5, ndc.y * 0.5 + 0.5, 0.25);
+                assert!((c[g.index(col, row)] - expect).length() < 1e-4, "{col},{row}: {} vs {expect}", c[g.index(col, row)]);
+            }
+        }
+    }
 }
