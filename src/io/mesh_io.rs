@@ -684,7 +684,15 @@ pub fn write_glb(path: &Path, mesh: &TexturedMesh) -> Result<(), MeshIoError> {
     crate::io::npy::write_atomic(path, &bytes).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })
 }
 
-/// Converts a linear RGB colour in `[0, 1]` to 8-bit sRGB.
+/// Converts a linear RGB colour in `[0, 1]` to 8-bit sRGB (through a 16k-entry table: at most one level off the
+/// exact curve).
 pub fn linear_to_srgb8(c: Vec3) -> [u8; 3] {
-    c.to_array().map(|v| (linear_to_srgb(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8)
+    const N: usize = 16384;
+    static LUT: std::sync::LazyLock<Vec<u8>> = std::sync::LazyLock::new(|| {
+        (0..N).map(|i| (linear_to_srgb(i as f32 / (N - 1) as f32) * 255.0 + 0.5) as u8).collect()
+    });
+    c.to_array().map(|v| {
+        let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+        LUT[(v * (N - 1) as f32 + 0.5) as usize]
+    })
 }

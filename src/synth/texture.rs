@@ -295,8 +295,10 @@ fn hash(mut x: u64) -> u64 {
 }
 
 fn hash3(seed: u64, i: i32, j: i32, k: i32) -> f32 {
-    let h = hash(seed ^ hash((i as u32 as u64) | ((j as u32 as u64) << 32)) ^ hash(k as u32 as u64 ^ 0x5555));
-    (h >> 40) as f32 / (1u64 << 24) as f32
+    let key = (i as u32 as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (j as u32 as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ (k as u32 as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
+    (hash(seed ^ key) >> 40) as f32 / (1u64 << 24) as f32
 }
 
 /// Smooth 3-D value noise in `[0, 1]`.
@@ -409,9 +411,11 @@ fn chest_text(seed: u64, p: Vec3, front: bool) -> bool {
 
 /// Colour of a texel given its rest position `p` (decimetres) and interpolated body-part weights.
 pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3 {
-    let skin = Vec3::from(a.skin) * (0.97 + 0.06 * value_noise(a.seed ^ 0x5c1, p * 6.0));
-    let hair =
-        Vec3::from(a.hair) * (0.85 + 0.3 * value_noise(a.seed ^ 0x4a1, Vec3::new(p.x * 30.0, p.y * 4.0, p.z * 30.0)));
+    // Evaluated lazily: noise is the expensive part of baking.
+    let skin = || Vec3::from(a.skin) * (0.97 + 0.06 * value_noise(a.seed ^ 0x5c1, p * 6.0));
+    let hair = || {
+        Vec3::from(a.hair) * (0.85 + 0.3 * value_noise(a.seed ^ 0x4a1, Vec3::new(p.x * 30.0, p.y * 4.0, p.z * 30.0)))
+    };
     let ax = p.x.abs();
     let top = |p: Vec3| {
         if a.chest_text && chest_text(a.seed, p, p.z > 0.6) {
@@ -441,13 +445,13 @@ pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3
             let line = if p.z > 0.6 { a.hairline } else { a.hairline + (p.z - 0.6) * 1.3 };
             let on_face = p.z > lm.eye.z - 0.6 && ax < 1.0;
             if p.y > line.max(6.2) && !(on_face && p.y < a.hairline) {
-                return hair;
+                return hair();
             }
             if on_face {
                 let d = Vec2::new(ax - lm.eye.x, p.y - lm.eye.y);
                 // Eyebrow, eye white and iris.
                 if (d.x / 0.3).powi(2) + ((d.y - 0.32) / 0.06).powi(2) < 1.0 {
-                    return hair * 0.9;
+                    return hair() * 0.9;
                 }
                 if (d.x / 0.2).powi(2) + (d.y / 0.09).powi(2) < 1.0 {
                     return if d.length() < 0.075 { Vec3::new(0.03, 0.025, 0.02) } else { Vec3::splat(0.8) };
@@ -458,9 +462,9 @@ pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3
                     return Vec3::from(a.skin) * Vec3::new(0.85, 0.45, 0.45);
                 }
             }
-            skin
+            skin()
         }
-        "neck" => skin,
+        "neck" => skin(),
         "torso" | "pelvis" => {
             if p.y < a.waist {
                 return bottom(p);
@@ -468,10 +472,10 @@ pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3
             // Neckline (crew, a little lower at the front) and, for tanks, bare shoulders.
             let neck = if p.z > 0.3 { 5.45 } else { 5.75 };
             if p.y > neck && ax < 1.6 {
-                return skin;
+                return skin();
             }
             if a.top == TopKind::Tank && ax > 1.0 && p.y > 4.4 {
-                return skin;
+                return skin();
             }
             top(p)
         }
@@ -485,10 +489,10 @@ pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3
             if t < sleeve {
                 top(p)
             } else {
-                skin
+                skin()
             }
         }
-        "hand" => skin,
+        "hand" => skin(),
         "thigh" | "shin" => {
             if p.y < lm.ankle.y + 0.35 {
                 return if p.y < lm.ankle.y - 0.55 { Vec3::from(a.soles) } else { Vec3::from(a.shoes) };
@@ -496,7 +500,7 @@ pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3
             if p.y >= a.hem {
                 bottom(p)
             } else {
-                skin
+                skin()
             }
         }
         _ => {
@@ -558,29 +562,39 @@ pub fn bake(base: &BaseMesh, parts: &[[f32; 10]], lm: &Landmarks, a: &Appearance
         })
         .collect();
     // Dilate into the gutters so bilinear and mip lookups at UV seams never see the empty background.
+    let mut empty: Vec<usize> = (0..colors.len()).filter(|&i| colors[i].is_none()).collect();
     for _ in 0..4 {
-        let prev = colors.clone();
-        for y in 0..size {
-            for x in 0..size {
-                if prev[y * size + x].is_some() {
-                    continue;
-                }
+        let fills: Vec<Option<Vec3>> = empty
+            .iter()
+            .map(|&i| {
+                let (x, y) = (i % size, i / size);
                 let mut acc = Vec3::ZERO;
                 let mut n = 0;
-                for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
-                    let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-                    if nx >= 0 && ny >= 0 && (nx as usize) < size && (ny as usize) < size {
-                        if let Some(c) = prev[ny as usize * size + nx as usize] {
-                            acc += c;
-                            n += 1;
-                        }
+                let mut add = |j: usize| {
+                    if let Some(c) = colors[j] {
+                        acc += c;
+                        n += 1;
                     }
+                };
+                if x > 0 {
+                    add(i - 1);
                 }
-                if n > 0 {
-                    colors[y * size + x] = Some(acc / n as f32);
+                if x + 1 < size {
+                    add(i + 1);
                 }
-            }
+                if y > 0 {
+                    add(i - size);
+                }
+                if y + 1 < size {
+                    add(i + size);
+                }
+                (n > 0).then(|| acc / n as f32)
+            })
+            .collect();
+        for (&i, f) in empty.iter().zip(&fills) {
+            colors[i] = *f;
         }
+        empty.retain(|&i| colors[i].is_none());
     }
     let fill = Vec3::from(a.skin);
     let raw: Vec<u8> = colors.iter().flat_map(|c| linear_to_srgb8(c.unwrap_or(fill))).collect();
