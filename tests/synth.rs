@@ -210,3 +210,156 @@ fn rig_rejects_unknown_bones_and_bad_indices() {
     let rig = rig.replace("99999", "0");
     assert!(Rig::from_json(&rig, r#"{"weights": {"nope": [[0, 1.0]]}}"#, &base, p, p).is_err());
 }
+
+mod dataset {
+    use super::*;
+    use r2human::eval::dataset::{write_dataset, DatasetOptions};
+    use r2human::eval::EvalError;
+    use r2human::geometry::camera::Camera;
+    use r2human::io::npy::{NpyArray, NpyData};
+    use std::path::Path;
+
+    fn opts(out: &Path, subjects: usize) -> DatasetOptions {
+        DatasetOptions {
+            subjects,
+            seed: 11,
+            out: out.to_path_buf(),
+            views: 2,
+            size: 64,
+            fof_n: 8,
+            texture_size: 128,
+            progress: false,
+        }
+    }
+
+    fn f32s(p: &Path) -> (Vec<usize>, Vec<f32>) {
+        let a = NpyArray::read(p).unwrap();
+        match a.data {
+            NpyData::F32(v) => (a.shape, v),
+            other => panic!("{p:?}: not f32: {other:?}"),
+        }
+    }
+
+    fn no_partial_files(dir: &Path) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let name = e.unwrap().file_name().to_string_lossy().into_owned();
+            assert!(!name.starts_with('.'), "leftover {name}");
+        }
+    }
+
+    #[test]
+    fn dataset_layout_conventions_and_cross_view_consistency() {
+        let dir = tempfile::tempdir().unwrap();
+        let summary = write_dataset(&opts(dir.path(), 2)).unwrap();
+        assert_eq!(summary.written, vec!["subject_0000", "subject_0001"]);
+        no_partial_files(dir.path());
+        let manifest: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("dataset.json")).unwrap()).unwrap();
+        assert_eq!(manifest["format"], "r2human-dataset");
+        assert_eq!(manifest["resolution"], 64);
+        assert_eq!(manifest["fof_n"], 8);
+        assert_eq!(manifest["views_per_subject"], 2);
+        let s = dir.path().join("subject_0001");
+        let (shape, depth) = f32s(&s.join("source_depth.npy"));
+        assert_eq!(shape, vec![64, 64]);
+        let (shape, normal) = f32s(&s.join("source_normal.npy"));
+        assert_eq!(shape, vec![64, 64, 3]);
+        let (shape, fof) = f32s(&s.join("fof.npy"));
+        assert_eq!(shape, vec![64, 64, 8]);
+        let rgba = image::open(s.join("source_rgba.png")).unwrap().to_rgba8();
+        let mut covered = 0;
+        let mut fof_agree = 0;
+        for i in 0..64 * 64 {
+            let a = rgba.as_raw()[4 * i + 3];
+            let bg = depth[i] == -1.0;
+            assert_eq!(a == 0, bg, "alpha and depth disagree at {i}");
+            let n = Vec3::from_slice(&normal[3 * i..3 * i + 3]);
+            if bg {
+                assert_eq!(n, Vec3::ZERO);
+            } else {
+                covered += 1;
+                assert!((n.length() - 1.0).abs() < 1e-4 && (-1.0..=1.0).contains(&depth[i]));
+            }
+            // c_0 is the occupied length along the ray: positive exactly where the source view sees the body.
+            fof_agree += ((fof[8 * i] > 1e-4) == !bg) as usize;
+        }
+        assert!(covered > 200, "{covered} covered pixels");
+        assert!(fof_agree >= 64 * 64 - 8, "FOF and mask disagree on {} pixels", 64 * 64 - fof_agree);
+        // A surface point seen in a target view and in the source view has the same colour in both.
+        let cam_json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(s.join("views/view_01/camera.json")).unwrap()).unwrap();
+        let cam = Camera::orbit(
+            cam_json["yaw_deg"].as_f64().unwrap() as f32,
+            cam_json["pitch_deg"].as_f64().unwrap() as f32,
+            64,
+            64,
+        );
+        let m = glam::Mat4::from(cam.view_from_world);
+        for r in 0..4 {
+            let row: Vec<f32> =
+                cam_json["view_from_world"][r].as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
+            assert!((glam::Vec4::from_slice(&row) - m.row(r)).abs().max_element() < 1e-6);
+        }
+        let (_, vdepth) = f32s(&s.join("views/view_01/depth.npy"));
+        let vrgba = image::open(s.join("views/view_01/rgba.png")).unwrap().to_rgba8();
+        let src = Camera::source(64);
+        let mut diffs = Vec::new();
+        for row in 0..64 {
+            for col in 0..64 {
+                let i = row * 64 + col;
+                if vdepth[i] == -1.0 {
+                    continue;
+                }
+                let w = cam.unproject(col as f32 + 0.5, row as f32 + 0.5, vdepth[i]);
+                let p = src.project(w).unwrap();
+                let (c, r) = (p.x.floor() as usize, p.y.floor() as usize);
+                if c >= 64 || r >= 64 {
+                    continue;
+                }
+                let j = r * 64 + c;
+                if depth[j] == -1.0 || (depth[j] - p.z).abs() > 0.01 {
+                    continue; // occluded in the source
+                }
+                let a = vrgba.get_pixel(col as u32, row as u32);
+                let b = rgba.get_pixel(c as u32, r as u32);
+                diffs.push((0..3).map(|k| (a[k] as i32 - b[k] as i32).abs()).max().unwrap());
+            }
+        }
+        diffs.sort();
+        assert!(diffs.len() > 20, "{} shared points", diffs.len());
+        let median = diffs[diffs.len() / 2];
+        assert!(median <= 12, "median colour difference {median} of 255 across views");
+    }
+
+    #[test]
+    fn dataset_is_reproducible_and_failures_leave_nothing() {
+        let a = tempfile::tempdir().unwrap();
+        let b = tempfile::tempdir().unwrap();
+        write_dataset(&DatasetOptions { views: 1, ..opts(a.path(), 1) }).unwrap();
+        // In b, subject_0000's destination is a file that cannot be replaced by a folder: that subject fails,
+        // the other is written, and no temporary folder is left behind.
+        std::fs::write(b.path().join("subject_0000"), b"in the way").unwrap();
+        std::fs::create_dir(b.path().join("subject_0000.keep")).unwrap();
+        let summary = write_dataset(&DatasetOptions { views: 1, ..opts(b.path(), 2) }).unwrap();
+        assert_eq!(summary.written, vec!["subject_0001"]);
+        assert_eq!(summary.failed.len(), 1);
+        assert!(summary.failed[0].1.contains("subject_0000"), "{:?}", summary.failed);
+        no_partial_files(b.path());
+        for f in ["source_rgba.png", "fof.npy", "mesh.glb", "subject.json", "views/view_00/rgba.png"] {
+            assert!(a.path().join("subject_0000").join(f).is_file(), "{f}");
+        }
+        // Same seed, same bytes.
+        let c = tempfile::tempdir().unwrap();
+        write_dataset(&DatasetOptions { views: 1, ..opts(c.path(), 1) }).unwrap();
+        for f in ["source_rgba.png", "fof.npy", "views/view_00/depth.npy", "mesh.glb"] {
+            let x = std::fs::read(a.path().join("subject_0000").join(f)).unwrap();
+            let y = std::fs::read(c.path().join("subject_0000").join(f)).unwrap();
+            assert!(x == y, "{f} differs between runs");
+        }
+        assert!(matches!(write_dataset(&opts(a.path(), 0)), Err(EvalError::InvalidOptions(_))));
+        assert!(matches!(
+            write_dataset(&DatasetOptions { size: 4, ..opts(a.path(), 1) }),
+            Err(EvalError::InvalidOptions(_))
+        ));
+    }
+}

@@ -100,11 +100,19 @@ impl NpyArray {
         out.extend_from_slice(dict.as_bytes());
         out.extend(std::iter::repeat_n(b' ', pad));
         out.push(b'\n');
+        // Fixed-size element copies into a pre-sized buffer (much faster than byte-wise pushes).
+        fn put<const K: usize, T: Copy>(out: &mut Vec<u8>, v: &[T], f: impl Fn(T) -> [u8; K]) {
+            let start = out.len();
+            out.resize(start + v.len() * K, 0);
+            for (dst, &x) in out[start..].chunks_exact_mut(K).zip(v) {
+                dst.copy_from_slice(&f(x));
+            }
+        }
         match &self.data {
-            NpyData::F32(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
+            NpyData::F32(v) => put(&mut out, v, f32::to_le_bytes),
             NpyData::U8(v) => out.extend_from_slice(v),
-            NpyData::I16(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
-            NpyData::U16(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes())),
+            NpyData::I16(v) => put(&mut out, v, i16::to_le_bytes),
+            NpyData::U16(v) => put(&mut out, v, u16::to_le_bytes),
         }
         out
     }
@@ -194,10 +202,23 @@ fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
 /// half-written file and a failure leaves nothing behind.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut tmp = tempfile::NamedTempFile::new_in(dir)?;
+    let mut tmp = tempfile::Builder::new().prefix(".r2human-").suffix(".part").tempfile_in(dir)?;
     tmp.write_all(bytes)?;
+    set_readable(tmp.as_file())?;
     tmp.as_file().sync_data().ok();
     tmp.persist(path).map_err(|e| e.error)?;
+    Ok(())
+}
+
+/// Gives a file the usual `rw-r--r--` permissions (temporary files are created owner-only).
+pub fn set_readable(file: &std::fs::File) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        file.set_permissions(std::fs::Permissions::from_mode(0o644))?;
+    }
+    #[cfg(not(unix))]
+    let _ = file;
     Ok(())
 }
 
