@@ -4,7 +4,10 @@
 //! [`extract_mesh`] produces the same kind of surface while touching far less:
 //! - columns whose occupancy provably stays below 0.5 ([`Fof::is_empty_column`]) are never decoded unless a
 //!   neighbour needs them;
-//! - columns are decoded with a precomputed [`CosineTable`] (an axpy per coefficient, vectorised);
+//! - columns are decoded with a precomputed [`CosineTable`] (an axpy per coefficient, vectorised), and
+//!   lazily: only every 8th depth sample is decoded up front; a span between two such samples whose ends
+//!   clear the 0.5 level by more than a proven interpolation-error bound is classified without decoding, and
+//!   its values are decoded later only if a surface cell needs them;
 //! - per column the inside/outside state of every depth sample is packed into bit sets, so a 2x2 group of
 //!   columns finds its surface-crossing cells with a few word operations and only those cells are visited;
 //! - vertices are shared (one per crossed grid edge) through per-row edge caches, and row slabs run in
@@ -445,8 +448,11 @@ impl Extractor<'_> {
 }
 
 /// Extracts the `occ = 0.5` surface of `fof` with `depth_samples` samples per ray (512 like the reference;
-/// clamped to `2..=`[`MAX_DEPTH_SAMPLES`]). Returns an empty mesh for an empty field or a grid smaller than
-/// 2x2. Vertices are shared, in body-cube coordinates, with area-weighted vertex normals.
+/// clamped to `2..=`[`MAX_DEPTH_SAMPLES`]). Returns an empty mesh for an empty field, a grid smaller than
+/// 2x2 or a coefficient buffer whose length is not `n * width * height`. Vertices are shared, in body-cube
+/// coordinates, with area-weighted vertex normals; the output is identical (same vertices and triangles, up
+/// to order) to [`extract_mesh_dense`]. Non-finite decoded values count as outside and never produce a
+/// non-finite vertex.
 pub fn extract_mesh(fof: &Fof, depth_samples: usize) -> TriMesh {
     let (w, h) = (fof.width, fof.height);
     if w < 2 || h < 2 || fof.n == 0 || fof.coeffs.len() != fof.n * w * h {
