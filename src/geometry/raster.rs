@@ -217,7 +217,7 @@ impl FastCamera {
     #[inline]
     pub fn project_view(&self, p: Vec3) -> Option<Vec3> {
         let w = if self.ortho { 1.0 } else { -p.z };
-        if !self.ortho && !(w >= self.near) {
+        if !self.ortho && (w.is_nan() || w < self.near) {
             return None;
         }
         let inv = 1.0 / w;
@@ -307,7 +307,7 @@ impl FastCamera {
         code
     }
 
-    fn to_screen(&self, c: &ClipVertex) -> ScreenVertex {
+    fn screen_of(&self, c: &ClipVertex) -> ScreenVertex {
         let iw = 1.0 / c.w;
         let (nx, ny) = (c.cx * iw, c.cy * iw);
         let hw = self.width as f32 * 0.5;
@@ -403,7 +403,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             *c = fc.clip_vertex(p);
             *oc = fc.outcode(c, guard);
             if *oc == 0 {
-                *sv = fc.to_screen(c);
+                *sv = fc.screen_of(c);
             }
         });
 
@@ -450,7 +450,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
         clip_polygon(fc, [s.clip[i0], s.clip[i1], s.clip[i2]], guard, &mut poly);
         for k in 1..poly.len().saturating_sub(1) {
             let fan = [poly[0], poly[k], poly[k + 1]];
-            let v = fan.map(|p| fc.to_screen(&p.c));
+            let v = fan.map(|p| fc.screen_of(&p.c));
             if v.iter().any(|v| !(v.u.is_finite() && v.v.is_finite() && v.iw.is_finite() && v.iw > 0.0)) {
                 continue;
             }
@@ -839,7 +839,12 @@ mod tests {
                 let inside = ndc.x.abs() < a * s2 - 0.02 && ndc.y.abs() < a - 0.02;
                 let outside = ndc.x.abs() > a * s2 + 0.02 || ndc.y.abs() > a + 0.02;
                 if inside {
-                    assert!((g.depth[i] - (a * s2 - ndc.x.abs())).abs() < 2e-4, "{col},{row}: {} vs {}", g.depth[i], a * s2 - ndc.x.abs());
+                    assert!(
+                        (g.depth[i] - (a * s2 - ndc.x.abs())).abs() < 2e-4,
+                        "{col},{row}: {} vs {}",
+                        g.depth[i],
+                        a * s2 - ndc.x.abs()
+                    );
                     // Left half shows the +z face (normal rotated to view: (-1,0,1)/sqrt2), right half +x.
                     let expect = if ndc.x < -0.02 {
                         Vec3::new(-1.0, 0.0, 1.0) / s2
@@ -881,7 +886,11 @@ mod tests {
             for col in 8..24 {
                 let ndc = cam.pixel_to_ndc(col as f32 + 0.5, row as f32 + 0.5);
                 let expect = Vec3::new(ndc.x * 0.5 + 0.5, ndc.y * 0.5 + 0.5, 0.25);
-                assert!((c[g.index(col, row)] - expect).length() < 1e-4, "{col},{row}: {} vs {expect}", c[g.index(col, row)]);
+                assert!(
+                    (c[g.index(col, row)] - expect).length() < 1e-4,
+                    "{col},{row}: {} vs {expect}",
+                    c[g.index(col, row)]
+                );
             }
         }
     }
