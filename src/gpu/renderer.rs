@@ -1,0 +1,1069 @@
+//! The per-view passes on the GPU, behind the CPU reference's data contracts.
+//!
+//! One [`Renderer`] owns every buffer, image and pipeline for one output size. Inputs that change rarely (mesh,
+//! source photo, panorama, encoder features) are uploaded by `set_*` calls; a frame then only writes the
+//! cameras into a uniform buffer, records one command buffer and waits on one fence. Per-pixel data lives in
+//! host-visible storage buffers (device-local where the device allows), which is also the seam to the neural
+//! decoder: its inputs and outputs are plain memory copies from and to these buffers.
+//!
+//! Data layout (all row-major, row 0 at the top, linear light):
+//! - target geometry: `vec4(view normal, view depth)`; target colour: `vec4(vertex colour, coverage)`;
+//! - flow: `vec4(source u, source v, Z-map z_src, visibility 0/1)`;
+//! - person layers: premultiplied `vec4` RGBA; output: `vec4` (VR: RGB and 1, AR: premultiplied RGBA).
+
+use std::sync::Arc;
+
+use ash::vk;
+use glam::{Mat4, Vec3, Vec4};
+
+use super::resources::{shader_module, subresource, Buffer, Image2d};
+use super::{shaders, Context, GpuError};
+use crate::buffer::{Image, RgbImage, RgbaImage};
+use crate::compose::{background_camera, Mode};
+use crate::geometry::raster::{GBuffer, BACKGROUND_DEPTH};
+use crate::geometry::{Camera, Projection, TriMesh};
+use crate::io::environment::Environment;
+
+const GEOMETRY_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+const WORKGROUP: u32 = 8;
+
+/// Binding numbers of descriptor set 0 (must match `shaders/*.comp`).
+mod binding {
+    pub const FRAME: u32 = 0;
+    pub const GEOMETRY: u32 = 1;
+    pub const COLOR: u32 = 2;
+    pub const FLOW: u32 = 3;
+    pub const PERSON: u32 = 4;
+    pub const PREV_PERSON: u32 = 5;
+    pub const PREV_GEOMETRY: u32 = 6;
+    pub const SOURCE_COLOR: u32 = 7;
+    pub const SOURCE_GEOMETRY: u32 = 8;
+    pub const ENV: u32 = 9;
+    pub const OUT: u32 = 10;
+    pub const SOURCE_FEATURES: u32 = 11;
+    pub const WARPED_FEATURES: u32 = 12;
+    pub const ENCODED: u32 = 13;
+    pub const CURRENT: u32 = 14;
+    pub const COUNT: u32 = 15;
+}
+
+/// One camera as the shaders see it (std140 layout, see `shaders/common.glsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Default)]
+struct GpuCamera {
+    view_from_world: [f32; 16],
+    world_from_view: [f32; 16],
+    proj: [f32; 4],
+    info: [f32; 4],
+}
+
+/// The per-frame uniform block (std140, see `shaders/common.glsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Default)]
+struct FrameUniforms {
+    target: GpuCamera,
+    source: GpuCamera,
+    viewer: GpuCamera,
+    previous: GpuCamera,
+    params: [f32; 4],
+    sizes: [u32; 4],
+    flags: [u32; 4],
+    output_format: [u32; 4],
+}
+
+fn gpu_camera(camera: &Camera, bounds: Option<(Vec3, Vec3)>) -> GpuCamera {
+    let view_from_world = Mat4::from(camera.view_from_world);
+    let world_from_view = Mat4::from(camera.view_from_world.inverse());
+    let (proj, kind, near) = match camera.projection {
+        Projection::Orthographic { half_width, half_height } => {
+            // Depth range of the mesh in this view: the whole mesh is rendered, in front of and behind the view
+            // plane (as the CPU rasteriser does), so the depth mapping spans its bounds with a margin.
+            let (mut zmin, mut zmax) = (-2.0f32, 2.0f32);
+            if let Some((lo, hi)) = bounds {
+                zmin = f32::INFINITY;
+                zmax = f32::NEG_INFINITY;
+                for i in 0..8 {
+                    let c = Vec3::new(
+                        if i & 1 == 0 { lo.x } else { hi.x },
+                        if i & 2 == 0 { lo.y } else { hi.y },
+                        if i & 4 == 0 { lo.z } else { hi.z },
+                    );
+                    let z = camera.view_from_world.transform_point3(c).z;
+                    zmin = zmin.min(z);
+                    zmax = zmax.max(z);
+                }
+                let pad = 0.01 * (zmax - zmin) + 1e-3;
+                zmin -= pad;
+                zmax += pad;
+            }
+            ([half_width, half_height, zmin, zmax], 0.0, 0.0)
+        }
+        Projection::Perspective { fov, near } => (
+            [fov.angle_left.tan(), fov.angle_right.tan(), fov.angle_up.tan(), fov.angle_down.tan()],
+            1.0,
+            near,
+        ),
+    };
+    GpuCamera {
+        view_from_world: view_from_world.to_cols_array(),
+        world_from_view: world_from_view.to_cols_array(),
+        proj,
+        info: [kind, camera.width as f32, camera.height as f32, near],
+    }
+}
+
+/// Compute passes (index into the pipeline table).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pass {
+    Panorama = 0,
+    Ar = 1,
+    Encode = 2,
+}
+
+const PASS_SHADERS: [&[u8]; 3] = [shaders::PANORAMA, shaders::AR, shaders::ENCODE];
+
+/// The mesh on the device (uploaded once per mesh).
+struct GpuMesh {
+    positions: Buffer,
+    normals: Buffer,
+    colors: Buffer,
+    indices: Buffer,
+    index_count: u32,
+    bounds: (Vec3, Vec3),
+    has_colors: bool,
+}
+
+/// Where a frame goes after rendering, for the window: the encoded sRGB output is copied into `image`
+/// (a swapchain image of the renderer's size) after waiting on `wait`, and `signal` is signalled.
+#[derive(Clone, Copy, Debug)]
+pub struct PresentTarget {
+    /// The swapchain image (usage TRANSFER_DST).
+    pub image: vk::Image,
+    /// Signalled when the image is acquired.
+    pub wait: vk::Semaphore,
+    /// Signalled when the copy is done (the present waits on it).
+    pub signal: vk::Semaphore,
+    /// Pack BGRA instead of RGBA (swapchain format `B8G8R8A8_*`).
+    pub bgra: bool,
+}
+
+/// A finished frame read back to the host.
+#[derive(Clone, Debug)]
+pub enum FrameOutput {
+    /// VR: linear RGB over the panorama.
+    Vr(RgbImage),
+    /// AR: premultiplied linear RGBA.
+    Ar(RgbaImage),
+}
+
+/// The Vulkan per-view renderer for one output size. See the module docs.
+pub struct Renderer {
+    ctx: Arc<Context>,
+    width: u32,
+    height: u32,
+    // Raster pass.
+    render_pass: vk::RenderPass,
+    framebuffer: vk::Framebuffer,
+    geometry_image: Image2d,
+    color_image: Image2d,
+    depth_image: Image2d,
+    raster_pipeline: vk::Pipeline,
+    // Compute passes.
+    set_layout: vk::DescriptorSetLayout,
+    pipeline_layout: vk::PipelineLayout,
+    descriptor_pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
+    pipelines: Vec<vk::Pipeline>,
+    // Buffers.
+    frame: Buffer,
+    geometry: Buffer,
+    color: Buffer,
+    flow: Buffer,
+    person: Buffer,
+    prev_person: Buffer,
+    prev_geometry: Buffer,
+    source_color: Buffer,
+    source_geometry: Buffer,
+    env: Buffer,
+    out: Buffer,
+    source_features: Buffer,
+    warped_features: Buffer,
+    encoded: Buffer,
+    current: Buffer,
+    // Inputs.
+    mesh: Option<GpuMesh>,
+    env_size: (u32, u32),
+    env_yaw: f32,
+    uniforms: FrameUniforms,
+    // Submission.
+    command_pool: vk::CommandPool,
+    command_buffer: vk::CommandBuffer,
+    fence: vk::Fence,
+}
+
+impl std::fmt::Debug for Renderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Renderer").field("width", &self.width).field("height", &self.height).finish()
+    }
+}
+
+fn storage(ctx: &Arc<Context>, bytes: u64) -> Result<Buffer, GpuError> {
+    Buffer::new(
+        ctx,
+        bytes,
+        vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC,
+    )
+}
+
+impl Renderer {
+    /// Creates the renderer for `width x height` outputs: all pipelines, images and per-pixel buffers.
+    pub fn new(ctx: Arc<Context>, width: usize, height: usize) -> Result<Self, GpuError> {
+        if width == 0 || height == 0 || width > 8192 || height > 8192 {
+            return Err(GpuError::Invalid(format!("output size {width}x{height} must be between 1 and 8192")));
+        }
+        let (w, h) = (width as u32, height as u32);
+        let px = u64::from(w) * u64::from(h);
+        let device = ctx.device().clone();
+        let depth_format = pick_depth_format(&ctx)?;
+        let extent = vk::Extent2D { width: w, height: h };
+        let attachment_usage = vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC;
+        let geometry_image = Image2d::new(&ctx, extent, GEOMETRY_FORMAT, attachment_usage, vk::ImageAspectFlags::COLOR)?;
+        let color_image = Image2d::new(&ctx, extent, GEOMETRY_FORMAT, attachment_usage, vk::ImageAspectFlags::COLOR)?;
+        let depth_image = Image2d::new(
+            &ctx,
+            extent,
+            depth_format,
+            vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT,
+            vk::ImageAspectFlags::DEPTH,
+        )?;
+
+        // Everything below is destroyed by Drop once `Self` exists; build it in one go and assemble.
+        let render_pass = create_render_pass(&device, depth_format)?;
+        let views = [geometry_image.view, color_image.view, depth_image.view];
+        let fb_info = vk::FramebufferCreateInfo::default()
+            .render_pass(render_pass)
+            .attachments(&views)
+            .width(w)
+            .height(h)
+            .layers(1);
+        let framebuffer =
+            unsafe { device.create_framebuffer(&fb_info, None) }.map_err(GpuError::vk("create a framebuffer"))?;
+
+        let mut bindings = Vec::new();
+        for b in 0..binding::COUNT {
+            let (ty, stages) = if b == binding::FRAME {
+                (vk::DescriptorType::UNIFORM_BUFFER, vk::ShaderStageFlags::COMPUTE | vk::ShaderStageFlags::VERTEX)
+            } else {
+                (vk::DescriptorType::STORAGE_BUFFER, vk::ShaderStageFlags::COMPUTE)
+            };
+            bindings.push(
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b)
+                    .descriptor_type(ty)
+                    .descriptor_count(1)
+                    .stage_flags(stages),
+            );
+        }
+        let set_layout = unsafe {
+            device.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
+        }
+        .map_err(GpuError::vk("create the descriptor set layout"))?;
+        let layouts = [set_layout];
+        let pipeline_layout = unsafe {
+            device.create_pipeline_layout(&vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts), None)
+        }
+        .map_err(GpuError::vk("create the pipeline layout"))?;
+        let pool_sizes = [
+            vk::DescriptorPoolSize { ty: vk::DescriptorType::UNIFORM_BUFFER, descriptor_count: 1 },
+            vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: binding::COUNT - 1 },
+        ];
+        let descriptor_pool = unsafe {
+            device.create_descriptor_pool(
+                &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes),
+                None,
+            )
+        }
+        .map_err(GpuError::vk("create the descriptor pool"))?;
+        let set = unsafe {
+            device.allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default().descriptor_pool(descriptor_pool).set_layouts(&layouts),
+            )
+        }
+        .map_err(GpuError::vk("allocate the descriptor set"))?[0];
+
+        let raster_pipeline = create_raster_pipeline(&ctx, render_pass, pipeline_layout)?;
+        let mut pipelines = Vec::new();
+        for spv in PASS_SHADERS {
+            pipelines.push(create_compute_pipeline(&ctx, pipeline_layout, spv)?);
+        }
+
+        let command_pool = unsafe {
+            device.create_command_pool(
+                &vk::CommandPoolCreateInfo::default()
+                    .queue_family_index(ctx.queue_family())
+                    .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+                None,
+            )
+        }
+        .map_err(GpuError::vk("create a command pool"))?;
+        let command_buffer = unsafe {
+            device.allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(command_pool)
+                    .level(vk::CommandBufferLevel::PRIMARY)
+                    .command_buffer_count(1),
+            )
+        }
+        .map_err(GpuError::vk("allocate a command buffer"))?[0];
+        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
+            .map_err(GpuError::vk("create a fence"))?;
+
+        let v4 = px * 16;
+        let frame = Buffer::new(&ctx, std::mem::size_of::<FrameUniforms>() as u64, vk::BufferUsageFlags::UNIFORM_BUFFER)?;
+        let mut renderer = Self {
+            width: w,
+            height: h,
+            render_pass,
+            framebuffer,
+            geometry_image,
+            color_image,
+            depth_image,
+            raster_pipeline,
+            set_layout,
+            pipeline_layout,
+            descriptor_pool,
+            set,
+            pipelines,
+            frame,
+            geometry: storage(&ctx, v4)?,
+            color: storage(&ctx, v4)?,
+            flow: storage(&ctx, v4)?,
+            person: storage(&ctx, v4)?,
+            prev_person: storage(&ctx, v4)?,
+            prev_geometry: storage(&ctx, v4)?,
+            source_color: storage(&ctx, 16)?,
+            source_geometry: storage(&ctx, 16)?,
+            env: storage(&ctx, 16)?,
+            out: storage(&ctx, v4)?,
+            source_features: storage(&ctx, 16)?,
+            warped_features: storage(&ctx, 16)?,
+            encoded: storage(&ctx, px * 4)?,
+            current: storage(&ctx, v4)?,
+            mesh: None,
+            env_size: (0, 0),
+            env_yaw: 0.0,
+            uniforms: FrameUniforms::default(),
+            command_pool,
+            command_buffer,
+            fence,
+            ctx,
+        };
+        renderer.write_all_descriptors();
+        Ok(renderer)
+    }
+
+    /// The output size `(width, height)`.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width as usize, self.height as usize)
+    }
+
+    /// The device this renderer runs on.
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+
+    fn write_all_descriptors(&mut self) {
+        let buffers: [(u32, &Buffer); binding::COUNT as usize] = [
+            (binding::FRAME, &self.frame),
+            (binding::GEOMETRY, &self.geometry),
+            (binding::COLOR, &self.color),
+            (binding::FLOW, &self.flow),
+            (binding::PERSON, &self.person),
+            (binding::PREV_PERSON, &self.prev_person),
+            (binding::PREV_GEOMETRY, &self.prev_geometry),
+            (binding::SOURCE_COLOR, &self.source_color),
+            (binding::SOURCE_GEOMETRY, &self.source_geometry),
+            (binding::ENV, &self.env),
+            (binding::OUT, &self.out),
+            (binding::SOURCE_FEATURES, &self.source_features),
+            (binding::WARPED_FEATURES, &self.warped_features),
+            (binding::ENCODED, &self.encoded),
+            (binding::CURRENT, &self.current),
+        ];
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+            .iter()
+            .map(|(_, b)| [vk::DescriptorBufferInfo { buffer: b.buffer, offset: 0, range: vk::WHOLE_SIZE }])
+            .collect();
+        let writes: Vec<vk::WriteDescriptorSet> = buffers
+            .iter()
+            .zip(&infos)
+            .map(|((b, _), info)| {
+                vk::WriteDescriptorSet::default()
+                    .dst_set(self.set)
+                    .dst_binding(*b)
+                    .descriptor_type(if *b == binding::FRAME {
+                        vk::DescriptorType::UNIFORM_BUFFER
+                    } else {
+                        vk::DescriptorType::STORAGE_BUFFER
+                    })
+                    .buffer_info(info)
+            })
+            .collect();
+        // SAFETY: no submission is in flight (every frame waits on its fence before returning).
+        unsafe { self.ctx.device().update_descriptor_sets(&writes, &[]) };
+    }
+
+    /// Uploads the mesh (once per mesh; frames re-render it for any camera without re-uploading). Buffers are
+    /// reused when the new mesh fits in them.
+    pub fn set_mesh(&mut self, mesh: &TriMesh) -> Result<(), GpuError> {
+        mesh.validate().map_err(|e| GpuError::Invalid(format!("invalid mesh: {e}")))?;
+        let n = mesh.positions.len();
+        let normals: Vec<[f32; 3]> = if mesh.normals.len() == n {
+            mesh.normals.iter().map(|v| v.to_array()).collect()
+        } else {
+            let mut m = mesh.clone();
+            m.compute_normals();
+            m.normals.iter().map(|v| v.to_array()).collect()
+        };
+        let has_colors = mesh.colors.len() == n && n > 0;
+        let colors: Vec<[f32; 3]> =
+            if has_colors { mesh.colors.iter().map(|v| v.to_array()).collect() } else { vec![[0.0; 3]; n] };
+        let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|v| v.to_array()).collect();
+        let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+        let vbytes = (n * 12) as u64;
+        let ibytes = (indices.len() * 4) as u64;
+        let reuse = self.mesh.as_ref().is_some_and(|m| m.positions.size >= vbytes && m.indices.size >= ibytes);
+        if !reuse {
+            self.mesh = None;
+            let vusage = vk::BufferUsageFlags::VERTEX_BUFFER;
+            self.mesh = Some(GpuMesh {
+                positions: Buffer::new(&self.ctx, vbytes, vusage)?,
+                normals: Buffer::new(&self.ctx, vbytes, vusage)?,
+                colors: Buffer::new(&self.ctx, vbytes, vusage)?,
+                indices: Buffer::new(&self.ctx, ibytes, vk::BufferUsageFlags::INDEX_BUFFER)?,
+                index_count: 0,
+                bounds: (Vec3::ZERO, Vec3::ZERO),
+                has_colors: false,
+            });
+        }
+        let m = self.mesh.as_mut().expect("the mesh buffers were just ensured");
+        m.positions.write(&positions);
+        m.normals.write(&normals);
+        m.colors.write(&colors);
+        m.indices.write(&indices);
+        m.index_count = indices.len() as u32;
+        m.bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
+        m.has_colors = has_colors;
+        Ok(())
+    }
+
+    /// Uploads the panorama for VR compositing (as half floats; relative error below 2^-11).
+    pub fn set_environment(&mut self, env: &Environment) -> Result<(), GpuError> {
+        let img = &env.image;
+        if img.width < 2 || img.height < 1 || img.data.len() != img.width * img.height {
+            return Err(GpuError::Invalid(format!("panorama of {}x{} is too small", img.width, img.height)));
+        }
+        let bytes = (img.width * img.height * 8) as u64;
+        if self.env.size < bytes {
+            self.env = storage(&self.ctx, bytes)?;
+            self.write_all_descriptors();
+        }
+        let packed: Vec<[u32; 2]> = img
+            .data
+            .iter()
+            .map(|c| {
+                let c = if c.is_finite() { c.max(Vec3::ZERO) } else { Vec3::ZERO };
+                [pack_half2(c.x, c.y), pack_half2(c.z, 0.0)]
+            })
+            .collect();
+        self.env.write(&packed);
+        self.env_size = (img.width as u32, img.height as u32);
+        self.env_yaw = env.yaw;
+        Ok(())
+    }
+
+    /// Rasterises the uploaded mesh for `camera` (of the renderer's size) and reads the G-buffer back: the GPU
+    /// version of `geometry::raster::rasterize`.
+    pub fn rasterize(&mut self, camera: &Camera) -> Result<GBuffer, GpuError> {
+        self.check_camera(camera)?;
+        self.set_target(camera);
+        self.run(&[Step::Raster], None)?;
+        Ok(self.read_gbuffer())
+    }
+
+    /// VR composite of a given person layer (premultiplied linear RGBA of the renderer's size) over the
+    /// panorama, for the view `camera`: the GPU version of `compose::compose_vr`.
+    pub fn compose_vr(&mut self, person: &RgbaImage, camera: &Camera) -> Result<RgbImage, GpuError> {
+        self.check_camera(camera)?;
+        self.check_image(person.width, person.height)?;
+        if self.env_size.0 == 0 {
+            return Err(GpuError::Invalid("no panorama was uploaded (set_environment)".into()));
+        }
+        self.person.write(&person.data);
+        self.set_target(camera);
+        self.run(&[Step::Compute(Pass::Panorama)], None)?;
+        Ok(self.read_rgb(&self.out))
+    }
+
+    /// AR layer of a given person layer: the GPU version of `compose::compose_ar`.
+    pub fn compose_ar(&mut self, person: &RgbaImage) -> Result<RgbaImage, GpuError> {
+        self.check_image(person.width, person.height)?;
+        self.person.write(&person.data);
+        self.run(&[Step::Compute(Pass::Ar)], None)?;
+        Ok(self.read_rgba(&self.out))
+    }
+
+    fn check_camera(&self, camera: &Camera) -> Result<(), GpuError> {
+        self.check_image(camera.width, camera.height)
+    }
+
+    fn check_image(&self, width: usize, height: usize) -> Result<(), GpuError> {
+        if (width, height) != self.size() {
+            return Err(GpuError::Invalid(format!(
+                "image of {width}x{height} given to a renderer of {}x{}",
+                self.width, self.height
+            )));
+        }
+        Ok(())
+    }
+
+    fn set_target(&mut self, camera: &Camera) {
+        let bounds = self.mesh.as_ref().map(|m| m.bounds);
+        self.uniforms.target = gpu_camera(camera, bounds);
+        self.uniforms.viewer = gpu_camera(&background_camera(camera), None);
+        self.uniforms.params[0] = self.env_yaw;
+        self.uniforms.sizes[0] = self.env_size.0;
+        self.uniforms.sizes[1] = self.env_size.1;
+    }
+
+    /// Records `steps`, submits, and waits for completion.
+    fn run(&mut self, steps: &[Step], present: Option<PresentTarget>) -> Result<(), GpuError> {
+        if let Some(p) = present {
+            self.uniforms.output_format[0] = u32::from(p.bgra);
+        }
+        // Every pass sizes its dispatch from the target camera's image size, which is the renderer's.
+        self.uniforms.target.info[1] = self.width as f32;
+        self.uniforms.target.info[2] = self.height as f32;
+        self.frame.write(std::slice::from_ref(&self.uniforms));
+        let device = self.ctx.device();
+        let cb = self.command_buffer;
+        unsafe {
+            device
+                .reset_command_buffer(cb, vk::CommandBufferResetFlags::empty())
+                .map_err(GpuError::vk("reset the command buffer"))?;
+            device
+                .begin_command_buffer(
+                    cb,
+                    &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                )
+                .map_err(GpuError::vk("begin the command buffer"))?;
+            device.cmd_bind_descriptor_sets(
+                cb,
+                vk::PipelineBindPoint::COMPUTE,
+                self.pipeline_layout,
+                0,
+                &[self.set],
+                &[],
+            );
+            for (i, step) in steps.iter().enumerate() {
+                if i > 0 {
+                    self.barrier(cb);
+                }
+                match step {
+                    Step::Raster => self.record_raster(cb),
+                    Step::Compute(pass) => {
+                        device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipelines[*pass as usize]);
+                        device.cmd_dispatch(cb, self.width.div_ceil(WORKGROUP), self.height.div_ceil(WORKGROUP), 1);
+                    }
+                }
+            }
+            if let Some(p) = present {
+                self.barrier(cb);
+                device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipelines[Pass::Encode as usize]);
+                device.cmd_dispatch(cb, self.width.div_ceil(WORKGROUP), self.height.div_ceil(WORKGROUP), 1);
+                self.record_present_copy(cb, p.image);
+            }
+            device.end_command_buffer(cb).map_err(GpuError::vk("end the command buffer"))?;
+            let cbs = [cb];
+            let waits: Vec<vk::Semaphore> = present.iter().map(|p| p.wait).collect();
+            let signals: Vec<vk::Semaphore> = present.iter().map(|p| p.signal).collect();
+            let stages = vec![vk::PipelineStageFlags::TRANSFER; waits.len()];
+            let submit = vk::SubmitInfo::default()
+                .command_buffers(&cbs)
+                .wait_semaphores(&waits)
+                .wait_dst_stage_mask(&stages)
+                .signal_semaphores(&signals);
+            device
+                .queue_submit(self.ctx.queue(), &[submit], self.fence)
+                .map_err(GpuError::vk("submit a frame"))?;
+            let waited = device.wait_for_fences(&[self.fence], true, 10_000_000_000);
+            device.reset_fences(&[self.fence]).map_err(GpuError::vk("reset the frame fence"))?;
+            match waited {
+                Ok(()) => Ok(()),
+                Err(vk::Result::TIMEOUT) => Err(GpuError::DeviceLost),
+                Err(e) => Err(GpuError::vk("wait for a frame")(e)),
+            }
+        }
+    }
+
+    /// A full memory barrier between passes (compute/transfer/attachment writes before any later read/write).
+    unsafe fn barrier(&self, cb: vk::CommandBuffer) {
+        let barrier = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(
+                vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE
+                    | vk::AccessFlags::TRANSFER_READ
+                    | vk::AccessFlags::TRANSFER_WRITE,
+            );
+        unsafe {
+            self.ctx.device().cmd_pipeline_barrier(
+                cb,
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::DependencyFlags::empty(),
+                &[barrier],
+                &[],
+                &[],
+            )
+        };
+    }
+
+    unsafe fn record_raster(&self, cb: vk::CommandBuffer) {
+        let device = self.ctx.device();
+        let clear = [
+            vk::ClearValue { color: vk::ClearColorValue { float32: [0.0, 0.0, 0.0, BACKGROUND_DEPTH] } },
+            vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } },
+            vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 0.0, stencil: 0 } },
+        ];
+        let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: self.geometry_image.extent };
+        let begin = vk::RenderPassBeginInfo::default()
+            .render_pass(self.render_pass)
+            .framebuffer(self.framebuffer)
+            .render_area(area)
+            .clear_values(&clear);
+        unsafe {
+            device.cmd_begin_render_pass(cb, &begin, vk::SubpassContents::INLINE);
+            if let Some(mesh) = self.mesh.as_ref().filter(|m| m.index_count > 0) {
+                device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::GRAPHICS, self.raster_pipeline);
+                device.cmd_bind_descriptor_sets(
+                    cb,
+                    vk::PipelineBindPoint::GRAPHICS,
+                    self.pipeline_layout,
+                    0,
+                    &[self.set],
+                    &[],
+                );
+                let viewport = vk::Viewport {
+                    x: 0.0,
+                    y: 0.0,
+                    width: self.width as f32,
+                    height: self.height as f32,
+                    min_depth: 0.0,
+                    max_depth: 1.0,
+                };
+                device.cmd_set_viewport(cb, 0, &[viewport]);
+                device.cmd_set_scissor(cb, 0, &[area]);
+                device.cmd_bind_vertex_buffers(
+                    cb,
+                    0,
+                    &[mesh.positions.buffer, mesh.normals.buffer, mesh.colors.buffer],
+                    &[0, 0, 0],
+                );
+                device.cmd_bind_index_buffer(cb, mesh.indices.buffer, 0, vk::IndexType::UINT32);
+                device.cmd_draw_indexed(cb, mesh.index_count, 1, 0, 0, 0);
+            }
+            device.cmd_end_render_pass(cb);
+            // Attachments (now TRANSFER_SRC_OPTIMAL) into the storage buffers the compute passes read.
+            let region = vk::BufferImageCopy::default()
+                .image_subresource(vk::ImageSubresourceLayers {
+                    aspect_mask: vk::ImageAspectFlags::COLOR,
+                    mip_level: 0,
+                    base_array_layer: 0,
+                    layer_count: 1,
+                })
+                .image_extent(vk::Extent3D { width: self.width, height: self.height, depth: 1 });
+            device.cmd_copy_image_to_buffer(
+                cb,
+                self.geometry_image.image,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                self.geometry.buffer,
+                &[region],
+            );
+            device.cmd_copy_image_to_buffer(
+                cb,
+                self.color_image.image,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                self.color.buffer,
+                &[region],
+            );
+        }
+    }
+
+    unsafe fn record_present_copy(&self, cb: vk::CommandBuffer, image: vk::Image) {
+        let device = self.ctx.device();
+        let range = subresource(vk::ImageAspectFlags::COLOR);
+        let to_dst = vk::ImageMemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::empty())
+            .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .old_layout(vk::ImageLayout::UNDEFINED)
+            .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .image(image)
+            .subresource_range(range);
+        let encoded_ready = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE)
+            .dst_access_mask(vk::AccessFlags::TRANSFER_READ);
+        let region = vk::BufferImageCopy::default()
+            .image_subresource(vk::ImageSubresourceLayers {
+                aspect_mask: vk::ImageAspectFlags::COLOR,
+                mip_level: 0,
+                base_array_layer: 0,
+                layer_count: 1,
+            })
+            .image_extent(vk::Extent3D { width: self.width, height: self.height, depth: 1 });
+        let to_present = vk::ImageMemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::empty())
+            .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+            .new_layout(vk::ImageLayout::PRESENT_SRC_KHR)
+            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .image(image)
+            .subresource_range(range);
+        unsafe {
+            device.cmd_pipeline_barrier(
+                cb,
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::DependencyFlags::empty(),
+                &[encoded_ready],
+                &[],
+                &[to_dst],
+            );
+            device.cmd_copy_buffer_to_image(
+                cb,
+                self.encoded.buffer,
+                image,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &[region],
+            );
+            device.cmd_pipeline_barrier(
+                cb,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+                vk::DependencyFlags::empty(),
+                &[],
+                &[],
+                &[to_present],
+            );
+        }
+    }
+
+    fn read_vec4(&self, buffer: &Buffer) -> Vec<Vec4> {
+        let mut v = vec![Vec4::ZERO; (self.width * self.height) as usize];
+        buffer.read(&mut v);
+        v
+    }
+
+    fn read_rgb(&self, buffer: &Buffer) -> RgbImage {
+        let v = self.read_vec4(buffer);
+        Image { width: self.width as usize, height: self.height as usize, data: v.iter().map(|p| p.truncate()).collect() }
+    }
+
+    fn read_rgba(&self, buffer: &Buffer) -> RgbaImage {
+        Image { width: self.width as usize, height: self.height as usize, data: self.read_vec4(buffer) }
+    }
+
+    fn read_gbuffer(&self) -> GBuffer {
+        let geometry = self.read_vec4(&self.geometry);
+        let color = self.read_vec4(&self.color);
+        let mut g = GBuffer::new(self.width as usize, self.height as usize);
+        let has_colors = self.mesh.as_ref().is_some_and(|m| m.has_colors);
+        let mut colors = has_colors.then(|| vec![Vec3::ZERO; geometry.len()]);
+        for (i, (geo, col)) in geometry.iter().zip(&color).enumerate() {
+            if col.w > 0.5 {
+                g.mask[i] = true;
+                g.depth[i] = geo.w;
+                g.normal[i] = geo.truncate();
+                if let Some(c) = colors.as_mut() {
+                    c[i] = col.truncate();
+                }
+            }
+        }
+        g.color = colors;
+        g
+    }
+}
+
+/// One recorded step of a frame.
+#[derive(Clone, Copy, Debug)]
+enum Step {
+    Raster,
+    Compute(Pass),
+}
+
+impl Drop for Renderer {
+    fn drop(&mut self) {
+        let device = self.ctx.device();
+        // SAFETY: every submission was waited for; the device is idle with respect to these objects.
+        unsafe {
+            let _ = device.queue_wait_idle(self.ctx.queue());
+            device.destroy_fence(self.fence, None);
+            device.destroy_command_pool(self.command_pool, None);
+            for &p in &self.pipelines {
+                device.destroy_pipeline(p, None);
+            }
+            device.destroy_pipeline(self.raster_pipeline, None);
+            device.destroy_descriptor_pool(self.descriptor_pool, None);
+            device.destroy_pipeline_layout(self.pipeline_layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+            device.destroy_framebuffer(self.framebuffer, None);
+            device.destroy_render_pass(self.render_pass, None);
+        }
+    }
+}
+
+fn pick_depth_format(ctx: &Context) -> Result<vk::Format, GpuError> {
+    for format in [vk::Format::D32_SFLOAT, vk::Format::X8_D24_UNORM_PACK32] {
+        let props =
+            unsafe { ctx.instance().get_physical_device_format_properties(ctx.physical_device(), format) };
+        if props.optimal_tiling_features.contains(vk::FormatFeatureFlags::DEPTH_STENCIL_ATTACHMENT) {
+            return Ok(format);
+        }
+    }
+    Err(GpuError::NoDevice("the device offers no 32- or 24-bit depth buffer".into()))
+}
+
+fn create_render_pass(device: &ash::Device, depth_format: vk::Format) -> Result<vk::RenderPass, GpuError> {
+    let color = |_: ()| {
+        vk::AttachmentDescription::default()
+            .format(GEOMETRY_FORMAT)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .load_op(vk::AttachmentLoadOp::CLEAR)
+            .store_op(vk::AttachmentStoreOp::STORE)
+            .stencil_load_op(vk::AttachmentLoadOp::DONT_CARE)
+            .stencil_store_op(vk::AttachmentStoreOp::DONT_CARE)
+            .initial_layout(vk::ImageLayout::UNDEFINED)
+            .final_layout(vk::ImageLayout::TRANSFER_SRC_OPTIMAL)
+    };
+    let attachments = [
+        color(()),
+        color(()),
+        vk::AttachmentDescription::default()
+            .format(depth_format)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .load_op(vk::AttachmentLoadOp::CLEAR)
+            .store_op(vk::AttachmentStoreOp::DONT_CARE)
+            .stencil_load_op(vk::AttachmentLoadOp::DONT_CARE)
+            .stencil_store_op(vk::AttachmentStoreOp::DONT_CARE)
+            .initial_layout(vk::ImageLayout::UNDEFINED)
+            .final_layout(vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL),
+    ];
+    let color_refs = [
+        vk::AttachmentReference { attachment: 0, layout: vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL },
+        vk::AttachmentReference { attachment: 1, layout: vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL },
+    ];
+    let depth_ref = vk::AttachmentReference { attachment: 2, layout: vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL };
+    let subpasses = [vk::SubpassDescription::default()
+        .pipeline_bind_point(vk::PipelineBindPoint::GRAPHICS)
+        .color_attachments(&color_refs)
+        .depth_stencil_attachment(&depth_ref)];
+    let dependencies = [
+        // Earlier copies out of the attachments and earlier depth writes finish before this pass writes them.
+        vk::SubpassDependency::default()
+            .src_subpass(vk::SUBPASS_EXTERNAL)
+            .dst_subpass(0)
+            .src_stage_mask(vk::PipelineStageFlags::TRANSFER | vk::PipelineStageFlags::LATE_FRAGMENT_TESTS)
+            .dst_stage_mask(
+                vk::PipelineStageFlags::COLOR_ATTACHMENT_OUTPUT | vk::PipelineStageFlags::EARLY_FRAGMENT_TESTS,
+            )
+            .src_access_mask(vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE)
+            .dst_access_mask(
+                vk::AccessFlags::COLOR_ATTACHMENT_WRITE
+                    | vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_WRITE
+                    | vk::AccessFlags::DEPTH_STENCIL_ATTACHMENT_READ,
+            ),
+        // The attachments are written before the copies into the storage buffers read them.
+        vk::SubpassDependency::default()
+            .src_subpass(0)
+            .dst_subpass(vk::SUBPASS_EXTERNAL)
+            .src_stage_mask(vk::PipelineStageFlags::COLOR_ATTACHMENT_OUTPUT)
+            .dst_stage_mask(vk::PipelineStageFlags::TRANSFER)
+            .src_access_mask(vk::AccessFlags::COLOR_ATTACHMENT_WRITE)
+            .dst_access_mask(vk::AccessFlags::TRANSFER_READ),
+    ];
+    let info = vk::RenderPassCreateInfo::default()
+        .attachments(&attachments)
+        .subpasses(&subpasses)
+        .dependencies(&dependencies);
+    unsafe { device.create_render_pass(&info, None) }.map_err(GpuError::vk("create the render pass"))
+}
+
+fn create_raster_pipeline(
+    ctx: &Context,
+    render_pass: vk::RenderPass,
+    layout: vk::PipelineLayout,
+) -> Result<vk::Pipeline, GpuError> {
+    let device = ctx.device();
+    let vert = shader_module(ctx, shaders::RASTER_VERT)?;
+    let frag = match shader_module(ctx, shaders::RASTER_FRAG) {
+        Ok(f) => f,
+        Err(e) => {
+            unsafe { device.destroy_shader_module(vert, None) };
+            return Err(e);
+        }
+    };
+    let stages = [
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vert).name(c"main"),
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(frag).name(c"main"),
+    ];
+    let vbindings: Vec<vk::VertexInputBindingDescription> = (0..3)
+        .map(|b| vk::VertexInputBindingDescription { binding: b, stride: 12, input_rate: vk::VertexInputRate::VERTEX })
+        .collect();
+    let vattrs: Vec<vk::VertexInputAttributeDescription> = (0..3)
+        .map(|b| vk::VertexInputAttributeDescription {
+            location: b,
+            binding: b,
+            format: vk::Format::R32G32B32_SFLOAT,
+            offset: 0,
+        })
+        .collect();
+    let vertex_input = vk::PipelineVertexInputStateCreateInfo::default()
+        .vertex_binding_descriptions(&vbindings)
+        .vertex_attribute_descriptions(&vattrs);
+    let assembly =
+        vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+    let viewport = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+    // No culling: the nearest surface wins whatever its facing, as in the CPU rasteriser.
+    let raster = vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(vk::CullModeFlags::NONE)
+        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+        .line_width(1.0);
+    let multisample =
+        vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+    // Depth is "greater is nearer" for both projections (see raster.vert).
+    let depth = vk::PipelineDepthStencilStateCreateInfo::default()
+        .depth_test_enable(true)
+        .depth_write_enable(true)
+        .depth_compare_op(vk::CompareOp::GREATER);
+    let blend_attachment = vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA);
+    let blend_attachments = [blend_attachment, blend_attachment];
+    let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
+    let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+    let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
+    let info = vk::GraphicsPipelineCreateInfo::default()
+        .stages(&stages)
+        .vertex_input_state(&vertex_input)
+        .input_assembly_state(&assembly)
+        .viewport_state(&viewport)
+        .rasterization_state(&raster)
+        .multisample_state(&multisample)
+        .depth_stencil_state(&depth)
+        .color_blend_state(&blend)
+        .dynamic_state(&dynamic)
+        .layout(layout)
+        .render_pass(render_pass)
+        .subpass(0);
+    let result = unsafe { device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None) };
+    unsafe {
+        device.destroy_shader_module(vert, None);
+        device.destroy_shader_module(frag, None);
+    }
+    result.map(|p| p[0]).map_err(|(_, e)| GpuError::vk("create the raster pipeline")(e))
+}
+
+fn create_compute_pipeline(
+    ctx: &Context,
+    layout: vk::PipelineLayout,
+    spv: &[u8],
+) -> Result<vk::Pipeline, GpuError> {
+    let device = ctx.device();
+    let module = shader_module(ctx, spv)?;
+    let stage =
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
+    let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
+    let result = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
+    unsafe { device.destroy_shader_module(module, None) };
+    result.map(|p| p[0]).map_err(|(_, e)| GpuError::vk("create a compute pipeline")(e))
+}
+
+/// Packs two f32 into IEEE half floats (round to nearest even), as GLSL `packHalf2x16`.
+pub fn pack_half2(a: f32, b: f32) -> u32 {
+    u32::from(f32_to_f16(a)) | (u32::from(f32_to_f16(b)) << 16)
+}
+
+/// f32 -> IEEE 754 binary16 bits, round to nearest even; overflow gives infinity, NaN stays NaN.
+pub fn f32_to_f16(x: f32) -> u16 {
+    let bits = x.to_bits();
+    let sign = ((bits >> 16) & 0x8000) as u16;
+    let exp = ((bits >> 23) & 0xff) as i32;
+    let man = bits & 0x7f_ffff;
+    if exp == 0xff {
+        return sign | 0x7c00 | if man != 0 { 0x200 } else { 0 };
+    }
+    let e = exp - 127 + 15;
+    if e >= 0x1f {
+        return sign | 0x7c00;
+    }
+    if e <= 0 {
+        // Subnormal half (or zero).
+        if e < -10 {
+            return sign;
+        }
+        let m = man | 0x80_0000;
+        let shift = (14 - e) as u32;
+        let half = m >> shift;
+        let rem = m & ((1 << shift) - 1);
+        let halfway = 1 << (shift - 1);
+        let round = rem > halfway || (rem == halfway && half & 1 == 1);
+        return sign | (half + u32::from(round)) as u16;
+    }
+    let half = ((e as u32) << 10) | (man >> 13);
+    let rem = man & 0x1fff;
+    let round = rem > 0x1000 || (rem == 0x1000 && half & 1 == 1);
+    sign | (half + u32::from(round)) as u16
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn f16_to_f32(h: u16) -> f32 {
+        let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
+        let exp = i32::from((h >> 10) & 0x1f);
+        let man = f32::from(h & 0x3ff);
+        match exp {
+            0 => sign * man * 2f32.powi(-24),
+            0x1f => {
+                if man == 0.0 {
+                    sign * f32::INFINITY
+                } else {
+                    f32::NAN
+                }
+            }
+            _ => sign * (1.0 + man / 1024.0) * 2f32.powi(exp - 15),
+        }
+    }
+
+    #[test]
+    fn half_conversion_is_exact_where_representable_and_rounds_otherwise() {
+        for &v in &[0.0f32, 1.0, -2.5, 0.5, 65504.0, 6.1035156e-5, 5.9604645e-8, 0.333_251_95] {
+            assert_eq!(f16_to_f32(f32_to_f16(v)), v, "{v}");
+        }
+        assert_eq!(f32_to_f16(1.0e6), 0x7c00);
+        assert!(f16_to_f32(f32_to_f16(f32::NAN)).is_nan());
+        // Relative error bound 2^-11 over [1e-4, 1]
+        let mut x = 1.0e-4f32;
+        while x < 1.0 {
+            let r = f16_to_f32(f32_to_f16(x));
+            assert!(((r - x) / x).abs() <= 1.0 / 2048.0 + 1e-7, "{x} -> {r}");
+            x *= 1.0137;
+        }
+        // Ties to even: 1 + 2^-11 is halfway between 1 and 1 + 2^-10 -> 1.
+        assert_eq!(f32_to_f16(1.0 + 1.0 / 2048.0), 0x3c00);
+        assert_eq!(f32_to_f16(1.0 + 3.0 / 2048.0), 0x3c02);
+    }
+}
