@@ -10,6 +10,7 @@ use glam::{Quat, Vec3, Vec4};
 use r2human::buffer::{Image, RgbImage, RgbaImage};
 use r2human::compose;
 use r2human::geometry::raster::rasterize;
+use r2human::geometry::zmap::{flow_and_zmap, visibility, VISIBILITY_LAMBDA};
 use r2human::geometry::{Camera, Fov, TriMesh};
 use r2human::gpu::{Context, ContextOptions, GpuError, Renderer};
 use r2human::io::environment::Environment;
@@ -185,5 +186,54 @@ fn wrong_sizes_are_errors_not_panics() {
     // An empty mesh renders an empty G-buffer.
     let g = r.rasterize(&Camera::orbit(0.0, 0.0, 16, 16)).unwrap();
     assert_eq!(g.coverage(), 0);
+    assert_clean(&ctx);
+}
+
+/// A source view of the scene: the mesh's vertex colours as the "photo", premultiplied by coverage.
+fn source_view(mesh: &TriMesh, n: usize) -> (RgbaImage, r2human::geometry::raster::GBuffer, Camera) {
+    let cam = Camera::source(n);
+    let g = rasterize(mesh, &cam);
+    let colors = g.color.clone().unwrap();
+    let img = Image::from_fn(n, n, |c, r| {
+        let i = r * n + c;
+        if g.mask[i] {
+            colors[i].extend(1.0)
+        } else {
+            Vec4::ZERO
+        }
+    });
+    (img, g, cam)
+}
+
+#[test]
+fn flow_zmap_visibility_match_cpu() {
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 72;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 96);
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    for cam in cameras(n) {
+        // Same target G-buffer on both sides: this checks the flow stage alone.
+        let target = rasterize(&mesh, &cam);
+        let (gpu, gvis) = r.flow_and_zmap(&target, &cam).unwrap();
+        let cpu = flow_and_zmap(&target, &cam, &src_cam);
+        let cvis = visibility(&cpu, &src_g, &src_cam, VISIBILITY_LAMBDA);
+        assert_eq!(gpu.mask, cpu.mask);
+        let mut max_flow = 0.0f32;
+        let mut max_z = 0.0f32;
+        for i in 0..n * n {
+            max_flow = max_flow.max((gpu.flow.data[i] - cpu.flow.data[i]).abs().max_element());
+            max_z = max_z.max((gpu.z.data[i] - cpu.z.data[i]).abs());
+        }
+        // f32 transforms in a different order: 1e-3 pixel and 1e-5 of the cube.
+        assert!(max_flow < 2e-3 && max_z < 2e-5, "flow {max_flow} z {max_z}");
+        // Visibility flips only where the flow sits within float error of a pixel border or the depth test is
+        // within float error of its threshold.
+        let flips = gvis.iter().zip(&cvis).filter(|(a, b)| a != b).count();
+        let visible = cvis.iter().filter(|v| **v).count();
+        assert!(flips * 500 <= cpu.mask.len().max(1), "{flips} visibility flips ({visible} visible)");
+        eprintln!("flow {:?}: max |dflow| {max_flow:.2e} px, max |dz| {max_z:.2e}, {flips} flips of {visible}", cam.projection);
+    }
     assert_clean(&ctx);
 }

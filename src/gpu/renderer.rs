@@ -14,13 +14,14 @@
 use std::sync::Arc;
 
 use ash::vk;
-use glam::{Mat4, Vec3, Vec4};
+use glam::{Mat4, Vec2, Vec3, Vec4};
 
 use super::resources::{shader_module, subresource, Buffer, Image2d};
 use super::{shaders, Context, GpuError};
 use crate::buffer::{Image, RgbImage, RgbaImage};
 use crate::compose::{background_camera, Mode};
 use crate::geometry::raster::{GBuffer, BACKGROUND_DEPTH};
+use crate::geometry::zmap::{FlowZ, FLOW_OUTSIDE, VISIBILITY_LAMBDA};
 use crate::geometry::{Camera, Projection, TriMesh};
 use crate::io::environment::Environment;
 
@@ -118,9 +119,10 @@ enum Pass {
     Panorama = 0,
     Ar = 1,
     Encode = 2,
+    Flow = 3,
 }
 
-const PASS_SHADERS: [&[u8]; 3] = [shaders::PANORAMA, shaders::AR, shaders::ENCODE];
+const PASS_SHADERS: [&[u8]; 4] = [shaders::PANORAMA, shaders::AR, shaders::ENCODE, shaders::FLOW];
 
 /// The mesh on the device (uploaded once per mesh).
 struct GpuMesh {
@@ -194,6 +196,7 @@ pub struct Renderer {
     mesh: Option<GpuMesh>,
     env_size: (u32, u32),
     env_yaw: f32,
+    source_size: (u32, u32),
     uniforms: FrameUniforms,
     // Submission.
     command_pool: vk::CommandPool,
@@ -352,7 +355,8 @@ impl Renderer {
             mesh: None,
             env_size: (0, 0),
             env_yaw: 0.0,
-            uniforms: FrameUniforms::default(),
+            source_size: (0, 0),
+            uniforms: FrameUniforms { params: [0.0, 0.0, VISIBILITY_LAMBDA, 0.0], ..Default::default() },
             command_pool,
             command_buffer,
             fence,
@@ -480,6 +484,82 @@ impl Renderer {
         self.env_size = (img.width as u32, img.height as u32);
         self.env_yaw = env.yaw;
         Ok(())
+    }
+
+    /// Uploads the source view (once per input): its premultiplied linear RGB (mask in alpha), its G-buffer
+    /// (depth and normals of the mesh seen by the source camera) and the source camera, all of one size.
+    pub fn set_source(&mut self, color: &RgbaImage, gbuffer: &GBuffer, camera: &Camera) -> Result<(), GpuError> {
+        let (w, h) = (camera.width, camera.height);
+        if w == 0 || h == 0 || (color.width, color.height) != (w, h) || (gbuffer.width, gbuffer.height) != (w, h) {
+            return Err(GpuError::Invalid(format!(
+                "source image {}x{}, G-buffer {}x{} and camera {w}x{h} must have one size",
+                color.width, color.height, gbuffer.width, gbuffer.height
+            )));
+        }
+        let bytes = (w * h * 16) as u64;
+        if self.source_color.size < bytes || self.source_geometry.size < bytes {
+            self.source_color = storage(&self.ctx, bytes)?;
+            self.source_geometry = storage(&self.ctx, bytes)?;
+            self.write_all_descriptors();
+        }
+        self.source_color.write(&color.data);
+        self.source_geometry.write(&pack_geometry(gbuffer));
+        self.source_size = (w as u32, h as u32);
+        self.uniforms.source = gpu_camera(camera, None);
+        self.uniforms.sizes[2] = w as u32;
+        self.uniforms.sizes[3] = h as u32;
+        Ok(())
+    }
+
+    /// Flow, Z-map (paper Eq. 4) and visibility (Eq. 9, [`VISIBILITY_LAMBDA`]) of a given target G-buffer
+    /// rendered by `camera`, against the uploaded source: the GPU version of `geometry::zmap::flow_and_zmap`
+    /// followed by `geometry::zmap::visibility`.
+    pub fn flow_and_zmap(&mut self, target: &GBuffer, camera: &Camera) -> Result<(FlowZ, Vec<bool>), GpuError> {
+        self.check_camera(camera)?;
+        self.check_image(target.width, target.height)?;
+        self.require_source()?;
+        self.upload_target(target);
+        self.set_target(camera);
+        self.run(&[Step::Compute(Pass::Flow)], None)?;
+        Ok(self.read_flow())
+    }
+
+    fn require_source(&self) -> Result<(), GpuError> {
+        if self.source_size.0 == 0 {
+            return Err(GpuError::Invalid("no source view was uploaded (set_source)".into()));
+        }
+        Ok(())
+    }
+
+    fn upload_target(&mut self, target: &GBuffer) {
+        self.geometry.write(&pack_geometry(target));
+        let colors: Vec<Vec4> = (0..target.mask.len())
+            .map(|i| {
+                let c = target.color.as_ref().map_or(Vec3::ZERO, |c| c[i]);
+                c.extend(if target.mask[i] { 1.0 } else { 0.0 })
+            })
+            .collect();
+        self.color.write(&colors);
+    }
+
+    fn read_flow(&self) -> (FlowZ, Vec<bool>) {
+        let raw = self.read_vec4(&self.flow);
+        let (w, h) = self.size();
+        let mut f = FlowZ {
+            flow: Image::new(w, h, FLOW_OUTSIDE),
+            z: Image::new(w, h, 0.0),
+            mask: vec![false; w * h],
+        };
+        let mut visible = vec![false; w * h];
+        for (i, v) in raw.iter().enumerate() {
+            if v.w > 0.5 {
+                f.flow.data[i] = Vec2::new(v.x, v.y);
+                f.z.data[i] = v.z;
+                f.mask[i] = true;
+                visible[i] = v.w > 1.5;
+            }
+        }
+        (f, visible)
     }
 
     /// Rasterises the uploaded mesh for `camera` (of the renderer's size) and reads the G-buffer back: the GPU
@@ -988,6 +1068,13 @@ fn create_compute_pipeline(
     let result = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
     unsafe { device.destroy_shader_module(module, None) };
     result.map(|p| p[0]).map_err(|(_, e)| GpuError::vk("create a compute pipeline")(e))
+}
+
+/// A G-buffer as `vec4(normal, depth)` per pixel with [`BACKGROUND_DEPTH`] where not covered.
+fn pack_geometry(g: &GBuffer) -> Vec<Vec4> {
+    (0..g.mask.len())
+        .map(|i| if g.mask[i] { g.normal[i].extend(g.depth[i]) } else { Vec4::new(0.0, 0.0, 0.0, BACKGROUND_DEPTH) })
+        .collect()
 }
 
 /// Packs two f32 into IEEE half floats (round to nearest even), as GLSL `packHalf2x16`.

@@ -16,3 +16,5 @@ pub const PANORAMA: &[u8] = spv!("panorama.comp");
 pub const AR: &[u8] = spv!("ar.comp");
 /// Linear float output to packed 8-bit sRGB (window and screenshots).
 pub const ENCODE: &[u8] = spv!("encode.comp");
+/// Flow, Z-map (Eq. 4) and visibility (Eq. 9).
+pub const FLOW: &[u8] = spv!("flow.comp");
