@@ -168,7 +168,8 @@ pub struct Renderer {
     framebuffer: vk::Framebuffer,
     geometry_image: Image2d,
     color_image: Image2d,
-    depth_image: Image2d,
+    /// Kept alive for the framebuffer; only the render pass touches it.
+    _depth_image: Image2d,
     raster_pipeline: vk::Pipeline,
     // Compute passes.
     set_layout: vk::DescriptorSetLayout,
@@ -330,7 +331,7 @@ impl Renderer {
             framebuffer,
             geometry_image,
             color_image,
-            depth_image,
+            _depth_image: depth_image,
             raster_pipeline,
             set_layout,
             pipeline_layout,
@@ -593,6 +594,33 @@ impl Renderer {
         Ok(self.read_rgba(&self.out))
     }
 
+    /// Shows a frame rendered elsewhere (e.g. by the CPU reference) in a window: uploads it as the output, encodes
+    /// it to 8-bit sRGB and copies it into the swapchain image of `target` (AR layers are shown over grey).
+    pub fn present_frame(&mut self, frame: &FrameOutput, target: PresentTarget) -> Result<(), GpuError> {
+        match frame {
+            FrameOutput::Vr(img) => {
+                self.check_image(img.width, img.height)?;
+                let data: Vec<Vec4> = img.data.iter().map(|c| c.extend(1.0)).collect();
+                self.out.write(&data);
+                self.uniforms.output_format[1] = 0;
+            }
+            FrameOutput::Ar(img) => {
+                self.check_image(img.width, img.height)?;
+                self.out.write(&img.data);
+                self.uniforms.output_format[1] = 1;
+            }
+        }
+        self.run(&[], Some(target))
+    }
+
+    /// Reads the current output back (the last frame rendered or presented), e.g. for a screenshot.
+    pub fn read_output(&self, mode: Mode) -> FrameOutput {
+        match mode {
+            Mode::Vr => FrameOutput::Vr(self.read_rgb(&self.out)),
+            Mode::Ar => FrameOutput::Ar(self.read_rgba(&self.out)),
+        }
+    }
+
     fn check_camera(&self, camera: &Camera) -> Result<(), GpuError> {
         self.check_image(camera.width, camera.height)
     }
@@ -649,6 +677,7 @@ impl Renderer {
                 if i > 0 {
                     self.barrier(cb);
                 }
+                // Host writes before the submission are visible to it; no barrier before the first step.
                 match step {
                     Step::Raster => self.record_raster(cb),
                     Step::Compute(pass) => {
@@ -658,7 +687,9 @@ impl Renderer {
                 }
             }
             if let Some(p) = present {
-                self.barrier(cb);
+                if !steps.is_empty() {
+                    self.barrier(cb);
+                }
                 device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipelines[Pass::Encode as usize]);
                 device.cmd_dispatch(cb, self.width.div_ceil(WORKGROUP), self.height.div_ceil(WORKGROUP), 1);
                 self.record_present_copy(cb, p.image);
