@@ -17,8 +17,11 @@ layout(std140, set = 0, binding = 0) uniform Frame {
     Cam source;    // the input photo's camera
     Cam viewer;    // panorama lookup camera (VR)
     Cam previous;  // the previous view (spatial fusion)
-    // x: environment yaw (radians), y: fusion weight a of Eq. 8, z: visibility tolerance, w: unused
+    // x: environment yaw (radians), y: weight of the previous output in spatial fusion (Eq. 8),
+    // z: visibility lambda (Eq. 9), w: occlusion fill (0 mirrored front, 1 propagate)
     vec4 params;
+    // rgb: mean colour of the person in the photo (fill when the view sees nothing of the photo)
+    vec4 mean_color;
     // x: environment width, y: environment height, z: source width, w: source height
     uvec4 sizes;
     // x: previous view valid (0/1), y: feature channels, z: feature width, w: feature height
@@ -82,3 +85,15 @@ vec3 ray_direction(Cam c, vec2 px) {
     }
     return normalize((c.world_from_view * vec4(d, 0.0)).xyz);
 }
+
+// Level offsets and sizes for the push-pull pyramid passes.
+layout(push_constant) uniform Level {
+    uint src_offset;
+    uint src_width;
+    uint src_height;
+    uint dst_offset;
+    uint dst_width;
+    uint dst_height;
+    uint top_offset;
+    uint pad;
+} level;

@@ -237,3 +237,172 @@ fn flow_zmap_visibility_match_cpu() {
     }
     assert_clean(&ctx);
 }
+
+fn rgb_mask(img: &RgbaImage) -> (RgbImage, r2human::buffer::GrayImage) {
+    (img.map(|p| p.truncate()), img.map(|p| p.w))
+}
+
+fn psnr_rgba(a: &RgbaImage, b: &RgbaImage) -> f64 {
+    let x: Vec<f32> = a.data.iter().flat_map(|v| v.to_array()).collect();
+    let y: Vec<f32> = b.data.iter().flat_map(|v| v.to_array()).collect();
+    psnr(&x, &y)
+}
+
+#[test]
+fn warp_and_hole_fill_match_cpu() {
+    use r2human::pipeline::warp::{render_from_flow, OcclusionFill};
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 64;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 80);
+    let (src_rgb, src_mask) = rgb_mask(&src_img);
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    for fill in [OcclusionFill::MirroredFront, OcclusionFill::Propagate] {
+        r.set_fill(fill);
+        for cam in cameras(n) {
+            let target = rasterize(&mesh, &cam);
+            let flowz = flow_and_zmap(&target, &cam, &src_cam);
+            let vis = visibility(&flowz, &src_g, &src_cam, VISIBILITY_LAMBDA);
+            let cpu = render_from_flow(&src_rgb, &src_mask, &src_cam, &target, &flowz, &vis, fill);
+            let gpu = r.warp_from_flow(&target, &flowz, &vis, &cam).unwrap();
+            let p = psnr_rgba(&cpu, &gpu);
+            let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
+            eprintln!("warp {fill:?} {:?}: PSNR {p:.1} dB, max abs {max:.2e}", cam.projection);
+            // Same arithmetic in f32; sums in the pyramid run in another order.
+            assert!(p >= 60.0 && max < 1e-3, "PSNR {p}, max {max}");
+            assert!(gpu.data.iter().zip(&target.mask).all(|(c, &m)| (c.w == 1.0) == m));
+        }
+    }
+    assert_clean(&ctx);
+}
+
+#[test]
+fn warp_with_nothing_seen_uses_the_mean_colour() {
+    use r2human::pipeline::warp::{render_from_flow, OcclusionFill};
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 32;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 48);
+    let (src_rgb, src_mask) = rgb_mask(&src_img);
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    r.set_fill(OcclusionFill::Propagate);
+    let cam = Camera::orbit(180.0, 0.0, n, n);
+    let target = rasterize(&mesh, &cam);
+    let flowz = flow_and_zmap(&target, &cam, &src_cam);
+    let nothing = vec![false; n * n];
+    let cpu = render_from_flow(&src_rgb, &src_mask, &src_cam, &target, &flowz, &nothing, OcclusionFill::Propagate);
+    let gpu = r.warp_from_flow(&target, &flowz, &nothing, &cam).unwrap();
+    let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
+    assert!(max < 1e-5, "{max}");
+    assert!(target.coverage() > 0);
+    assert_clean(&ctx);
+}
+
+#[test]
+fn fusion_matches_cpu_over_an_orbit() {
+    use r2human::pipeline::fusion::SpatialFusion;
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 64;
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    let mut cpu_fusion = SpatialFusion::new();
+    for (k, yaw) in [30.0f32, 45.0, 45.0, 60.0, 60.0].iter().enumerate() {
+        let cam = Camera::orbit(*yaw, 5.0, n, n);
+        let g = rasterize(&mesh, &cam);
+        // A view-dependent rendering so the blend is visible: colour from yaw.
+        let shade = Vec3::new(yaw / 90.0, 1.0 - yaw / 90.0, 0.3);
+        let mut current = Image::from_fn(n, n, |c, row| {
+            let i = row * n + c;
+            if g.mask[i] {
+                shade.extend(1.0)
+            } else {
+                Vec4::ZERO
+            }
+        });
+        if k == 4 {
+            // The same (unmoved) view with a new input: remembered unfused.
+            current.data.iter_mut().filter(|p| p.w > 0.0).for_each(|p| p.x *= 0.5);
+        }
+        let cpu = cpu_fusion.fuse(&current, &g, &cam);
+        let gpu = r.fuse(&current, &g, &cam).unwrap();
+        let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
+        let changed = cpu.data.iter().zip(&current.data).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3).count();
+        eprintln!("fusion step {k} yaw {yaw}: max abs {max:.2e}, {changed} pixels blended");
+        if k == 1 {
+            assert!(changed > 100, "fusion must blend where both views see the surface");
+        }
+        // Bilinear sampling of the previous output and the visibility test near its threshold: identical
+        // arithmetic, so only float rounding differs.
+        let off = cpu.data.iter().zip(&gpu.data).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-4).count();
+        assert!(off * 500 <= n * n, "{off} pixels differ (max {max})");
+    }
+    assert_clean(&ctx);
+}
+
+#[test]
+fn feature_warp_matches_cpu() {
+    use r2human::pipeline::warp::warp_features;
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 48;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 64);
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    let (c, fw, fh) = (5usize, 16usize, 16usize);
+    let features: Vec<f32> = (0..c * fw * fh).map(|i| ((i * 37) % 101) as f32 / 50.0 - 1.0).collect();
+    r.set_features(&features, c, fw, fh).unwrap();
+    let cam = Camera::orbit(40.0, -10.0, n, n);
+    let flowz = flow_and_zmap(&rasterize(&mesh, &cam), &cam, &src_cam);
+    let mut cpu = vec![0.0f32; c * n * n];
+    warp_features(&features, c, fw, fh, &flowz, 64, &mut cpu);
+    r.warp_features(&flowz).unwrap();
+    let gpu = r.warped_features();
+    assert_eq!(gpu.len(), cpu.len());
+    let max = cpu.iter().zip(gpu).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    assert!(max < 1e-5, "{max}");
+    assert!(cpu.iter().filter(|v| **v != 0.0).count() > c * 100, "the flow must hit the features");
+    assert_clean(&ctx);
+}
+
+#[test]
+fn end_to_end_person_and_frames_match_cpu() {
+    use r2human::pipeline::fusion::SpatialFusion;
+    use r2human::pipeline::warp::{render_geometric, OcclusionFill};
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 64;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 96);
+    let (src_rgb, src_mask) = rgb_mask(&src_img);
+    let env = test_env();
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_mesh(&mesh).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    r.set_environment(&env).unwrap();
+    r.set_fusion(true);
+    let mut fusion = SpatialFusion::new();
+    for (k, cam) in [Camera::orbit(20.0, 0.0, n, n), Camera::orbit(35.0, 10.0, n, n), Camera::orbit(35.0, 10.0, n, n)]
+        .iter()
+        .enumerate()
+    {
+        let target = rasterize(&mesh, cam);
+        let person = render_geometric(&src_rgb, &src_mask, &src_g, &src_cam, &target, cam, OcclusionFill::MirroredFront);
+        let cpu_person = fusion.fuse(&person, &target, cam);
+        r.render_frame(cam, r2human::compose::Mode::Vr, None).unwrap();
+        let gpu_vr = match r.read_output(r2human::compose::Mode::Vr) {
+            r2human::gpu::FrameOutput::Vr(img) => img,
+            r2human::gpu::FrameOutput::Ar(_) => unreachable!("asked for VR"),
+        };
+        let cpu_vr = compose::compose_vr(&cpu_person, &env, cam);
+        let a: Vec<f32> = cpu_vr.data.iter().flat_map(|v| v.to_array()).collect();
+        let b: Vec<f32> = gpu_vr.data.iter().flat_map(|v| v.to_array()).collect();
+        let p = psnr(&a, &b);
+        eprintln!("end to end view {k}: VR PSNR {p:.1} dB");
+        assert!(p >= 40.0, "PSNR {p}");
+        let gpu_person = r.render_person(cam).unwrap();
+        let pp = psnr_rgba(&cpu_person, &gpu_person);
+        assert!(pp >= 40.0, "person PSNR {pp}");
+    }
+    assert_clean(&ctx);
+}

@@ -22,6 +22,8 @@ use crate::buffer::{Image, RgbImage, RgbaImage};
 use crate::compose::{background_camera, Mode};
 use crate::geometry::raster::{GBuffer, BACKGROUND_DEPTH};
 use crate::geometry::zmap::{FlowZ, FLOW_OUTSIDE, VISIBILITY_LAMBDA};
+use crate::pipeline::fusion::previous_weight;
+use crate::pipeline::warp::OcclusionFill;
 use crate::geometry::{Camera, Projection, TriMesh};
 use crate::io::environment::Environment;
 
@@ -45,7 +47,8 @@ mod binding {
     pub const WARPED_FEATURES: u32 = 12;
     pub const ENCODED: u32 = 13;
     pub const CURRENT: u32 = 14;
-    pub const COUNT: u32 = 15;
+    pub const PYRAMID: u32 = 15;
+    pub const COUNT: u32 = 16;
 }
 
 /// One camera as the shaders see it (std140 layout, see `shaders/common.glsl`).
@@ -67,6 +70,7 @@ struct FrameUniforms {
     viewer: GpuCamera,
     previous: GpuCamera,
     params: [f32; 4],
+    mean_color: [f32; 4],
     sizes: [u32; 4],
     flags: [u32; 4],
     output_format: [u32; 4],
@@ -120,9 +124,53 @@ enum Pass {
     Ar = 1,
     Encode = 2,
     Flow = 3,
+    Warp = 4,
+    Pull = 5,
+    Push = 6,
+    Resolve = 7,
+    Fusion = 8,
+    Features = 9,
 }
 
-const PASS_SHADERS: [&[u8]; 4] = [shaders::PANORAMA, shaders::AR, shaders::ENCODE, shaders::FLOW];
+const PASS_SHADERS: [&[u8]; 10] = [
+    shaders::PANORAMA,
+    shaders::AR,
+    shaders::ENCODE,
+    shaders::FLOW,
+    shaders::WARP,
+    shaders::PULL,
+    shaders::PUSH,
+    shaders::RESOLVE,
+    shaders::FUSION,
+    shaders::FEATURES,
+];
+
+/// Push constants of the pyramid passes (see `Level` in `shaders/common.glsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Default)]
+struct LevelConstants {
+    src_offset: u32,
+    src_width: u32,
+    src_height: u32,
+    dst_offset: u32,
+    dst_width: u32,
+    dst_height: u32,
+    top_offset: u32,
+    pad: u32,
+}
+
+/// Offsets (in texels) and sizes of the hole-filling pyramid levels, finest first, down to 1x1.
+fn pyramid_levels(w: u32, h: u32) -> Vec<(u32, u32, u32)> {
+    let mut levels = vec![(0, w, h)];
+    let (mut lw, mut lh, mut offset) = (w, h, w * h);
+    while lw > 1 || lh > 1 {
+        lw = lw.div_ceil(2);
+        lh = lh.div_ceil(2);
+        levels.push((offset, lw, lh));
+        offset += lw * lh;
+    }
+    levels
+}
 
 /// The mesh on the device (uploaded once per mesh).
 struct GpuMesh {
@@ -193,11 +241,22 @@ pub struct Renderer {
     warped_features: Buffer,
     encoded: Buffer,
     current: Buffer,
+    pyramid: Buffer,
+    levels: Vec<(u32, u32, u32)>,
     // Inputs.
     mesh: Option<GpuMesh>,
     env_size: (u32, u32),
     env_yaw: f32,
     source_size: (u32, u32),
+    feature_shape: Option<(u32, u32, u32)>,
+    fill: OcclusionFill,
+    fusion: bool,
+    /// Camera of the last frame kept in `prev_*` (spatial fusion), when one is.
+    previous: Option<Camera>,
+    /// Input of the last `fuse` call (stage API, to recognise a repeated call like the CPU reference).
+    last_fused_input: Option<RgbaImage>,
+    /// An input changed since the last frame (mesh, source, fill): the cached frame is stale.
+    dirty: bool,
     uniforms: FrameUniforms,
     // Submission.
     command_pool: vk::CommandPool,
@@ -273,8 +332,16 @@ impl Renderer {
         }
         .map_err(GpuError::vk("create the descriptor set layout"))?;
         let layouts = [set_layout];
+        let push_ranges = [vk::PushConstantRange {
+            stage_flags: vk::ShaderStageFlags::COMPUTE,
+            offset: 0,
+            size: std::mem::size_of::<LevelConstants>() as u32,
+        }];
         let pipeline_layout = unsafe {
-            device.create_pipeline_layout(&vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts), None)
+            device.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts).push_constant_ranges(&push_ranges),
+                None,
+            )
         }
         .map_err(GpuError::vk("create the pipeline layout"))?;
         let pool_sizes = [
@@ -323,6 +390,8 @@ impl Renderer {
             .map_err(GpuError::vk("create a fence"))?;
 
         let v4 = px * 16;
+        let levels = pyramid_levels(w, h);
+        let pyramid_texels = levels.last().map_or(0, |&(o, lw, lh)| o + lw * lh);
         let frame = Buffer::new(&ctx, std::mem::size_of::<FrameUniforms>() as u64, vk::BufferUsageFlags::UNIFORM_BUFFER)?;
         let mut renderer = Self {
             width: w,
@@ -353,10 +422,18 @@ impl Renderer {
             warped_features: storage(&ctx, 16)?,
             encoded: storage(&ctx, px * 4)?,
             current: storage(&ctx, v4)?,
+            pyramid: storage(&ctx, u64::from(pyramid_texels) * 16)?,
+            levels,
             mesh: None,
             env_size: (0, 0),
             env_yaw: 0.0,
             source_size: (0, 0),
+            feature_shape: None,
+            fill: OcclusionFill::default(),
+            fusion: false,
+            previous: None,
+            last_fused_input: None,
+            dirty: true,
             uniforms: FrameUniforms { params: [0.0, 0.0, VISIBILITY_LAMBDA, 0.0], ..Default::default() },
             command_pool,
             command_buffer,
@@ -394,6 +471,7 @@ impl Renderer {
             (binding::WARPED_FEATURES, &self.warped_features),
             (binding::ENCODED, &self.encoded),
             (binding::CURRENT, &self.current),
+            (binding::PYRAMID, &self.pyramid),
         ];
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
@@ -459,6 +537,8 @@ impl Renderer {
         m.index_count = indices.len() as u32;
         m.bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
         m.has_colors = has_colors;
+        self.dirty = true;
+        self.previous = None;
         Ok(())
     }
 
@@ -509,6 +589,9 @@ impl Renderer {
         self.uniforms.source = gpu_camera(camera, None);
         self.uniforms.sizes[2] = w as u32;
         self.uniforms.sizes[3] = h as u32;
+        self.uniforms.mean_color = mean_masked(color).extend(0.0).to_array();
+        self.dirty = true;
+        self.previous = None;
         Ok(())
     }
 
@@ -523,6 +606,209 @@ impl Renderer {
         self.set_target(camera);
         self.run(&[Step::Compute(Pass::Flow)], None)?;
         Ok(self.read_flow())
+    }
+
+    /// How occluded pixels are coloured (as the CPU warp's [`OcclusionFill`]).
+    pub fn set_fill(&mut self, fill: OcclusionFill) {
+        if fill != self.fill {
+            self.fill = fill;
+            self.dirty = true;
+        }
+    }
+
+    /// Turns spatial fusion (Eq. 8) between consecutive frames on or off (off forgets the previous frame).
+    pub fn set_fusion(&mut self, on: bool) {
+        self.fusion = on;
+        if !on {
+            self.previous = None;
+        }
+    }
+
+    /// Uploads encoder features (`channels x height x width`, row-major planes, usually 1/4 of the source
+    /// resolution) for [`Renderer::warp_features`]; once per input frame.
+    pub fn set_features(&mut self, features: &[f32], channels: usize, width: usize, height: usize) -> Result<(), GpuError> {
+        let n = channels * width * height;
+        if n == 0 || features.len() != n {
+            return Err(GpuError::Invalid(format!(
+                "features of {} values do not match {channels}x{height}x{width}",
+                features.len()
+            )));
+        }
+        let (tw, th) = self.size();
+        let out_bytes = (channels * tw * th * 4) as u64;
+        if self.source_features.size < (n * 4) as u64 || self.warped_features.size < out_bytes {
+            self.source_features = storage(&self.ctx, (n * 4) as u64)?;
+            self.warped_features = storage(&self.ctx, out_bytes)?;
+            self.write_all_descriptors();
+        }
+        self.source_features.write(features);
+        self.feature_shape = Some((channels as u32, width as u32, height as u32));
+        Ok(())
+    }
+
+    /// The warped features of the last [`Renderer::warp_features`] call: `channels x H x W`, zero outside the
+    /// flow mask — the decoder's input, read straight from host-visible memory (the ONNX seam).
+    pub fn warped_features(&self) -> &[f32] {
+        let (tw, th) = self.size();
+        let c = self.feature_shape.map_or(0, |s| s.0 as usize);
+        let bytes = self.warped_features.bytes();
+        let n = (c * tw * th).min(bytes.len() / 4);
+        // SAFETY: the mapping is 4-byte aligned (Vulkan maps at least at 64-byte alignment) and holds f32s.
+        unsafe { std::slice::from_raw_parts(bytes.as_ptr().cast::<f32>(), n) }
+    }
+
+    /// Warps the uploaded features by the given flow (the GPU version of `pipeline::warp::warp_features` with
+    /// the source resolution of the uploaded source view). The result is in [`Renderer::warped_features`].
+    pub fn warp_features(&mut self, flowz: &FlowZ) -> Result<(), GpuError> {
+        self.check_image(flowz.flow.width, flowz.flow.height)?;
+        self.require_source()?;
+        let Some((c, fw, fh)) = self.feature_shape else {
+            return Err(GpuError::Invalid("no features were uploaded (set_features)".into()));
+        };
+        self.upload_flow(flowz, None);
+        self.uniforms.flags[1] = c;
+        self.uniforms.flags[2] = fw;
+        self.uniforms.flags[3] = fh;
+        self.run(&[Step::Compute(Pass::Features)], None)
+    }
+
+    /// The geometric warp of a given target G-buffer with a given flow and visibility (the GPU version of
+    /// `pipeline::warp::render_from_flow` with the uploaded source and the current fill).
+    pub fn warp_from_flow(
+        &mut self,
+        target: &GBuffer,
+        flowz: &FlowZ,
+        visible: &[bool],
+        camera: &Camera,
+    ) -> Result<RgbaImage, GpuError> {
+        self.check_camera(camera)?;
+        self.check_image(target.width, target.height)?;
+        self.check_image(flowz.flow.width, flowz.flow.height)?;
+        self.require_source()?;
+        self.upload_target(target);
+        self.upload_flow(flowz, Some(visible));
+        self.set_target(camera);
+        self.run(&[Step::Compute(Pass::Warp), Step::HoleFill], None)?;
+        Ok(self.read_rgba(&self.current))
+    }
+
+    /// Spatial fusion of a given rendering with the previous one (the GPU version of
+    /// `pipeline::fusion::SpatialFusion::fuse`, including its rules for an unmoved view).
+    pub fn fuse(&mut self, current: &RgbaImage, gbuffer: &GBuffer, camera: &Camera) -> Result<RgbaImage, GpuError> {
+        self.check_camera(camera)?;
+        self.check_image(current.width, current.height)?;
+        self.check_image(gbuffer.width, gbuffer.height)?;
+        if self.previous == Some(*camera) {
+            if self.last_fused_input.as_ref() == Some(current) {
+                return Ok(self.read_rgba(&self.prev_person));
+            }
+            // Unmoved view, new input: remember it unfused.
+            self.uniforms.flags[0] = 0;
+        } else {
+            self.uniforms.flags[0] = u32::from(self.previous.is_some());
+        }
+        self.current.write(&current.data);
+        self.upload_target(gbuffer);
+        self.set_target(camera);
+        self.set_previous_uniform();
+        self.uniforms.params[1] = previous_weight(camera.angle_from_source());
+        self.run(&[Step::Compute(Pass::Fusion), Step::SavePrevious], None)?;
+        self.previous = Some(*camera);
+        self.last_fused_input = Some(current.clone());
+        Ok(self.read_rgba(&self.person))
+    }
+
+    /// The person alone for `camera` (premultiplied linear RGBA): raster -> flow/Z-map/visibility -> warp ->
+    /// hole fill -> spatial fusion (when on), all on the GPU; the GPU version of `ViewRenderer::render_person`.
+    pub fn render_person(&mut self, camera: &Camera) -> Result<RgbaImage, GpuError> {
+        self.render(camera, None, None)?;
+        Ok(self.read_rgba(&self.person))
+    }
+
+    /// Renders a finished frame for `camera`: the person, then the panorama composite (VR) or the alpha layer
+    /// (AR; no panorama work). With `present`, the frame is also encoded and copied into the swapchain image.
+    /// Read it back with [`Renderer::read_output`]. An unmoved camera with unchanged inputs reuses the last
+    /// person layer (no per-view work).
+    pub fn render_frame(&mut self, camera: &Camera, mode: Mode, present: Option<PresentTarget>) -> Result<(), GpuError> {
+        self.render(camera, Some(mode), present)
+    }
+
+    fn render(&mut self, camera: &Camera, mode: Option<Mode>, present: Option<PresentTarget>) -> Result<(), GpuError> {
+        self.check_camera(camera)?;
+        self.require_source()?;
+        if mode == Some(Mode::Vr) && self.env_size.0 == 0 {
+            return Err(GpuError::Invalid("no panorama was uploaded (set_environment)".into()));
+        }
+        self.set_target(camera);
+        self.uniforms.output_format[1] = u32::from(mode == Some(Mode::Ar));
+        self.set_previous_uniform();
+        let unchanged = !self.dirty && self.previous == Some(*camera);
+        let mut steps: Vec<Step> = Vec::with_capacity(8);
+        if unchanged {
+            // Same view, same inputs: the person layer of the last frame stands (fusion would return it too).
+            steps.push(Step::CopyPreviousToPerson);
+        } else {
+            let fuse = self.fusion && self.previous.is_some();
+            self.uniforms.flags[0] = u32::from(fuse);
+            self.uniforms.params[1] = if fuse { previous_weight(camera.angle_from_source()) } else { 0.0 };
+            steps.extend([
+                Step::Raster,
+                Step::Compute(Pass::Flow),
+                Step::Compute(Pass::Warp),
+                Step::HoleFill,
+                Step::Compute(Pass::Fusion),
+                Step::SavePrevious,
+            ]);
+        }
+        match mode {
+            Some(Mode::Vr) => steps.push(Step::Compute(Pass::Panorama)),
+            Some(Mode::Ar) => steps.push(Step::Compute(Pass::Ar)),
+            None => {}
+        }
+        self.run(&steps, present)?;
+        self.previous = Some(*camera);
+        self.dirty = false;
+        Ok(())
+    }
+
+    fn set_previous_uniform(&mut self) {
+        if let Some(p) = self.previous {
+            self.uniforms.previous = gpu_camera(&p, None);
+        }
+    }
+
+    /// [`Renderer::set_source`] from the pipeline's parts: premultiplied linear RGB and its mask.
+    pub fn set_source_parts(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &crate::buffer::GrayImage,
+        gbuffer: &GBuffer,
+        camera: &Camera,
+    ) -> Result<(), GpuError> {
+        if (rgb.width, rgb.height) != (mask.width, mask.height) {
+            return Err(GpuError::Invalid("source colour and mask differ in size".into()));
+        }
+        let color = Image {
+            width: rgb.width,
+            height: rgb.height,
+            data: rgb.data.iter().zip(&mask.data).map(|(c, m)| c.extend(*m)).collect(),
+        };
+        self.set_source(&color, gbuffer, camera)
+    }
+
+    fn upload_flow(&mut self, flowz: &FlowZ, visible: Option<&[bool]>) {
+        let data: Vec<Vec4> = (0..flowz.mask.len())
+            .map(|i| {
+                if flowz.mask[i] {
+                    let f = flowz.flow.data[i];
+                    let vis = visible.is_some_and(|v| v.get(i).copied().unwrap_or(false));
+                    Vec4::new(f.x, f.y, flowz.z.data[i], if vis { 2.0 } else { 1.0 })
+                } else {
+                    Vec4::new(FLOW_OUTSIDE.x, FLOW_OUTSIDE.y, 0.0, 0.0)
+                }
+            })
+            .collect();
+        self.flow.write(&data);
     }
 
     fn require_source(&self) -> Result<(), GpuError> {
@@ -640,6 +926,7 @@ impl Renderer {
         self.uniforms.target = gpu_camera(camera, bounds);
         self.uniforms.viewer = gpu_camera(&background_camera(camera), None);
         self.uniforms.params[0] = self.env_yaw;
+        self.uniforms.params[3] = if self.fill == OcclusionFill::Propagate { 1.0 } else { 0.0 };
         self.uniforms.sizes[0] = self.env_size.0;
         self.uniforms.sizes[1] = self.env_size.1;
     }
@@ -683,6 +970,18 @@ impl Renderer {
                     Step::Compute(pass) => {
                         device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipelines[*pass as usize]);
                         device.cmd_dispatch(cb, self.width.div_ceil(WORKGROUP), self.height.div_ceil(WORKGROUP), 1);
+                    }
+                    Step::HoleFill => self.record_hole_fill(cb),
+                    Step::CopyPreviousToPerson => {
+                        let bytes = u64::from(self.width) * u64::from(self.height) * 16;
+                        let region = [vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }];
+                        device.cmd_copy_buffer(cb, self.prev_person.buffer, self.person.buffer, &region);
+                    }
+                    Step::SavePrevious => {
+                        let bytes = u64::from(self.width) * u64::from(self.height) * 16;
+                        let region = [vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }];
+                        device.cmd_copy_buffer(cb, self.person.buffer, self.prev_person.buffer, &region);
+                        device.cmd_copy_buffer(cb, self.geometry.buffer, self.prev_geometry.buffer, &region);
                     }
                 }
             }
@@ -738,6 +1037,44 @@ impl Renderer {
                 &[],
             )
         };
+    }
+
+    unsafe fn record_hole_fill(&self, cb: vk::CommandBuffer) {
+        let device = self.ctx.device();
+        let top = self.levels.last().map_or(0, |l| l.0);
+        let constants = |src: (u32, u32, u32), dst: (u32, u32, u32)| LevelConstants {
+            src_offset: src.0,
+            src_width: src.1,
+            src_height: src.2,
+            dst_offset: dst.0,
+            dst_width: dst.1,
+            dst_height: dst.2,
+            top_offset: top,
+            pad: 0,
+        };
+        let dispatch = |pass: Pass, c: LevelConstants, first: bool| unsafe {
+            if !first {
+                self.barrier(cb);
+            }
+            device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipelines[pass as usize]);
+            let bytes = std::slice::from_raw_parts(
+                (&c as *const LevelConstants).cast::<u8>(),
+                std::mem::size_of::<LevelConstants>(),
+            );
+            device.cmd_push_constants(cb, self.pipeline_layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
+            device.cmd_dispatch(cb, c.dst_width.div_ceil(WORKGROUP), c.dst_height.div_ceil(WORKGROUP), 1);
+        };
+        let n = self.levels.len();
+        let mut first = true;
+        for k in 1..n {
+            dispatch(Pass::Pull, constants(self.levels[k - 1], self.levels[k]), first);
+            first = false;
+        }
+        for k in (0..n.saturating_sub(1)).rev() {
+            dispatch(Pass::Push, constants(self.levels[k + 1], self.levels[k]), first);
+            first = false;
+        }
+        dispatch(Pass::Resolve, constants(self.levels[0], self.levels[0]), first);
     }
 
     unsafe fn record_raster(&self, cb: vk::CommandBuffer) {
@@ -911,8 +1248,16 @@ impl Renderer {
 /// One recorded step of a frame.
 #[derive(Clone, Copy, Debug)]
 enum Step {
+    /// Mesh rasterisation into the target G-buffer.
     Raster,
+    /// One full-size compute dispatch.
     Compute(Pass),
+    /// Push-pull hole filling over the pyramid, then the warp's resolve into `current`.
+    HoleFill,
+    /// Keep this frame's output and geometry for the next frame's fusion.
+    SavePrevious,
+    /// Reuse the last person layer (unmoved view, unchanged inputs).
+    CopyPreviousToPerson,
 }
 
 impl Drop for Renderer {
@@ -1099,6 +1444,23 @@ fn create_compute_pipeline(
     let result = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
     unsafe { device.destroy_shader_module(module, None) };
     result.map(|p| p[0]).map_err(|(_, e)| GpuError::vk("create a compute pipeline")(e))
+}
+
+/// Mean un-premultiplied colour of the person in a premultiplied source (`sum c / sum min(m, 1)` where `m > 0`),
+/// as the CPU warp's fallback when a view sees nothing of the photo; mid grey without a person.
+fn mean_masked(color: &RgbaImage) -> Vec3 {
+    let (sum, w) = color.data.iter().fold((Vec3::ZERO, 0.0f32), |(s, w), c| {
+        if c.w > 0.0 {
+            (s + c.truncate(), w + c.w.min(1.0))
+        } else {
+            (s, w)
+        }
+    });
+    if w > 0.0 {
+        (sum / w).clamp(Vec3::ZERO, Vec3::ONE)
+    } else {
+        Vec3::splat(0.5)
+    }
 }
 
 /// A G-buffer as `vec4(normal, depth)` per pixel with [`BACKGROUND_DEPTH`] where not covered.

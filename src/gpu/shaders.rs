@@ -18,3 +18,15 @@ pub const AR: &[u8] = spv!("ar.comp");
 pub const ENCODE: &[u8] = spv!("encode.comp");
 /// Flow, Z-map (Eq. 4) and visibility (Eq. 9).
 pub const FLOW: &[u8] = spv!("flow.comp");
+/// Geometric warp of the photo (level 0 of the hole-filling pyramid).
+pub const WARP: &[u8] = spv!("warp.comp");
+/// Push-pull hole filling: pull step.
+pub const PULL: &[u8] = spv!("pull.comp");
+/// Push-pull hole filling: push step.
+pub const PUSH: &[u8] = spv!("push.comp");
+/// End of the warp: premultiplied RGBA with the target coverage.
+pub const RESOLVE: &[u8] = spv!("resolve.comp");
+/// Spatial fusion (Eq. 8).
+pub const FUSION: &[u8] = spv!("fusion.comp");
+/// Feature warp for the neural decoder.
+pub const FEATURES: &[u8] = spv!("features.comp");
