@@ -23,10 +23,11 @@ use winit::window::{Window, WindowId};
 
 use crate::compose::Mode;
 use crate::geometry::Camera;
-use crate::gpu::renderer::PresentTarget;
-use crate::gpu::{Context, FrameOutput, GpuError, Renderer};
+use crate::gpu::{Context, GpuError, PresentTarget, Renderer};
+use crate::io::sequence::Frame;
 use crate::io::environment::Environment;
 use crate::io::image_io;
+use crate::pipeline::{PrepareOptions, PreparedInput};
 use crate::window::{Acquired, Swapchain};
 
 /// Which engine computes the person.
@@ -70,6 +71,8 @@ pub struct ViewOptions {
     pub screenshot_dir: PathBuf,
     /// Write the last frame to this PNG when the loop ends (for tests and scripted runs).
     pub screenshot_on_exit: Option<PathBuf>,
+    /// Source (FOF grid) resolution of the prepared input; 512 like the reference.
+    pub resolution: usize,
 }
 
 impl Default for ViewOptions {
@@ -84,6 +87,7 @@ impl Default for ViewOptions {
             size: 512,
             screenshot_dir: PathBuf::from("."),
             screenshot_on_exit: None,
+            resolution: crate::geometry::SOURCE_RESOLUTION,
         }
     }
 }
@@ -97,6 +101,10 @@ pub struct ViewStats {
     pub median_frame: Duration,
     /// Screenshots written.
     pub screenshots: Vec<PathBuf>,
+    /// Validation-layer errors + warnings seen (0 unless validation is on).
+    pub validation_messages: u32,
+    /// The Vulkan device that ran the window.
+    pub device: String,
 }
 
 /// Orbit camera state driven by the mouse.
@@ -159,7 +167,7 @@ pub trait PersonEngine {
         shading: Shading,
         target: PresentTarget,
         want_frame: bool,
-    ) -> anyhow::Result<Option<FrameOutput>>;
+    ) -> anyhow::Result<Option<Frame>>;
 
     /// Uploads whatever the engine keeps on the GPU into a (new) renderer, e.g. after a resize.
     fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()>;
@@ -167,6 +175,14 @@ pub trait PersonEngine {
 
 /// Opens the mirror window for a photo and runs until closed (or for `opts.frames` frames).
 pub fn run_view(opts: ViewOptions) -> anyhow::Result<()> {
+    run_view_with_stats(opts).map(|_| ())
+}
+
+/// [`run_view`], returning what the loop measured (frames, median frame time, screenshots, validation).
+pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
+    if !(64..=1024).contains(&opts.resolution) {
+        bail!("source resolution {} is out of range: use 64 to 1024 (512 is the reference's)", opts.resolution);
+    }
     let env = match (&opts.env, opts.mode) {
         (Some(p), _) => Environment::load(p).with_context(|| format!("cannot use the panorama {}", p.display()))?,
         (None, _) => Environment::default_embedded(),
@@ -181,10 +197,14 @@ pub fn run_view(opts: ViewOptions) -> anyhow::Result<()> {
             )
         })?,
     };
-    let mut engine = engines::build(&photo.rgb, &mask, &env, opts.backend)?;
+    tracing::info!("preparing the input (segmentation mask, geometry, mesh)");
+    let prepare =
+        PrepareOptions { resolution: opts.resolution, depth_samples: opts.resolution, ..PrepareOptions::default() };
+    let input = PreparedInput::prepare(&photo.rgb, &mask, &prepare)?;
+    let mut engine = engines::build(&input, &env, opts.backend);
     let stats = run_window(&mut *engine, &opts)?;
     tracing::info!("view: {} frames, median {:.2} ms", stats.frames, stats.median_frame.as_secs_f64() * 1e3);
-    Ok(())
+    Ok(stats)
 }
 
 /// Runs the window loop with any engine (see [`run_view`]).
@@ -394,10 +414,10 @@ impl App<'_> {
     }
 }
 
-fn save_frame(path: &std::path::Path, frame: &FrameOutput) -> anyhow::Result<()> {
+fn save_frame(path: &std::path::Path, frame: &Frame) -> anyhow::Result<()> {
     match frame {
-        FrameOutput::Vr(img) => image_io::save_rgb_png(path, img)?,
-        FrameOutput::Ar(img) => image_io::save_rgba_png(path, img)?,
+        Frame::Vr(img) => image_io::save_rgb_png(path, img)?,
+        Frame::Ar(img) => image_io::save_rgba_png(path, img)?,
     }
     tracing::info!("screenshot: {}", path.display());
     Ok(())
@@ -466,24 +486,97 @@ impl ApplicationHandler for App<'_> {
     }
 
     fn exiting(&mut self, _event_loop: &ActiveEventLoop) {
+        if let Some(gfx) = &self.gfx {
+            let log = gfx.ctx.validation();
+            self.stats.validation_messages = log.errors() + log.warnings();
+            for m in log.messages() {
+                tracing::warn!("validation: {m}");
+            }
+            self.stats.device = gfx.ctx.device_name().to_string();
+        }
         // Drop the GPU objects before the window (the surface refers to it).
         self.gfx = None;
     }
 }
 
-/// The engines: CPU reference or Vulkan passes, both over one prepared input.
+/// The engines: the CPU reference pipeline or the Vulkan passes, both over one prepared input.
 mod engines {
     use super::*;
+    use crate::pipeline::warp::OcclusionFill;
+    use crate::pipeline::{PreparedInput, ViewRenderer};
 
-    /// Builds the engine for a photo.
-    pub fn build(
-        rgb: &crate::buffer::RgbImage,
-        mask: &crate::buffer::GrayImage,
-        env: &Environment,
+    /// Builds the engine for a prepared input.
+    pub fn build<'a>(
+        input: &'a PreparedInput,
+        env: &'a Environment,
         backend: Backend,
-    ) -> anyhow::Result<Box<dyn PersonEngine>> {
-        let _ = (rgb, mask, env, backend);
-        bail!("the view pipeline is not wired yet")
+    ) -> Box<dyn PersonEngine + 'a> {
+        match backend {
+            Backend::Cpu => Box::new(CpuEngine { view: ViewRenderer::new(input, OcclusionFill::default(), true), env }),
+            Backend::Vulkan => Box::new(VulkanEngine { input, env }),
+        }
+    }
+
+    /// The CPU reference renders; Vulkan only presents.
+    struct CpuEngine<'a> {
+        view: ViewRenderer<'a>,
+        env: &'a Environment,
+    }
+
+    impl PersonEngine for CpuEngine<'_> {
+        fn frame(
+            &mut self,
+            renderer: &mut Renderer,
+            camera: &Camera,
+            mode: Mode,
+            _shading: Shading,
+            target: PresentTarget,
+            want_frame: bool,
+        ) -> anyhow::Result<Option<Frame>> {
+            let frame = self.view.render_frame(camera, mode, self.env)?;
+            renderer.present_frame(&frame, target)?;
+            Ok(want_frame.then_some(frame))
+        }
+
+        fn attach(&mut self, _renderer: &mut Renderer) -> anyhow::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Every per-view stage on the GPU; the input is uploaded once per renderer.
+    struct VulkanEngine<'a> {
+        input: &'a PreparedInput,
+        env: &'a Environment,
+    }
+
+    impl PersonEngine for VulkanEngine<'_> {
+        fn frame(
+            &mut self,
+            renderer: &mut Renderer,
+            camera: &Camera,
+            mode: Mode,
+            _shading: Shading,
+            target: PresentTarget,
+            want_frame: bool,
+        ) -> anyhow::Result<Option<Frame>> {
+            renderer.render_frame(camera, mode, Some(target))?;
+            Ok(want_frame.then(|| renderer.read_output(mode)))
+        }
+
+        fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
+            let input = self.input;
+            renderer.set_mesh(&input.mesh)?;
+            renderer.set_source_parts(
+                &input.normalised.rgb,
+                &input.normalised.mask,
+                &input.source_gbuffer,
+                &input.source_camera,
+            )?;
+            renderer.set_environment(self.env)?;
+            renderer.set_fill(OcclusionFill::default());
+            renderer.set_fusion(true);
+            Ok(())
+        }
     }
 }
 

@@ -16,7 +16,7 @@ pub mod resources;
 pub mod shaders;
 
 pub use context::{Context, ContextOptions, ValidationLog, VALIDATION_ENV};
-pub use renderer::{FrameOutput, Renderer};
+pub use renderer::{PresentTarget, Renderer};
 
 use ash::vk;
 

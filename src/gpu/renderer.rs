@@ -26,6 +26,7 @@ use crate::pipeline::fusion::previous_weight;
 use crate::pipeline::warp::OcclusionFill;
 use crate::geometry::{Camera, Projection, TriMesh};
 use crate::io::environment::Environment;
+use crate::io::sequence::Frame;
 
 const GEOMETRY_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 const WORKGROUP: u32 = 8;
@@ -197,14 +198,6 @@ pub struct PresentTarget {
     pub bgra: bool,
 }
 
-/// A finished frame read back to the host.
-#[derive(Clone, Debug)]
-pub enum FrameOutput {
-    /// VR: linear RGB over the panorama.
-    Vr(RgbImage),
-    /// AR: premultiplied linear RGBA.
-    Ar(RgbaImage),
-}
 
 /// The Vulkan per-view renderer for one output size. See the module docs.
 pub struct Renderer {
@@ -882,15 +875,15 @@ impl Renderer {
 
     /// Shows a frame rendered elsewhere (e.g. by the CPU reference) in a window: uploads it as the output, encodes
     /// it to 8-bit sRGB and copies it into the swapchain image of `target` (AR layers are shown over grey).
-    pub fn present_frame(&mut self, frame: &FrameOutput, target: PresentTarget) -> Result<(), GpuError> {
+    pub fn present_frame(&mut self, frame: &Frame, target: PresentTarget) -> Result<(), GpuError> {
         match frame {
-            FrameOutput::Vr(img) => {
+            Frame::Vr(img) => {
                 self.check_image(img.width, img.height)?;
                 let data: Vec<Vec4> = img.data.iter().map(|c| c.extend(1.0)).collect();
                 self.out.write(&data);
                 self.uniforms.output_format[1] = 0;
             }
-            FrameOutput::Ar(img) => {
+            Frame::Ar(img) => {
                 self.check_image(img.width, img.height)?;
                 self.out.write(&img.data);
                 self.uniforms.output_format[1] = 1;
@@ -900,10 +893,10 @@ impl Renderer {
     }
 
     /// Reads the current output back (the last frame rendered or presented), e.g. for a screenshot.
-    pub fn read_output(&self, mode: Mode) -> FrameOutput {
+    pub fn read_output(&self, mode: Mode) -> Frame {
         match mode {
-            Mode::Vr => FrameOutput::Vr(self.read_rgb(&self.out)),
-            Mode::Ar => FrameOutput::Ar(self.read_rgba(&self.out)),
+            Mode::Vr => Frame::Vr(self.read_rgb(&self.out)),
+            Mode::Ar => Frame::Ar(self.read_rgba(&self.out)),
         }
     }
 
