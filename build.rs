@@ -59,7 +59,8 @@ fn compile(path: &Path, stage: naga::ShaderStage, dir: &Path) -> Result<Vec<u8>,
 }
 
 fn main() {
-    let dir = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR")).join("shaders");
+    let dir =
+        PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR")).join("shaders");
     let out = PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
     println!("cargo:rerun-if-changed={}", dir.display());
     let mut entries: Vec<PathBuf> = fs::read_dir(&dir)

@@ -101,9 +101,11 @@ fn raster_matches_cpu() {
         }
         // Where both cover a pixel, they see the same surface except where two surfaces are within a depth
         // tie; the bounds state float interpolation error (1e-3 of the cube) plus rare ties near edges.
-        let bad_depth = (0..n).filter(|&i| cpu.mask[i] && gpu.mask[i] && (cpu.depth[i] - gpu.depth[i]).abs() > 1e-3).count();
+        let bad_depth =
+            (0..n).filter(|&i| cpu.mask[i] && gpu.mask[i] && (cpu.depth[i] - gpu.depth[i]).abs() > 1e-3).count();
         assert!(bad_depth * 200 <= covered, "{bad_depth} depth mismatches > 1e-3 (max {max_depth})");
-        let bad_normal = (0..n).filter(|&i| cpu.mask[i] && gpu.mask[i] && cpu.normal[i].dot(gpu.normal[i]) < 0.999).count();
+        let bad_normal =
+            (0..n).filter(|&i| cpu.mask[i] && gpu.mask[i] && cpu.normal[i].dot(gpu.normal[i]) < 0.999).count();
         assert!(bad_normal * 200 <= covered, "{bad_normal} normal mismatches (min dot {min_dot})");
         eprintln!("raster {:?}: mask mismatches {mismatched}/{covered}, max |dz| {max_depth:.2e}, min n.n {min_dot:.6}, max dcolour {max_col:.2e}", cam.projection);
     }
@@ -233,7 +235,10 @@ fn flow_zmap_visibility_match_cpu() {
         let flips = gvis.iter().zip(&cvis).filter(|(a, b)| a != b).count();
         let visible = cvis.iter().filter(|v| **v).count();
         assert!(flips * 500 <= cpu.mask.len().max(1), "{flips} visibility flips ({visible} visible)");
-        eprintln!("flow {:?}: max |dflow| {max_flow:.2e} px, max |dz| {max_z:.2e}, {flips} flips of {visible}", cam.projection);
+        eprintln!(
+            "flow {:?}: max |dflow| {max_flow:.2e} px, max |dz| {max_z:.2e}, {flips} flips of {visible}",
+            cam.projection
+        );
     }
     assert_clean(&ctx);
 }
@@ -328,7 +333,8 @@ fn fusion_matches_cpu_over_an_orbit() {
         let cpu = cpu_fusion.fuse(&current, &g, &cam);
         let gpu = r.fuse(&current, &g, &cam).unwrap();
         let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
-        let changed = cpu.data.iter().zip(&current.data).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3).count();
+        let changed =
+            cpu.data.iter().zip(&current.data).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3).count();
         eprintln!("fusion step {k} yaw {yaw}: max abs {max:.2e}, {changed} pixels blended");
         if k == 1 {
             assert!(changed > 100, "fusion must blend where both views see the surface");
@@ -387,7 +393,8 @@ fn end_to_end_person_and_frames_match_cpu() {
         .enumerate()
     {
         let target = rasterize(&mesh, cam);
-        let person = render_geometric(&src_rgb, &src_mask, &src_g, &src_cam, &target, cam, OcclusionFill::MirroredFront);
+        let person =
+            render_geometric(&src_rgb, &src_mask, &src_g, &src_cam, &target, cam, OcclusionFill::MirroredFront);
         let cpu_person = fusion.fuse(&person, &target, cam);
         r.render_frame(cam, r2human::compose::Mode::Vr, None).unwrap();
         let gpu_vr = match r.read_output(r2human::compose::Mode::Vr) {

@@ -24,9 +24,9 @@ use winit::window::{Window, WindowId};
 use crate::compose::Mode;
 use crate::geometry::Camera;
 use crate::gpu::{Context, GpuError, PresentTarget, Renderer};
-use crate::io::sequence::Frame;
 use crate::io::environment::Environment;
 use crate::io::image_io;
+use crate::io::sequence::Frame;
 use crate::pipeline::{PrepareOptions, PreparedInput};
 use crate::window::{Acquired, Swapchain};
 
@@ -506,11 +506,7 @@ mod engines {
     use crate::pipeline::{PreparedInput, ViewRenderer};
 
     /// Builds the engine for a prepared input.
-    pub fn build<'a>(
-        input: &'a PreparedInput,
-        env: &'a Environment,
-        backend: Backend,
-    ) -> Box<dyn PersonEngine + 'a> {
+    pub fn build<'a>(input: &'a PreparedInput, env: &'a Environment, backend: Backend) -> Box<dyn PersonEngine + 'a> {
         match backend {
             Backend::Cpu => Box::new(CpuEngine { view: ViewRenderer::new(input, OcclusionFill::default(), true), env }),
             Backend::Vulkan => Box::new(VulkanEngine { input, env }),

@@ -302,9 +302,9 @@ impl Context {
         queue_index: u32,
     ) -> Result<Self, GpuError> {
         let families = unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
-        let family = families.get(queue_family as usize).ok_or_else(|| {
-            GpuError::NoDevice(format!("queue family {queue_family} does not exist on this device"))
-        })?;
+        let family = families
+            .get(queue_family as usize)
+            .ok_or_else(|| GpuError::NoDevice(format!("queue family {queue_family} does not exist on this device")))?;
         if !family.queue_flags.contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE) {
             return Err(GpuError::NoDevice(format!("queue family {queue_family} lacks graphics or compute")));
         }

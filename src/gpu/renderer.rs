@@ -22,11 +22,11 @@ use crate::buffer::{Image, RgbImage, RgbaImage};
 use crate::compose::{background_camera, Mode};
 use crate::geometry::raster::{GBuffer, BACKGROUND_DEPTH};
 use crate::geometry::zmap::{FlowZ, FLOW_OUTSIDE, VISIBILITY_LAMBDA};
-use crate::pipeline::fusion::previous_weight;
-use crate::pipeline::warp::OcclusionFill;
 use crate::geometry::{Camera, Projection, TriMesh};
 use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
+use crate::pipeline::fusion::previous_weight;
+use crate::pipeline::warp::OcclusionFill;
 
 const GEOMETRY_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 const WORKGROUP: u32 = 8;
@@ -104,11 +104,9 @@ fn gpu_camera(camera: &Camera, bounds: Option<(Vec3, Vec3)>) -> GpuCamera {
             }
             ([half_width, half_height, zmin, zmax], 0.0, 0.0)
         }
-        Projection::Perspective { fov, near } => (
-            [fov.angle_left.tan(), fov.angle_right.tan(), fov.angle_up.tan(), fov.angle_down.tan()],
-            1.0,
-            near,
-        ),
+        Projection::Perspective { fov, near } => {
+            ([fov.angle_left.tan(), fov.angle_right.tan(), fov.angle_up.tan(), fov.angle_down.tan()], 1.0, near)
+        }
     };
     GpuCamera {
         view_from_world: view_from_world.to_cols_array(),
@@ -198,7 +196,6 @@ pub struct PresentTarget {
     pub bgra: bool,
 }
 
-
 /// The Vulkan per-view renderer for one output size. See the module docs.
 pub struct Renderer {
     ctx: Arc<Context>,
@@ -283,7 +280,8 @@ impl Renderer {
         let depth_format = pick_depth_format(&ctx)?;
         let extent = vk::Extent2D { width: w, height: h };
         let attachment_usage = vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC;
-        let geometry_image = Image2d::new(&ctx, extent, GEOMETRY_FORMAT, attachment_usage, vk::ImageAspectFlags::COLOR)?;
+        let geometry_image =
+            Image2d::new(&ctx, extent, GEOMETRY_FORMAT, attachment_usage, vk::ImageAspectFlags::COLOR)?;
         let color_image = Image2d::new(&ctx, extent, GEOMETRY_FORMAT, attachment_usage, vk::ImageAspectFlags::COLOR)?;
         let depth_image = Image2d::new(
             &ctx,
@@ -385,7 +383,8 @@ impl Renderer {
         let v4 = px * 16;
         let levels = pyramid_levels(w, h);
         let pyramid_texels = levels.last().map_or(0, |&(o, lw, lh)| o + lw * lh);
-        let frame = Buffer::new(&ctx, std::mem::size_of::<FrameUniforms>() as u64, vk::BufferUsageFlags::UNIFORM_BUFFER)?;
+        let frame =
+            Buffer::new(&ctx, std::mem::size_of::<FrameUniforms>() as u64, vk::BufferUsageFlags::UNIFORM_BUFFER)?;
         let mut renderer = Self {
             width: w,
             height: h,
@@ -619,7 +618,13 @@ impl Renderer {
 
     /// Uploads encoder features (`channels x height x width`, row-major planes, usually 1/4 of the source
     /// resolution) for [`Renderer::warp_features`]; once per input frame.
-    pub fn set_features(&mut self, features: &[f32], channels: usize, width: usize, height: usize) -> Result<(), GpuError> {
+    pub fn set_features(
+        &mut self,
+        features: &[f32],
+        channels: usize,
+        width: usize,
+        height: usize,
+    ) -> Result<(), GpuError> {
         let n = channels * width * height;
         if n == 0 || features.len() != n {
             return Err(GpuError::Invalid(format!(
@@ -722,7 +727,12 @@ impl Renderer {
     /// (AR; no panorama work). With `present`, the frame is also encoded and copied into the swapchain image.
     /// Read it back with [`Renderer::read_output`]. An unmoved camera with unchanged inputs reuses the last
     /// person layer (no per-view work).
-    pub fn render_frame(&mut self, camera: &Camera, mode: Mode, present: Option<PresentTarget>) -> Result<(), GpuError> {
+    pub fn render_frame(
+        &mut self,
+        camera: &Camera,
+        mode: Mode,
+        present: Option<PresentTarget>,
+    ) -> Result<(), GpuError> {
         self.render(camera, Some(mode), present)
     }
 
@@ -825,11 +835,7 @@ impl Renderer {
     fn read_flow(&self) -> (FlowZ, Vec<bool>) {
         let raw = self.read_vec4(&self.flow);
         let (w, h) = self.size();
-        let mut f = FlowZ {
-            flow: Image::new(w, h, FLOW_OUTSIDE),
-            z: Image::new(w, h, 0.0),
-            mask: vec![false; w * h],
-        };
+        let mut f = FlowZ { flow: Image::new(w, h, FLOW_OUTSIDE), z: Image::new(w, h, 0.0), mask: vec![false; w * h] };
         let mut visible = vec![false; w * h];
         for (i, v) in raw.iter().enumerate() {
             if v.w > 0.5 {
@@ -996,9 +1002,7 @@ impl Renderer {
                 .wait_semaphores(&waits)
                 .wait_dst_stage_mask(&stages)
                 .signal_semaphores(&signals);
-            device
-                .queue_submit(self.ctx.queue(), &[submit], self.fence)
-                .map_err(GpuError::vk("submit a frame"))?;
+            device.queue_submit(self.ctx.queue(), &[submit], self.fence).map_err(GpuError::vk("submit a frame"))?;
             let waited = device.wait_for_fences(&[self.fence], true, 10_000_000_000);
             device.reset_fences(&[self.fence]).map_err(GpuError::vk("reset the frame fence"))?;
             match waited {
@@ -1210,7 +1214,11 @@ impl Renderer {
 
     fn read_rgb(&self, buffer: &Buffer) -> RgbImage {
         let v = self.read_vec4(buffer);
-        Image { width: self.width as usize, height: self.height as usize, data: v.iter().map(|p| p.truncate()).collect() }
+        Image {
+            width: self.width as usize,
+            height: self.height as usize,
+            data: v.iter().map(|p| p.truncate()).collect(),
+        }
     }
 
     fn read_rgba(&self, buffer: &Buffer) -> RgbaImage {
@@ -1276,8 +1284,7 @@ impl Drop for Renderer {
 
 fn pick_depth_format(ctx: &Context) -> Result<vk::Format, GpuError> {
     for format in [vk::Format::D32_SFLOAT, vk::Format::X8_D24_UNORM_PACK32] {
-        let props =
-            unsafe { ctx.instance().get_physical_device_format_properties(ctx.physical_device(), format) };
+        let props = unsafe { ctx.instance().get_physical_device_format_properties(ctx.physical_device(), format) };
         if props.optimal_tiling_features.contains(vk::FormatFeatureFlags::DEPTH_STENCIL_ATTACHMENT) {
             return Ok(format);
         }
@@ -1314,7 +1321,8 @@ fn create_render_pass(device: &ash::Device, depth_format: vk::Format) -> Result<
         vk::AttachmentReference { attachment: 0, layout: vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL },
         vk::AttachmentReference { attachment: 1, layout: vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL },
     ];
-    let depth_ref = vk::AttachmentReference { attachment: 2, layout: vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL };
+    let depth_ref =
+        vk::AttachmentReference { attachment: 2, layout: vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL };
     let subpasses = [vk::SubpassDescription::default()
         .pipeline_bind_point(vk::PipelineBindPoint::GRAPHICS)
         .color_attachments(&color_refs)
@@ -1343,10 +1351,8 @@ fn create_render_pass(device: &ash::Device, depth_format: vk::Format) -> Result<
             .src_access_mask(vk::AccessFlags::COLOR_ATTACHMENT_WRITE)
             .dst_access_mask(vk::AccessFlags::TRANSFER_READ),
     ];
-    let info = vk::RenderPassCreateInfo::default()
-        .attachments(&attachments)
-        .subpasses(&subpasses)
-        .dependencies(&dependencies);
+    let info =
+        vk::RenderPassCreateInfo::default().attachments(&attachments).subpasses(&subpasses).dependencies(&dependencies);
     unsafe { device.create_render_pass(&info, None) }.map_err(GpuError::vk("create the render pass"))
 }
 
@@ -1382,8 +1388,7 @@ fn create_raster_pipeline(
     let vertex_input = vk::PipelineVertexInputStateCreateInfo::default()
         .vertex_binding_descriptions(&vbindings)
         .vertex_attribute_descriptions(&vattrs);
-    let assembly =
-        vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+    let assembly = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
     let viewport = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
     // No culling: the nearest surface wins whatever its facing, as in the CPU rasteriser.
     let raster = vk::PipelineRasterizationStateCreateInfo::default()
@@ -1398,7 +1403,8 @@ fn create_raster_pipeline(
         .depth_test_enable(true)
         .depth_write_enable(true)
         .depth_compare_op(vk::CompareOp::GREATER);
-    let blend_attachment = vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA);
+    let blend_attachment =
+        vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA);
     let blend_attachments = [blend_attachment, blend_attachment];
     let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
     let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
@@ -1424,11 +1430,7 @@ fn create_raster_pipeline(
     result.map(|p| p[0]).map_err(|(_, e)| GpuError::vk("create the raster pipeline")(e))
 }
 
-fn create_compute_pipeline(
-    ctx: &Context,
-    layout: vk::PipelineLayout,
-    spv: &[u8],
-) -> Result<vk::Pipeline, GpuError> {
+fn create_compute_pipeline(ctx: &Context, layout: vk::PipelineLayout, spv: &[u8]) -> Result<vk::Pipeline, GpuError> {
     let device = ctx.device();
     let module = shader_module(ctx, spv)?;
     let stage =

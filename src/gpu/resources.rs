@@ -192,7 +192,13 @@ impl Drop for Image2d {
 
 /// The whole (single mip, single layer) subresource range of an image.
 pub fn subresource(aspect: vk::ImageAspectFlags) -> vk::ImageSubresourceRange {
-    vk::ImageSubresourceRange { aspect_mask: aspect, base_mip_level: 0, level_count: 1, base_array_layer: 0, layer_count: 1 }
+    vk::ImageSubresourceRange {
+        aspect_mask: aspect,
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: 1,
+    }
 }
 
 /// Creates a shader module from SPIR-V bytes produced by build.rs.

@@ -114,8 +114,11 @@ impl Swapchain {
             .into_iter()
             .find_map(|f| formats.iter().find(|s| s.format == f).copied())
             .ok_or_else(|| GpuError::Surface("the window offers no 8-bit RGBA/BGRA UNORM format".into()))?;
-        let image_count =
-            if caps.max_image_count == 0 { caps.min_image_count + 1 } else { (caps.min_image_count + 1).min(caps.max_image_count) };
+        let image_count = if caps.max_image_count == 0 {
+            caps.min_image_count + 1
+        } else {
+            (caps.min_image_count + 1).min(caps.max_image_count)
+        };
         let composite = if caps.supported_composite_alpha.contains(vk::CompositeAlphaFlagsKHR::OPAQUE) {
             vk::CompositeAlphaFlagsKHR::OPAQUE
         } else {
@@ -142,8 +145,8 @@ impl Swapchain {
             unsafe { self.loader.destroy_swapchain(old, None) };
         }
         self.swapchain = swapchain;
-        self.images = unsafe { self.loader.get_swapchain_images(swapchain) }
-            .map_err(GpuError::vk("get the swapchain images"))?;
+        self.images =
+            unsafe { self.loader.get_swapchain_images(swapchain) }.map_err(GpuError::vk("get the swapchain images"))?;
         self.format = chosen.format;
         self.extent = extent;
         // One "rendered" semaphore per image: a semaphore a pending present still waits on is never re-signalled.
@@ -182,7 +185,8 @@ impl Swapchain {
         let waits = [self.render_semaphores[index as usize]];
         let swapchains = [self.swapchain];
         let indices = [index];
-        let info = vk::PresentInfoKHR::default().wait_semaphores(&waits).swapchains(&swapchains).image_indices(&indices);
+        let info =
+            vk::PresentInfoKHR::default().wait_semaphores(&waits).swapchains(&swapchains).image_indices(&indices);
         match unsafe { self.loader.queue_present(self.ctx.queue(), &info) } {
             Ok(suboptimal) => Ok(suboptimal),
             Err(vk::Result::ERROR_OUT_OF_DATE_KHR) => Ok(true),
