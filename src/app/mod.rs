@@ -1,1 +1,3 @@
-//! `app` layer (see DESIGN in the README). Filled in by its own issue.
+//! `app` layer: live loops that schedule the pipeline (desktop mirror, XR session, capture).
+
+pub mod mirror;
