@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 
 use glam::{Vec2, Vec3, Vec4};
 use r2human::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage};
+use r2human::geometry::raster::GBuffer;
+use r2human::geometry::zmap::{FlowZ, FLOW_OUTSIDE};
 use r2human::neural::{
     environment, Coefficients, Decoder, Encoder, EncoderInput, ExecutionProvider, FeatureMap, FofNet, NeuralError,
     NeuralRuntime, RuntimeOptions,
@@ -48,9 +50,9 @@ fn encoder_matches_closed_form_and_resamples_larger_inputs() {
     assert_eq!(enc.info().tier, "test");
     for size in [R, 2 * R] {
         let k = size / R;
-        let srgb = |c: usize, r: usize| ((c / k) as f32 + 0.5) / R as f32; // constant per model pixel
+        let srgb = |i: usize| ((i / k) as f32 + 0.5) / R as f32; // constant per model pixel
         let rgb = RgbImage::from_fn(size, size, |c, r| {
-            Vec3::new(srgb_to_linear(srgb(c, r)), srgb_to_linear(0.25 + 0.5 * srgb(r, c)), 0.0)
+            Vec3::new(srgb_to_linear(srgb(c)), srgb_to_linear(0.25 + 0.5 * srgb(r)), 0.0)
         });
         let mask = GrayImage::new(size, size, 1.0);
         let normals = Image::from_fn(size, size, |_, r| if r < size / 2 { Vec3::Z } else { Vec3::Y });
@@ -76,10 +78,8 @@ fn encoder_matches_closed_form_and_resamples_larger_inputs() {
                     s / 16.0
                 };
                 let red = mean(&|x, _| linear_to_srgb(srgb_to_linear((x as f32 + 0.5) / R as f32)) * 2.0 - 1.0);
-                let green = mean(&|x, y| {
-                    let v = 0.25 + 0.5 * ((y as f32 + 0.5) / R as f32);
-                    let _ = x;
-                    linear_to_srgb(srgb_to_linear(v)) * 2.0 - 1.0
+                let green = mean(&|_, y| {
+                    linear_to_srgb(srgb_to_linear(0.25 + 0.5 * ((y as f32 + 0.5) / R as f32))) * 2.0 - 1.0
                 });
                 let fof0 = mean(&|x, _| 0.5 + x as f32);
                 let nz = mean(&|_, y| if y < R / 2 { 1.0 } else { 0.0 });
@@ -224,6 +224,59 @@ fn decoder_render_warps_encoder_features_by_the_flow() {
             assert!((*a.get(c, r) - want).abs().max_element() < 1e-4, "({c},{r})");
         }
     }
+}
+
+#[test]
+fn decoder_render_view_takes_the_pipelines_flow_and_gbuffer() {
+    let mut dec = Decoder::load(&data("good/decoder.onnx"), &cpu()).unwrap();
+    let (fw, fh) = (4, 4);
+    let src = FeatureMap {
+        channels: C,
+        width: fw,
+        height: fh,
+        data: (0..C * fw * fh).map(|i| hash(i, 11, 0, -0.2, 0.2)).collect(),
+    };
+    let (w, h) = (20, 16);
+    let source_res = 64; // flow in pixels of a 64x64 source: feature pixel (i, j) centre at ((i+0.5)*16, (j+0.5)*16)
+    let covered = |c: usize, r: usize| (4..17).contains(&c) && (3..13).contains(&r);
+    let pick = |c: usize, r: usize| ((c + r) % fw, (2 * c + r) % fh);
+    let mut target = GBuffer::new(w, h);
+    let mut flowz =
+        FlowZ { flow: Image::new(w, h, FLOW_OUTSIDE), z: GrayImage::new(w, h, 0.0), mask: vec![false; w * h] };
+    let mut warped = FeatureMap::zeros(C, w, h);
+    let mut mask = GrayImage::new(w, h, 0.0);
+    let mut normals = Image::new(w, h, Vec3::ZERO);
+    for r in 0..h {
+        for c in 0..w {
+            let i = r * w + c;
+            // One pixel is covered in the G-buffer but has no flow (projects nowhere): it must stay transparent.
+            target.mask[i] = covered(c, r) || (c, r) == (2, 2);
+            if !covered(c, r) {
+                continue;
+            }
+            let n = Vec3::new(hash(c, r, 12, -1.0, 1.0), 0.5, 1.0).normalize();
+            target.normal[i] = n;
+            normals.set(c, r, n);
+            let (pi, pj) = pick(c, r);
+            flowz.flow.set(c, r, Vec2::new((pi as f32 + 0.5) * 16.0, (pj as f32 + 0.5) * 16.0));
+            flowz.z.set(c, r, hash(c, r, 13, -0.6, 0.6));
+            flowz.mask[i] = true;
+            mask.set(c, r, 1.0);
+            for ch in 0..C {
+                warped.data[ch * w * h + i] = src.data[ch * fw * fh + pj * fw + pi];
+            }
+        }
+    }
+    let out = dec.render_view(&src, &flowz, source_res, &target).unwrap();
+    for r in 0..h {
+        for c in 0..w {
+            let want = fixture_decoder_expected(&warped, &flowz.z, &normals, &mask, c, r);
+            assert!((*out.get(c, r) - want).abs().max_element() < 1e-4, "({c},{r}): {} vs {want}", out.get(c, r));
+        }
+    }
+    assert_eq!(*out.get(2, 2), Vec4::ZERO);
+    let bad = GBuffer::new(w + 1, h);
+    assert!(matches!(dec.render_view(&src, &flowz, source_res, &bad), Err(NeuralError::BadInput { .. })));
 }
 
 #[test]

@@ -14,6 +14,8 @@ use super::tensor::{
 };
 use super::NeuralError;
 use crate::buffer::{srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
+use crate::geometry::raster::GBuffer;
+use crate::geometry::zmap::FlowZ;
 
 /// A loaded session with its checked metadata.
 struct Net {
@@ -317,9 +319,13 @@ impl Decoder {
     /// network sees background context, as on a full frame), aligned and padded to the network's stride (or to its
     /// fixed input size). `None` for an empty mask.
     pub fn region(&self, mask: &GrayImage) -> Result<Option<PixelBox>, NeuralError> {
-        let Some(b) = PixelBox::of_mask(mask) else { return Ok(None) };
+        self.region_of(PixelBox::of_mask(mask), mask.width, mask.height)
+    }
+
+    fn region_of(&self, b: Option<PixelBox>, width: usize, height: usize) -> Result<Option<PixelBox>, NeuralError> {
+        let Some(b) = b else { return Ok(None) };
         let stride = self.net.info.stride;
-        let mut p = b.padded(stride.max(8), stride, mask.width, mask.height);
+        let mut p = b.padded(stride.max(8), stride, width, height);
         if let Some((fw, fh)) = self.fixed {
             // Centre the fixed window on the mask box with its origin on the stride grid, shifted by whole strides
             // until it covers the box.
@@ -350,6 +356,51 @@ impl Decoder {
         Ok(Some(p))
     }
 
+    /// Renders a view from the pipeline's own buffers: warps the encoder's `features` by `flowz.flow` (continuous
+    /// pixel coordinates of the `source_res x source_res` source image, as [`crate::geometry::zmap::flow_and_zmap`]
+    /// gives them), decodes with `flowz.z` and the target normals, only over the padded bounding box of
+    /// `flowz.mask && target.mask`. Returns linear premultiplied RGBA at the target size (alpha 1 on covered
+    /// pixels, transparent elsewhere).
+    pub fn render_view(
+        &mut self,
+        features: &FeatureMap,
+        flowz: &FlowZ,
+        source_res: usize,
+        target: &GBuffer,
+    ) -> Result<RgbaImage, NeuralError> {
+        self.check_feature_channels(features.channels)?;
+        let (w, h) = (target.width, target.height);
+        let n = w * h;
+        if flowz.flow.width != w || flowz.flow.height != h || flowz.mask.len() != n || flowz.z.data.len() != n {
+            return Err(NeuralError::BadInput {
+                model: "decoder",
+                problem: format!("flow/Z-map is {}x{} but the target is {w}x{h}", flowz.flow.width, flowz.flow.height),
+            });
+        }
+        if target.mask.len() != n || target.normal.len() != n {
+            return Err(NeuralError::BadInput {
+                model: "decoder",
+                problem: "target G-buffer arrays do not match its size".into(),
+            });
+        }
+        if source_res == 0 {
+            return Err(NeuralError::BadInput { model: "decoder", problem: "source resolution is 0".into() });
+        }
+        let half = source_res as f32 * 0.5;
+        self.decode(
+            w,
+            h,
+            |i| if flowz.mask[i] && target.mask[i] { 1.0 } else { 0.0 },
+            |i| flowz.z.data[i],
+            |i| target.normal[i],
+            |col, row, out| {
+                // Pixel coordinates (centres at +0.5) to body-cube coordinates of the source camera.
+                let f = flowz.flow.get(col, row);
+                features.sample_cube(f.x / half - 1.0, 1.0 - f.y / half, out);
+            },
+        )
+    }
+
     /// Renders a view: warps the encoder's `features` by `flow` (per target pixel, the source-camera body-cube
     /// coordinates `(x_src, y_src)` of paper Eq. 4), then decodes with the Z-map (`z_src` per target pixel) and the
     /// target view-space normals, only over [`Decoder::region`]. Returns linear premultiplied RGBA at the target
@@ -364,7 +415,7 @@ impl Decoder {
     ) -> Result<RgbaImage, NeuralError> {
         self.check_feature_channels(features.channels)?;
         check_sizes("decoder", "flow", flow.width, flow.height, mask.width, mask.height)?;
-        self.decode(zmap, normals, mask, |col, row, out| {
+        self.decode_images(zmap, normals, mask, |col, row, out| {
             let f = flow.get(col, row);
             features.sample_cube(f.x, f.y, out);
         })
@@ -382,12 +433,25 @@ impl Decoder {
         self.check_feature_channels(warped.channels)?;
         check_sizes("decoder", "warped features", warped.width, warped.height, mask.width, mask.height)?;
         let plane = warped.width * warped.height;
-        self.decode(zmap, normals, mask, |col, row, out| {
+        self.decode_images(zmap, normals, mask, |col, row, out| {
             let i = row * warped.width + col;
             for (c, o) in out.iter_mut().enumerate() {
                 *o = warped.data[c * plane + i];
             }
         })
+    }
+
+    fn decode_images(
+        &mut self,
+        zmap: &GrayImage,
+        normals: &Image<Vec3>,
+        mask: &GrayImage,
+        features_at: impl FnMut(usize, usize, &mut [f32]),
+    ) -> Result<RgbaImage, NeuralError> {
+        let (w, h) = (mask.width, mask.height);
+        check_sizes("decoder", "Z-map", zmap.width, zmap.height, w, h)?;
+        check_sizes("decoder", "normal map", normals.width, normals.height, w, h)?;
+        self.decode(w, h, |i| mask.data[i], |i| zmap.data[i], |i| normals.data[i], features_at)
     }
 
     fn check_feature_channels(&self, c: usize) -> Result<(), NeuralError> {
@@ -400,18 +464,19 @@ impl Decoder {
         Ok(())
     }
 
+    /// The shared decoder path over per-pixel accessors (`alpha`, `z`, `normal` by pixel index; `features_at` by
+    /// column and row): crop, pad, run, write back.
     fn decode(
         &mut self,
-        zmap: &GrayImage,
-        normals: &Image<Vec3>,
-        mask: &GrayImage,
+        w: usize,
+        h: usize,
+        alpha: impl Fn(usize) -> f32,
+        zmap: impl Fn(usize) -> f32,
+        normal: impl Fn(usize) -> Vec3,
         mut features_at: impl FnMut(usize, usize, &mut [f32]),
     ) -> Result<RgbaImage, NeuralError> {
-        let (w, h) = (mask.width, mask.height);
-        check_sizes("decoder", "Z-map", zmap.width, zmap.height, w, h)?;
-        check_sizes("decoder", "normal map", normals.width, normals.height, w, h)?;
         let mut out = RgbaImage::new(w, h, Vec4::ZERO);
-        let Some(p) = self.region(mask)? else { return Ok(out) };
+        let Some(p) = self.region_of(PixelBox::of_alpha(w, h, &alpha), w, h)? else { return Ok(out) };
         let c = self.net.info.feature_channels;
         let (pw, ph) = (p.width(), p.height());
         let plane = pw * ph;
@@ -430,7 +495,7 @@ impl Decoder {
                     continue;
                 }
                 let (x, y) = (x as usize, y as usize);
-                let m = *mask.get(x, y);
+                let m = alpha(y * w + x);
                 // Background (and unusable pixels) stay zero in every input, as in training.
                 if m.is_nan() || m <= 0.0 {
                     continue;
@@ -440,9 +505,9 @@ impl Decoder {
                 for (k, v) in px.iter().enumerate() {
                     feat[k * plane + i] = if v.is_finite() { *v } else { 0.0 };
                 }
-                let zz = *zmap.get(x, y);
+                let zz = zmap(y * w + x);
                 z[i] = if zz.is_finite() { zz } else { 0.0 };
-                let n = *normals.get(x, y);
+                let n = normal(y * w + x);
                 if n.is_finite() {
                     nrm[i] = n.x;
                     nrm[plane + i] = n.y;
@@ -465,7 +530,7 @@ impl Decoder {
                     continue;
                 }
                 let (x, y) = (x as usize, y as usize);
-                let a = *mask.get(x, y);
+                let a = alpha(y * w + x);
                 if a.is_nan() || a <= 0.0 {
                     continue;
                 }

@@ -89,11 +89,17 @@ pub struct PixelBox {
 impl PixelBox {
     /// The bounding box of the pixels with `mask > 0`, or `None` for an empty mask.
     pub fn of_mask(mask: &GrayImage) -> Option<Self> {
+        Self::of_alpha(mask.width, mask.height, |i| mask.data[i])
+    }
+
+    /// The bounding box of the pixels of a `width x height` image whose `alpha(row*width + col) > 0`.
+    pub fn of_alpha(width: usize, height: usize, alpha: impl Fn(usize) -> f32) -> Option<Self> {
         let mut b: Option<Self> = None;
-        for (row, line) in mask.rows().enumerate() {
-            let first = line.iter().position(|&m| m > 0.0);
+        for row in 0..height {
+            let base = row * width;
+            let first = (0..width).position(|c| alpha(base + c) > 0.0);
             let Some(first) = first else { continue };
-            let last = line.iter().rposition(|&m| m > 0.0).unwrap_or(first);
+            let last = (0..width).rposition(|c| alpha(base + c) > 0.0).unwrap_or(first);
             let (r, f, l) = (row as i64, first as i64, last as i64 + 1);
             b = Some(match b {
                 None => Self { x0: f, y0: r, x1: l, y1: r + 1 },
