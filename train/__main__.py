@@ -46,6 +46,12 @@ def main(argv=None):
     p.add_argument("--out", required=True, help="model folder, e.g. models/tiny")
     p.add_argument("--tolerance", type=float, default=1e-3, help="max allowed |ONNX Runtime - PyTorch|")
 
+    p = sub.add_parser("export-untrained", help="export randomly initialised models of a tier (speed tests only)")
+    p.add_argument("--tier", choices=sorted(TIERS), required=True)
+    p.add_argument("--fof-n", type=int, default=32)
+    p.add_argument("--resolution", type=int, default=None, help="default: the tier's")
+    p.add_argument("--out", required=True)
+
     p = sub.add_parser("eval", help="held-out evaluation of a checkpoint")
     p.add_argument("--data", required=True)
     p.add_argument("--renderer", default=None)
@@ -72,6 +78,25 @@ def main(argv=None):
     elif args.cmd == "export":
         from .export import export
         export(args)
+    elif args.cmd == "export-untrained":
+        import os
+        import tempfile
+
+        import torch
+
+        from .export import export_fof, export_renderer
+        from .fit import R2HumanNet
+        from .nets import FofNet
+        res = args.resolution or TIERS[args.tier]["resolution"]
+        rec = {"untrained": True, "purpose": "speed measurements only: random weights", "tier": args.tier}
+        with tempfile.TemporaryDirectory() as tmp:
+            common = {"tier": args.tier, "fof_n": args.fof_n, "resolution": res, "recipe": rec}
+            torch.save({**common, "model": R2HumanNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/r.pt")
+            torch.save({**common, "model": FofNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/f.pt")
+            os.makedirs(args.out, exist_ok=True)
+            report = export_renderer(f"{tmp}/r.pt", args.out)
+            report.update(export_fof(f"{tmp}/f.pt", args.out))
+        print(json.dumps(report, indent=1, sort_keys=True))
     elif args.cmd == "eval":
         import torch
 
