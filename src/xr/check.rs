@@ -91,10 +91,8 @@ pub fn extension_names(set: &xr::ExtensionSet) -> Vec<String> {
 pub fn check_runtime() -> Result<RuntimeReport, XrError> {
     let entry = load_entry()?;
     let available = entry.enumerate_extensions().xr("xrEnumerateInstanceExtensionProperties")?;
-    let api_layers = entry
-        .enumerate_layers()
-        .map(|layers| layers.into_iter().map(|l| l.layer_name).collect())
-        .unwrap_or_default();
+    let api_layers =
+        entry.enumerate_layers().map(|layers| layers.into_iter().map(|l| l.layer_name).collect()).unwrap_or_default();
     let mut wanted = xr::ExtensionSet::default();
     // Enabling the Vulkan extension is harmless for a query and makes runtimes that gate systems on it answer.
     wanted.khr_vulkan_enable2 = available.khr_vulkan_enable2;

@@ -149,9 +149,8 @@ impl VulkanContext {
         // SAFETY: plain enumeration on a loaded entry.
         let available = unsafe { entry.enumerate_instance_extension_properties(None) }
             .vk("vkEnumerateInstanceExtensionProperties")?;
-        let has_debug_utils = available
-            .iter()
-            .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == ash::ext::debug_utils::NAME));
+        let has_debug_utils =
+            available.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == ash::ext::debug_utils::NAME));
         let mut extensions: Vec<*const c_char> = Vec::new();
         if has_debug_utils {
             extensions.push(ash::ext::debug_utils::NAME.as_ptr());
@@ -162,18 +161,21 @@ impl VulkanContext {
             .application_version(1)
             .engine_name(app_name)
             .api_version(VK_TARGET_VERSION);
-        let create_info = vk::InstanceCreateInfo::default().application_info(&app_info).enabled_extension_names(&extensions);
+        let create_info =
+            vk::InstanceCreateInfo::default().application_info(&app_info).enabled_extension_names(&extensions);
 
         // SAFETY: the transmute only changes the handle parameter type of vkGetInstanceProcAddr from ash's u64
         // handle to OpenXR's pointer-sized handle: identical ABI on 64-bit targets.
         let gipa: xr::sys::platform::VkGetInstanceProcAddr =
             unsafe { std::mem::transmute(entry.static_fn().get_instance_proc_addr) };
         // SAFETY: valid system, loader entry and create info (pointers live until the call returns).
-        let raw_instance = unsafe {
-            xr_instance.create_vulkan_instance(system, gipa, &create_info as *const _ as *const _)
-        }
-        .xr("xrCreateVulkanInstanceKHR")?
-        .map_err(|r| XrError::Vulkan { call: "vkCreateInstance (via OpenXR)", result: vk::Result::from_raw(r) })?;
+        let raw_instance =
+            unsafe { xr_instance.create_vulkan_instance(system, gipa, &create_info as *const _ as *const _) }
+                .xr("xrCreateVulkanInstanceKHR")?
+                .map_err(|r| XrError::Vulkan {
+                    call: "vkCreateInstance (via OpenXR)",
+                    result: vk::Result::from_raw(r),
+                })?;
         // SAFETY: the runtime created a valid instance with this loader.
         let instance = unsafe { ash::Instance::load(entry.static_fn(), vk::Instance::from_raw(raw_instance as u64)) };
 
@@ -212,7 +214,8 @@ impl VulkanContext {
             );
             // SAFETY: valid physical device of this instance.
             let props = unsafe { instance.get_physical_device_properties(physical_device) };
-            let device_name = props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let device_name =
+                props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             if props.api_version < VK_TARGET_VERSION {
                 return Err(XrError::Unsupported(format!("Vulkan device {device_name} does not support Vulkan 1.1")));
             }
@@ -428,7 +431,8 @@ impl EyeSwapchain {
                 mip_count: 1,
             })
             .xr("xrCreateSwapchain")?;
-        let images = handle.enumerate_images().xr("xrEnumerateSwapchainImages")?.into_iter().map(vk::Image::from_raw).collect();
+        let images =
+            handle.enumerate_images().xr("xrEnumerateSwapchainImages")?.into_iter().map(vk::Image::from_raw).collect();
         let size = width as u64 * height as u64 * 4;
         let mut staging = ctx.host_buffer(size, vk::BufferUsageFlags::TRANSFER_SRC)?;
         let readback_buf = if readback {
@@ -658,7 +662,9 @@ pub fn format_name(raw: u32) -> String {
 /// A `CStr` view of a fixed-size C string array (for Vulkan property names).
 pub fn c_array_str(chars: &[c_char]) -> String {
     let bytes: Vec<u8> = chars.iter().take_while(|&&c| c != 0).map(|&c| c as u8).collect();
-    CStr::from_bytes_until_nul(&[bytes.as_slice(), &[0]].concat()).map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+    CStr::from_bytes_until_nul(&[bytes.as_slice(), &[0]].concat())
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 #[cfg(test)]

@@ -36,6 +36,11 @@ pub enum XrError {
          libopenxr1-monado`), start it (`monado-service`), or point XR_RUNTIME_JSON at its manifest"
     )]
     RuntimeUnavailable,
+    /// The runtime is installed but could not be reached (its service is not running).
+    #[error(
+        "the OpenXR runtime is installed but not running ({0}): start it (for Monado: `monado-service`) and retry"
+    )]
+    RuntimeNotRunning(xr::sys::Result),
     /// The runtime is there but no headset is connected.
     #[error("the OpenXR runtime reports no head-mounted display: connect and switch on the headset, then retry")]
     NoHeadset,
@@ -80,6 +85,13 @@ impl<T> XrContext<T> for Result<T, xr::sys::Result> {
         self.map_err(|result| match result {
             xr::sys::Result::ERROR_RUNTIME_UNAVAILABLE => XrError::RuntimeUnavailable,
             xr::sys::Result::ERROR_FORM_FACTOR_UNAVAILABLE => XrError::NoHeadset,
+            xr::sys::Result::ERROR_RUNTIME_FAILURE
+            | xr::sys::Result::ERROR_INSTANCE_LOST
+            | xr::sys::Result::ERROR_INITIALIZATION_FAILED
+                if call == "xrCreateInstance" =>
+            {
+                XrError::RuntimeNotRunning(result)
+            }
             result => XrError::Openxr { call, result },
         })
     }

@@ -256,7 +256,8 @@ mod tests {
     use glam::Vec4;
 
     fn request(seq: u64) -> RenderRequest {
-        let view = EyeView { position: Vec3::new(0.0, 1.6, 0.0), orientation: Quat::IDENTITY, fov: Fov::symmetric(1.5, 1.0) };
+        let view =
+            EyeView { position: Vec3::new(0.0, 1.6, 0.0), orientation: Quat::IDENTITY, fov: Fov::symmetric(1.5, 1.0) };
         RenderRequest {
             seq,
             views: vec![view, EyeView { position: Vec3::new(0.06, 1.6, 0.0), ..view }],

@@ -118,7 +118,14 @@ impl Placement {
 
     /// The perspective camera, in body-cube coordinates, of an eye at `eye_position`/`eye_orientation` in the
     /// reference space with field of view `fov`, rendering `width x height` pixels.
-    pub fn eye_camera(&self, eye_position: Vec3, eye_orientation: Quat, fov: Fov, width: usize, height: usize) -> Camera {
+    pub fn eye_camera(
+        &self,
+        eye_position: Vec3,
+        eye_orientation: Quat,
+        fov: Fov,
+        width: usize,
+        height: usize,
+    ) -> Camera {
         let position = self.body_from_stage_point(eye_position);
         let orientation = (self.rotation().inverse() * eye_orientation).normalize();
         Camera::perspective(position, orientation, fov, NEAR_METRES / self.scale, width, height)
@@ -256,8 +263,12 @@ mod tests {
         let r = s.apply(&Controls { recentre: true, ..Default::default() }, head, Quat::IDENTITY, 0.0, 0.1);
         assert_eq!(r, p);
         // Garbage input changes nothing.
-        let bad = Controls { move_xz: Vec2::new(f32::NAN, f32::INFINITY), turn: f32::NAN, scale: f32::NAN, recentre: false };
-        assert_eq!(p.apply(&bad, head, Quat::IDENTITY, 0.0, f32::NAN), Placement { yaw: p.yaw.rem_euclid(2.0 * PI), ..p });
+        let bad =
+            Controls { move_xz: Vec2::new(f32::NAN, f32::INFINITY), turn: f32::NAN, scale: f32::NAN, recentre: false };
+        assert_eq!(
+            p.apply(&bad, head, Quat::IDENTITY, 0.0, f32::NAN),
+            Placement { yaw: p.yaw.rem_euclid(2.0 * PI), ..p }
+        );
     }
 
     #[test]

@@ -299,11 +299,7 @@ impl fmt::Display for SessionReport {
         if let Some(ms) = self.eye_render_ms {
             writeln!(f, "per-eye render time (median of {}): {ms:.1} ms", self.eye_renders)?;
         }
-        writeln!(
-            f,
-            "validation messages: OpenXR {}, Vulkan {}",
-            self.xr_message_count, self.vk_message_count
-        )?;
+        writeln!(f, "validation messages: OpenXR {}, Vulkan {}", self.xr_message_count, self.vk_message_count)?;
         write!(f, "session ended: {}", self.end)
     }
 }
@@ -389,7 +385,12 @@ fn to_view(v: &xr::View) -> EyeView {
     EyeView {
         position: Vec3::new(p.x, p.y, p.z),
         orientation: Quat::from_xyzw(o.x, o.y, o.z, o.w).normalize(),
-        fov: Fov { angle_left: v.fov.angle_left, angle_right: v.fov.angle_right, angle_up: v.fov.angle_up, angle_down: v.fov.angle_down },
+        fov: Fov {
+            angle_left: v.fov.angle_left,
+            angle_right: v.fov.angle_right,
+            angle_up: v.fov.angle_up,
+            angle_down: v.fov.angle_down,
+        },
     }
 }
 
@@ -506,7 +507,8 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
     }
     let eye_dims = (eyes.list[0].width, eyes.list[0].height);
     let passthrough = if blend.passthrough_fb {
-        let p = session.create_passthrough(xr::PassthroughFlagsFB::IS_RUNNING_AT_CREATION).xr("xrCreatePassthroughFB")?;
+        let p =
+            session.create_passthrough(xr::PassthroughFlagsFB::IS_RUNNING_AT_CREATION).xr("xrCreatePassthroughFB")?;
         let layer = session
             .create_passthrough_layer(
                 &p,
@@ -532,9 +534,20 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
     };
     let end = std::thread::scope(|scope| {
         let m = mailbox.clone();
+        // The renderer's parallel work runs in its own pool with one core fewer than the machine has, so the
+        // display loop always finds a core free (it must make every frame deadline; the render thread need not).
+        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(cores.saturating_sub(1).max(1))
+            .thread_name(|i| format!("r2human-xr-render-{i}"))
+            .build();
+        let pool = match pool {
+            Ok(p) => p,
+            Err(e) => return EndReason::RenderFailed(format!("cannot start the render thread pool: {e}")),
+        };
         let render_thread = std::thread::Builder::new()
             .name("r2human-xr-render".into())
-            .spawn_scoped(scope, move || m.run_render_loop(renderer, format));
+            .spawn_scoped(scope, move || pool.install(|| m.run_render_loop(renderer, format)));
         if let Err(e) = render_thread {
             return EndReason::RenderFailed(format!("cannot start the render thread: {e}"));
         }
@@ -841,7 +854,9 @@ fn frame_loop(
                                 .xr("xrEndFrame")?;
                         }
                         None => {
-                            frame_stream.end(fs.predicted_display_time, ctx.blend.blend, &[&projection]).xr("xrEndFrame")?;
+                            frame_stream
+                                .end(fs.predicted_display_time, ctx.blend.blend, &[&projection])
+                                .xr("xrEndFrame")?;
                         }
                     }
                     st.pacing.record(fresh, fs.predicted_display_time.as_nanos(), frame.request.sampled_at);
