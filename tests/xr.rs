@@ -74,10 +74,26 @@ fn xr_suite_in_monado_root() {
             return;
         }
     }
-    let (ok, text) =
-        run_inside(&[], &["--ignored", "--test-threads=1", "--nocapture", "--skip", "child_", "--skip", "no_runtime_"]);
+    let (ok, text) = run_inside(
+        &[],
+        &[
+            "--ignored",
+            "--test-threads=1",
+            "--nocapture",
+            "--skip",
+            "child_",
+            "--skip",
+            "no_runtime_",
+            "--skip",
+            "xvfb_",
+        ],
+    );
     println!("{text}");
     assert!(ok, "the XR tests inside the Monado root failed (output above)");
+    let (ok, text) =
+        run_inside(&["--xvfb"], &["--ignored", "--exact", "xvfb_mirror_window_shows_both_eyes", "--nocapture"]);
+    println!("{text}");
+    assert!(ok, "the mirror test inside the root (Xvfb) failed (output above)");
     let (ok, text) =
         run_inside(&["--no-runtime"], &["--ignored", "--exact", "no_runtime_running_is_a_clear_error", "--nocapture"]);
     println!("{text}");
@@ -152,6 +168,7 @@ fn config(mode: XrMode, frames: u64) -> SessionConfig {
         max_duration: Some(Duration::from_secs(60)),
         eye_max_side: 256,
         capture: true,
+        mirror: false,
     }
 }
 
@@ -434,4 +451,90 @@ fn validation_layers_are_active_and_captured() {
     assert!(messages.iter().any(|m| m.contains("00912")), "Vulkan validation did not report the zero-size buffer");
     drop(ctx);
     drop(messenger);
+}
+
+/// Run with `run-in-root.sh --xvfb`: Monado's XCB compositor and the mirror window on Xvfb :99. While the session
+/// runs, the mirror window is captured with `xwd` and must show the person in both halves (left and right eye).
+#[test]
+#[ignore = "needs a running OpenXR runtime and Xvfb; run via xr_suite_in_monado_root"]
+fn xvfb_mirror_window_shows_both_eyes() {
+    assert!(std::env::var("DISPLAY").is_ok(), "run through run-in-root.sh --xvfb");
+    let env = Environment::default_embedded();
+    let mut renderer = box_renderer(XrMode::Ar, &env);
+    let shot = checkout().join("target/xr-captures/mirror.xwd");
+    let _ = std::fs::create_dir_all(shot.parent().unwrap());
+    let _ = std::fs::remove_file(&shot);
+    let grabber = {
+        let shot = shot.clone();
+        std::thread::spawn(move || {
+            // Grab the window once the session has shown a few images.
+            std::thread::sleep(Duration::from_secs(3));
+            Command::new("xwd")
+                .args(["-silent", "-name", "r2human XR mirror", "-out"])
+                .arg(&shot)
+                .status()
+                .map(|s| s.success())
+                .unwrap_or(false)
+        })
+    };
+    let cfg = SessionConfig {
+        mirror: true,
+        max_person_frames: None,
+        max_duration: Some(Duration::from_secs(6)),
+        ..config(XrMode::Ar, 0)
+    };
+    let report = run_session(&cfg, &mut renderer).expect("session runs");
+    println!("{report}");
+    assert!(grabber.join().unwrap(), "xwd could not capture the mirror window");
+    assert!(report.reached(openxr::SessionState::FOCUSED));
+    assert_eq!(report.end, EndReason::TimeLimit);
+    assert!(report.mirror_presented >= 5, "mirror showed {} images", report.mirror_presented);
+    assert_eq!(report.vk_message_count, 0, "Vulkan validation: {:#?}", report.vk_messages);
+    assert_eq!(report.xr_message_count, 0, "OpenXR validation: {:#?}", report.xr_messages);
+    // Convert the X window dump to PPM (netpbm) and look for the box's front colour in each half.
+    let ppm = Command::new("xwdtopnm").arg(&shot).stderr(Stdio::null()).output().expect("xwdtopnm");
+    let (w, h, pixels) = parse_ppm(&ppm.stdout).expect("a P6 image");
+    let (ew, eh) = (report.eye_size.0 as usize, report.eye_size.1 as usize);
+    assert!(w >= 2 * ew && h >= eh, "window {w}x{h} smaller than two {ew}x{eh} eyes");
+    let front = [231u8, 124, 89]; // FRONT in sRGB bytes
+    let is_front = |p: &[u8]| p.iter().zip(front).all(|(&a, b)| a.abs_diff(b) <= 6);
+    let count = |x0: usize, x1: usize| {
+        (0..eh)
+            .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+            .filter(|&(x, y)| is_front(&pixels[(y * w + x) * 3..][..3]))
+            .count()
+    };
+    let (left, right) = (count(0, ew), count(ew, 2 * ew));
+    println!("mirror {w}x{h}: front-coloured pixels left {left}, right {right}");
+    std::fs::write(checkout().join("target/xr-captures/mirror.ppm"), &ppm.stdout).unwrap();
+    assert!(left > 100 && right > 100, "the person is missing from a mirror half: {left} / {right}");
+    assert_eq!(&pixels[..3], &[0, 0, 0], "AR mirror background is black");
+}
+
+/// Parses a binary PPM (P6, maxval 255): (width, height, RGB bytes).
+fn parse_ppm(bytes: &[u8]) -> Option<(usize, usize, Vec<u8>)> {
+    let mut fields = Vec::new();
+    let mut i = 0;
+    while fields.len() < 4 && i < bytes.len() {
+        while i < bytes.len() && bytes[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        if bytes.get(i) == Some(&b'#') {
+            while i < bytes.len() && bytes[i] != b'\n' {
+                i += 1;
+            }
+            continue;
+        }
+        let start = i;
+        while i < bytes.len() && !bytes[i].is_ascii_whitespace() {
+            i += 1;
+        }
+        fields.push(String::from_utf8_lossy(&bytes[start..i]).into_owned());
+    }
+    if fields.len() < 4 || fields[0] != "P6" || fields[3] != "255" {
+        return None;
+    }
+    let (w, h): (usize, usize) = (fields[1].parse().ok()?, fields[2].parse().ok()?);
+    let data = bytes.get(i + 1..i + 1 + w * h * 3)?.to_vec();
+    Some((w, h, data))
 }

@@ -5,4 +5,4 @@ set -euo pipefail
 export DEBIAN_FRONTEND=noninteractive
 apt-get update -q
 apt-get install -y -q --no-install-recommends debootstrap debian-archive-keyring util-linux mount \
-    mesa-vulkan-drivers libvulkan1 vulkan-tools vulkan-validationlayers xvfb
+    mesa-vulkan-drivers libvulkan1 vulkan-tools vulkan-validationlayers xvfb libxkbcommon-x11-0

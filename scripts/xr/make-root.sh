@@ -10,9 +10,9 @@ source "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 
 ROOT=${1:-$(xr_default_root)}
 MIRROR=${XR_ROOT_MIRROR:-http://deb.debian.org/debian}
-STAMP_CONTENT="r2human-xr-root v1"
+STAMP_CONTENT="r2human-xr-root v2"
 PACKAGES="monado-service libopenxr1-monado libopenxr-loader1 libopenxr-utils mesa-vulkan-drivers
-openxr-layer-corevalidation vulkan-validationlayers xvfb x11-apps netpbm"
+openxr-layer-corevalidation vulkan-validationlayers xvfb x11-apps netpbm libxkbcommon-x11-0"
 
 if [ "$(id -u)" != 0 ]; then
     echo "make-root.sh: needs root (debootstrap, mount, chroot)" >&2

@@ -136,6 +136,17 @@ impl VulkanContext {
     /// Creates the Vulkan instance and device for `system` through the runtime (XR_KHR_vulkan_enable2 must be
     /// enabled on `xr_instance`). Enables VK_EXT_debug_utils when present so validation output is captured.
     pub fn new(xr_instance: &xr::Instance, system: xr::SystemId) -> Result<Self, XrError> {
+        Self::with_extensions(xr_instance, system, &[], &[])
+    }
+
+    /// As [`VulkanContext::new`], additionally enabling the given instance and device extensions (e.g. the
+    /// surface and swapchain extensions of the desktop mirror window).
+    pub fn with_extensions(
+        xr_instance: &xr::Instance,
+        system: xr::SystemId,
+        instance_extensions: &[*const c_char],
+        device_extensions: &[&CStr],
+    ) -> Result<Self, XrError> {
         let reqs = xr_instance.graphics_requirements::<xr::Vulkan>(system).xr("xrGetVulkanGraphicsRequirements2KHR")?;
         let target = xr::Version::new(1, 1, 0);
         if target < reqs.min_api_version_supported || target.major() > reqs.max_api_version_supported.major() {
@@ -151,7 +162,7 @@ impl VulkanContext {
             .vk("vkEnumerateInstanceExtensionProperties")?;
         let has_debug_utils =
             available.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == ash::ext::debug_utils::NAME));
-        let mut extensions: Vec<*const c_char> = Vec::new();
+        let mut extensions: Vec<*const c_char> = instance_extensions.to_vec();
         if has_debug_utils {
             extensions.push(ash::ext::debug_utils::NAME.as_ptr());
         }
@@ -230,7 +241,9 @@ impl VulkanContext {
             let queues = [vk::DeviceQueueCreateInfo::default()
                 .queue_family_index(queue_family_index)
                 .queue_priorities(&priorities)];
-            let device_info = vk::DeviceCreateInfo::default().queue_create_infos(&queues);
+            let device_ext_ptrs: Vec<*const c_char> = device_extensions.iter().map(|e| e.as_ptr()).collect();
+            let device_info =
+                vk::DeviceCreateInfo::default().queue_create_infos(&queues).enabled_extension_names(&device_ext_ptrs);
             // SAFETY: valid physical device chosen by the runtime; pointers live until the call returns.
             let raw_device = unsafe {
                 xr_instance.create_vulkan_device(

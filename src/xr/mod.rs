@@ -10,6 +10,7 @@
 pub mod check;
 pub mod diag;
 pub mod gfx;
+pub mod mirror;
 pub mod pacing;
 pub mod placement;
 pub mod session;

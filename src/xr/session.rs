@@ -16,6 +16,7 @@ use xr::sys::Handle as _;
 use super::check::{blend_mode_name, extension_names};
 use super::diag::{DiagnosticLog, XrMessenger};
 use super::gfx::{format_name, EyeSwapchain, SwapchainFormat, VulkanContext};
+use super::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 use super::pacing::{median_ms, EyeImageRenderer, EyeView, PacingStats, RenderMailbox, RenderRequest};
 use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
 use super::{load_entry, XrContext, XrError};
@@ -47,11 +48,21 @@ pub struct SessionConfig {
     pub eye_max_side: u32,
     /// Read every fresh eye image back from the swapchain and keep the last pair (tests).
     pub capture: bool,
+    /// Show the eye images side by side in a desktop window while the session runs (skipped with a warning when
+    /// there is no display).
+    pub mirror: bool,
 }
 
 impl Default for SessionConfig {
     fn default() -> Self {
-        Self { mode: XrMode::Vr, max_person_frames: None, max_duration: None, eye_max_side: 512, capture: false }
+        Self {
+            mode: XrMode::Vr,
+            max_person_frames: None,
+            max_duration: None,
+            eye_max_side: 512,
+            capture: false,
+            mirror: false,
+        }
     }
 }
 
@@ -257,6 +268,8 @@ pub struct SessionReport {
     pub captures: Vec<EyeCapture>,
     /// The final placement of the person.
     pub placement: Option<Placement>,
+    /// Images shown in the desktop mirror window (0 without a mirror).
+    pub mirror_presented: u64,
 }
 
 impl SessionReport {
@@ -298,6 +311,9 @@ impl fmt::Display for SessionReport {
         }
         if let Some(ms) = self.eye_render_ms {
             writeln!(f, "per-eye render time (median of {}): {ms:.1} ms", self.eye_renders)?;
+        }
+        if self.mirror_presented > 0 {
+            writeln!(f, "desktop mirror: {} images shown", self.mirror_presented)?;
         }
         writeln!(f, "validation messages: OpenXR {}, Vulkan {}", self.xr_message_count, self.vk_message_count)?;
         write!(f, "session ended: {}", self.end)
@@ -465,7 +481,26 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
     if config_views.is_empty() {
         return Err(XrError::Unsupported("the headset reports no stereo views".into()));
     }
-    let vk = VulkanContext::new(&instance, system)?;
+    let dims: Vec<(u32, u32)> = config_views
+        .iter()
+        .map(|v| eye_size((v.recommended_image_rect_width, v.recommended_image_rect_height), config.eye_max_side))
+        .collect();
+    let mut mirror_loop = None;
+    let mut mirror_instance_exts = Vec::new();
+    let mut mirror_device_exts = Vec::new();
+    if config.mirror {
+        let opened = MirrorEventLoop::new(dims[0].0 * dims.len() as u32, dims[0].1)
+            .and_then(|l| l.required_instance_extensions().map(|e| (l, e)));
+        match opened {
+            Ok((l, exts)) => {
+                mirror_loop = Some(l);
+                mirror_instance_exts = exts;
+                mirror_device_exts = DEVICE_EXTENSIONS.to_vec();
+            }
+            Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
+        }
+    }
+    let vk = VulkanContext::with_extensions(&instance, system, &mirror_instance_exts, &mirror_device_exts)?;
     tracing::info!("OpenXR runtime {runtime}, system {system_name}, Vulkan device {}", vk.device_name);
 
     // SAFETY: the Vulkan handles come from this runtime through XR_KHR_vulkan_enable2 and outlive the session
@@ -501,8 +536,7 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
         XrError::Unsupported(format!("no 8-bit RGBA swapchain format among {}", names.join(", ")))
     })?;
     let mut eyes = EyeSet { ctx: &vk, list: Vec::new() };
-    for v in &config_views {
-        let (w, h) = eye_size((v.recommended_image_rect_width, v.recommended_image_rect_height), config.eye_max_side);
+    for &(w, h) in &dims {
         eyes.list.push(EyeSwapchain::new(&vk, &session, format, w, h, config.capture)?);
     }
     let eye_dims = (eyes.list[0].width, eyes.list[0].height);
@@ -531,6 +565,9 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
         time_to_focused: None,
         placement: None,
         captures: Vec::new(),
+        mirror_loop,
+        mirror: None,
+        mirror_presented: 0,
     };
     let end = std::thread::scope(|scope| {
         let m = mailbox.clone();
@@ -572,6 +609,10 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
         // The loop left while the session was still running (runtime gone or render failure): best effort.
         let _ = session.end();
     }
+    if let Some(m) = loop_state.mirror.take() {
+        loop_state.mirror_presented = m.presented;
+        m.destroy(&vk);
+    }
     // SAFETY: waiting for the device to finish all uploads before the swapchains go away.
     unsafe {
         let _ = vk.device.device_wait_idle();
@@ -608,6 +649,7 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
         vk_message_count: vk.validation.count(),
         captures: loop_state.captures,
         placement: loop_state.placement,
+        mirror_presented: loop_state.mirror_presented,
     };
     drop(vk);
     Ok(report)
@@ -650,6 +692,9 @@ struct LoopState {
     time_to_focused: Option<Duration>,
     placement: Option<Placement>,
     captures: Vec<EyeCapture>,
+    mirror_loop: Option<MirrorEventLoop>,
+    mirror: Option<Mirror>,
+    mirror_presented: u64,
 }
 
 /// How long to wait for the runtime to confirm an exit request before giving up on it.
@@ -734,6 +779,15 @@ fn frame_loop(
         if ctx.config.max_duration.is_some_and(|d| started.elapsed() > d) {
             request_exit(EndReason::TimeLimit, &mut exit_requested);
         }
+        if let Some(m) = &mut st.mirror {
+            if !m.pump() {
+                tracing::info!("mirror window closed; the session goes on");
+                if let Some(m) = st.mirror.take() {
+                    st.mirror_presented = m.presented;
+                    m.destroy(ctx.vk);
+                }
+            }
+        }
         if !st.sm.running {
             std::thread::sleep(Duration::from_millis(5));
             continue;
@@ -800,6 +854,26 @@ fn frame_loop(
                                     *slot = cap;
                                 } else {
                                     st.captures.push(cap);
+                                }
+                            }
+                        }
+                        // The mirror window opens with the first image, so it maps above the runtime's own
+                        // window when both share a display.
+                        if let Some(l) = st.mirror_loop.take() {
+                            let (w, h) = (eyes[0].width, eyes[0].height);
+                            match Mirror::new(l, ctx.vk, w, h, eyes.len() as u32) {
+                                Ok(m) => st.mirror = Some(m),
+                                Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
+                            }
+                        }
+                        if let Some(m) = &mut st.mirror {
+                            let images: Vec<&[u8]> = frame.encoded.iter().map(|e| e.as_slice()).collect();
+                            let (w, h) = (eyes[0].width, eyes[0].height);
+                            if let Err(e) = m.present(ctx.vk, &images, eyes[0].format, w, h) {
+                                tracing::warn!("desktop mirror stopped: {e}");
+                                if let Some(m) = st.mirror.take() {
+                                    st.mirror_presented = m.presented;
+                                    m.destroy(ctx.vk);
                                 }
                             }
                         }
