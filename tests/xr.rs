@@ -6,6 +6,8 @@
 //! enabled. Those inner tests need the runtime and are ignored when run directly on the host. The suite is skipped
 //! (with the reason printed) only when not running as root or when the root cannot be built.
 
+mod xr_support;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -537,4 +539,35 @@ fn parse_ppm(bytes: &[u8]) -> Option<(usize, usize, Vec<u8>)> {
     let (w, h): (usize, usize) = (fields[1].parse().ok()?, fields[2].parse().ok()?);
     let data = bytes.get(i + 1..i + 1 + w * h * 3)?.to_vec();
     Some((w, h, data))
+}
+
+/// The real per-view pipeline (not the test box) as the eye renderer: a synthetic person, prepared once, appears in
+/// both eyes' AR layers where the eye pose puts the body centre, and nowhere near the image corners.
+#[test]
+#[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
+fn pipeline_person_appears_where_the_eye_pose_says() {
+    use r2human::app::xr_session::PipelineEyeRenderer;
+    use r2human::pipeline::{PrepareOptions, PreparedInput};
+    let (rgb, mask) = xr_support::figure(512);
+    let input = PreparedInput::prepare(&rgb, &mask, &PrepareOptions::default()).expect("prepare");
+    let mut renderer = PipelineEyeRenderer::new(&input, None);
+    let report = run_session(&config(XrMode::Ar, 10), &mut renderer).expect("session runs");
+    assert_clean_session(&report, 10);
+    for cap in &report.captures {
+        let (w, h) = (cap.image.width, cap.image.height);
+        let cam = cap.placement.eye_camera(cap.view.position, cap.view.orientation, cap.view.fov, w, h);
+        // The torso (body-cube origin, a little above for the chest) is covered; the person is all there is.
+        for p in [Vec3::ZERO, Vec3::new(0.0, 0.2, 0.0)] {
+            let c = cam.project(p).unwrap();
+            let a = cap.image.get(c.x as usize, c.y as usize).w;
+            assert!(a > 0.9, "eye {}: alpha {a} at the projected body point {p}", cap.eye);
+        }
+        let coverage = cap.image.data.iter().filter(|p| p.w > 0.5).count() as f32 / (w * h) as f32;
+        assert!(coverage > 0.02 && coverage < 0.6, "eye {}: coverage {coverage}", cap.eye);
+        for (x, y) in [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)] {
+            assert_eq!(cap.image.get(x, y).w, 0.0, "eye {}: corner ({x}, {y}) not transparent", cap.eye);
+        }
+        assert!(cap.image.data.iter().all(|p| p.is_finite() && p.w <= 1.0 && p.max_element() <= p.w + 1e-6));
+        save_capture(&format!("pipeline_ar_eye{}", cap.eye), &cap.image);
+    }
 }

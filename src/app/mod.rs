@@ -1,1 +1,2 @@
 //! `app` layer (see DESIGN in the README). Filled in by its own issue.
+pub mod xr_session;
