@@ -999,7 +999,10 @@ mod tests {
         assert!(!sm.running);
         assert_eq!(sm.on_state(S::IDLE), StateCommand::None);
         assert_eq!(sm.on_state(S::EXITING), StateCommand::Exit);
-        assert!(sm.reached(S::FOCUSED) && sm.history.len() == 10);
+        assert!(sm.reached(S::FOCUSED) && !sm.reached(S::LOSS_PENDING));
+        let expected =
+            [S::IDLE, S::READY, S::SYNCHRONIZED, S::VISIBLE, S::FOCUSED, S::VISIBLE, S::STOPPING, S::IDLE, S::EXITING];
+        assert_eq!(sm.history, expected);
         let mut lost = SessionStateMachine::default();
         lost.on_state(S::READY);
         assert_eq!(lost.on_state(S::LOSS_PENDING), StateCommand::Exit);
