@@ -768,6 +768,10 @@ fn frame_loop(
             }
         }
         if let Some((since, why)) = &exit_requested {
+            // A session that never began has nothing to wind down: leave at once.
+            if !st.sm.reached(xr::SessionState::READY) {
+                return why.clone();
+            }
             if since.elapsed() > EXIT_GRACE {
                 tracing::warn!("the runtime did not confirm the exit request within {EXIT_GRACE:?}");
                 return why.clone();
