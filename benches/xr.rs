@@ -85,7 +85,10 @@ fn bench_xr(c: &mut Criterion) {
     });
     group.finish();
 
-    // One longer session for the pacing numbers criterion cannot express.
+    // One longer session for the pacing numbers criterion cannot express (not in `cargo test`'s quick run).
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
     let mut renderer = PipelineEyeRenderer::new(&input, Some(&env));
     let report = run_session(&config(200), &mut renderer).expect("XR session");
     println!("\nXR session with the simulated HMD (200 person frames):\n{report}\n");
