@@ -1,3 +1,4 @@
 //! `app` layer: live loops that schedule the pipeline (desktop mirror, XR session, capture).
 
 pub mod mirror;
+pub mod xr_session;
