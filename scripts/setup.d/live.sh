@@ -26,6 +26,13 @@ if [ "${#need_apt[@]}" -gt 0 ]; then
     apt-get install -y --no-install-recommends "${need_apt[@]}"
 fi
 
+# ONNX Runtime's CPU library (the neural layer's setup installs the same file; whichever runs first wins).
+ORT_LIB="$ROOT/.tools/onnxruntime/onnxruntime/capi/libonnxruntime.so.1.31.1"
+if [ ! -f "$ORT_LIB" ]; then
+    python3 -m pip install --no-deps --no-input --disable-pip-version-check --upgrade \
+        --target "$ROOT/.tools/onnxruntime" "onnxruntime==1.31.1"
+fi
+
 if [ -s "$MODEL" ]; then
     echo "live.sh: segmentation model present: $MODEL"
     exit 0

@@ -16,6 +16,7 @@ pub mod segment;
 pub mod sequence;
 pub mod smooth;
 pub mod stats;
+pub mod synthetic;
 pub mod video;
 
 use std::path::{Path, PathBuf};
@@ -275,27 +276,11 @@ pub fn frame_from_srgb8(
     Some((rgb, alpha))
 }
 
-/// Decodes an image file into linear RGB and (when the file has an alpha channel) its alpha.
+/// Decodes an image file (through [`crate::io::image_io::load_image`], with its size limits) into linear RGB and,
+/// when the file has an alpha channel, its alpha.
 pub fn load_image_frame(path: &Path) -> Result<(RgbImage, Option<GrayImage>), String> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| e.to_string())?
-        .with_guessed_format()
-        .map_err(|e| e.to_string())?
-        .decode()
-        .map_err(|e| e.to_string())?;
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    if w == 0 || h == 0 {
-        return Err("the image is empty (0 pixels)".into());
-    }
-    if matches!(img, image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)) {
-        // HDR files are already linear.
-        let f = img.to_rgb32f();
-        let data = f.pixels().map(|p| Vec3::new(p[0], p[1], p[2]).clamp(Vec3::ZERO, Vec3::ONE)).collect();
-        return Ok((Image { width: w, height: h, data }, None));
-    }
-    let has_alpha = img.color().has_alpha();
-    let rgba = img.to_rgba8();
-    frame_from_srgb8(rgba.as_raw(), w, h, 4, has_alpha).ok_or_else(|| "pixel buffer too short".to_string())
+    let img = crate::io::image_io::load_image(path).map_err(|e| e.to_string())?;
+    Ok((img.rgb, img.alpha))
 }
 
 #[cfg(test)]
