@@ -118,13 +118,14 @@ pub struct PlateParams {
     pub shadow_min: f32,
     /// Radius of the opening (removes specks).
     pub open_radius: usize,
-    /// Radius of the closing (fills gaps in clothing that matches the background).
-    pub close_radius: usize,
+    /// Radius of the closing (fills gaps in clothing that matches the background) at 480 pixels of frame height;
+    /// scaled with the frame (at least 1), so gaps between limbs and body stay open at every resolution.
+    pub close_radius_480: usize,
 }
 
 impl Default for PlateParams {
     fn default() -> Self {
-        Self { k_sigma: 4.0, min_sigma: 0.02, shadow_min: 0.45, open_radius: 1, close_radius: 3 }
+        Self { k_sigma: 4.0, min_sigma: 0.02, shadow_min: 0.45, open_radius: 1, close_radius_480: 2 }
     }
 }
 
@@ -220,7 +221,8 @@ impl CleanPlate {
             });
         }
         let raw = self.raw_foreground(rgb, p);
-        let cleaned = close(&open(&raw, p.open_radius), p.close_radius);
+        let close_radius = ((p.close_radius_480 * rgb.height) as f32 / 480.0).round().max(1.0) as usize;
+        let cleaned = close(&open(&raw, p.open_radius), close_radius);
         Ok(to_gray(&fill_holes(&largest_component(&cleaned))))
     }
 }

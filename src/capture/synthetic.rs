@@ -78,10 +78,30 @@ pub fn walker(params: &WalkerParams, i: usize) -> (RgbImage, GrayImage) {
     let parts: [(Vec2, Vec2, f32, Vec3); 7] = [
         (Vec2::new(cx, 0.17 * s), Vec2::new(cx, 0.17 * s), 0.065 * s, skin),
         (shoulder, hip, 0.075 * s, shirt),
-        (hip + Vec2::new(-0.03 * s, 0.0), limb(hip, leg, swing), 0.04 * s, trousers),
-        (hip + Vec2::new(0.03 * s, 0.0), limb(hip, leg, -swing), 0.04 * s, trousers),
-        (shoulder, limb(shoulder, arm, -0.8 * swing + 0.15), 0.03 * s, shirt),
-        (shoulder, limb(shoulder, arm, 0.8 * swing - 0.15), 0.03 * s, shirt),
+        (
+            hip + Vec2::new(-0.035 * s, 0.0),
+            limb(hip + Vec2::new(-0.035 * s, 0.0), leg, swing - 0.08),
+            0.04 * s,
+            trousers,
+        ),
+        (
+            hip + Vec2::new(0.035 * s, 0.0),
+            limb(hip + Vec2::new(0.035 * s, 0.0), leg, -swing + 0.08),
+            0.04 * s,
+            trousers,
+        ),
+        (
+            shoulder + Vec2::new(-0.07 * s, 0.02 * s),
+            limb(shoulder + Vec2::new(-0.07 * s, 0.02 * s), arm, -0.8 * swing - 0.3),
+            0.028 * s,
+            skin,
+        ),
+        (
+            shoulder + Vec2::new(0.07 * s, 0.02 * s),
+            limb(shoulder + Vec2::new(0.07 * s, 0.02 * s), arm, 0.8 * swing + 0.3),
+            0.028 * s,
+            skin,
+        ),
         (Vec2::new(cx, 0.22 * s), Vec2::new(cx, 0.27 * s), 0.03 * s, skin),
     ];
     let mut rgb = Image::new(params.width, params.height, Vec3::ZERO);

@@ -172,11 +172,13 @@ impl FrameSource for VideoFileSource {
         }
         if filled < self.buf.len() {
             self.stdout = None;
-            let message = self.decoder_message();
-            let clean_end = filled == 0 && self.child.try_wait().ok().flatten().is_some_and(|s| s.success());
-            if clean_end && self.next > 0 {
+            let clean_exit = self.child.wait().is_ok_and(|s| s.success());
+            let printed = self.stderr.lock().map(|s| !s.trim().is_empty()).unwrap_or(false);
+            // A clean end: ffmpeg exited successfully, said nothing, and no partial frame is pending.
+            if filled == 0 && clean_exit && !printed && self.next > 0 {
                 return Ok(SourceEvent::End);
             }
+            let message = self.decoder_message();
             let index = self.next.saturating_sub(1);
             let reason = if filled > 0 { format!("a truncated frame ({message})") } else { message };
             return Err(CaptureError::StreamLost { path: self.path.clone(), index, reason });
