@@ -172,8 +172,9 @@ impl<T> Default for LatestSlot<T> {
 impl<T> LatestSlot<T> {
     /// Replaces the value (the lock is held only for the pointer swap).
     pub fn publish(&self, value: Arc<T>) {
-        let mut g = self.slot.lock().unwrap_or_else(|p| p.into_inner());
-        *g = Some(value);
+        let old = self.slot.lock().unwrap_or_else(|p| p.into_inner()).replace(value);
+        // The previous value (possibly a whole prepared frame) is freed outside the lock.
+        drop(old);
     }
 
     /// The current value, or `None` when empty or momentarily locked by the publisher.
@@ -596,4 +597,45 @@ pub fn video_source(path: &Path, fps: f32) -> SourceFactory {
 /// `--camera N` for the CLI: a factory for [`LivePipeline::start`].
 pub fn camera_source(request: crate::capture::CameraRequest) -> SourceFactory {
     Box::new(move || crate::capture::CameraSource::open(&request).map(|c| Box::new(c) as Box<dyn FrameSource>))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latest_reader_never_waits_for_the_publisher() {
+        let slot = Arc::new(LatestSlot::<u32>::default());
+        let mut reader = LatestReader { slot: Arc::clone(&slot), current: None };
+        assert!(reader.get().is_none());
+        slot.publish(Arc::new(1));
+        assert_eq!(**reader.get().unwrap(), 1);
+        slot.publish(Arc::new(2));
+        // While the publisher holds the slot, the reader returns what it has at once (this would deadlock if it
+        // waited for the lock).
+        let guard = slot.slot.lock().unwrap();
+        assert!(slot.try_get().is_none());
+        assert_eq!(**reader.get().unwrap(), 1);
+        drop(guard);
+        assert_eq!(**reader.get().unwrap(), 2);
+    }
+
+    #[test]
+    fn overlay_line_lists_stages_and_rates() {
+        let stats = LiveStats {
+            read: 10,
+            dropped: 3,
+            completed: 7,
+            errors: 0,
+            stages: vec![StageSummary {
+                name: "segment".into(),
+                median: Duration::from_millis(12),
+                samples: 7,
+                total: 7,
+            }],
+            throughput_fps: 7.5,
+            source_fps: 30.0,
+        };
+        assert_eq!(stats.overlay_line(), "segment 12.0 ms · 7.5/30.0 fps · 3 dropped");
+    }
 }
