@@ -504,3 +504,81 @@ fn devices_listing_says_so_when_there_is_no_camera() {
         assert!(matches!(err, CaptureError::NoCamera), "{err}");
     }
 }
+
+fn small_prepare() -> r2human::pipeline::PrepareOptions {
+    r2human::pipeline::PrepareOptions { resolution: 128, depth_samples: 128, fof_order: 16, ..Default::default() }
+}
+
+#[test]
+fn render_video_views_runs_the_core_pipeline_per_frame() {
+    use r2human::geometry::Camera;
+    use r2human::pipeline::warp::OcclusionFill;
+    let p = WalkerParams { frames: 3, ..params() };
+    let out = tempfile::tempdir().unwrap();
+    let mut src = WalkerSource::new(p.clone(), 0, true);
+    let mut run = |src: &mut WalkerSource, yaw: f32| {
+        r2human::app::live::render_video_views(
+            src,
+            &SegmentMethod::Alpha,
+            &LiveOptions::default(),
+            &small_prepare(),
+            &Camera::orbit(yaw, 0.0, 128, 128),
+            OcclusionFill::default(),
+            &out.path().join(format!("yaw{yaw}")),
+            |m| panic!("unexpected message: {m}"),
+        )
+    };
+    let front = run(&mut src, 0.0).unwrap();
+    // The source is used up: nothing to render is an error, not an empty success.
+    assert!(matches!(run(&mut src, 0.0), Err(r2human::app::live::LiveError::NothingRendered(_))));
+    let side = run(&mut WalkerSource::new(p, 0, true), 90.0).unwrap();
+    for stage in ["segment", "normalise", "geometry (inflate -> FOF)", "smooth geometry", "render", "write"] {
+        assert!(front.stages.iter().any(|s| s.name == stage), "missing {stage}: {:?}", front.stages);
+    }
+    let coverage = |path: &PathBuf| {
+        let img = image::open(path).unwrap().to_rgba8();
+        assert_eq!(img.dimensions(), (128, 128));
+        img.pixels().filter(|p| p[3] > 127).count()
+    };
+    assert_eq!((front.written.len(), side.written.len()), (3, 3));
+    for (f, s) in front.written.iter().zip(&side.written) {
+        // From the front the person covers its normalised silhouette (a figure 0.9 of the height: > 5% of the
+        // image); from the side the inflated body is thinner but still there.
+        let (cf, cs) = (coverage(f), coverage(s));
+        assert!(cf > 128 * 128 / 20, "{f:?}: {cf} px");
+        assert!(cs > 128 * 128 / 100 && cs < cf, "{s:?}: side {cs} px, front {cf} px");
+    }
+}
+
+#[test]
+fn live_pipeline_with_core_pipeline_and_views_from_the_latest_frame() {
+    use r2human::geometry::Camera;
+    use r2human::pipeline::ViewRenderer;
+    let p = WalkerParams { frames: 4, fps: 10.0, ..params() };
+    let opts = LiveOptions { segment: SegmentMethod::Alpha, ..LiveOptions::default() };
+    let live = LivePipeline::start(
+        Box::new(move || Ok(Box::new(WalkerSource::new(p, 0, true)) as Box<dyn FrameSource>)),
+        r2human::app::live::PrepareProcessor::new(small_prepare()),
+        opts,
+    )
+    .unwrap();
+    let mut reader = live.reader();
+    // The display loop: render a view from whatever frame is latest, at its own rate, until the source ends.
+    let mut views = 0;
+    let t = std::time::Instant::now();
+    while !live.is_finished() && t.elapsed() < Duration::from_secs(60) {
+        if let Some(done) = reader.get() {
+            let mut renderer = ViewRenderer::new(&done.output, Default::default(), false);
+            let view = renderer.render_person(&Camera::orbit(30.0 * views as f32, 0.0, 64, 64)).unwrap();
+            assert!(view.data.iter().all(|v| v.is_finite() && v.w >= 0.0 && v.w <= 1.0));
+            views += 1;
+        } else {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+    assert!(live.is_finished());
+    let stats = live.stats();
+    assert!(stats.completed >= 1 && views >= 1, "{stats:?} views {views}");
+    assert!(live.messages().is_empty(), "{:?}", live.messages());
+    eprintln!("{} · {views} views rendered", stats.overlay_line());
+}

@@ -22,10 +22,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use crate::buffer::{GrayImage, RgbaImage};
-use crate::capture::smooth::MaskSmoother;
+use crate::capture::smooth::{MaskSmoother, VecSmoother};
 use crate::capture::stats::{StageStats, StageSummary};
 use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter, SourceEvent, SourceFactory};
+use crate::geometry::{inflate, Camera};
 use crate::pipeline::input::{normalise, NormalisedInput};
+use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, StageTimings, ViewRenderer};
 
 /// Errors of the live loop and offline video rendering.
 #[derive(Debug, thiserror::Error)]
@@ -78,6 +81,48 @@ impl FrameProcessor for NormaliseProcessor {
 
     fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<NormalisedInput, String> {
         stats.time("normalise", || normalise(&frame.rgb, mask, self.resolution)).map_err(|e| e.to_string())
+    }
+}
+
+/// The full per-frame stages of the core pipeline: normalise -> geometry (FOF) -> temporal smoothing of the FOF
+/// coefficients -> mesh -> source raster. Stage names in the statistics are the pipeline's own plus
+/// "smooth geometry".
+pub struct PrepareProcessor {
+    /// Pipeline settings.
+    pub options: PrepareOptions,
+    fof_smoother: VecSmoother,
+}
+
+impl PrepareProcessor {
+    /// A processor with FOF smoothing weight 0.6 (new frame) and a reset when the coefficients change by more
+    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change.
+    pub fn new(options: PrepareOptions) -> Self {
+        Self { options, fof_smoother: VecSmoother::new(0.6, 0.5) }
+    }
+}
+
+impl FrameProcessor for PrepareProcessor {
+    type Output = PreparedInput;
+
+    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<PreparedInput, String> {
+        let opts = &self.options;
+        let mut timings = StageTimings::default();
+        let normalised =
+            timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution)).map_err(|e| e.to_string())?;
+        let mut fof = match opts.geometry {
+            GeometryMode::Inflate => timings
+                .time("geometry (inflate -> FOF)", || {
+                    inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+                })
+                .map_err(|e| e.to_string())?,
+        };
+        let smoother = &mut self.fof_smoother;
+        timings.time("smooth geometry", || smoother.update(&mut fof.coeffs));
+        let prepared = PreparedInput::from_fof(normalised, fof, opts, timings).map_err(|e| e.to_string())?;
+        for (name, d) in &prepared.timings.0 {
+            stats.record(name, *d);
+        }
+        Ok(prepared)
     }
 }
 
@@ -576,6 +621,27 @@ pub fn render_video<P: FrameProcessor>(
         return Err(LiveError::NothingRendered(source.describe()));
     }
     Ok(report)
+}
+
+/// `r2human render --video PATH ... --out OUTDIR`: every frame through the core pipeline
+/// ([`PrepareProcessor`]) and rendered for `camera` ([`ViewRenderer::render_person`], premultiplied RGBA, no
+/// fusion between frames), one PNG per input frame in `out_dir`. See [`render_video`].
+#[allow(clippy::too_many_arguments)]
+pub fn render_video_views(
+    source: &mut dyn FrameSource,
+    method: &SegmentMethod,
+    options: &LiveOptions,
+    prepare: &PrepareOptions,
+    camera: &Camera,
+    fill: OcclusionFill,
+    out_dir: &Path,
+    on_message: impl FnMut(&str),
+) -> Result<RenderReport, LiveError> {
+    let mut processor = PrepareProcessor::new(prepare.clone());
+    let render = |done: &Completed<PreparedInput>| {
+        ViewRenderer::new(&done.output, fill, false).render_person(camera).map_err(|e| e.to_string())
+    };
+    render_video(source, method, options, &mut processor, render, out_dir, on_message)
 }
 
 /// The normalised source view as an RGBA image (premultiplied): the renderer `render_video` uses when no view
