@@ -516,7 +516,7 @@ fn render_video_views_runs_the_core_pipeline_per_frame() {
     let p = WalkerParams { frames: 3, ..params() };
     let out = tempfile::tempdir().unwrap();
     let mut src = WalkerSource::new(p.clone(), 0, true);
-    let mut run = |src: &mut WalkerSource, yaw: f32| {
+    let run = |src: &mut WalkerSource, yaw: f32| {
         r2human::app::live::render_video_views(
             src,
             &SegmentMethod::Alpha,
