@@ -7,12 +7,13 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use r2human::app::live::{LiveOptions, LivePipeline, NormaliseProcessor};
+use r2human::app::live::{LiveOptions, LivePipeline, PrepareProcessor};
 use r2human::capture::morph::{close, fill_holes, largest_component, open, threshold};
 use r2human::capture::segment::{CleanPlate, PlateParams};
 use r2human::capture::smooth::MaskSmoother;
 use r2human::capture::synthetic::{composite, empty_scene, walker, WalkerParams, WalkerSource};
 use r2human::capture::{open_video_path, Frame, FrameSource, SegmentMethod, SourceEvent};
+use r2human::pipeline::PrepareOptions;
 
 fn vga() -> WalkerParams {
     WalkerParams { width: 640, height: 480, frames: 16, fps: 30.0, noise: 0.01 }
@@ -66,34 +67,38 @@ fn bench_decode(c: &mut Criterion) {
 }
 
 fn bench_onnx(c: &mut Criterion) {
-    for size in [256usize, 512] {
-        let mut seg = match (SegmentMethod::Onnx { model: None, input_size: size }).build(None) {
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models");
+    for (name, file, size) in
+        [("onnx_pose_256", "pose_landmark_full.onnx", 256), ("onnx_isnet_512", "isnet_seg.onnx", 512)]
+    {
+        let mut seg = match (SegmentMethod::Onnx { model: Some(models.join(file)), input_size: size }).build(None) {
             Ok(s) => s,
             Err(e) => {
-                eprintln!("onnx segmentation not benchmarked: {e}");
-                return;
+                eprintln!("{name} not benchmarked: {e}");
+                continue;
             }
         };
         let p = vga();
         let (rgb, _) = composite(&p, 2);
         let frame = Frame { index: 0, timestamp: Duration::ZERO, rgb, alpha: None };
         let mut g = c.benchmark_group("capture_640x480");
-        g.sample_size(10).measurement_time(Duration::from_secs(30));
-        g.bench_function(format!("onnx_isnet_{size}"), |b| b.iter(|| seg.segment(&frame).expect("segment")));
+        g.sample_size(10).measurement_time(Duration::from_secs(20));
+        g.bench_function(name, |b| b.iter(|| seg.segment(&frame).expect("segment")));
         g.finish();
     }
 }
 
-/// Runs the live loop over a 640x480 walker delivered at 30 fps with clean-plate segmentation and writes the
-/// per-stage medians (the numbers the window shows) to target/capture_stages.json.
+/// Runs the live loop over a 640x480 walker delivered at 30 fps with clean-plate segmentation and the core
+/// pipeline (normalise, inflation FOF, mesh, source raster at 512^2) and writes the per-stage medians (the
+/// numbers the window shows) to target/capture_stages.json.
 fn live_loop_stages(_c: &mut Criterion) {
-    let p = WalkerParams { frames: 60, ..vga() };
+    let p = WalkerParams { frames: 90, ..vga() };
     let opts =
         LiveOptions { segment: SegmentMethod::CleanPlate { plate: None, plate_frames: 5 }, ..LiveOptions::default() };
     let pp = p.clone();
     let live = LivePipeline::start(
         Box::new(move || Ok(Box::new(WalkerSource::new(pp, 5, false)) as Box<dyn FrameSource>)),
-        NormaliseProcessor { resolution: 512 },
+        PrepareProcessor::new(PrepareOptions::default()),
         opts,
     )
     .expect("start");
@@ -105,7 +110,7 @@ fn live_loop_stages(_c: &mut Criterion) {
         .map(|s| serde_json::json!({"stage": s.name, "median_ms": s.median_ms(), "samples": s.total}))
         .collect();
     let json = serde_json::json!({
-        "source": "synthetic walker 640x480 at 30 fps, clean-plate segmentation, normalisation to 512^2",
+        "source": "synthetic walker 640x480 at 30 fps, clean-plate segmentation, core pipeline at 512^2",
         "read": stats.read, "dropped": stats.dropped, "completed": stats.completed,
         "throughput_fps": stats.throughput_fps, "source_fps": stats.source_fps, "stages": stages,
     });
