@@ -1,4 +1,5 @@
 //! `app` layer: live loops that schedule the pipeline (desktop mirror, XR session, capture).
 
+pub mod live;
 pub mod mirror;
 pub mod xr_session;
