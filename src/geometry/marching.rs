@@ -39,7 +39,7 @@ pub const DEFAULT_DEPTH_SAMPLES: usize = 512;
 pub const MAX_DEPTH_SAMPLES: usize = 4096;
 
 /// Column rows per parallel slab.
-const SLAB_ROWS: usize = 16;
+const SLAB_ROWS: usize = 32;
 const NONE: u32 = u32::MAX;
 
 /// Cube corner `n` has offsets `(n & 1, (n >> 1) & 1, (n >> 2) & 1)` along (column, row, depth).
@@ -202,6 +202,17 @@ const SPAN_DECODED: u8 = 2;
 /// Depth samples between two coarse (always decoded) samples.
 const SPAN: usize = 8;
 
+/// Sets bits `lo..=hi`.
+#[inline]
+fn set_bit_range(bits: &mut [u64], lo: usize, hi: usize) {
+    for (w, word) in bits.iter_mut().enumerate().take(hi / 64 + 1).skip(lo / 64) {
+        let start = lo.max(w * 64) - w * 64;
+        let end = hi.min(w * 64 + 63) - w * 64; // inclusive
+        let mask = (u64::MAX >> (63 - end)) & (u64::MAX << start);
+        *word |= mask;
+    }
+}
+
 /// `out[i] = sum_k c_k table[k][lo + i]` in the same operation order as [`Fof::decode_column_with`], so
 /// values decoded piecewise are bit-identical to a whole-column decode.
 #[inline]
@@ -237,6 +248,8 @@ struct Extractor<'a> {
     fof: &'a Fof,
     grid: Grid,
     table: CosineTable,
+    /// The table restricted to the coarse samples `j * SPAN` (clamped to `D - 1`), `j = 0..=spans`.
+    coarse_table: CosineTable,
     needed: Vec<bool>,
     words: usize,
     /// Number of coarse spans per column (`ceil((D - 1) / SPAN)`).
@@ -260,7 +273,7 @@ impl Extractor<'_> {
         let spans = self.spans;
         out.bits.fill(0);
         out.has_inside.fill(false);
-        let mut coarse = vec![0.0f32; 1];
+        let mut coarse = vec![0.0f32; spans + 1];
         for col in 0..w {
             if !self.needed[row * w + col] {
                 continue;
@@ -274,10 +287,9 @@ impl Extractor<'_> {
             let step2 = (std::f64::consts::PI / d as f64).powi(2) * m2;
             let rounding = (c.len() as f64 + 2.0) * 2.5e-7 * sum_abs + 1e-6;
             let vals = &mut out.values[col * d..(col + 1) * d];
-            for j in 0..=spans {
-                let idx = (j * SPAN).min(d - 1);
-                decode_range(c, &self.table, idx, &mut coarse);
-                vals[idx] = coarse[0];
+            decode_range(c, &self.coarse_table, 0, &mut coarse);
+            for (j, &v) in coarse.iter().enumerate() {
+                vals[(j * SPAN).min(d - 1)] = v;
             }
             let bits = &mut out.bits[col * self.words..(col + 1) * self.words];
             let states = &mut out.spans[col * spans..(col + 1) * spans];
@@ -295,15 +307,19 @@ impl Extractor<'_> {
                     decode_range(c, &self.table, lo, &mut vals[lo..=hi]);
                     SPAN_DECODED
                 };
-                for (i, &v) in vals.iter().enumerate().take(hi + 1).skip(lo) {
-                    let inside = match *state {
-                        SPAN_INSIDE => true,
-                        SPAN_OUTSIDE => false,
-                        _ => is_inside(v),
-                    };
-                    if inside {
-                        bits[i / 64] |= 1 << (i % 64);
+                match *state {
+                    SPAN_OUTSIDE => {}
+                    SPAN_INSIDE => {
+                        set_bit_range(bits, lo, hi);
                         any = true;
+                    }
+                    _ => {
+                        for (i, &v) in vals.iter().enumerate().take(hi + 1).skip(lo) {
+                            if is_inside(v) {
+                                bits[i / 64] |= 1 << (i % 64);
+                                any = true;
+                            }
+                        }
                     }
                 }
             }
@@ -477,14 +493,17 @@ pub fn extract_mesh(fof: &Fof, depth_samples: usize) -> TriMesh {
     if !nonempty.iter().any(|&b| b) {
         return TriMesh::default();
     }
-    let ex = Extractor {
-        fof,
-        grid,
-        table: CosineTable::new(fof.n, d),
-        needed,
-        words: d.div_ceil(64),
-        spans: (d - 1).div_ceil(SPAN),
+    let table = CosineTable::new(fof.n, d);
+    let spans = (d - 1).div_ceil(SPAN);
+    let coarse_table = CosineTable {
+        n: table.n,
+        samples: spans + 1,
+        values: (0..table.n)
+            .flat_map(|k| (0..=spans).map(move |j| (k, (j * SPAN).min(d - 1))))
+            .map(|(k, i)| table.values[k * d + i])
+            .collect(),
     };
+    let ex = Extractor { fof, grid, table, coarse_table, needed, words: d.div_ceil(64), spans };
     // Slabs of cell rows; skip slabs with no needed column at all.
     let slabs: Vec<(usize, usize)> = (0..h - 1)
         .step_by(SLAB_ROWS)
