@@ -1,6 +1,58 @@
-//! Command-line commands.
+//! Command-line commands: argument parsing and hand-over to the library. No algorithm lives here.
 
-/// Entry point of the binary.
-pub fn main() -> std::process::ExitCode {
-    std::process::ExitCode::SUCCESS
+mod data;
+mod render;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// r2human: render a person from one photo from any viewpoint — in a VR panorama, as an AR layer, or on the
+/// desktop.
+#[derive(Parser, Debug)]
+#[command(name = "r2human", version, about, long_about = None)]
+pub struct Cli {
+    /// The command to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Top-level commands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Render novel views of the person in a photo: one view (--yaw/--pitch) or an orbit (--orbit N).
+    Render(render::RenderArgs),
+    /// Run the whole pipeline on the embedded default person and panorama; writes an orbit (PNGs, GIF, contact
+    /// sheet).
+    Demo(render::DemoArgs),
+    /// Write a dataset of synthetic people with ground truth (source view, FOF, target views).
+    Dataset(data::DatasetArgs),
+    /// Write one synthetic person as a textured glTF binary (.glb).
+    Synth(data::SynthArgs),
+}
+
+/// Entry point of the binary: parses arguments, runs the command, prints errors as sentences.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging();
+    let result = match cli.command {
+        Command::Render(args) => render::run_render(&args),
+        Command::Demo(args) => render::run_demo(&args),
+        Command::Dataset(args) => data::run_dataset(&args),
+        Command::Synth(args) => data::run_synth(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("R2HUMAN_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ =
+        tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).try_init();
 }

@@ -1,1 +1,40 @@
-//! `eval` layer (see DESIGN in the README). Filled in by its own issue.
+//! Ground truth and evaluation: rendering known views of synthetic subjects and scans ([`ground_truth`]) and
+//! writing them as a dataset ([`dataset`]), and the error metrics ([`metrics`]).
+
+pub mod dataset;
+pub mod ground_truth;
+pub mod metrics;
+
+use std::path::{Path, PathBuf};
+
+/// Errors of the eval layer.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// Options out of range.
+    #[error("invalid options: {0}")]
+    InvalidOptions(String),
+    /// Subject generation or scan loading failed.
+    #[error(transparent)]
+    Synth(#[from] crate::synth::SynthError),
+    /// A file or folder could not be written or read.
+    #[error("{path}: {message}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// What failed.
+        message: String,
+    },
+    /// Ground-truth FOF encoding failed.
+    #[error("ground-truth FOF: {0}")]
+    Fof(String),
+    /// No subject could be written.
+    #[error("every subject failed; the first error was {0}")]
+    AllFailed(String),
+}
+
+impl EvalError {
+    /// An I/O error on `path`.
+    pub fn io(path: &Path, e: std::io::Error) -> Self {
+        EvalError::Io { path: path.to_path_buf(), message: e.to_string() }
+    }
+}

@@ -1,1 +1,678 @@
-//! (being written)
+//! Fourier occupancy field (FOF-X cosine form): a per-pixel cosine series of the occupancy along the source
+//! camera's viewing ray.
+//!
+//! # Conventions
+//! - The pixel grid is the orthographic source camera [`Camera::source`](super::Camera::source) over the body
+//!   cube: pixel `(col, row)` has its centre at `x = (col+0.5)/(W/2) - 1`, `y = 1 - (row+0.5)/(H/2)`.
+//! - Along the ray, `t = z + 1` in `[0, 2]` and `s = t / 2` in `[0, 1]` (`s = 0` is the back of the cube,
+//!   `s = 1` the face toward the camera).
+//! - A pixel's ray crosses the body in sorted intervals `[z_lo, z_hi]` (z ascending). With `t = z + 1`:
+//!   `c_0 = sum(t_hi - t_lo)`, `c_k = sum[sin(k pi t_hi / 2) - sin(k pi t_lo / 2)] / (k pi / 2)`, `k = 1..N-1`.
+//! - Decoding: `occ(s) = 0.5 c_0 + sum_{k>=1} c_k cos(k pi s)`; the surface is the `occ = 0.5` level set. Depth
+//!   sample `d` of `D` sits at `s_d = (d + 0.5) / D`, i.e. `z_d = 2 s_d - 1`.
+//!
+//! These are exactly the formulas of the public FOF-X code (see the project's reference facts).
+
+use rayon::prelude::*;
+
+use super::mesh::TriMesh;
+use crate::buffer::{GrayImage, Image};
+
+/// Largest grid side accepted by the encoders (keeps memory bounded on bad input).
+pub const MAX_RESOLUTION: usize = 8192;
+/// Largest number of coefficients per pixel accepted by the encoders.
+pub const MAX_ORDER: usize = 1024;
+
+/// Errors of the FOF layer.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FofError {
+    /// The number of coefficients per pixel must be at least 1.
+    #[error("the FOF order N must be between 1 and {MAX_ORDER}, got {0}")]
+    BadOrder(usize),
+    /// The grid is empty or larger than [`MAX_RESOLUTION`].
+    #[error("the FOF grid must be between 1x1 and {MAX_RESOLUTION}x{MAX_RESOLUTION} pixels, got {width}x{height}")]
+    BadSize {
+        /// Requested width.
+        width: usize,
+        /// Requested height.
+        height: usize,
+    },
+    /// Inputs that must share a size do not.
+    #[error("size mismatch: {what} is {got_width}x{got_height} but {want_width}x{want_height} was expected")]
+    SizeMismatch {
+        /// Which input is wrong.
+        what: &'static str,
+        /// Its width.
+        got_width: usize,
+        /// Its height.
+        got_height: usize,
+        /// The expected width.
+        want_width: usize,
+        /// The expected height.
+        want_height: usize,
+    },
+    /// The coefficient buffer does not hold `n * width * height` values.
+    #[error("the coefficient buffer holds {got} values but N x W x H = {want}")]
+    CoefficientCount {
+        /// Values supplied.
+        got: usize,
+        /// Values expected.
+        want: usize,
+    },
+    /// A NaN or infinity in the input (a mesh vertex, a depth, a mask value or a coefficient).
+    #[error("non-finite value in {what} at index {index}; check the upstream stage for NaN/inf")]
+    NonFinite {
+        /// Which input holds it.
+        what: &'static str,
+        /// Flat index of the first offending value.
+        index: usize,
+    },
+}
+
+/// A Fourier occupancy field: `n` cosine coefficients per pixel of a `width x height` source grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Fof {
+    /// Coefficients per pixel (`N`; 32 in R²Human).
+    pub n: usize,
+    /// Grid width in pixels.
+    pub width: usize,
+    /// Grid height in pixels.
+    pub height: usize,
+    /// The coefficients of pixel `(col, row)` are contiguous at `[(row * width + col) * n .. + n]`.
+    pub coeffs: Vec<f32>,
+}
+
+/// A precomputed cosine basis for decoding columns at `samples` depths: entry `[k * samples + d]` is
+/// `cos(k pi s_d)` with `s_d = (d + 0.5) / samples`, except row `k = 0` which holds the DC weight `0.5`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CosineTable {
+    /// Number of coefficients (rows).
+    pub n: usize,
+    /// Number of depth samples (columns).
+    pub samples: usize,
+    /// `n * samples` basis values, row-major by coefficient.
+    pub values: Vec<f32>,
+}
+
+impl CosineTable {
+    /// Builds the table for `n` coefficients and `samples` depth samples (computed in f64, stored in f32).
+    pub fn new(n: usize, samples: usize) -> Self {
+        let mut values = Vec::with_capacity(n * samples);
+        for k in 0..n {
+            for d in 0..samples {
+                if k == 0 {
+                    values.push(0.5);
+                } else {
+                    let s = (d as f64 + 0.5) / samples as f64;
+                    values.push((k as f64 * std::f64::consts::PI * s).cos() as f32);
+                }
+            }
+        }
+        Self { n, samples, values }
+    }
+}
+
+fn check_size(width: usize, height: usize) -> Result<(), FofError> {
+    if width == 0 || height == 0 || width > MAX_RESOLUTION || height > MAX_RESOLUTION {
+        return Err(FofError::BadSize { width, height });
+    }
+    Ok(())
+}
+
+fn check_order(n: usize) -> Result<(), FofError> {
+    if n == 0 || n > MAX_ORDER {
+        return Err(FofError::BadOrder(n));
+    }
+    Ok(())
+}
+
+/// Adds the FOF coefficients of one interval `[z_lo, z_hi]` (z in `[-1, 1]`) to `out` (length N).
+///
+/// `sin(k theta)` comes from the Chebyshev recurrence in f64, exact to ~1e-14 for any N used here.
+fn accumulate_interval(z_lo: f32, z_hi: f32, out: &mut [f32]) {
+    let lo = (z_lo.clamp(-1.0, 1.0) as f64) + 1.0;
+    let hi = (z_hi.clamp(-1.0, 1.0) as f64) + 1.0;
+    if hi <= lo {
+        return;
+    }
+    out[0] += (hi - lo) as f32;
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let (th_hi, th_lo) = (half_pi * hi, half_pi * lo);
+    let (two_cos_hi, two_cos_lo) = (2.0 * th_hi.cos(), 2.0 * th_lo.cos());
+    // s_{k-1}, s_k for both ends, starting at k = 0 -> (0, sin theta) for k = 1.
+    let (mut hi_prev, mut hi_cur) = (0.0f64, th_hi.sin());
+    let (mut lo_prev, mut lo_cur) = (0.0f64, th_lo.sin());
+    for (k, c) in out.iter_mut().enumerate().skip(1) {
+        *c += ((hi_cur - lo_cur) / (k as f64 * half_pi)) as f32;
+        let hi_next = two_cos_hi * hi_cur - hi_prev;
+        let lo_next = two_cos_lo * lo_cur - lo_prev;
+        (hi_prev, hi_cur) = (hi_cur, hi_next);
+        (lo_prev, lo_cur) = (lo_cur, lo_next);
+    }
+}
+
+impl Fof {
+    /// A field with every coefficient zero (empty everywhere).
+    pub fn zeros(n: usize, width: usize, height: usize) -> Result<Self, FofError> {
+        check_order(n)?;
+        check_size(width, height)?;
+        Ok(Self { n, width, height, coeffs: vec![0.0; n * width * height] })
+    }
+
+    /// Wraps coefficients from elsewhere (e.g. a network), checking their count and that all are finite.
+    pub fn new(n: usize, width: usize, height: usize, coeffs: Vec<f32>) -> Result<Self, FofError> {
+        check_order(n)?;
+        check_size(width, height)?;
+        let want = n * width * height;
+        if coeffs.len() != want {
+            return Err(FofError::CoefficientCount { got: coeffs.len(), want });
+        }
+        if let Some(index) = coeffs.iter().position(|c| !c.is_finite()) {
+            return Err(FofError::NonFinite { what: "FOF coefficients", index });
+        }
+        Ok(Self { n, width, height, coeffs })
+    }
+
+    /// Encodes a triangle mesh (body-cube coordinates) on a `resolution x resolution` source grid with `n`
+    /// coefficients, using [`intervals_from_mesh`] (robust to non-watertight meshes).
+    pub fn from_mesh(mesh: &TriMesh, resolution: usize, n: usize) -> Result<Self, FofError> {
+        check_order(n)?;
+        check_size(resolution, resolution)?;
+        if let Some(index) = mesh.positions.iter().position(|p| !p.is_finite()) {
+            return Err(FofError::NonFinite { what: "mesh vertices", index });
+        }
+        if let Err(msg) = mesh.validate() {
+            // Only out-of-range indices remain possible here; report them as a size problem of the mesh.
+            tracing::warn!("FOF from mesh: {msg}; offending triangles are skipped");
+        }
+        Self::from_intervals(&intervals_from_mesh(mesh, resolution, resolution), n)
+    }
+
+    /// Encodes per-pixel intervals `(z_lo, z_hi)` (z in `[-1, 1]`, clamped; empty or reversed intervals are
+    /// ignored) with `n` coefficients.
+    pub fn from_intervals(intervals: &Image<Vec<(f32, f32)>>, n: usize) -> Result<Self, FofError> {
+        check_order(n)?;
+        check_size(intervals.width, intervals.height)?;
+        for (i, list) in intervals.data.iter().enumerate() {
+            if list.iter().any(|&(a, b)| !(a.is_finite() && b.is_finite())) {
+                return Err(FofError::NonFinite { what: "intervals", index: i });
+            }
+        }
+        let mut coeffs = vec![0.0f32; n * intervals.width * intervals.height];
+        coeffs.par_chunks_mut(n * intervals.width).zip(intervals.data.par_chunks(intervals.width)).for_each(
+            |(row_out, row_in)| {
+                for (out, list) in row_out.chunks_exact_mut(n).zip(row_in) {
+                    for &(lo, hi) in list {
+                        accumulate_interval(lo, hi, out);
+                    }
+                }
+            },
+        );
+        Ok(Self { n, width: intervals.width, height: intervals.height, coeffs })
+    }
+
+    /// Encodes front/back depth maps: one interval `[back, front]` per pixel whose mask is above 0.5 (depth =
+    /// body-cube z in `[-1, 1]`, clamped; pixels with `front <= back` stay empty).
+    pub fn from_depth_maps(front: &GrayImage, back: &GrayImage, mask: &GrayImage, n: usize) -> Result<Self, FofError> {
+        check_order(n)?;
+        check_size(mask.width, mask.height)?;
+        for (what, img) in [("front depth map", front), ("back depth map", back)] {
+            if img.width != mask.width || img.height != mask.height {
+                return Err(FofError::SizeMismatch {
+                    what,
+                    got_width: img.width,
+                    got_height: img.height,
+                    want_width: mask.width,
+                    want_height: mask.height,
+                });
+            }
+        }
+        if let Some(index) = mask.data.iter().position(|m| !m.is_finite()) {
+            return Err(FofError::NonFinite { what: "mask", index });
+        }
+        for (what, img) in [("front depth map", front), ("back depth map", back)] {
+            if let Some(index) = (0..img.data.len()).find(|&i| mask.data[i] > 0.5 && !img.data[i].is_finite()) {
+                return Err(FofError::NonFinite { what, index });
+            }
+        }
+        let (w, h) = (mask.width, mask.height);
+        let mut coeffs = vec![0.0f32; n * w * h];
+        coeffs.par_chunks_mut(n * w).enumerate().for_each(|(row, row_out)| {
+            for (col, out) in row_out.chunks_exact_mut(n).enumerate() {
+                let i = row * w + col;
+                if mask.data[i] > 0.5 {
+                    accumulate_interval(back.data[i], front.data[i], out);
+                }
+            }
+        });
+        Ok(Self { n, width: w, height: h, coeffs })
+    }
+
+    /// The `n` coefficients of pixel `(col, row)`.
+    #[inline]
+    pub fn column(&self, col: usize, row: usize) -> &[f32] {
+        let i = (row * self.width + col) * self.n;
+        &self.coeffs[i..i + self.n]
+    }
+
+    /// Occupancy of pixel `(col, row)` at ray parameter `s` in `[0, 1]` (`z = 2 s - 1`).
+    pub fn occupancy(&self, col: usize, row: usize, s: f32) -> f32 {
+        let c = self.column(col, row);
+        let theta = std::f64::consts::PI * s as f64;
+        let mut sum = 0.5 * c[0] as f64;
+        for (k, &ck) in c.iter().enumerate().skip(1) {
+            sum += ck as f64 * (k as f64 * theta).cos();
+        }
+        sum as f32
+    }
+
+    /// Decodes pixel `(col, row)` at `samples` depths `s_d = (d + 0.5) / samples` into `out[..samples]`
+    /// (fewer if `out` is shorter). Builds a [`CosineTable`] on every call: in loops, build the table once and
+    /// use [`Fof::decode_column_with`].
+    pub fn decode_column(&self, col: usize, row: usize, samples: usize, out: &mut [f32]) {
+        let table = CosineTable::new(self.n, samples);
+        self.decode_column_with(&table, col, row, out);
+    }
+
+    /// Decodes pixel `(col, row)` with a precomputed table into `out[..table.samples]` (fewer if `out` is
+    /// shorter). Coefficients past the table's order are ignored; a smaller table order truncates the series.
+    pub fn decode_column_with(&self, table: &CosineTable, col: usize, row: usize, out: &mut [f32]) {
+        let m = table.samples.min(out.len());
+        let out = &mut out[..m];
+        out.fill(0.0);
+        for (k, &ck) in self.column(col, row).iter().enumerate().take(table.n) {
+            if ck == 0.0 {
+                continue;
+            }
+            let basis = &table.values[k * table.samples..k * table.samples + m];
+            for (o, &b) in out.iter_mut().zip(basis) {
+                *o += ck * b;
+            }
+        }
+    }
+
+    /// Whether pixel `(col, row)`'s occupancy stays strictly below 0.5 at every depth, proven by the bound
+    /// `occ(s) <= 0.5 c_0 + sum_{k>=1} |c_k|` (exact for all-zero columns; conservative otherwise).
+    pub fn is_empty_column(&self, col: usize, row: usize) -> bool {
+        let c = self.column(col, row);
+        let bound = 0.5 * c[0] + c[1..].iter().map(|v| v.abs()).sum::<f32>();
+        bound < 0.5
+    }
+}
+
+/// One ray hit for the interval automaton: depth and whether the surface is entered there.
+#[derive(Clone, Copy, Debug)]
+struct Hit {
+    pixel: u32,
+    z: f32,
+    entering: bool,
+}
+
+/// Edge function of the 2-D edge `a -> b` at `p`, computed in a canonical vertex order so the two
+/// triangles sharing an edge get exactly opposite values (no pixel is hit twice or missed on a shared edge).
+#[inline]
+fn edge_fn(a: [f32; 2], b: [f32; 2], p: [f32; 2]) -> f32 {
+    let orient = |a: [f32; 2], b: [f32; 2]| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+    if (a[0], a[1]) <= (b[0], b[1]) {
+        orient(a, b)
+    } else {
+        -orient(b, a)
+    }
+}
+
+/// Top-left fill rule for a counter-clockwise (y up) triangle: an edge owns the points exactly on it when it
+/// goes down, or is horizontal going left.
+#[inline]
+fn owns_boundary(a: [f32; 2], b: [f32; 2]) -> bool {
+    b[1] < a[1] || (b[1] == a[1] && b[0] < a[0])
+}
+
+/// Rows per rasterisation band (the unit of parallel work).
+const BAND_ROWS: usize = 8;
+
+/// Per-pixel intervals `(z_lo, z_hi)` (ascending, z in `[-1, 1]`) of a mesh on the `width x height` source
+/// grid.
+///
+/// Every triangle is rasterised at pixel centres (top-left rule, so shared edges are hit once); each hit is
+/// tagged *entering* when the triangle faces the camera (normal z > 0) and *leaving* otherwise; edge-on and
+/// non-finite triangles are skipped. Hits are sorted from the camera inward and paired by the reference's
+/// automaton: wait for an entering hit; a leaving hit closes the interval; further leaving hits extend it; an
+/// entering hit after a close opens a new one; unmatched hits are dropped. Non-watertight scans (holes,
+/// duplicated faces, inner shells) therefore still give usable intervals. Depths are clamped to the cube.
+pub fn intervals_from_mesh(mesh: &TriMesh, width: usize, height: usize) -> Image<Vec<(f32, f32)>> {
+    let mut result = Image::new(width, height, Vec::new());
+    if width == 0 || height == 0 {
+        return result;
+    }
+    let nv = mesh.positions.len();
+    let (sx, sy) = (width as f32 * 0.5, height as f32 * 0.5);
+    let bands = height.div_ceil(BAND_ROWS);
+    // Bin the triangles into row bands.
+    let mut binned: Vec<Vec<u32>> = vec![Vec::new(); bands];
+    for (ti, t) in mesh.triangles.iter().enumerate() {
+        if t.iter().any(|&i| i as usize >= nv) {
+            continue;
+        }
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        if !(a.is_finite() && b.is_finite() && c.is_finite()) {
+            continue;
+        }
+        // Rows whose centre y lies within the triangle's y range.
+        let (ymin, ymax) = (a.y.min(b.y).min(c.y), a.y.max(b.y).max(c.y));
+        let row_lo = ((1.0 - ymax) * sy - 0.5).ceil().max(0.0);
+        let row_hi = ((1.0 - ymin) * sy - 0.5).floor().min(height as f32 - 1.0);
+        if row_hi < row_lo {
+            continue;
+        }
+        for list in &mut binned[row_lo as usize / BAND_ROWS..=row_hi as usize / BAND_ROWS] {
+            list.push(ti as u32);
+        }
+    }
+    result.data.par_chunks_mut(BAND_ROWS * width).zip(binned.par_iter()).enumerate().for_each(|(band, (out, tris))| {
+        let row0 = band * BAND_ROWS;
+        let rows = out.len() / width;
+        let mut hits: Vec<Hit> = Vec::new();
+        for &ti in tris {
+            let t = mesh.triangles[ti as usize];
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let nz = (b - a).cross(c - a).z;
+            if nz == 0.0 || !nz.is_finite() {
+                continue;
+            }
+            let entering = nz > 0.0;
+            // Counter-clockwise in (x, y) so the inside test is "all edge functions positive".
+            let (p0, mut p1, mut p2) = (a, b, c);
+            if nz < 0.0 {
+                std::mem::swap(&mut p1, &mut p2);
+            }
+            let v = [[p0.x, p0.y], [p1.x, p1.y], [p2.x, p2.y]];
+            let (xmin, xmax) = (p0.x.min(p1.x).min(p2.x), p0.x.max(p1.x).max(p2.x));
+            let (ymin, ymax) = (p0.y.min(p1.y).min(p2.y), p0.y.max(p1.y).max(p2.y));
+            let col_lo = ((xmin + 1.0) * sx - 0.5).ceil().max(0.0) as usize;
+            let col_hi = ((xmax + 1.0) * sx - 0.5).floor().min(width as f32 - 1.0);
+            let r_lo = (((1.0 - ymax) * sy - 0.5).ceil().max(row0 as f32)) as usize;
+            let r_hi = ((1.0 - ymin) * sy - 0.5).floor().min((row0 + rows) as f32 - 1.0);
+            if col_hi < col_lo as f32 || r_hi < r_lo as f32 {
+                continue;
+            }
+            let area = edge_fn(v[0], v[1], v[2]);
+            if area <= 0.0 {
+                continue;
+            }
+            let owns = [owns_boundary(v[1], v[2]), owns_boundary(v[2], v[0]), owns_boundary(v[0], v[1])];
+            for row in r_lo..=r_hi as usize {
+                let y = 1.0 - (row as f32 + 0.5) / sy;
+                for col in col_lo..=col_hi as usize {
+                    let p = [(col as f32 + 0.5) / sx - 1.0, y];
+                    let w = [edge_fn(v[1], v[2], p), edge_fn(v[2], v[0], p), edge_fn(v[0], v[1], p)];
+                    let inside = (0..3).all(|e| w[e] > 0.0 || (w[e] == 0.0 && owns[e]));
+                    if !inside {
+                        continue;
+                    }
+                    let z = (w[0] * p0.z + w[1] * p1.z + w[2] * p2.z) / area;
+                    if !z.is_finite() {
+                        continue;
+                    }
+                    hits.push(Hit { pixel: ((row - row0) * width + col) as u32, z: z.clamp(-1.0, 1.0), entering });
+                }
+            }
+        }
+        // From the camera inward: z descending; at equal depth, leaving before entering so touching solids
+        // give two adjacent intervals.
+        hits.sort_unstable_by(|p, q| p.pixel.cmp(&q.pixel).then(q.z.total_cmp(&p.z)).then(p.entering.cmp(&q.entering)));
+        for group in hits.chunk_by(|p, q| p.pixel == q.pixel) {
+            out[group[0].pixel as usize] = pair_hits(group);
+        }
+    });
+    result
+}
+
+/// The reference's interval automaton over hits sorted from the camera inward; returns ascending intervals.
+fn pair_hits(hits: &[Hit]) -> Vec<(f32, f32)> {
+    enum State {
+        Outside,
+        Inside(f32),
+        Closed,
+    }
+    let mut state = State::Outside;
+    let mut intervals: Vec<(f32, f32)> = Vec::new();
+    for h in hits {
+        state = match (state, h.entering) {
+            (State::Outside, true) | (State::Closed, true) => State::Inside(h.z),
+            (State::Outside, false) => State::Outside,
+            (State::Inside(start), true) => State::Inside(start),
+            (State::Inside(start), false) => {
+                intervals.push((h.z, start));
+                State::Closed
+            }
+            (State::Closed, false) => {
+                if let Some(last) = intervals.last_mut() {
+                    last.0 = h.z;
+                }
+                State::Closed
+            }
+        };
+    }
+    intervals.retain(|&(lo, hi)| hi > lo);
+    intervals.reverse();
+    intervals
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+    use std::f32::consts::PI;
+
+    /// Closed-form FOF of one interval [lo, hi] in z.
+    fn closed_form(lo: f32, hi: f32, n: usize) -> Vec<f32> {
+        let (tl, th) = (lo as f64 + 1.0, hi as f64 + 1.0);
+        (0..n)
+            .map(|k| {
+                if k == 0 {
+                    (th - tl) as f32
+                } else {
+                    let w = k as f64 * std::f64::consts::FRAC_PI_2;
+                    (((w * th).sin() - (w * tl).sin()) / w) as f32
+                }
+            })
+            .collect()
+    }
+
+    fn centre(col: usize, w: usize) -> f32 {
+        (col as f32 + 0.5) / (w as f32 * 0.5) - 1.0
+    }
+
+    #[test]
+    fn sphere_matches_closed_form() {
+        let (res, n, r) = (48usize, 16usize, 0.6f32);
+        let mesh = TriMesh::uv_sphere(Vec3::ZERO, r, 96, 192);
+        let fof = Fof::from_mesh(&mesh, res, n).unwrap();
+        let mut checked = 0;
+        for row in 0..res {
+            for col in 0..res {
+                let (x, y) = (centre(col, res), -centre(row, res));
+                let rho2 = x * x + y * y;
+                let c = fof.column(col, row);
+                if rho2 > (r * 0.97).powi(2) {
+                    if rho2 > r * r * 1.01 {
+                        assert!(c.iter().all(|&v| v == 0.0), "outside pixel has coefficients");
+                    }
+                    continue;
+                }
+                let h = (r * r - rho2).sqrt();
+                // Analytic: c_0 = 2h, c_k = 2 cos(k pi/2) sin(k pi h/2) / (k pi/2).
+                let want: Vec<f32> = (0..n)
+                    .map(|k| {
+                        if k == 0 {
+                            2.0 * h
+                        } else {
+                            let w = k as f32 * PI / 2.0;
+                            2.0 * w.cos() * (w * h).sin() / w
+                        }
+                    })
+                    .collect();
+                for k in 0..n {
+                    assert!((c[k] - want[k]).abs() < 4e-3, "pixel ({col},{row}) k={k}: {} vs {}", c[k], want[k]);
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 500);
+    }
+
+    #[test]
+    fn box_matches_closed_form_exactly() {
+        let (res, n) = (40usize, 12usize);
+        let (lo, hi) = (Vec3::new(-0.43, -0.61, -0.37), Vec3::new(0.52, 0.29, 0.58));
+        let fof = Fof::from_mesh(&TriMesh::cuboid(lo, hi), res, n).unwrap();
+        let want = closed_form(lo.z, hi.z, n);
+        for row in 0..res {
+            for col in 0..res {
+                let (x, y) = (centre(col, res), -centre(row, res));
+                let inside = x > lo.x && x < hi.x && y > lo.y && y < hi.y;
+                let c = fof.column(col, row);
+                for k in 0..n {
+                    let w = if inside { want[k] } else { 0.0 };
+                    assert!((c[k] - w).abs() < 1e-5, "({col},{row}) k={k}: {} vs {w}", c[k]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn decode_reproduces_occupancy_away_from_the_boundary() {
+        let n = 32;
+        let mut intervals = Image::new(1, 1, Vec::new());
+        intervals.data[0] = vec![(-0.6, -0.1), (0.2, 0.7)];
+        let fof = Fof::from_intervals(&intervals, n).unwrap();
+        let samples = 256;
+        let mut out = vec![0.0; samples];
+        fof.decode_column(0, 0, samples, &mut out);
+        for (d, &v) in out.iter().enumerate() {
+            let z = 2.0 * (d as f32 + 0.5) / samples as f32 - 1.0;
+            assert!((v - fof.occupancy(0, 0, (z + 1.0) / 2.0)).abs() < 1e-4);
+            let dist = [-0.6f32, -0.1, 0.2, 0.7].iter().map(|b| (z - b).abs()).fold(f32::MAX, f32::min);
+            if dist > 0.12 {
+                let inside = (-0.6..-0.1).contains(&z) || (0.2..0.7).contains(&z);
+                let want = if inside { 1.0 } else { 0.0 };
+                assert!((v - want).abs() < 0.08, "z={z}: {v} vs {want}");
+            }
+        }
+    }
+
+    #[test]
+    fn non_watertight_and_duplicated_meshes_still_give_intervals() {
+        let res = 32;
+        let sphere = TriMesh::uv_sphere(Vec3::ZERO, 0.7, 24, 48);
+        let mut holed = sphere.clone();
+        // Remove the back faces around the -z pole region: a hole in the back.
+        holed.triangles.retain(|t| {
+            let c = t.iter().map(|&i| holed.positions[i as usize]).sum::<Vec3>() / 3.0;
+            !(c.z < -0.5 && c.x.abs() < 0.2 && c.y.abs() < 0.2)
+        });
+        let mut doubled = sphere.clone();
+        doubled.triangles.extend(sphere.triangles.clone());
+        let full = intervals_from_mesh(&sphere, res, res);
+        let dup = intervals_from_mesh(&doubled, res, res);
+        let hole = intervals_from_mesh(&holed, res, res);
+        assert_eq!(full, dup, "duplicated faces must not change the intervals");
+        let (mut with_interval, mut lost) = (0, 0);
+        for i in 0..res * res {
+            assert!(full.data[i].len() <= 1);
+            // Pixels behind the hole lose their leaving hit: the interval is dropped, never invented.
+            if let (Some(a), Some(b)) = (full.data[i].first(), hole.data[i].first()) {
+                assert_eq!(a, b);
+                with_interval += 1;
+            }
+            if !full.data[i].is_empty() && hole.data[i].is_empty() {
+                let (col, row) = (i % res, i / res);
+                assert!(centre(col, res).abs() < 0.3 && centre(row, res).abs() < 0.3);
+                lost += 1;
+            }
+        }
+        assert!(with_interval > 300 && lost > 0);
+    }
+
+    #[test]
+    fn automaton_pairs_like_the_reference() {
+        let h = |z: f32, entering: bool| Hit { pixel: 0, z, entering };
+        // leave (dropped), enter, enter (ignored), leave, leave (extends), enter, leave, enter (unmatched).
+        let hits = [
+            h(0.9, false),
+            h(0.8, true),
+            h(0.7, true),
+            h(0.5, false),
+            h(0.4, false),
+            h(0.1, true),
+            h(-0.2, false),
+            h(-0.5, true),
+        ];
+        assert_eq!(pair_hits(&hits), vec![(-0.2, 0.1), (0.4, 0.8)]);
+    }
+
+    #[test]
+    fn from_mesh_and_from_depth_maps_agree_for_a_convex_shape() {
+        let (res, n, r) = (32usize, 16usize, 0.55f32);
+        let mesh = TriMesh::uv_sphere(Vec3::new(0.1, 0.0, 0.05), r, 48, 96);
+        let intervals = intervals_from_mesh(&mesh, res, res);
+        let front = intervals.map(|v| v.first().map_or(-1.0, |i| i.1));
+        let back = intervals.map(|v| v.first().map_or(-1.0, |i| i.0));
+        let mask = intervals.map(|v| if v.is_empty() { 0.0 } else { 1.0 });
+        let a = Fof::from_mesh(&mesh, res, n).unwrap();
+        let b = Fof::from_depth_maps(&front, &back, &mask, n).unwrap();
+        for (x, y) in a.coeffs.iter().zip(&b.coeffs) {
+            assert!((x - y).abs() < 1e-6);
+        }
+        assert!(a.coeffs.iter().any(|&v| v != 0.0));
+    }
+
+    #[test]
+    fn empty_columns_and_bounds() {
+        let mut fof = Fof::zeros(8, 2, 1).unwrap();
+        assert!(fof.is_empty_column(0, 0));
+        fof.coeffs[8..16].copy_from_slice(&closed_form(-0.2, 0.3, 8));
+        assert!(!fof.is_empty_column(1, 0));
+        // A tiny network-like column: bound below 0.5, so provably empty.
+        fof.coeffs[..8].copy_from_slice(&[0.1, 0.05, -0.05, 0.02, 0.0, 0.0, 0.0, 0.01]);
+        assert!(fof.is_empty_column(0, 0));
+        let mut out = [9.0f32; 64];
+        fof.decode_column(0, 0, 64, &mut out);
+        assert!(out.iter().all(|&v| v < 0.5));
+    }
+
+    #[test]
+    fn bad_input_gives_errors() {
+        assert_eq!(Fof::zeros(0, 4, 4), Err(FofError::BadOrder(0)));
+        assert!(matches!(Fof::new(2, 2, 2, vec![0.0; 7]), Err(FofError::CoefficientCount { .. })));
+        assert!(matches!(Fof::new(1, 1, 1, vec![f32::NAN]), Err(FofError::NonFinite { .. })));
+        let img = GrayImage::new(4, 4, 0.0);
+        let small = GrayImage::new(3, 4, 0.0);
+        assert!(matches!(Fof::from_depth_maps(&small, &img, &img, 4), Err(FofError::SizeMismatch { .. })));
+        let mut bad = img.clone();
+        bad.data[5] = f32::INFINITY;
+        let mask = GrayImage::new(4, 4, 1.0);
+        assert!(matches!(Fof::from_depth_maps(&bad, &img, &mask, 4), Err(FofError::NonFinite { .. })));
+        let mut mesh = TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5));
+        mesh.positions[0].x = f32::NAN;
+        assert!(matches!(Fof::from_mesh(&mesh, 8, 4), Err(FofError::NonFinite { .. })));
+    }
+
+    #[test]
+    fn gibbs_ringing_at_n128_stays_finite() {
+        let mut intervals = Image::new(3, 1, Vec::new());
+        intervals.data[0] = vec![(0.1, 0.1 + 1e-4)];
+        intervals.data[1] = vec![(-1.0, 1.0)];
+        intervals.data[2] = vec![(-2.0, -0.999), (0.999, 3.0)];
+        let fof = Fof::from_intervals(&intervals, 128).unwrap();
+        assert!(fof.coeffs.iter().all(|c| c.is_finite()));
+        let mut out = vec![0.0; 512];
+        for col in 0..3 {
+            fof.decode_column(col, 0, 512, &mut out);
+            assert!(out.iter().all(|v| v.is_finite() && v.abs() < 2.0));
+        }
+        // Whole ray occupied: c_0 = 2, every c_k = 0 (sin(k pi) - sin 0).
+        let c = fof.column(1, 0);
+        assert!((c[0] - 2.0).abs() < 1e-6 && c[1..].iter().all(|v| v.abs() < 1e-5));
+    }
+}

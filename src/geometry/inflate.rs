@@ -1,1 +1,819 @@
-//! (being written)
+//! Geometry without a FOF network: a silhouette-inflation prior.
+//!
+//! From the person's source mask (already normalised into the body cube, at the FOF resolution):
+//! 1. threshold at 0.5, drop foreground specks and fill small holes ([`InflateParams::min_component_pixels`]);
+//! 2. trace every boundary (outer outlines and holes, several components) as closed loops along pixel edges,
+//!    foreground 4-connected (diagonal-only contacts stay separate);
+//! 3. simplify the loops (Douglas–Peucker) and triangulate the region with a constrained Delaunay
+//!    triangulation (spade), refined inside (area and angle limits);
+//! 4. solve the Poisson problem `-Δu = 4` on the triangles (P1 finite elements, conjugate gradients) with
+//!    `u = 0` on the outline, and set the half thickness `h = κ sqrt(u)` (κ = [`InflateParams::thickness`]);
+//! 5. rasterise `h` per pixel: `front = c + h`, `back = c - h` with `c` the centre plane
+//!    ([`InflateParams::centre_z`], z = 0 by default), clamped to the cube.
+//!
+//! # Why this profile
+//! For a disc of radius R the solution is `u = R² - r²`, so `h = κ sqrt(R² - r²)`: a sphere for κ = 1 and a
+//! round cross-section at the outline (vertical tangent) for any κ. For a long strip of half width a (a limb),
+//! `u = 2 (a² - x²)`, so the cross-section is an ellipse with depth semi-axis `κ √2 a`. The default
+//! κ = 0.7 makes limbs round (`≈ 0.99 a`) and wide blobs (torso, a disc) flatter than a ball (`0.7 R`), which
+//! is the plausible shape of a body seen from the front. Thickness thus follows the local width everywhere.
+//! Pixels inside the mask always get at least [`InflateParams::min_half_thickness`], so one-pixel limbs keep
+//! a thin but valid interval (the FOF may still be too band-limited to show them in the mesh).
+
+use std::collections::HashMap;
+
+use rayon::prelude::*;
+use spade::{AngleLimit, ConstrainedDelaunayTriangulation, Point2, RefinementParameters, Triangulation};
+
+use super::fof::{Fof, FofError, MAX_RESOLUTION};
+use crate::buffer::GrayImage;
+
+/// Errors of the inflation prior; every message says what to do next.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum InflateError {
+    /// The mask is too small to hold a person.
+    #[error("the mask is {width}x{height} pixels; inflation needs at least 4x4 and at most {MAX_RESOLUTION}x{MAX_RESOLUTION}")]
+    BadSize {
+        /// Mask width.
+        width: usize,
+        /// Mask height.
+        height: usize,
+    },
+    /// A NaN or infinity in the mask.
+    #[error("the mask holds a non-finite value at pixel index {index}; check the segmentation output")]
+    NonFinite {
+        /// Flat pixel index.
+        index: usize,
+    },
+    /// No pixel above 0.5.
+    #[error("the mask is empty (no pixel above 0.5): supply a mask that marks the person, or check the segmentation")]
+    EmptyMask,
+    /// Every pixel above 0.5.
+    #[error(
+        "the mask covers the whole image: the person must be separated from the background (check the alpha or --mask)"
+    )]
+    FullMask,
+    /// Only regions below the speck size remain.
+    #[error("no foreground region has {min} pixels or more (largest: {largest}); the mask is noise or the person is too small in the frame")]
+    OnlySpecks {
+        /// Size of the largest region found.
+        largest: usize,
+        /// The speck threshold.
+        min: usize,
+    },
+    /// The outline has too many vertices (a noisy, fragmented mask).
+    #[error("the mask outline has {vertices} vertices after simplification (limit {max}); clean the mask (fewer fragments) or raise the limit")]
+    TooFragmented {
+        /// Outline vertices.
+        vertices: usize,
+        /// The limit.
+        max: usize,
+    },
+    /// A parameter is out of range.
+    #[error("bad inflation parameter: {0}")]
+    BadParams(String),
+    /// The triangulation library refused the outline.
+    #[error("triangulating the mask outline failed: {0}")]
+    Triangulation(String),
+    /// Encoding the surfaces as FOF failed.
+    #[error(transparent)]
+    Fof(#[from] FofError),
+}
+
+/// Parameters of the inflation prior (see the module docs for the profile).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InflateParams {
+    /// κ in `h = κ sqrt(u)`: 1 turns a disc into a sphere; the default 0.7 makes limbs round.
+    pub thickness: f32,
+    /// The centre plane `c` (body-cube z) around which front and back are symmetric.
+    pub centre_z: f32,
+    /// Foreground regions smaller than this many pixels are dropped; background holes smaller are filled.
+    pub min_component_pixels: usize,
+    /// Douglas–Peucker tolerance for the outline, in pixels.
+    pub simplify_tolerance: f32,
+    /// Largest triangle area after refinement, in square pixels.
+    pub max_triangle_area: f32,
+    /// Smallest half thickness inside the mask, in pixels.
+    pub min_half_thickness: f32,
+    /// Largest number of outline vertices accepted (guards against noise masks).
+    pub max_outline_vertices: usize,
+}
+
+impl Default for InflateParams {
+    fn default() -> Self {
+        Self {
+            thickness: 0.7,
+            centre_z: 0.0,
+            min_component_pixels: 16,
+            simplify_tolerance: 0.75,
+            max_triangle_area: 24.0,
+            min_half_thickness: 1.0,
+            max_outline_vertices: 50_000,
+        }
+    }
+}
+
+impl InflateParams {
+    fn validate(&self) -> Result<(), InflateError> {
+        let bad = |what: &str, v: f32| InflateError::BadParams(format!("{what} = {v}"));
+        if !(self.thickness.is_finite() && self.thickness > 0.0 && self.thickness <= 10.0) {
+            return Err(bad("thickness must be in (0, 10]", self.thickness));
+        }
+        if !(self.centre_z.is_finite() && self.centre_z.abs() < 1.0) {
+            return Err(bad("centre_z must be inside (-1, 1)", self.centre_z));
+        }
+        if !(self.simplify_tolerance.is_finite() && (0.0..=8.0).contains(&self.simplify_tolerance)) {
+            return Err(bad("simplify_tolerance must be in [0, 8] pixels", self.simplify_tolerance));
+        }
+        if !(self.max_triangle_area.is_finite() && self.max_triangle_area >= 1.0) {
+            return Err(bad("max_triangle_area must be at least 1 square pixel", self.max_triangle_area));
+        }
+        if !(self.min_half_thickness.is_finite() && self.min_half_thickness >= 0.0) {
+            return Err(bad("min_half_thickness must be >= 0", self.min_half_thickness));
+        }
+        Ok(())
+    }
+}
+
+/// Front and back surfaces of the inflated body: depth = body-cube z, `-1` (the background depth) outside.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InflatedSurfaces {
+    /// Front surface z (toward the camera).
+    pub front: GrayImage,
+    /// Back surface z.
+    pub back: GrayImage,
+    /// The cleaned mask (1 inside, 0 outside).
+    pub mask: GrayImage,
+}
+
+/// Inflates the person mask (values in `[0, 1]`, threshold 0.5) into front/back depth maps.
+pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfaces, InflateError> {
+    params.validate()?;
+    let (w, h) = (mask.width, mask.height);
+    if w < 4 || h < 4 || w > MAX_RESOLUTION || h > MAX_RESOLUTION || mask.data.len() != w * h {
+        return Err(InflateError::BadSize { width: w, height: h });
+    }
+    if let Some(index) = mask.data.iter().position(|v| !v.is_finite()) {
+        return Err(InflateError::NonFinite { index });
+    }
+    let mut fg: Vec<bool> = mask.data.iter().map(|&v| v > 0.5).collect();
+    let count = fg.iter().filter(|&&b| b).count();
+    if count == 0 {
+        return Err(InflateError::EmptyMask);
+    }
+    if count == w * h {
+        return Err(InflateError::FullMask);
+    }
+    clean_mask(&mut fg, w, h, params.min_component_pixels)?;
+    if fg.iter().all(|&b| b) {
+        return Err(InflateError::FullMask);
+    }
+
+    let loops = trace_loops(&fg, w, h);
+    let u = solve_inflation(&loops, w, h, params)?;
+
+    let (sx, sy) = (2.0 / w as f32, 2.0 / h as f32);
+    let h_min = params.min_half_thickness * sx.min(sy);
+    let mut front = GrayImage::new(w, h, -1.0);
+    let mut back = GrayImage::new(w, h, -1.0);
+    let mut out_mask = GrayImage::new(w, h, 0.0);
+    for i in 0..w * h {
+        if fg[i] {
+            let half = (params.thickness * u[i].max(0.0).sqrt()).max(h_min);
+            front.data[i] = (params.centre_z + half).clamp(-1.0, 1.0);
+            back.data[i] = (params.centre_z - half).clamp(-1.0, 1.0);
+            out_mask.data[i] = 1.0;
+        }
+    }
+    Ok(InflatedSurfaces { front, back, mask: out_mask })
+}
+
+/// [`inflate`], then [`Fof::from_depth_maps`] with `n` coefficients.
+pub fn inflate_to_fof(mask: &GrayImage, n: usize, params: &InflateParams) -> Result<Fof, InflateError> {
+    let s = inflate(mask, params)?;
+    Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
+}
+
+/// Connected components of `value` pixels (4-connected if `four`, else 8-connected): labels and sizes.
+fn components(fg: &[bool], w: usize, h: usize, value: bool, four: bool) -> (Vec<u32>, Vec<usize>) {
+    let mut label = vec![u32::MAX; w * h];
+    let mut sizes = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if fg[start] != value || label[start] != u32::MAX {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        let mut size = 0;
+        label[start] = id;
+        stack.push(start);
+        while let Some(p) = stack.pop() {
+            size += 1;
+            let (c, r) = ((p % w) as i64, (p / w) as i64);
+            for dr in -1i64..=1 {
+                for dc in -1i64..=1 {
+                    if (dr == 0 && dc == 0) || (four && dr != 0 && dc != 0) {
+                        continue;
+                    }
+                    let (cc, rr) = (c + dc, r + dr);
+                    if cc < 0 || rr < 0 || cc >= w as i64 || rr >= h as i64 {
+                        continue;
+                    }
+                    let q = rr as usize * w + cc as usize;
+                    if fg[q] == value && label[q] == u32::MAX {
+                        label[q] = id;
+                        stack.push(q);
+                    }
+                }
+            }
+        }
+        sizes.push(size);
+    }
+    (label, sizes)
+}
+
+/// Drops foreground specks and fills small enclosed holes.
+fn clean_mask(fg: &mut [bool], w: usize, h: usize, min: usize) -> Result<(), InflateError> {
+    // Foreground is 4-connected (as the outline tracing treats it).
+    let (label, sizes) = components(fg, w, h, true, true);
+    let largest = sizes.iter().copied().max().unwrap_or(0);
+    if largest < min.max(1) {
+        return Err(InflateError::OnlySpecks { largest, min });
+    }
+    for i in 0..w * h {
+        if fg[i] && sizes[label[i] as usize] < min {
+            fg[i] = false;
+        }
+    }
+    // Background is 8-connected (the dual connectivity); fill small holes not touching the border.
+    let (label, sizes) = components(fg, w, h, false, false);
+    let mut touches = vec![false; sizes.len()];
+    for r in 0..h {
+        for c in 0..w {
+            if (r == 0 || c == 0 || r == h - 1 || c == w - 1) && !fg[r * w + c] {
+                touches[label[r * w + c] as usize] = true;
+            }
+        }
+    }
+    for i in 0..w * h {
+        if !fg[i] {
+            let l = label[i] as usize;
+            if !touches[l] && sizes[l] < min {
+                fg[i] = true;
+            }
+        }
+    }
+    Ok(())
+}
+
+// Directions on the pixel-corner lattice (j grows downward): E, S, W, N.
+const DIRS: [(i64, i64); 4] = [(1, 0), (0, 1), (-1, 0), (0, -1)];
+const E: u8 = 0;
+const S: u8 = 1;
+const W: u8 = 2;
+const N: u8 = 3;
+
+/// Traces the boundaries between foreground and background pixels as closed loops of lattice corners
+/// `(i, j)` (corner `(i, j)` is the top-left corner of pixel `(i, j)`), foreground on the left in body-cube
+/// orientation (outer outlines counter-clockwise, holes clockwise). Only corners where the direction changes
+/// are kept. At a corner where two foreground pixels touch diagonally the loop turns around its own pixel, so
+/// diagonal contacts stay separate and loops never cross (they may share such a corner).
+fn trace_loops(fg: &[bool], w: usize, h: usize) -> Vec<Vec<(i64, i64)>> {
+    let lw = w + 1;
+    let at =
+        |c: i64, r: i64| c >= 0 && r >= 0 && (c as usize) < w && (r as usize) < h && fg[r as usize * w + c as usize];
+    // Outgoing crack directions per lattice corner (bit per direction).
+    let mut out = vec![0u8; lw * (h + 1)];
+    for r in 0..h as i64 {
+        for c in 0..w as i64 {
+            if !at(c, r) {
+                continue;
+            }
+            let idx = |i: i64, j: i64| j as usize * lw + i as usize;
+            if !at(c, r - 1) {
+                out[idx(c + 1, r)] |= 1 << W;
+            }
+            if !at(c, r + 1) {
+                out[idx(c, r + 1)] |= 1 << E;
+            }
+            if !at(c - 1, r) {
+                out[idx(c, r)] |= 1 << S;
+            }
+            if !at(c + 1, r) {
+                out[idx(c + 1, r + 1)] |= 1 << N;
+            }
+        }
+    }
+    // The successor of an edge arriving at a corner with direction `incoming`.
+    let next_dir = |v: usize, incoming: u8| -> u8 {
+        let bits = out[v];
+        if bits.count_ones() == 1 {
+            bits.trailing_zeros() as u8
+        } else {
+            // Saddle: turn left on screen (E->N, N->W, W->S, S->E), around the pixel being followed.
+            (incoming + 3) % 4
+        }
+    };
+    let mut visited = vec![0u8; out.len()];
+    let mut loops = Vec::new();
+    for v0 in 0..out.len() {
+        let mut remaining = out[v0] & !visited[v0];
+        while remaining != 0 {
+            let d0 = remaining.trailing_zeros() as u8;
+            let mut ring = Vec::new();
+            let (mut v, mut d) = (v0, d0);
+            loop {
+                visited[v] |= 1 << d;
+                let (i, j) = ((v % lw) as i64, (v / lw) as i64);
+                let (ni, nj) = (i + DIRS[d as usize].0, j + DIRS[d as usize].1);
+                let nv = nj as usize * lw + ni as usize;
+                let nd = next_dir(nv, d);
+                if nd != d {
+                    ring.push((ni, nj));
+                }
+                if nv == v0 && nd == d0 {
+                    break;
+                }
+                if visited[nv] & (1 << nd) != 0 || out[nv] & (1 << nd) == 0 {
+                    // Cannot happen for a consistent crack graph; stop rather than loop forever.
+                    break;
+                }
+                (v, d) = (nv, nd);
+            }
+            if ring.len() >= 3 {
+                loops.push(ring);
+            }
+            remaining = out[v0] & !visited[v0];
+        }
+    }
+    loops
+}
+
+/// Douglas–Peucker simplification of a closed loop (keeps at least 3 points).
+fn simplify_loop(ring: &[(i64, i64)], tol: f64) -> Vec<(i64, i64)> {
+    let n = ring.len();
+    if n <= 4 || tol <= 0.0 {
+        return ring.to_vec();
+    }
+    // Split at vertex 0 and the vertex farthest from it.
+    let p0 = ring[0];
+    let far = (1..n)
+        .max_by_key(|&i| {
+            let (dx, dy) = (ring[i].0 - p0.0, ring[i].1 - p0.1);
+            dx * dx + dy * dy
+        })
+        .unwrap_or(n / 2);
+    let mut keep = vec![false; n];
+    keep[0] = true;
+    keep[far] = true;
+    let mut stack = vec![(0usize, far), (far, n)];
+    while let Some((a, b)) = stack.pop() {
+        if b - a < 2 {
+            continue;
+        }
+        let pa = ring[a];
+        let pb = ring[b % n];
+        let (dx, dy) = ((pb.0 - pa.0) as f64, (pb.1 - pa.1) as f64);
+        let len = (dx * dx + dy * dy).sqrt();
+        let mut best = (0.0f64, a);
+        for (i, p) in ring.iter().enumerate().take(b).skip(a + 1) {
+            let (px, py) = ((p.0 - pa.0) as f64, (p.1 - pa.1) as f64);
+            let dist = if len > 0.0 { (dx * py - dy * px).abs() / len } else { (px * px + py * py).sqrt() };
+            if dist > best.0 {
+                best = (dist, i);
+            }
+        }
+        if best.0 > tol {
+            keep[best.1] = true;
+            stack.push((a, best.1));
+            stack.push((best.1, b));
+        }
+    }
+    let out: Vec<(i64, i64)> = ring.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
+    if out.len() >= 3 {
+        out
+    } else {
+        ring.to_vec()
+    }
+}
+
+type Cdt = ConstrainedDelaunayTriangulation<Point2<f64>>;
+
+/// Builds the CDT of the loops (lattice corners mapped to body-cube x, y).
+fn build_cdt(loops: &[Vec<(i64, i64)>], w: usize, h: usize, max_vertices: usize) -> Result<(Cdt, bool), InflateError> {
+    let mut index: HashMap<(i64, i64), usize> = HashMap::new();
+    let mut vertices = Vec::new();
+    let mut edges = Vec::new();
+    for ring in loops {
+        let ids: Vec<usize> = ring
+            .iter()
+            .map(|&p| {
+                *index.entry(p).or_insert_with(|| {
+                    vertices.push(Point2::new(p.0 as f64 * 2.0 / w as f64 - 1.0, 1.0 - p.1 as f64 * 2.0 / h as f64));
+                    vertices.len() - 1
+                })
+            })
+            .collect();
+        for k in 0..ids.len() {
+            let (a, b) = (ids[k], ids[(k + 1) % ids.len()]);
+            if a != b {
+                edges.push([a, b]);
+            }
+        }
+    }
+    if vertices.len() > max_vertices {
+        return Err(InflateError::TooFragmented { vertices: vertices.len(), max: max_vertices });
+    }
+    let mut conflict = false;
+    let cdt = Cdt::try_bulk_load_cdt(vertices, edges, |_| conflict = true)
+        .map_err(|e| InflateError::Triangulation(format!("{e:?}")))?;
+    Ok((cdt, conflict))
+}
+
+/// Solves `-Δu = 4`, `u = 0` on the outline over the refined CDT and samples `u` at every pixel centre
+/// (0 where no inner triangle covers the centre).
+fn solve_inflation(
+    loops: &[Vec<(i64, i64)>],
+    w: usize,
+    h: usize,
+    params: &InflateParams,
+) -> Result<Vec<f32>, InflateError> {
+    let tol = params.simplify_tolerance as f64;
+    let simplified: Vec<Vec<(i64, i64)>> = loops.par_iter().map(|l| simplify_loop(l, tol)).collect();
+    let (mut cdt, conflict) = build_cdt(&simplified, w, h, params.max_outline_vertices)?;
+    if conflict {
+        // Simplification made two outlines cross: the exact pixel outlines never cross, use them.
+        tracing::debug!("inflate: simplified outline self-intersects, using the exact outline");
+        let (exact, conflict) = build_cdt(loops, w, h, params.max_outline_vertices)?;
+        if conflict {
+            return Err(InflateError::Triangulation("the mask outline crosses itself".into()));
+        }
+        cdt = exact;
+    }
+    let px_area = (2.0 / w as f64) * (2.0 / h as f64);
+    let initial = cdt.num_vertices();
+    let result = cdt.refine(
+        RefinementParameters::<f64>::new()
+            .exclude_outer_faces(true)
+            .with_angle_limit(AngleLimit::from_deg(20.0))
+            .with_max_allowed_area(params.max_triangle_area as f64 * px_area)
+            .with_min_required_area(0.02 * px_area)
+            .with_max_additional_vertices(initial * 20 + 20_000),
+    );
+    let mut outer = vec![false; cdt.num_all_faces()];
+    for f in &result.excluded_faces {
+        outer[f.index()] = true;
+    }
+    let nv = cdt.num_vertices();
+    let mut boundary = vec![false; nv];
+    for e in cdt.undirected_edges() {
+        if e.is_constraint_edge() {
+            for v in e.vertices() {
+                boundary[v.fix().index()] = true;
+            }
+        }
+    }
+    let pos: Vec<[f64; 2]> = cdt.vertices().map(|v| [v.position().x, v.position().y]).collect();
+    let faces: Vec<[usize; 3]> =
+        cdt.inner_faces().filter(|f| !outer[f.fix().index()]).map(|f| f.vertices().map(|v| v.fix().index())).collect();
+
+    // Unknowns: vertices of inner faces that are not on the outline.
+    let mut unknown = vec![usize::MAX; nv];
+    let mut count = 0;
+    for f in &faces {
+        for &v in f {
+            if !boundary[v] && unknown[v] == usize::MAX {
+                unknown[v] = count;
+                count += 1;
+            }
+        }
+    }
+    let mut u_vertex = vec![0.0f64; nv];
+    if count > 0 {
+        let (matrix, rhs) = assemble(&faces, &pos, &unknown, count);
+        let x = conjugate_gradient(&matrix, &rhs, 1e-9, 10 * count + 100);
+        for v in 0..nv {
+            if unknown[v] != usize::MAX {
+                u_vertex[v] = x[unknown[v]].max(0.0);
+            }
+        }
+    }
+    Ok(rasterise(&faces, &pos, &u_vertex, w, h))
+}
+
+/// A symmetric sparse matrix in compressed rows.
+struct Csr {
+    row_start: Vec<usize>,
+    cols: Vec<usize>,
+    vals: Vec<f64>,
+    diag: Vec<f64>,
+}
+
+/// P1 stiffness matrix (cotangent weights) and lumped load `4 * area / 3` per vertex, interior rows only.
+fn assemble(faces: &[[usize; 3]], pos: &[[f64; 2]], unknown: &[usize], n: usize) -> (Csr, Vec<f64>) {
+    let mut triplets: Vec<(usize, usize, f64)> = Vec::with_capacity(faces.len() * 9);
+    let mut rhs = vec![0.0; n];
+    for f in faces {
+        let p = f.map(|v| pos[v]);
+        let cross = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[1][1] - p[0][1]) * (p[2][0] - p[0][0]);
+        let area = 0.5 * cross.abs();
+        if area.is_nan() || area <= 1e-18 {
+            continue;
+        }
+        // Gradients of the barycentric basis: grad phi_i = perp(p_k - p_j) / (2A); K_ij = A grad_i . grad_j.
+        let g: Vec<[f64; 2]> = (0..3)
+            .map(|i| {
+                let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+                [(p[j][1] - p[k][1]) / cross, (p[k][0] - p[j][0]) / cross]
+            })
+            .collect();
+        for i in 0..3 {
+            let ui = unknown[f[i]];
+            if ui == usize::MAX {
+                continue;
+            }
+            rhs[ui] += 4.0 * area / 3.0;
+            for j in 0..3 {
+                let uj = unknown[f[j]];
+                if uj == usize::MAX {
+                    continue;
+                }
+                let k = area * (g[i][0] * g[j][0] + g[i][1] * g[j][1]);
+                triplets.push((ui, uj, k));
+            }
+        }
+    }
+    triplets.sort_unstable_by_key(|a| (a.0, a.1));
+    let mut row_start = vec![0usize; n + 1];
+    let mut cols = Vec::new();
+    let mut vals: Vec<f64> = Vec::new();
+    let mut diag = vec![0.0; n];
+    let mut last: Option<(usize, usize)> = None;
+    for (i, j, v) in triplets {
+        if last == Some((i, j)) {
+            *vals.last_mut().expect("entry exists") += v;
+        } else {
+            cols.push(j);
+            vals.push(v);
+            row_start[i + 1] = cols.len();
+            last = Some((i, j));
+        }
+        if i == j {
+            diag[i] += v;
+        }
+        row_start[i + 1] = cols.len();
+    }
+    // Rows without entries (impossible for interior vertices, kept safe) inherit the previous end.
+    for i in 1..=n {
+        row_start[i] = row_start[i].max(row_start[i - 1]);
+    }
+    (Csr { row_start, cols, vals, diag }, rhs)
+}
+
+fn mat_vec(m: &Csr, x: &[f64], y: &mut [f64]) {
+    for (i, yi) in y.iter_mut().enumerate() {
+        let mut s = 0.0;
+        for k in m.row_start[i]..m.row_start[i + 1] {
+            s += m.vals[k] * x[m.cols[k]];
+        }
+        *yi = s;
+    }
+}
+
+/// Jacobi-preconditioned conjugate gradients for `m x = b` (symmetric positive definite).
+fn conjugate_gradient(m: &Csr, b: &[f64], rel_tol: f64, max_iter: usize) -> Vec<f64> {
+    let n = b.len();
+    let inv_diag: Vec<f64> = m.diag.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
+    let mut x = vec![0.0; n];
+    let mut r = b.to_vec();
+    let mut z: Vec<f64> = r.iter().zip(&inv_diag).map(|(r, d)| r * d).collect();
+    let mut p = z.clone();
+    let mut ap = vec![0.0; n];
+    let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+    let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+    for _ in 0..max_iter {
+        mat_vec(m, &p, &mut ap);
+        let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+        if pap.is_nan() || pap <= 0.0 {
+            break;
+        }
+        let alpha = rz / pap;
+        for i in 0..n {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * ap[i];
+        }
+        if r.iter().map(|v| v * v).sum::<f64>().sqrt() <= rel_tol * b_norm {
+            break;
+        }
+        for i in 0..n {
+            z[i] = r[i] * inv_diag[i];
+        }
+        let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for i in 0..n {
+            p[i] = z[i] + beta * p[i];
+        }
+    }
+    if x.iter().any(|v| !v.is_finite()) {
+        x.iter_mut().for_each(|v| *v = 0.0);
+    }
+    x
+}
+
+/// Interpolation of the vertex values over the inner triangles at every pixel centre (0 where uncovered).
+fn rasterise(faces: &[[usize; 3]], pos: &[[f64; 2]], u: &[f64], w: usize, h: usize) -> Vec<f32> {
+    let mut img = vec![0.0f32; w * h];
+    let to_px = |p: [f64; 2]| [(p[0] + 1.0) * 0.5 * w as f64, (1.0 - p[1]) * 0.5 * h as f64];
+    let (sx, sy) = (2.0 / w as f64, 2.0 / h as f64);
+    for f in faces {
+        let q = f.map(|v| to_px(pos[v]));
+        let area = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[1][1] - q[0][1]) * (q[2][0] - q[0][0]);
+        if area.abs() < 1e-12 {
+            continue;
+        }
+        let xmin = q.iter().map(|p| p[0]).fold(f64::MAX, f64::min);
+        let xmax = q.iter().map(|p| p[0]).fold(f64::MIN, f64::max);
+        let ymin = q.iter().map(|p| p[1]).fold(f64::MAX, f64::min);
+        let ymax = q.iter().map(|p| p[1]).fold(f64::MIN, f64::max);
+        let c0 = (xmin - 0.5).ceil().max(0.0) as usize;
+        let c1 = ((xmax - 0.5).floor()).min(w as f64 - 1.0);
+        let r0 = (ymin - 0.5).ceil().max(0.0) as usize;
+        let r1 = ((ymax - 0.5).floor()).min(h as f64 - 1.0);
+        if c1 < c0 as f64 || r1 < r0 as f64 {
+            continue;
+        }
+        let vals = f.map(|v| u[v]);
+        for row in r0..=r1 as usize {
+            for col in c0..=c1 as usize {
+                let p = [col as f64 + 0.5, row as f64 + 0.5];
+                let l =
+                    |a: [f64; 2], b: [f64; 2]| ((b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])) / area;
+                let (b0, b1, b2) = (l(q[1], q[2]), l(q[2], q[0]), l(q[0], q[1]));
+                let eps = -1e-9;
+                if b0 >= eps && b1 >= eps && b2 >= eps {
+                    // Linear interpolation under-estimates the concave solution between vertices. For -Δu = 4
+                    // with an isotropic Hessian (-2 I), u = I(u) + sum_i b_i |p - p_i|^2 exactly; adding that
+                    // term makes the profile independent of the triangle size.
+                    let d2 = |a: [f64; 2]| {
+                        let (dx, dy) = ((p[0] - a[0]) * sx, (p[1] - a[1]) * sy);
+                        dx * dx + dy * dy
+                    };
+                    let bubble = b0 * d2(q[0]) + b1 * d2(q[1]) + b2 * d2(q[2]);
+                    img[row * w + col] = (b0 * vals[0] + b1 * vals[1] + b2 * vals[2] + bubble) as f32;
+                }
+            }
+        }
+    }
+    img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disc_mask(size: usize, cx: f32, cy: f32, r: f32) -> GrayImage {
+        GrayImage::from_fn(size, size, |c, row| {
+            let (x, y) = (c as f32 + 0.5 - cx, row as f32 + 0.5 - cy);
+            if x * x + y * y < r * r {
+                1.0
+            } else {
+                0.0
+            }
+        })
+    }
+
+    #[test]
+    fn disc_inflates_to_a_sphere_with_thickness_one() {
+        let (size, r_px) = (128usize, 40.0f32);
+        let mask = disc_mask(size, 64.0, 64.0, r_px);
+        let params = InflateParams { thickness: 1.0, ..Default::default() };
+        let s = inflate(&mask, &params).unwrap();
+        let r = r_px * 2.0 / size as f32; // radius in cube units
+                                          // Closed form: h(rho) = sqrt(R^2 - rho^2); check the centre and a ring of pixels.
+        let mut worst = 0.0f32;
+        for row in 0..size {
+            for col in 0..size {
+                let (x, y) = (col as f32 + 0.5 - 64.0, row as f32 + 0.5 - 64.0);
+                let rho = (x * x + y * y).sqrt() * 2.0 / size as f32;
+                let i = row * size + col;
+                assert!(s.front.data[i].is_finite() && s.back.data[i].is_finite());
+                if rho < 0.85 * r {
+                    let want = (r * r - rho * rho).sqrt();
+                    let got = 0.5 * (s.front.data[i] - s.back.data[i]);
+                    worst = worst.max((got - want).abs() / r);
+                    assert!((s.front.data[i] + s.back.data[i]).abs() < 1e-6, "symmetric about z = 0");
+                } else if rho > r + 0.05 {
+                    assert_eq!(s.mask.data[i], 0.0);
+                    assert_eq!(s.front.data[i], -1.0);
+                }
+            }
+        }
+        assert!(worst < 0.025, "worst relative error {worst}");
+        let centre = 64 * size + 64;
+        assert!(((s.front.data[centre] - s.back.data[centre]) - 2.0 * r).abs() < 0.02 * r);
+    }
+
+    #[test]
+    fn default_thickness_makes_a_strip_round() {
+        // A long horizontal strip of half width a: depth semi-axis kappa * sqrt(2) * a ~ 0.99 a.
+        let size = 128;
+        let mask =
+            GrayImage::from_fn(
+                size,
+                size,
+                |c, r| if (8..120).contains(&c) && (54..74).contains(&r) { 1.0 } else { 0.0 },
+            );
+        let s = inflate(&mask, &InflateParams::default()).unwrap();
+        let a = 10.0 * 2.0 / size as f32;
+        let mid = 64 * size + 64;
+        let half = 0.5 * (s.front.data[mid] - s.back.data[mid]);
+        assert!((half - 0.7 * 2f32.sqrt() * a).abs() < 0.05 * a, "{half} vs {}", 0.7 * 2f32.sqrt() * a);
+    }
+
+    #[test]
+    fn degenerate_masks_give_clear_errors() {
+        let p = InflateParams::default();
+        assert_eq!(inflate(&GrayImage::new(32, 32, 0.0), &p), Err(InflateError::EmptyMask));
+        assert_eq!(inflate(&GrayImage::new(32, 32, 1.0), &p), Err(InflateError::FullMask));
+        assert!(matches!(inflate(&GrayImage::new(2, 2, 1.0), &p), Err(InflateError::BadSize { .. })));
+        let mut nan = GrayImage::new(16, 16, 0.0);
+        nan.data[7] = f32::NAN;
+        assert_eq!(inflate(&nan, &p), Err(InflateError::NonFinite { index: 7 }));
+        // Isolated specks (single pixels, checkerboard): nothing big enough.
+        let specks = GrayImage::from_fn(64, 64, |c, r| if (c + r) % 2 == 0 { 1.0 } else { 0.0 });
+        assert!(matches!(inflate(&specks, &p), Err(InflateError::OnlySpecks { largest: 1, .. })));
+        let bad = InflateParams { thickness: f32::NAN, ..Default::default() };
+        assert!(matches!(inflate(&disc_mask(32, 16.0, 16.0, 8.0), &bad), Err(InflateError::BadParams(_))));
+        // Foreground everywhere except a speck that gets filled: still "full".
+        let mut almost = GrayImage::new(32, 32, 1.0);
+        almost.data[100] = 0.0;
+        assert_eq!(inflate(&almost, &p), Err(InflateError::FullMask));
+    }
+
+    #[test]
+    fn thin_limbs_holes_and_many_components_stay_valid() {
+        let size = 96;
+        let mask = GrayImage::from_fn(size, size, |c, r| {
+            let (x, y) = (c as f32 - 30.0, r as f32 - 30.0);
+            let ring = (x * x + y * y).sqrt();
+            let annulus = (8.0..20.0).contains(&ring);
+            let limb = r == 30 && (50..90).contains(&c); // one pixel wide, touching nothing else
+            let limb2 = c == 70 && (5..25).contains(&r);
+            let blobs = r >= 60 && c >= 8 && (c % 8) < 5 && (r % 8) < 5; // many 5x5 components
+            let diagonal = (56..60).contains(&r) && c >= 60 && ((c / 2) + (r / 2)) % 2 == 0; // saddle contacts
+            if annulus || limb || limb2 || blobs || diagonal {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        let s = inflate(&mask, &InflateParams::default()).unwrap();
+        let h_min = 2.0 / size as f32;
+        for i in 0..size * size {
+            let (f, b) = (s.front.data[i], s.back.data[i]);
+            assert!(f.is_finite() && b.is_finite() && (-1.0..=1.0).contains(&f) && (-1.0..=1.0).contains(&b));
+            if s.mask.data[i] > 0.5 {
+                assert!(f - b >= 2.0 * h_min - 1e-6, "inside pixels keep a thin valid interval");
+            }
+        }
+        // The hole stays empty; the one-pixel limb is kept.
+        assert_eq!(s.mask.data[30 * size + 30], 0.0);
+        assert_eq!(s.mask.data[30 * size + 70], 1.0);
+        // The annulus is thicker in the middle of its width than at its edges.
+        let mid = 30 * size + 30 + 14;
+        let edge = 30 * size + 30 + 19;
+        assert!(s.front.data[mid] > s.front.data[edge]);
+        let fof = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+        assert!(fof.coeffs.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn loops_follow_holes_and_saddles() {
+        // Two pixels touching diagonally: two separate loops sharing a corner.
+        let (w, h) = (4, 4);
+        let mut fg = vec![false; w * h];
+        fg[w + 1] = true;
+        fg[2 * w + 2] = true;
+        let loops = trace_loops(&fg, w, h);
+        assert_eq!(loops.len(), 2);
+        assert!(loops.iter().all(|l| l.len() == 4));
+        // A 3x3 ring with a hole: an outer and an inner loop of opposite orientation.
+        let mut fg = vec![true; 9];
+        fg[4] = false;
+        let loops = trace_loops(&fg, 3, 3);
+        assert_eq!(loops.len(), 2);
+        let signed = |l: &Vec<(i64, i64)>| {
+            (0..l.len())
+                .map(|k| {
+                    let (a, b) = (l[k], l[(k + 1) % l.len()]);
+                    (a.0 * b.1 - b.0 * a.1) as f64
+                })
+                .sum::<f64>()
+        };
+        let areas: Vec<f64> = loops.iter().map(signed).collect();
+        assert!(
+            areas[0] * areas[1] < 0.0 && (areas[0].abs() - 18.0).abs() < 1e-9 || (areas[1].abs() - 18.0).abs() < 1e-9
+        );
+    }
+}

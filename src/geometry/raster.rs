@@ -25,7 +25,7 @@
 
 use std::cell::RefCell;
 
-use glam::{Affine3A, Vec3};
+use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::{Camera, Projection, TriMesh};
@@ -64,6 +64,9 @@ pub struct GBuffer {
     pub mask: Vec<bool>,
     /// Interpolated per-vertex linear RGB colour, when the mesh has one colour per vertex; zero where not covered.
     pub color: Option<Vec<Vec3>>,
+    /// Interpolated per-vertex texture coordinates, when the mesh has one UV per vertex; zero where not covered.
+    /// (Perspective-correct like every attribute.) Textured ground truth samples its texture here.
+    pub uv: Option<Vec<Vec2>>,
 }
 
 impl GBuffer {
@@ -91,6 +94,15 @@ impl GBuffer {
             c.resize(n, Vec3::ZERO);
         } else {
             self.color = None;
+        }
+        self.uv = None;
+    }
+
+    /// Like [`GBuffer::reset`], and also clears (or drops) the UV channel.
+    pub fn reset_with_uv(&mut self, width: usize, height: usize, with_color: bool, with_uv: bool) {
+        self.reset(width, height, with_color);
+        if with_uv {
+            self.uv = Some(vec![Vec2::ZERO; width * height]);
         }
     }
 
@@ -122,7 +134,8 @@ pub fn rasterize(mesh: &TriMesh, camera: &Camera) -> GBuffer {
 /// and a per-thread scratch cache, so repeated calls at one size allocate nothing.
 pub fn rasterize_into(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera) {
     let with_color = !mesh.colors.is_empty() && mesh.colors.len() == mesh.positions.len();
-    out.reset(camera.width, camera.height, with_color);
+    let with_uv = !mesh.uvs.is_empty() && mesh.uvs.len() == mesh.positions.len();
+    out.reset_with_uv(camera.width, camera.height, with_color, with_uv);
     if camera.width == 0 || camera.height == 0 || mesh.is_empty() {
         return;
     }
@@ -550,6 +563,17 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             });
         }
     }
+    if let Some(uv) = out.uv.as_mut() {
+        let uvs = &mesh.uvs;
+        uv.par_chunks_mut(w).enumerate().for_each(|(row, ur)| {
+            for col in 0..w {
+                if let Some((t, b)) = resolve(row * w + col) {
+                    let idx = mesh.triangles[t as usize].map(|i| i as usize);
+                    ur[col] = uvs[idx[0]] * b[0] + uvs[idx[1]] * b[1] + uvs[idx[2]] * b[2];
+                }
+            }
+        });
+    }
 }
 
 /// One band of the visibility buffer.
@@ -893,5 +917,36 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Per-vertex UVs are interpolated like colours, perspective-correctly, with a perspective camera too.
+    #[test]
+    fn uvs_are_interpolated() {
+        use glam::Quat;
+        let mut mesh = TriMesh::cuboid(Vec3::new(-0.8, -0.8, -0.1), Vec3::new(0.8, 0.8, 0.1));
+        mesh.uvs = mesh.positions.iter().map(|p| Vec2::new(p.x * 0.5 + 0.5, 0.5 - p.y * 0.5)).collect();
+        let fov = crate::geometry::Fov::symmetric(0.9, 1.0);
+        let cam = Camera::perspective(Vec3::new(0.1, -0.2, 2.0), Quat::IDENTITY, fov, 0.01, 40, 40);
+        let g = rasterize(&mesh, &cam);
+        let uv = g.uv.as_ref().unwrap();
+        let mut checked = 0;
+        for row in 0..40 {
+            for col in 0..40 {
+                let i = g.index(col, row);
+                if !g.mask[i] {
+                    continue;
+                }
+                // The front face is z = 0.1: unproject at its depth to get the surface point.
+                let p = cam.unproject(col as f32 + 0.5, row as f32 + 0.5, g.depth[i]);
+                if (p.z - 0.1).abs() > 1e-3 {
+                    continue;
+                }
+                let expect = Vec2::new(p.x * 0.5 + 0.5, 0.5 - p.y * 0.5);
+                assert!((uv[i] - expect).length() < 1e-3, "{col},{row}: {} vs {expect}", uv[i]);
+                checked += 1;
+            }
+        }
+        assert!(checked > 500);
+        assert!(rasterize(&TriMesh::cuboid(Vec3::ZERO, Vec3::ONE), &cam).uv.is_none());
     }
 }

@@ -1,1 +1,236 @@
-//! (being written)
+//! 360-degree environments: equirectangular JPEG/PNG photos and Radiance `.hdr` files, loaded into linear RGB
+//! in display range, and sampled by world direction (spherical projection).
+//!
+//! Mapping (the one convention; the GPU compositor matches it): a unit world direction `d` (y up) reads
+//! `u = 0.5 + atan2(d.x, -d.z) / 2pi` (looking down -z hits the panorama centre; `u` wraps) and
+//! `v = acos(d.y) / pi` (0 = zenith, top row). Texel centres at `(i + 0.5) / W`. Bilinear filtering wraps
+//! horizontally (no seam at the longitude wrap) and at the poles reads across the pole (the texel half a turn
+//! away), so there is no pinch artefact.
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+
+use crate::buffer::{Image, RgbImage};
+use crate::io::image_io::{self, IoError};
+
+/// The panorama embedded in the binary, used when no `--env` is given (CC0, see environments/CREDITS.md).
+pub const DEFAULT_ENVIRONMENT_PNG: &[u8] = include_bytes!("../../environments/courtyard.png");
+
+/// A loaded panorama in linear RGB, display range (HDR files are exposure-keyed and tone-mapped on load).
+#[derive(Clone, Debug)]
+pub struct Environment {
+    /// Equirectangular image, top row = zenith, linear RGB in `[0, 1]`.
+    pub image: RgbImage,
+    /// Rotation of the panorama about the vertical axis (radians), applied before the lookup.
+    pub yaw: f32,
+}
+
+impl Environment {
+    /// Loads a panorama from a PNG/JPEG (sRGB) or Radiance `.hdr` (linear, tone-mapped here) file.
+    pub fn load(path: &Path) -> Result<Self, IoError> {
+        let is_hdr = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("hdr"));
+        let image = if is_hdr { load_hdr(path)? } else { image_io::load_image(path)?.rgb };
+        Self::from_image(image, path)
+    }
+
+    /// The embedded default panorama.
+    pub fn default_embedded() -> Self {
+        let rgb = image_io::load_image_bytes(DEFAULT_ENVIRONMENT_PNG, "embedded courtyard.png")
+            .expect("the embedded panorama is a valid PNG (checked by a test)")
+            .rgb;
+        Self { image: rgb, yaw: 0.0 }
+    }
+
+    fn from_image(image: RgbImage, path: &Path) -> Result<Self, IoError> {
+        if image.width < 2 || image.height < 1 {
+            return Err(IoError::Decode { path: path.to_owned(), reason: "panorama too small".into() });
+        }
+        let aspect = image.width as f32 / image.height as f32;
+        if !(1.9..=2.1).contains(&aspect) {
+            tracing::warn!(
+                "{} is {}x{}, not 2:1; it is read as equirectangular anyway",
+                path.display(),
+                image.width,
+                image.height
+            );
+        }
+        Ok(Self { image, yaw: 0.0 })
+    }
+
+    /// Panorama texel coordinates `(u, v)` in `[0, 1]` for a world direction (need not be normalised).
+    pub fn direction_to_uv(&self, d: Vec3) -> (f32, f32) {
+        direction_to_uv(d, self.yaw)
+    }
+
+    /// Linear colour seen along world direction `d` (bilinear, wrap-around, pole-aware).
+    pub fn sample(&self, d: Vec3) -> Vec3 {
+        let (u, v) = self.direction_to_uv(d);
+        self.sample_uv(u, v)
+    }
+
+    /// Bilinear lookup at panorama coordinates (see the module docs for wrapping).
+    pub fn sample_uv(&self, u: f32, v: f32) -> Vec3 {
+        let img = &self.image;
+        let (w, h) = (img.width as i64, img.height as i64);
+        let x = u * w as f32 - 0.5;
+        let y = v * h as f32 - 0.5;
+        if !(x.is_finite() && y.is_finite()) {
+            return Vec3::ZERO;
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        let (tx, ty) = (x - x0, y - y0);
+        let fetch = |cx: i64, cy: i64| -> Vec3 {
+            // Across a pole the row reflects and the column moves half a turn.
+            let (mut cx, mut cy) = (cx, cy);
+            if cy < 0 {
+                cy = -1 - cy;
+                cx += w / 2;
+            } else if cy >= h {
+                cy = 2 * h - 1 - cy;
+                cx += w / 2;
+            }
+            let cy = cy.clamp(0, h - 1);
+            let cx = cx.rem_euclid(w);
+            img.data[(cy * w + cx) as usize]
+        };
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let top = fetch(x0, y0) * (1.0 - tx) + fetch(x0 + 1, y0) * tx;
+        let bottom = fetch(x0, y0 + 1) * (1.0 - tx) + fetch(x0 + 1, y0 + 1) * tx;
+        top * (1.0 - ty) + bottom * ty
+    }
+}
+
+/// Panorama coordinates for a world direction with the panorama rotated by `yaw` radians about +y.
+pub fn direction_to_uv(d: Vec3, yaw: f32) -> (f32, f32) {
+    let d = d.try_normalize().unwrap_or(Vec3::NEG_Z);
+    let (s, c) = yaw.sin_cos();
+    // Rotate the direction by -yaw so a positive yaw turns the panorama to the left.
+    let dx = c * d.x + s * d.z;
+    let dz = -s * d.x + c * d.z;
+    let u = 0.5 + dx.atan2(-dz) / std::f32::consts::TAU;
+    let v = d.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI;
+    (u, v)
+}
+
+/// Inverse of [`direction_to_uv`] with zero yaw: the unit direction at panorama coordinates `(u, v)`.
+pub fn uv_to_direction(u: f32, v: f32) -> Vec3 {
+    let lon = (u - 0.5) * std::f32::consts::TAU;
+    let lat = v * std::f32::consts::PI;
+    Vec3::new(lat.sin() * lon.sin(), lat.cos(), -lat.sin() * lon.cos())
+}
+
+/// Loads a Radiance `.hdr` panorama and maps it to display range: exposure keyed so the solid-angle-weighted
+/// log-average luminance becomes 0.18, then the Narkowicz ACES fit (as the shipped PNG versions were made).
+pub fn load_hdr(path: &Path) -> Result<RgbImage, IoError> {
+    let file = std::fs::File::open(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
+    let decoder = image::codecs::hdr::HdrDecoder::new(std::io::BufReader::new(file))
+        .map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
+    let meta = decoder.metadata();
+    if meta.width > image_io::MAX_INPUT_SIDE || meta.height > image_io::MAX_INPUT_SIDE {
+        return Err(IoError::TooLarge {
+            path: PathBuf::from(path),
+            width: meta.width,
+            height: meta.height,
+            max: image_io::MAX_INPUT_SIDE,
+        });
+    }
+    let img = image::DynamicImage::from_decoder(decoder)
+        .map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?
+        .into_rgb32f();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let raw = img.as_raw();
+    let linear = Image::from_fn(w, h, |c, r| {
+        let i = (r * w + c) * 3;
+        let v = Vec3::new(raw[i], raw[i + 1], raw[i + 2]);
+        // RGBE cannot be negative, but guard against NaN/inf from a damaged file.
+        if v.is_finite() {
+            v.max(Vec3::ZERO)
+        } else {
+            Vec3::ZERO
+        }
+    });
+    Ok(tone_map(&linear))
+}
+
+/// Exposure (log-average luminance keyed to 0.18, weighted by solid angle) followed by the ACES fit.
+pub fn tone_map(linear: &RgbImage) -> RgbImage {
+    let (w, h) = (linear.width, linear.height);
+    let mut sum_log = 0.0f64;
+    let mut sum_w = 0.0f64;
+    for r in 0..h {
+        let weight = (std::f64::consts::PI * (r as f64 + 0.5) / h as f64).sin();
+        for c in 0..w {
+            let v = linear.get(c, r);
+            let lum = 0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z;
+            sum_log += weight * (1e-6 + lum as f64).ln();
+            sum_w += weight;
+        }
+    }
+    let avg = if sum_w > 0.0 { (sum_log / sum_w).exp() } else { 1.0 };
+    let exposure = (0.18 / avg.max(1e-9)) as f32;
+    linear.map(|v| {
+        let x = *v * (0.6 * exposure);
+        let aces = (x * (x * 2.51 + 0.03)) / (x * (x * 2.43 + 0.59) + 0.14);
+        aces.clamp(Vec3::ZERO, Vec3::ONE)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mapping_closed_forms() {
+        let close = |a: (f32, f32), b: (f32, f32)| (a.0 - b.0).abs() < 1e-6 && (a.1 - b.1).abs() < 1e-6;
+        assert!(close(direction_to_uv(Vec3::NEG_Z, 0.0), (0.5, 0.5)));
+        assert!(close(direction_to_uv(Vec3::X, 0.0), (0.75, 0.5)));
+        assert!(close(direction_to_uv(Vec3::NEG_X, 0.0), (0.25, 0.5)));
+        assert!((direction_to_uv(Vec3::Y, 0.0).1).abs() < 1e-6);
+        assert!((direction_to_uv(Vec3::NEG_Y, 0.0).1 - 1.0).abs() < 1e-6);
+        // Exactly straight up or down: u is some finite value, no NaN.
+        assert!(direction_to_uv(Vec3::Y, 0.0).0.is_finite());
+        assert!(direction_to_uv(Vec3::ZERO, 0.0).0.is_finite());
+        for &(u, v) in &[(0.1f32, 0.2f32), (0.9, 0.7), (0.5, 0.5)] {
+            assert!(close(direction_to_uv(uv_to_direction(u, v), 0.0), (u, v)));
+        }
+        // A yaw of +90 degrees turns the panorama: +x now shows what -z showed.
+        let (u, _) = direction_to_uv(Vec3::X, std::f32::consts::FRAC_PI_2);
+        assert!((u - 0.5).abs() < 1e-5, "{u}");
+    }
+
+    #[test]
+    fn sampling_is_seamless_at_the_wrap_and_poles() {
+        let w = 64;
+        let h = 32;
+        let env = Environment {
+            image: Image::from_fn(w, h, |c, r| Vec3::new(c as f32 / w as f32, r as f32 / h as f32, 0.5)),
+            yaw: 0.0,
+        };
+        // Just either side of the wrap (looking down +z): equal colours.
+        let a = env.sample(Vec3::new(1e-4, 0.0, 1.0));
+        let b = env.sample(Vec3::new(-1e-4, 0.0, 1.0));
+        assert!((a - b).length() < 1e-2, "{a} {b}");
+        // Around the pole, directions a hair apart give close colours.
+        let p = env.sample(Vec3::new(1e-4, 1.0, 0.0));
+        let q = env.sample(Vec3::new(-1e-4, 1.0, 0.0));
+        assert!((p.y - q.y).abs() < 0.05);
+        assert!(p.is_finite() && q.is_finite());
+    }
+
+    #[test]
+    fn embedded_panorama_loads() {
+        let env = Environment::default_embedded();
+        assert_eq!(env.image.width, 2 * env.image.height);
+    }
+
+    #[test]
+    fn shipped_hdr_tone_maps_into_range() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("environments/courtyard.hdr");
+        let img = load_hdr(&path).unwrap();
+        assert_eq!((img.width, img.height), (1024, 512));
+        let mean = img.data.iter().copied().sum::<Vec3>() / img.data.len() as f32;
+        assert!(img.data.iter().all(|v| v.is_finite() && v.max_element() <= 1.0));
+        assert!(mean.x > 0.05 && mean.x < 0.8, "mean {mean}");
+    }
+}

@@ -1,1 +1,334 @@
-//! (being written)
+//! Reading photos and masks, and writing PNGs atomically (a temporary file in the same folder, then a rename),
+//! so a failure never leaves a half-written output.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use glam::{Vec3, Vec4};
+use image::{ImageReader, Limits};
+
+use crate::buffer::{linear_to_srgb, srgb_to_linear, unpremultiply, GrayImage, Image, RgbImage, RgbaImage};
+
+/// The largest side accepted for an input image, in pixels. Larger photos are rejected with advice to downscale,
+/// instead of exhausting memory (a 20000x20000 RGBA photo alone needs 1.6 GB decoded).
+pub const MAX_INPUT_SIDE: u32 = 8192;
+
+/// Errors of the `io` layer.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// The file could not be opened or read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not a decodable image (corrupt, truncated or an unsupported format).
+    #[error("cannot decode {path} as an image ({reason}); is it a complete PNG, JPEG or Radiance .hdr file?")]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// What the decoder said.
+        reason: String,
+    },
+    /// The image is larger than [`MAX_INPUT_SIDE`].
+    #[error("{path} is {width}x{height} pixels; the limit is {max}x{max}: downscale it first (e.g. `convert IN -resize 4096x4096 OUT`)")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its width.
+        width: u32,
+        /// Its height.
+        height: u32,
+        /// The limit per side.
+        max: u32,
+    },
+    /// A mask does not match its image.
+    #[error("mask {path} is {mask_w}x{mask_h} but the image is {image_w}x{image_h}; give a mask of the same size")]
+    MaskSize {
+        /// The mask file.
+        path: PathBuf,
+        /// Mask width.
+        mask_w: usize,
+        /// Mask height.
+        mask_h: usize,
+        /// Image width.
+        image_w: usize,
+        /// Image height.
+        image_h: usize,
+    },
+    /// Writing an output failed; nothing was left at the destination.
+    #[error("cannot write {path}: {reason}")]
+    Write {
+        /// The destination.
+        path: PathBuf,
+        /// The cause.
+        reason: String,
+    },
+}
+
+/// A decoded photo: linear RGB (straight, not premultiplied) and its alpha channel when the file has one.
+#[derive(Clone, Debug)]
+pub struct LoadedImage {
+    /// Linear RGB in `[0, 1]`.
+    pub rgb: RgbImage,
+    /// Alpha in `[0, 1]` when the file carries an alpha channel.
+    pub alpha: Option<GrayImage>,
+}
+
+fn open_reader(path: &Path) -> Result<ImageReader<std::io::BufReader<std::fs::File>>, IoError> {
+    let reader = ImageReader::open(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
+    let mut reader = reader.with_guessed_format().map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
+    let mut limits = Limits::default();
+    limits.max_image_width = Some(MAX_INPUT_SIDE);
+    limits.max_image_height = Some(MAX_INPUT_SIDE);
+    reader.limits(limits);
+    Ok(reader)
+}
+
+fn check_size(path: &Path) -> Result<(), IoError> {
+    // Read the header first so an oversized image is refused before any pixel is decoded.
+    let reader = ImageReader::open(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
+    let reader = reader.with_guessed_format().map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
+    let (width, height) =
+        reader.into_dimensions().map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
+    if width > MAX_INPUT_SIDE || height > MAX_INPUT_SIDE {
+        return Err(IoError::TooLarge { path: path.to_owned(), width, height, max: MAX_INPUT_SIDE });
+    }
+    if width == 0 || height == 0 {
+        return Err(IoError::Decode { path: path.to_owned(), reason: "the image has no pixels".into() });
+    }
+    Ok(())
+}
+
+/// Decodes a PNG/JPEG photo into linear RGB plus alpha (when present). 8- and 16-bit files are accepted.
+pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
+    check_size(path)?;
+    let img =
+        open_reader(path)?.decode().map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
+    Ok(from_dynamic(&img))
+}
+
+/// Decodes an in-memory encoded image (PNG/JPEG), e.g. an embedded asset.
+pub fn load_image_bytes(bytes: &[u8], name: &str) -> Result<LoadedImage, IoError> {
+    let img = image::load_from_memory(bytes)
+        .map_err(|e| IoError::Decode { path: PathBuf::from(name), reason: e.to_string() })?;
+    Ok(from_dynamic(&img))
+}
+
+/// Converts a decoded image to linear RGB + optional alpha.
+pub fn from_dynamic(img: &image::DynamicImage) -> LoadedImage {
+    let has_alpha = img.color().has_alpha();
+    let rgba = img.to_rgba32f();
+    let (w, h) = (rgba.width() as usize, rgba.height() as usize);
+    let px = rgba.as_raw();
+    let rgb = Image::from_fn(w, h, |c, r| {
+        let i = (r * w + c) * 4;
+        Vec3::new(srgb_to_linear(px[i]), srgb_to_linear(px[i + 1]), srgb_to_linear(px[i + 2]))
+    });
+    let alpha = has_alpha.then(|| Image::from_fn(w, h, |c, r| px[(r * w + c) * 4 + 3].clamp(0.0, 1.0)));
+    LoadedImage { rgb, alpha }
+}
+
+/// Loads a mask file: its alpha channel when it has one, else its luminance; values in `[0, 1]`.
+pub fn load_mask(path: &Path, expect_w: usize, expect_h: usize) -> Result<GrayImage, IoError> {
+    check_size(path)?;
+    let img =
+        open_reader(path)?.decode().map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    if (w, h) != (expect_w, expect_h) {
+        return Err(IoError::MaskSize {
+            path: path.to_owned(),
+            mask_w: w,
+            mask_h: h,
+            image_w: expect_w,
+            image_h: expect_h,
+        });
+    }
+    let use_alpha = img.color().has_alpha();
+    let rgba = img.to_rgba32f();
+    let px = rgba.as_raw();
+    Ok(Image::from_fn(w, h, |c, r| {
+        let i = (r * w + c) * 4;
+        let v = if use_alpha { px[i + 3] } else { (px[i] + px[i + 1] + px[i + 2]) / 3.0 };
+        v.clamp(0.0, 1.0)
+    }))
+}
+
+/// Encodes a linear RGB image as 8-bit sRGB.
+pub fn to_srgb8(img: &RgbImage) -> image::RgbImage {
+    let mut out = image::RgbImage::new(img.width as u32, img.height as u32);
+    for (p, v) in out.pixels_mut().zip(&img.data) {
+        *p = image::Rgb([q8(v.x), q8(v.y), q8(v.z)]);
+    }
+    out
+}
+
+/// Encodes a premultiplied linear RGBA image as 8-bit sRGB with straight alpha (what PNG stores).
+pub fn to_srgba8(img: &RgbaImage) -> image::RgbaImage {
+    let mut out = image::RgbaImage::new(img.width as u32, img.height as u32);
+    for (p, v) in out.pixels_mut().zip(&img.data) {
+        let rgb = unpremultiply(*v);
+        let a = if v.w.is_finite() { v.w.clamp(0.0, 1.0) } else { 0.0 };
+        *p = image::Rgba([q8(rgb.x), q8(rgb.y), q8(rgb.z), (a * 255.0).round() as u8]);
+    }
+    out
+}
+
+#[inline]
+fn q8(linear: f32) -> u8 {
+    (linear_to_srgb(linear) * 255.0).round() as u8
+}
+
+/// Writes `path` atomically: `write` fills a temporary file in the destination folder, which is then renamed
+/// over `path`. On any error the temporary file is removed and `path` is untouched.
+pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>) -> Result<(), IoError> {
+    let err = |reason: String| IoError::Write { path: path.to_owned(), reason };
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&dir).map_err(|e| err(format!("cannot create folder {}: {e}", dir.display())))?;
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".r2human-")
+        .suffix(".part")
+        .tempfile_in(&dir)
+        .map_err(|e| err(e.to_string()))?;
+    write(tmp.as_file_mut()).map_err(|e| err(e.to_string()))?;
+    tmp.as_file_mut().flush().map_err(|e| err(e.to_string()))?;
+    tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
+    Ok(())
+}
+
+/// Saves a linear RGB image as an sRGB PNG, atomically.
+pub fn save_rgb_png(path: &Path, img: &RgbImage) -> Result<(), IoError> {
+    let buf = to_srgb8(img);
+    write_encoded(path, image::DynamicImage::ImageRgb8(buf))
+}
+
+/// Saves a premultiplied linear RGBA image as an sRGB PNG with straight alpha, atomically.
+pub fn save_rgba_png(path: &Path, img: &RgbaImage) -> Result<(), IoError> {
+    let buf = to_srgba8(img);
+    write_encoded(path, image::DynamicImage::ImageRgba8(buf))
+}
+
+/// Saves a mask / gray image in `[0, 1]` as an 8-bit gray PNG (linear values, no sRGB curve), atomically.
+pub fn save_gray_png(path: &Path, img: &GrayImage) -> Result<(), IoError> {
+    let mut buf = image::GrayImage::new(img.width as u32, img.height as u32);
+    for (p, v) in buf.pixels_mut().zip(&img.data) {
+        let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+        *p = image::Luma([(v * 255.0).round() as u8]);
+    }
+    write_encoded(path, image::DynamicImage::ImageLuma8(buf))
+}
+
+/// Encodes a dynamic image as PNG into `path`, atomically.
+pub fn write_encoded(path: &Path, img: image::DynamicImage) -> Result<(), IoError> {
+    write_atomic(path, |f| {
+        let mut w = std::io::BufWriter::new(f);
+        img.write_to(&mut w, image::ImageFormat::Png).map_err(std::io::Error::other)?;
+        w.flush()
+    })
+}
+
+/// Composites a premultiplied RGBA image over a constant background colour (linear), for previews.
+pub fn over_background(img: &RgbaImage, background: Vec3) -> RgbImage {
+    img.map(|p: &Vec4| p.truncate() + background * (1.0 - p.w))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_write_leaves_nothing_on_failure() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out.png");
+        let r = write_atomic(&out, |f| {
+            f.write_all(b"partial")?;
+            Err(std::io::Error::other("simulated failure"))
+        });
+        assert!(r.is_err());
+        assert!(!out.exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "temporary file removed");
+    }
+
+    #[test]
+    fn png_round_trip_keeps_alpha_and_colour() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("a.png");
+        let img = Image::from_fn(4, 3, |c, r| {
+            let a = (c as f32) / 3.0;
+            (Vec3::new(0.5, 0.25, r as f32 / 2.0) * a).extend(a)
+        });
+        save_rgba_png(&out, &img).unwrap();
+        let back = load_image(&out).unwrap();
+        let alpha = back.alpha.unwrap();
+        assert!((alpha.get(3, 0) - 1.0).abs() < 1e-6);
+        assert!((back.rgb.get(3, 0).x - 0.5).abs() < 0.01);
+    }
+
+    #[test]
+    fn truncated_and_garbage_files_give_clear_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = dir.path().join("g.png");
+        save_rgb_png(&good, &Image::new(64, 64, Vec3::splat(0.3))).unwrap();
+        let bytes = std::fs::read(&good).unwrap();
+        let cut = dir.path().join("cut.png");
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let e = load_image(&cut).unwrap_err().to_string();
+        assert!(e.contains("cut.png"), "{e}");
+        let junk = dir.path().join("junk.jpg");
+        std::fs::write(&junk, b"not an image at all").unwrap();
+        assert!(matches!(load_image(&junk), Err(IoError::Decode { .. })));
+        assert!(matches!(load_image(&dir.path().join("missing.png")), Err(IoError::Read { .. })));
+    }
+
+    #[test]
+    fn oversized_image_is_refused_from_its_header() {
+        // A valid PNG header claiming 20000x20000 pixels: refused before decoding.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("huge.png");
+        let mut png = Vec::new();
+        {
+            let mut enc = png_header_only(&mut png, 20000, 20000);
+            enc.flush().unwrap();
+        }
+        std::fs::write(&path, &png).unwrap();
+        match load_image(&path) {
+            Err(IoError::TooLarge { width: 20000, height: 20000, .. }) => {}
+            other => panic!("expected TooLarge, got {other:?}"),
+        }
+    }
+
+    /// Writes a PNG signature, an IHDR chunk and empty IDAT/IEND chunks: a header that claims a size, no pixels.
+    fn png_header_only(out: &mut Vec<u8>, w: u32, h: u32) -> std::io::Cursor<&mut Vec<u8>> {
+        out.extend_from_slice(&[0x89, b'P', b'N', b'G', 0x0D, 0x0A, 0x1A, 0x0A]);
+        let mut ihdr = Vec::new();
+        ihdr.extend_from_slice(b"IHDR");
+        ihdr.extend_from_slice(&w.to_be_bytes());
+        ihdr.extend_from_slice(&h.to_be_bytes());
+        ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
+        out.extend_from_slice(&13u32.to_be_bytes());
+        out.extend_from_slice(&ihdr);
+        out.extend_from_slice(&crc32(&ihdr).to_be_bytes());
+        for chunk in [&b"IDAT"[..], &b"IEND"[..]] {
+            out.extend_from_slice(&0u32.to_be_bytes());
+            out.extend_from_slice(chunk);
+            out.extend_from_slice(&crc32(chunk).to_be_bytes());
+        }
+        std::io::Cursor::new(out)
+    }
+
+    fn crc32(data: &[u8]) -> u32 {
+        let mut crc = 0xFFFF_FFFFu32;
+        for &b in data {
+            crc ^= b as u32;
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+            }
+        }
+        !crc
+    }
+}

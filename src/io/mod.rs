@@ -4,3 +4,4 @@ pub mod environment;
 pub mod image_io;
 pub mod mesh_io;
 pub mod npy;
+pub mod sequence;

@@ -1,1 +1,210 @@
-//! (being written)
+//! Input normalisation: the person is cropped from the photo by its mask, scaled so the mask's height spans
+//! 1.8 body-cube units (y in [-0.9, 0.9], like the reference's preprocessing), centred, padded to the square
+//! source resolution and premultiplied by the mask (`img * mask`, as the reference feeds its networks).
+
+use glam::{Vec2, Vec3};
+
+use crate::buffer::{sample_bilinear, GrayImage, Image, RgbImage};
+
+/// Fraction of the source image height the person's mask spans (1.8 of the cube's 2 units).
+pub const PERSON_HEIGHT_FRACTION: f32 = 0.9;
+/// The widest a person may be, as a fraction of the source width, before the scale fits the width instead.
+pub const MAX_WIDTH_FRACTION: f32 = 0.98;
+/// A mask covering less than this fraction of the photo is refused (too small to reconstruct).
+pub const MIN_COVERAGE: f32 = 0.01;
+/// A mask covering more than this fraction of the photo is refused (nothing separates the person).
+pub const MAX_COVERAGE: f32 = 0.995;
+
+/// Errors in preparing an input photo.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum InputError {
+    /// The mask has no foreground pixel.
+    #[error("the mask is empty: no pixel is marked as the person. Give a photo with an alpha channel around the person, or a --mask file where the person is white")]
+    EmptyMask,
+    /// The mask covers (almost) the whole photo.
+    #[error("the mask covers {:.1}% of the photo, so it does not separate the person from the background; give a mask (--mask FILE, person white) or a photo with transparency around the person", coverage * 100.0)]
+    FullMask {
+        /// Fraction covered.
+        coverage: f32,
+    },
+    /// The person is too small in the photo.
+    #[error("the person covers only {:.2}% of the photo (at least {:.0}% is needed); crop the photo closer to the person", coverage * 100.0, MIN_COVERAGE * 100.0)]
+    PersonTooSmall {
+        /// Fraction covered.
+        coverage: f32,
+    },
+    /// Image and mask sizes differ.
+    #[error("image is {0}x{1} but mask is {2}x{3}")]
+    SizeMismatch(usize, usize, usize, usize),
+    /// A pixel is NaN or infinite.
+    #[error("the input contains non-finite values (NaN or infinity); the file is damaged")]
+    NonFinite,
+}
+
+/// Maps original photo pixel coordinates to normalised source pixel coordinates: `p_norm = scale * p + offset`
+/// (continuous pixel coordinates, centres at +0.5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NormaliseTransform {
+    /// Uniform scale from photo pixels to source pixels.
+    pub scale: f32,
+    /// Offset in source pixels.
+    pub offset: Vec2,
+}
+
+impl NormaliseTransform {
+    /// Photo pixel to source pixel.
+    pub fn forward(&self, p: Vec2) -> Vec2 {
+        p * self.scale + self.offset
+    }
+    /// Source pixel to photo pixel.
+    pub fn inverse(&self, q: Vec2) -> Vec2 {
+        (q - self.offset) / self.scale
+    }
+}
+
+/// The person in the source camera's frame.
+#[derive(Clone, Debug)]
+pub struct NormalisedInput {
+    /// Linear RGB premultiplied by the mask, `resolution^2`.
+    pub rgb: RgbImage,
+    /// Mask in `[0, 1]`, `resolution^2`.
+    pub mask: GrayImage,
+    /// How photo pixels map to these.
+    pub transform: NormaliseTransform,
+}
+
+/// Normalises a photo (`rgb` linear straight colour, `mask` in `[0, 1]`, same size) into the body cube at
+/// `resolution^2`. See the module docs for the rule.
+pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<NormalisedInput, InputError> {
+    if (rgb.width, rgb.height) != (mask.width, mask.height) {
+        return Err(InputError::SizeMismatch(rgb.width, rgb.height, mask.width, mask.height));
+    }
+    if rgb.data.iter().any(|v| !v.is_finite()) || mask.data.iter().any(|v| !v.is_finite()) {
+        return Err(InputError::NonFinite);
+    }
+    let (w, h) = (mask.width, mask.height);
+    let (mut c0, mut c1, mut r0, mut r1) = (usize::MAX, 0usize, usize::MAX, 0usize);
+    let mut count = 0usize;
+    for r in 0..h {
+        for c in 0..w {
+            if *mask.get(c, r) >= 0.5 {
+                count += 1;
+                c0 = c0.min(c);
+                c1 = c1.max(c);
+                r0 = r0.min(r);
+                r1 = r1.max(r);
+            }
+        }
+    }
+    if count == 0 {
+        return Err(InputError::EmptyMask);
+    }
+    let coverage = count as f32 / (w * h) as f32;
+    if coverage > MAX_COVERAGE {
+        return Err(InputError::FullMask { coverage });
+    }
+    if coverage < MIN_COVERAGE {
+        return Err(InputError::PersonTooSmall { coverage });
+    }
+    let res = resolution as f32;
+    let person_h = (r1 + 1 - r0) as f32;
+    let person_w = (c1 + 1 - c0) as f32;
+    let scale = (PERSON_HEIGHT_FRACTION * res / person_h).min(MAX_WIDTH_FRACTION * res / person_w);
+    let centre = Vec2::new((c0 + c1 + 1) as f32 * 0.5, (r0 + r1 + 1) as f32 * 0.5);
+    let offset = Vec2::splat(res * 0.5) - centre * scale;
+    let transform = NormaliseTransform { scale, offset };
+
+    let premultiplied =
+        Image { width: w, height: h, data: rgb.data.iter().zip(&mask.data).map(|(c, m)| *c * *m).collect() };
+    // Supersample when shrinking so thin structures are averaged rather than aliased.
+    let taps = ((1.0 / scale).ceil() as usize).clamp(1, 8);
+    let mut out_rgb = Image::new(resolution, resolution, Vec3::ZERO);
+    let mut out_mask = Image::new(resolution, resolution, 0.0f32);
+    for row in 0..resolution {
+        for col in 0..resolution {
+            let mut acc_rgb = Vec3::ZERO;
+            let mut acc_m = 0.0;
+            for j in 0..taps {
+                for i in 0..taps {
+                    let q = Vec2::new(
+                        col as f32 + (i as f32 + 0.5) / taps as f32,
+                        row as f32 + (j as f32 + 0.5) / taps as f32,
+                    );
+                    let p = transform.inverse(q);
+                    acc_rgb += sample_bilinear(&premultiplied, p.x, p.y, Vec3::ZERO);
+                    acc_m += sample_bilinear(mask, p.x, p.y, 0.0);
+                }
+            }
+            let n = (taps * taps) as f32;
+            out_rgb.set(col, row, acc_rgb / n);
+            out_mask.set(col, row, (acc_m / n).clamp(0.0, 1.0));
+        }
+    }
+    Ok(NormalisedInput { rgb: out_rgb, mask: out_mask, transform })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect_mask(w: usize, h: usize, c0: usize, c1: usize, r0: usize, r1: usize) -> GrayImage {
+        Image::from_fn(w, h, |c, r| if (c0..=c1).contains(&c) && (r0..=r1).contains(&r) { 1.0 } else { 0.0 })
+    }
+
+    #[test]
+    fn a_standing_person_spans_1_8_units_and_is_centred() {
+        // 300x200 photo, person rectangle 20 wide and 100 tall, off-centre.
+        let mask = rect_mask(300, 200, 40, 59, 50, 149);
+        let rgb = Image::new(300, 200, Vec3::new(0.5, 0.4, 0.3));
+        let n = normalise(&rgb, &mask, 512).unwrap();
+        assert!((n.transform.scale - 0.9 * 512.0 / 100.0).abs() < 1e-4);
+        // Rows covered by the mask: 0.9 of 512 = 460.8 pixels, centred.
+        let rows: Vec<usize> = (0..512).filter(|&r| *n.mask.get(256, r) > 0.5).collect();
+        let span = rows.len() as f32;
+        assert!((span - 460.8).abs() <= 2.0, "{span}");
+        let mid = (rows[0] + rows[rows.len() - 1] + 1) as f32 / 2.0;
+        assert!((mid - 256.0).abs() <= 1.0, "{mid}");
+        // Premultiplied: colour inside equals the straight colour, outside zero.
+        assert!((*n.rgb.get(256, 256) - Vec3::new(0.5, 0.4, 0.3)).length() < 1e-5);
+        assert_eq!(*n.rgb.get(5, 5), Vec3::ZERO);
+        // The transform maps the photo's mask centre to the source centre.
+        let c = n.transform.forward(Vec2::new(50.0, 100.0));
+        assert!((c - Vec2::splat(256.0)).length() < 1e-3);
+    }
+
+    #[test]
+    fn wide_person_fits_the_width() {
+        let mask = rect_mask(400, 400, 0, 359, 100, 139);
+        let rgb = Image::new(400, 400, Vec3::ONE);
+        let n = normalise(&rgb, &mask, 256).unwrap();
+        assert!((n.transform.scale - 0.98 * 256.0 / 360.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn degenerate_masks_are_refused_clearly() {
+        let rgb = Image::new(100, 100, Vec3::ONE);
+        assert_eq!(normalise(&rgb, &Image::new(100, 100, 0.0), 64).unwrap_err(), InputError::EmptyMask);
+        assert!(matches!(normalise(&rgb, &Image::new(100, 100, 1.0), 64), Err(InputError::FullMask { .. })));
+        let speck = rect_mask(100, 100, 10, 12, 10, 12);
+        assert!(matches!(normalise(&rgb, &speck, 64), Err(InputError::PersonTooSmall { .. })));
+        let mut bad = rgb.clone();
+        bad.set(3, 3, Vec3::NAN);
+        assert_eq!(normalise(&bad, &rect_mask(100, 100, 10, 50, 10, 90), 64).unwrap_err(), InputError::NonFinite);
+        assert!(normalise(&rgb, &Image::new(10, 10, 1.0), 64).is_err());
+    }
+
+    #[test]
+    fn one_pixel_limb_survives_downscaling_as_partial_coverage() {
+        // A tall person with a one-pixel-wide vertical line (a limb) in a large photo.
+        let mut mask = rect_mask(1000, 1000, 450, 549, 50, 949);
+        for r in 100..900 {
+            mask.set(700, r, 1.0);
+        }
+        let rgb = Image::new(1000, 1000, Vec3::ONE);
+        let n = normalise(&rgb, &mask, 256).unwrap();
+        let q = n.transform.forward(Vec2::new(700.5, 500.0));
+        let v = *n.mask.get(q.x as usize, q.y as usize);
+        assert!(v > 0.05 && v < 0.9, "thin limb kept as partial coverage: {v}");
+        assert!(n.mask.data.iter().all(|v| v.is_finite()));
+    }
+}

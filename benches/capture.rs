@@ -1,0 +1,126 @@
+//! Live-input stages: clean-plate segmentation, mask cleanup and smoothing at webcam size (640x480), frame
+//! decoding from an image sequence, the ONNX segmentation model (when installed) and the whole live loop, whose
+//! per-stage medians are written to `target/capture_stages.json`.
+//!
+//! `cargo bench --bench capture`
+
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use r2human::app::live::{LiveOptions, LivePipeline, PrepareProcessor};
+use r2human::capture::morph::{close, fill_holes, largest_component, open, threshold};
+use r2human::capture::segment::{CleanPlate, PlateParams};
+use r2human::capture::smooth::MaskSmoother;
+use r2human::capture::synthetic::{composite, empty_scene, walker, WalkerParams, WalkerSource};
+use r2human::capture::{open_video_path, Frame, FrameSource, SegmentMethod, SourceEvent};
+use r2human::pipeline::PrepareOptions;
+
+fn vga() -> WalkerParams {
+    WalkerParams { width: 640, height: 480, frames: 16, fps: 30.0, noise: 0.01 }
+}
+
+fn bench_segmentation(c: &mut Criterion) {
+    let p = vga();
+    let plate_frames: Vec<_> = (0..5).map(|i| empty_scene(&p, i)).collect();
+    let plate = CleanPlate::from_frames(&plate_frames).expect("plate");
+    let (rgb, truth) = composite(&p, 3);
+    let params = PlateParams::default();
+    let mut g = c.benchmark_group("capture_640x480");
+    g.sample_size(20);
+    g.bench_function("clean_plate_segment", |b| b.iter(|| plate.segment(&rgb, &params).expect("segment")));
+    let raw = threshold(&truth, 0.5);
+    g.bench_function("morphology_open_close_component_fill", |b| {
+        b.iter(|| fill_holes(&largest_component(&close(&open(&raw, 1), 2))))
+    });
+    let mut smoother = MaskSmoother::new(0.6, 0.6);
+    let (_, other) = walker(&p, 4);
+    let mut flip = false;
+    g.bench_function("mask_ema", |b| {
+        b.iter(|| {
+            flip = !flip;
+            smoother.update(if flip { &truth } else { &other })
+        })
+    });
+    g.finish();
+}
+
+fn bench_decode(c: &mut Criterion) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = vga();
+    for i in 0..4 {
+        let (rgb, _) = composite(&p, i);
+        r2human::io::image_io::save_rgb_png(&dir.path().join(format!("f{i}.png")), &rgb).expect("write");
+    }
+    let mut g = c.benchmark_group("capture_640x480");
+    g.sample_size(10);
+    g.bench_function("png_sequence_decode_frame", |b| {
+        b.iter(|| {
+            let mut src = open_video_path(dir.path(), 30.0).expect("open");
+            let mut n = 0;
+            while let Ok(SourceEvent::Frame(_)) = src.next_frame() {
+                n += 1;
+            }
+            n
+        })
+    });
+    g.finish();
+}
+
+fn bench_onnx(c: &mut Criterion) {
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models");
+    for (name, file, size) in
+        [("onnx_pose_256", "pose_landmark_full.onnx", 256), ("onnx_isnet_512", "isnet_seg.onnx", 512)]
+    {
+        let mut seg = match (SegmentMethod::Onnx { model: Some(models.join(file)), input_size: size }).build(None) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("{name} not benchmarked: {e}");
+                continue;
+            }
+        };
+        let p = vga();
+        let (rgb, _) = composite(&p, 2);
+        let frame = Frame { index: 0, timestamp: Duration::ZERO, rgb, alpha: None };
+        let mut g = c.benchmark_group("capture_640x480");
+        g.sample_size(10).measurement_time(Duration::from_secs(20));
+        g.bench_function(name, |b| b.iter(|| seg.segment(&frame).expect("segment")));
+        g.finish();
+    }
+}
+
+/// Runs the live loop over a 640x480 walker delivered at 30 fps with clean-plate segmentation and the core
+/// pipeline (normalise, inflation FOF, mesh, source raster at 512^2) and writes the per-stage medians (the
+/// numbers the window shows) to target/capture_stages.json.
+fn live_loop_stages(_c: &mut Criterion) {
+    let p = WalkerParams { frames: 90, ..vga() };
+    let opts =
+        LiveOptions { segment: SegmentMethod::CleanPlate { plate: None, plate_frames: 5 }, ..LiveOptions::default() };
+    let pp = p.clone();
+    let live = LivePipeline::start(
+        Box::new(move || Ok(Box::new(WalkerSource::new(pp, 5, false)) as Box<dyn FrameSource>)),
+        PrepareProcessor::new(PrepareOptions::default()),
+        opts,
+    )
+    .expect("start");
+    live.wait(Duration::from_secs(120));
+    let stats = live.stop();
+    let stages: Vec<serde_json::Value> = stats
+        .stages
+        .iter()
+        .map(|s| serde_json::json!({"stage": s.name, "median_ms": s.median_ms(), "samples": s.total}))
+        .collect();
+    let json = serde_json::json!({
+        "source": "synthetic walker 640x480 at 30 fps, clean-plate segmentation, core pipeline at 512^2",
+        "read": stats.read, "dropped": stats.dropped, "completed": stats.completed,
+        "throughput_fps": stats.throughput_fps, "source_fps": stats.source_fps, "stages": stages,
+    });
+    let out = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/capture_stages.json");
+    let text = serde_json::to_string_pretty(&json).expect("json");
+    if let Err(e) = std::fs::write(&out, &text) {
+        eprintln!("cannot write {}: {e}", out.display());
+    }
+    println!("live loop: {}\n{text}", stats.overlay_line());
+}
+
+criterion_group!(benches, bench_segmentation, bench_decode, bench_onnx, live_loop_stages);
+criterion_main!(benches);

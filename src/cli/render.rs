@@ -1,0 +1,232 @@
+//! `render` and `demo`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::buffer::GrayImage;
+use crate::compose::Mode;
+use crate::geometry::Camera;
+use crate::io::environment::Environment;
+use crate::io::image_io::{self, LoadedImage};
+use crate::io::sequence::{self, Frame};
+use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, ViewRenderer};
+
+/// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
+pub const DEFAULT_PERSON_PNG: &[u8] = include_bytes!("../../assets/demo/person.png");
+
+/// `--fill`: how occluded surfaces are coloured (see [`OcclusionFill`]).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FillArg {
+    /// The back shows the front's colours at the same place (what a person expects from one photo).
+    MirroredFront,
+    /// Colours diffused inward from the nearest visible pixels.
+    Propagate,
+}
+
+impl From<FillArg> for OcclusionFill {
+    fn from(f: FillArg) -> Self {
+        match f {
+            FillArg::MirroredFront => OcclusionFill::MirroredFront,
+            FillArg::Propagate => OcclusionFill::Propagate,
+        }
+    }
+}
+
+/// Options shared by everything that renders.
+#[derive(Args, Debug, Clone)]
+pub struct ViewOptions {
+    /// 360-degree panorama behind the person in VR mode (equirectangular PNG/JPEG or Radiance .hdr).
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// vr: the person over the panorama; ar: the person alone with alpha, for passthrough.
+    #[arg(long, value_enum, default_value_t = Mode::Vr)]
+    pub mode: Mode,
+    /// Output width and height in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub size: usize,
+    /// Where the geometry comes from.
+    #[arg(long, value_enum, default_value_t = GeometryMode::Inflate)]
+    pub geometry: GeometryMode,
+    /// How surfaces the photo does not show are coloured.
+    #[arg(long, value_enum, default_value_t = FillArg::MirroredFront)]
+    pub fill: FillArg,
+    /// Number of Fourier occupancy coefficients (FOF-X N).
+    #[arg(long, default_value_t = 32)]
+    pub fof_order: usize,
+    /// Camera pitch in degrees (positive looks down on the person).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub pitch: f32,
+}
+
+/// Arguments of `render`.
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Photo of a person (PNG/JPEG). Its alpha channel is the person mask unless --mask is given.
+    #[arg(long)]
+    pub image: PathBuf,
+    /// Person mask (white = person), same size as the image.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Camera yaw in degrees around the person (0 = the photo's viewpoint, 180 = from behind).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub yaw: f32,
+    /// Render an orbit of N views around the person into the --out folder instead of one view.
+    #[arg(long)]
+    pub orbit: Option<usize>,
+    /// Output PNG file (one view) or folder (--orbit).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Rendering options.
+    #[command(flatten)]
+    pub view: ViewOptions,
+}
+
+/// Arguments of `demo`.
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Output folder.
+    #[arg(long, default_value = "out/demo")]
+    pub out: PathBuf,
+    /// Number of views in the orbit.
+    #[arg(long, default_value_t = 24)]
+    pub frames: usize,
+    /// Rendering options.
+    #[command(flatten)]
+    pub view: ViewOptions,
+}
+
+fn check_view_options(v: &ViewOptions) -> Result<()> {
+    if !(16..=4096).contains(&v.size) {
+        bail!("--size {} is out of range: use 16 to 4096 pixels", v.size);
+    }
+    if !v.pitch.is_finite() {
+        bail!("--pitch must be a finite number of degrees");
+    }
+    if !(2..=256).contains(&v.fof_order) {
+        bail!("--fof-order {} is out of range: use 2 to 256 (32 is the reference's choice)", v.fof_order);
+    }
+    Ok(())
+}
+
+/// Loads the photo and its mask (alpha or --mask).
+pub fn load_person(image: &Path, mask: Option<&Path>) -> Result<(LoadedImage, GrayImage)> {
+    let photo = image_io::load_image(image)?;
+    let mask = match mask {
+        Some(m) => image_io::load_mask(m, photo.rgb.width, photo.rgb.height)?,
+        None => match &photo.alpha {
+            Some(a) => a.clone(),
+            None => bail!(
+                "{} has no alpha channel, so the person cannot be told from the background: give --mask FILE (white = person) or a PNG with transparency around the person",
+                image.display()
+            ),
+        },
+    };
+    Ok((photo, mask))
+}
+
+fn load_environment(view: &ViewOptions) -> Result<Environment> {
+    match (&view.env, view.mode) {
+        // AR needs no panorama: do not even read it.
+        (_, Mode::Ar) => Ok(Environment { image: crate::buffer::Image::new(2, 1, glam::Vec3::ZERO), yaw: 0.0 }),
+        (Some(p), Mode::Vr) => Ok(Environment::load(p)?),
+        (None, Mode::Vr) => Ok(Environment::default_embedded()),
+    }
+}
+
+fn prepare(photo: &LoadedImage, mask: &GrayImage, view: &ViewOptions) -> Result<PreparedInput> {
+    let opts = PrepareOptions { fof_order: view.fof_order, geometry: view.geometry, ..Default::default() };
+    let prepared = PreparedInput::prepare(&photo.rgb, mask, &opts)?;
+    for (name, d) in &prepared.timings.0 {
+        tracing::info!("{name}: {:.1} ms", d.as_secs_f64() * 1e3);
+    }
+    Ok(prepared)
+}
+
+/// `r2human render`.
+pub fn run_render(args: &RenderArgs) -> Result<()> {
+    check_view_options(&args.view)?;
+    if !args.yaw.is_finite() {
+        bail!("--yaw must be a finite number of degrees");
+    }
+    let (photo, mask) = load_person(&args.image, args.mask.as_deref())?;
+    let env = load_environment(&args.view)?;
+    let prepared = prepare(&photo, &mask, &args.view)?;
+    match args.orbit {
+        None => {
+            let mut renderer = ViewRenderer::new(&prepared, args.view.fill.into(), false);
+            let cam = Camera::orbit(args.yaw, args.view.pitch, args.view.size, args.view.size);
+            let frame = renderer.render_frame(&cam, args.view.mode, &env)?;
+            frame.save_png(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
+            println!("wrote {}", args.out.display());
+        }
+        Some(n) => {
+            if !(1..=720).contains(&n) {
+                bail!("--orbit {n} is out of range: use 1 to 720 views");
+            }
+            let frames = render_orbit(&prepared, &args.view, &env, n, args.yaw)?;
+            write_orbit(&args.out, &frames)?;
+        }
+    }
+    Ok(())
+}
+
+/// Renders `n` views evenly spaced in yaw starting at `start_yaw`, with spatial fusion across the sequence.
+pub fn render_orbit(
+    prepared: &PreparedInput,
+    view: &ViewOptions,
+    env: &Environment,
+    n: usize,
+    start_yaw: f32,
+) -> Result<Vec<Frame>> {
+    let mut renderer = ViewRenderer::new(prepared, view.fill.into(), true);
+    let bar = ProgressBar::new(n as u64).with_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} views ({elapsed})").expect("valid template"),
+    );
+    bar.set_message("rendering");
+    let mut frames = Vec::with_capacity(n);
+    for i in 0..n {
+        let yaw = start_yaw + 360.0 * i as f32 / n as f32;
+        let cam = Camera::orbit(yaw, view.pitch, view.size, view.size);
+        frames.push(renderer.render_frame(&cam, view.mode, env)?);
+        bar.inc(1);
+    }
+    bar.finish();
+    Ok(frames)
+}
+
+/// Writes `DIR/view_000.png` ..., `DIR/orbit.gif` and `DIR/contact_sheet.png`.
+pub fn write_orbit(dir: &Path, frames: &[Frame]) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating output folder {}", dir.display()))?;
+    for (i, f) in frames.iter().enumerate() {
+        f.save_png(&dir.join(format!("view_{i:03}.png")))?;
+    }
+    sequence::write_gif(&dir.join("orbit.gif"), frames, 80)?;
+    let columns = (frames.len() as f64).sqrt().ceil() as usize;
+    sequence::write_contact_sheet(&dir.join("contact_sheet.png"), frames, columns, 160)?;
+    println!("wrote {} views, orbit.gif and contact_sheet.png to {}", frames.len(), dir.display());
+    Ok(())
+}
+
+/// `r2human demo`.
+pub fn run_demo(args: &DemoArgs) -> Result<()> {
+    check_view_options(&args.view)?;
+    if !(1..=720).contains(&args.frames) {
+        bail!("--frames {} is out of range: use 1 to 720", args.frames);
+    }
+    let photo = image_io::load_image_bytes(DEFAULT_PERSON_PNG, "embedded person.png")?;
+    let mask = photo.alpha.clone().context("the embedded person image has an alpha channel")?;
+    let env = load_environment(&args.view)?;
+    let prepared = prepare(&photo, &mask, &args.view)?;
+    let frames = render_orbit(&prepared, &args.view, &env, args.frames, 0.0)?;
+    write_orbit(&args.out, &frames)?;
+    println!(
+        "per-input stages: {:.0} ms; mesh: {} triangles",
+        prepared.timings.total().as_secs_f64() * 1e3,
+        prepared.mesh.triangle_count()
+    );
+    Ok(())
+}

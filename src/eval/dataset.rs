@@ -1,0 +1,290 @@
+//! `r2human dataset`: synthetic subjects with every view known, in a format numpy alone can read (PNG + `.npy`
+//! + JSON; see the README and SPEC "Dataset format").
+//!
+//! Each subject is written into a hidden temporary folder next to its destination and renamed into place when
+//! complete, so a failed or interrupted subject leaves no half-written files; `dataset.json` is written last
+//! (atomically) and lists only complete subjects. Subjects run in parallel (rayon).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::Mat4;
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::ground_truth::{render_ground_truth, GroundTruthView};
+use super::EvalError;
+use crate::geometry::camera::{Camera, Projection};
+use crate::geometry::fof::Fof;
+use crate::io::npy::{write_atomic, NpyArray, NpyData};
+use crate::synth::{self, Rng, SubjectParams, SynthAssets};
+
+/// Options of [`write_dataset`] (the CLI's `r2human dataset` flags).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetOptions {
+    /// Number of subjects (`--subjects`).
+    pub subjects: usize,
+    /// Dataset seed (`--seed`); subject `i` uses [`subject_seed`]`(seed, i)`.
+    pub seed: u64,
+    /// Output folder (`--out`), created if missing.
+    pub out: PathBuf,
+    /// Target views per subject (`--views`, default 8).
+    pub views: usize,
+    /// Image side in pixels (`--size`, default 512).
+    pub size: usize,
+    /// FOF coefficients per pixel (32, as R²Human).
+    pub fof_n: usize,
+    /// Texture side of the subjects' albedo maps (1024).
+    pub texture_size: usize,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+impl Default for DatasetOptions {
+    fn default() -> Self {
+        Self {
+            subjects: 10,
+            seed: 0,
+            out: PathBuf::from("dataset"),
+            views: 8,
+            size: 512,
+            fof_n: 32,
+            texture_size: synth::DEFAULT_TEXTURE_SIZE,
+            progress: true,
+        }
+    }
+}
+
+/// What [`write_dataset`] did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetSummary {
+    /// Names of the subjects written (`subject_0000`...).
+    pub written: Vec<String>,
+    /// Subjects that failed, with the reason; they left no files behind.
+    pub failed: Vec<(String, String)>,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+}
+
+/// The generator seed of subject `index` in a dataset with seed `seed`.
+pub fn subject_seed(seed: u64, index: usize) -> u64 {
+    let mut r = Rng::new(seed ^ (index as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    r.next_u64()
+}
+
+/// Orbit angles `(yaw_deg, pitch_deg)` of the `views` target views of a subject: yaws evenly spread over 360
+/// degrees from a random offset, pitches in `[-10, 20]` degrees.
+pub fn view_angles(subject_seed: u64, views: usize) -> Vec<(f32, f32)> {
+    let mut r = Rng::new(subject_seed ^ 0x7669_6577);
+    let step = 360.0 / views.max(1) as f32;
+    let offset = r.range(0.0, step);
+    (0..views).map(|k| (offset + step * k as f32, r.range(-10.0, 20.0))).collect()
+}
+
+/// Whether subject `index` is in the test split (every tenth subject: indices 9, 19, ...).
+pub fn is_test(index: usize) -> bool {
+    index % 10 == 9
+}
+
+fn check(opts: &DatasetOptions) -> Result<(), EvalError> {
+    let bad = |m: String| Err(EvalError::InvalidOptions(m));
+    if opts.subjects == 0 {
+        return bad("--subjects must be at least 1".into());
+    }
+    if opts.subjects > 100_000 {
+        return bad(format!("--subjects {} is more than 100000", opts.subjects));
+    }
+    if !(16..=4096).contains(&opts.size) {
+        return bad(format!("--size {} must be within 16..=4096 pixels", opts.size));
+    }
+    if opts.views > 360 {
+        return bad(format!("--views {} is more than 360", opts.views));
+    }
+    if !(1..=256).contains(&opts.fof_n) {
+        return bad(format!("the FOF order {} must be within 1..=256", opts.fof_n));
+    }
+    if !(16..=8192).contains(&opts.texture_size) {
+        return bad(format!("the texture size {} must be within 16..=8192", opts.texture_size));
+    }
+    Ok(())
+}
+
+/// Writes a dataset (see the module docs). Failed subjects are reported in the summary and skipped; the call
+/// fails only for invalid options, missing generator data, an unwritable output folder, or when every subject
+/// failed.
+pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError> {
+    check(opts)?;
+    let start = Instant::now();
+    let assets = SynthAssets::shared()?;
+    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
+    let bar = if opts.progress {
+        let b = indicatif::ProgressBar::new(opts.subjects as u64);
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} subjects ({per_sec}, eta {eta}) {msg}",
+        ) {
+            b.set_style(style);
+        }
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let results: Vec<(String, Result<(), EvalError>)> = (0..opts.subjects)
+        .into_par_iter()
+        .map(|i| {
+            let name = format!("subject_{i:04}");
+            let r = write_subject(assets, opts, i, &name);
+            if let Err(e) = &r {
+                bar.println(format!("{name}: {e}"));
+            }
+            bar.inc(1);
+            (name, r)
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut written = Vec::new();
+    let mut failed = Vec::new();
+    for (name, r) in results {
+        match r {
+            Ok(()) => written.push(name),
+            Err(e) => failed.push((name, e.to_string())),
+        }
+    }
+    if written.is_empty() {
+        let first = failed.first().map(|f| format!("{}: {}", f.0, f.1)).unwrap_or_default();
+        return Err(EvalError::AllFailed(first));
+    }
+    let (train, test): (Vec<&String>, Vec<&String>) =
+        written.iter().partition(|n| !is_test(n.trim_start_matches("subject_").parse().unwrap_or(0)));
+    let manifest = json!({
+        "format": "r2human-dataset",
+        "version": 1,
+        "resolution": opts.size,
+        "fof_n": opts.fof_n,
+        "seed": opts.seed,
+        "subjects": written,
+        "views_per_subject": opts.views,
+        "split": {"train": train, "test": test},
+        "failed": failed.iter().map(|(n, e)| json!({"subject": n, "error": e})).collect::<Vec<_>>(),
+    });
+    let path = opts.out.join("dataset.json");
+    let text = serde_json::to_vec_pretty(&manifest).map_err(|e| EvalError::io(&path, std::io::Error::other(e)))?;
+    write_atomic(&path, &text).map_err(|e| EvalError::io(&path, e))?;
+    Ok(DatasetSummary { written, failed, seconds: start.elapsed().as_secs_f64() })
+}
+
+fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name: &str) -> Result<(), EvalError> {
+    let seed = subject_seed(opts.seed, index);
+    let params = SubjectParams::sample(seed);
+    let subject = synth::generate(assets, &params, opts.texture_size)?;
+    let dest = opts.out.join(name);
+    // Everything goes into a hidden temporary folder first; it is removed on drop unless renamed into place.
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!(".{name}-"))
+        .suffix(".part")
+        .tempdir_in(&opts.out)
+        .map_err(|e| EvalError::io(&opts.out, e))?;
+    let dir = tmp.path();
+    let r = opts.size;
+
+    crate::io::mesh_io::write_glb(&dir.join("mesh.glb"), &subject.mesh).map_err(synth::SynthError::from)?;
+    let info = json!({
+        "name": name,
+        "index": index,
+        "dataset_seed": opts.seed,
+        "seed": seed,
+        "params": params,
+        "normalization": {
+            "description": "p_cube = scale * (p_makehuman_dm - center); MakeHuman units are decimetres, +Y up, +Z forward",
+            "scale": subject.normalization.scale,
+            "center": subject.normalization.center,
+            "xz_radius": subject.normalization.xz_radius,
+        },
+        "mesh": {
+            "vertices": subject.mesh.mesh.positions.len(),
+            "triangles": subject.mesh.mesh.triangles.len(),
+            "texture_size": opts.texture_size,
+        },
+        "test": is_test(index),
+    });
+    write_json(&dir.join("subject.json"), &info)?;
+
+    let source = Camera::source(r);
+    let gt = render_ground_truth(&subject.mesh, &source);
+    write_view(dir, "source_", &gt)?;
+    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::Fof(e.to_string()))?;
+    write_npy(&dir.join("fof.npy"), vec![r, r, opts.fof_n], fof.coeffs)?;
+
+    if opts.views > 0 {
+        let views_dir = dir.join("views");
+        std::fs::create_dir_all(&views_dir).map_err(|e| EvalError::io(&views_dir, e))?;
+        for (k, (yaw, pitch)) in view_angles(seed, opts.views).into_iter().enumerate() {
+            let vdir = views_dir.join(format!("view_{k:02}"));
+            std::fs::create_dir_all(&vdir).map_err(|e| EvalError::io(&vdir, e))?;
+            let cam = Camera::orbit(yaw, pitch, r, r);
+            let gt = render_ground_truth(&subject.mesh, &cam);
+            write_view(&vdir, "", &gt)?;
+            write_json(&vdir.join("camera.json"), &camera_json(&cam, yaw, pitch))?;
+        }
+    }
+    // Replace a previous run's subject, then move the finished folder into place.
+    if dest.exists() {
+        std::fs::remove_dir_all(&dest).map_err(|e| EvalError::io(&dest, e))?;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o755)).map_err(|e| EvalError::io(dir, e))?;
+    }
+    let tmp_path = tmp.keep();
+    std::fs::rename(&tmp_path, &dest).map_err(|e| {
+        let _ = std::fs::remove_dir_all(&tmp_path);
+        EvalError::io(&dest, e)
+    })?;
+    Ok(())
+}
+
+/// The `camera.json` of an orbit view (SPEC: kind, angles, 4x4 row-major view-from-world, projection, size).
+pub fn camera_json(cam: &Camera, yaw_deg: f32, pitch_deg: f32) -> serde_json::Value {
+    let m = Mat4::from(cam.view_from_world);
+    let rows: Vec<[f32; 4]> = (0..4).map(|i| m.row(i).to_array()).collect();
+    let projection = match cam.projection {
+        Projection::Orthographic { half_width, half_height } => {
+            json!({"orthographic": {"half_width": half_width, "half_height": half_height}})
+        }
+        Projection::Perspective { fov, near } => json!({"perspective": {
+            "angle_left": fov.angle_left, "angle_right": fov.angle_right,
+            "angle_up": fov.angle_up, "angle_down": fov.angle_down, "near": near}}),
+    };
+    json!({"kind": "orbit", "yaw_deg": yaw_deg, "pitch_deg": pitch_deg, "view_from_world": rows,
+           "projection": projection, "width": cam.width, "height": cam.height})
+}
+
+fn write_json(path: &Path, value: &serde_json::Value) -> Result<(), EvalError> {
+    let text = serde_json::to_vec_pretty(value).map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
+    write_atomic(path, &text).map_err(|e| EvalError::io(path, e))
+}
+
+fn write_npy(path: &Path, shape: Vec<usize>, data: Vec<f32>) -> Result<(), EvalError> {
+    let arr = NpyArray::new(shape, NpyData::F32(data)).map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
+    write_atomic(path, &arr.to_bytes()).map_err(|e| EvalError::io(path, e))
+}
+
+/// Writes `{prefix}rgba.png`, `{prefix}depth.npy` and `{prefix}normal.npy` of a view.
+fn write_view(dir: &Path, prefix: &str, gt: &GroundTruthView) -> Result<(), EvalError> {
+    let png = dir.join(format!("{prefix}rgba.png"));
+    let mut bytes = Vec::new();
+    let enc = image::codecs::png::PngEncoder::new_with_quality(
+        &mut bytes,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Adaptive,
+    );
+    let img = gt.to_srgba8();
+    image::ImageEncoder::write_image(enc, img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgba8)
+        .map_err(|e| EvalError::io(&png, std::io::Error::other(e)))?;
+    write_atomic(&png, &bytes).map_err(|e| EvalError::io(&png, e))?;
+    let (w, h) = (gt.width, gt.height);
+    write_npy(&dir.join(format!("{prefix}depth.npy")), vec![h, w], gt.depth.clone())?;
+    let normals: Vec<f32> = gt.normal.iter().flat_map(|n| n.to_array()).collect();
+    write_npy(&dir.join(format!("{prefix}normal.npy")), vec![h, w, 3], normals)?;
+    Ok(())
+}

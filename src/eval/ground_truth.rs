@@ -1,0 +1,82 @@
+//! Ground-truth views of a textured subject: per-pixel albedo (texture looked up at the interpolated UV, or the
+//! interpolated vertex colour for untextured meshes), coverage mask, view depth and view-space normals, from
+//! the project rasteriser. No lighting: every view of a subject agrees on the colour of a surface point.
+
+use glam::{Vec3, Vec4};
+
+use crate::buffer::{premultiply, RgbaImage};
+use crate::geometry::camera::Camera;
+use crate::geometry::raster::{rasterize, GBuffer};
+use crate::io::mesh_io::{linear_to_srgb8, sample_texture, TexturedMesh};
+
+/// Depth written to ground-truth depth maps where no surface covers the pixel (dataset convention).
+pub const BACKGROUND_DEPTH: f32 = -1.0;
+
+/// One rendered ground-truth view. Per-pixel vectors are row-major, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GroundTruthView {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Linear RGB albedo (zero where not covered).
+    pub albedo: Vec<Vec3>,
+    /// Coverage.
+    pub mask: Vec<bool>,
+    /// View depth (larger is nearer), [`BACKGROUND_DEPTH`] where not covered.
+    pub depth: Vec<f32>,
+    /// Unit view-space normal, zero where not covered.
+    pub normal: Vec<Vec3>,
+}
+
+impl GroundTruthView {
+    /// 8-bit sRGB with straight alpha (alpha = mask), as written to `rgba.png`.
+    pub fn to_srgba8(&self) -> image::RgbaImage {
+        let mut img = image::RgbaImage::new(self.width as u32, self.height as u32);
+        for (i, p) in img.pixels_mut().enumerate() {
+            if self.mask[i] {
+                let [r, g, b] = linear_to_srgb8(self.albedo[i]);
+                *p = image::Rgba([r, g, b, 255]);
+            }
+        }
+        img
+    }
+
+    /// Premultiplied linear RGBA (the pipeline's image convention).
+    pub fn to_linear_rgba(&self) -> RgbaImage {
+        RgbaImage::from_fn(self.width, self.height, |c, r| {
+            let i = r * self.width + c;
+            if self.mask[i] {
+                premultiply(self.albedo[i], 1.0)
+            } else {
+                Vec4::ZERO
+            }
+        })
+    }
+}
+
+/// Renders the ground truth of `mesh` seen by `camera`.
+pub fn render_ground_truth(mesh: &TexturedMesh, camera: &Camera) -> GroundTruthView {
+    let textured = mesh.texture.is_some() && mesh.mesh.uvs.len() == mesh.mesh.positions.len();
+    // The rasteriser interpolates the per-vertex UVs (and colours, when present) itself.
+    let g: GBuffer = rasterize(&mesh.mesh, camera);
+    let n = g.width * g.height;
+    let uv = g.uv.as_deref();
+    let color = g.color.as_deref();
+    let mut albedo = vec![Vec3::ZERO; n];
+    let mut depth = vec![BACKGROUND_DEPTH; n];
+    let mut normal = vec![Vec3::ZERO; n];
+    for i in 0..n {
+        if !g.mask[i] {
+            continue;
+        }
+        depth[i] = g.depth[i];
+        normal[i] = g.normal[i].try_normalize().unwrap_or(Vec3::Z);
+        albedo[i] = match (textured, uv, color, &mesh.texture) {
+            (true, Some(uv), _, Some(tex)) => sample_texture(tex, uv[i]),
+            (_, _, Some(c), _) => c[i].clamp(Vec3::ZERO, Vec3::ONE),
+            _ => Vec3::splat(0.7),
+        };
+    }
+    GroundTruthView { width: g.width, height: g.height, albedo, mask: g.mask, depth, normal }
+}

@@ -1,0 +1,43 @@
+//! Test fixtures shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::Path;
+
+/// Draws a simple standing figure (head, torso, arms, legs) with a striped shirt into an RGBA PNG of
+/// `w x h` pixels: alpha is the exact mask. Deterministic; used where a person photo with a mask is needed.
+pub fn figure_rgba(w: u32, h: u32) -> image::RgbaImage {
+    let mut img = image::RgbaImage::new(w, h);
+    let (fw, fh) = (w as f32, h as f32);
+    let s = fh / 100.0; // figure units: 100 tall
+    let cx = fw / 2.0;
+    for y in 0..h {
+        for x in 0..w {
+            let px = (x as f32 + 0.5 - cx) / s;
+            let py = (y as f32 + 0.5) / s - (fh / s - 90.0) / 2.0; // figure spans y in [0, 90]
+            let head = (px / 7.0).powi(2) + ((py - 9.0) / 8.5).powi(2) <= 1.0;
+            let torso = px.abs() <= 12.0 && (17.0..=50.0).contains(&py);
+            let arm = (12.0..=17.0).contains(&px.abs()) && (19.0..=48.0).contains(&py);
+            let leg = (2.0..=10.0).contains(&px.abs()) && (50.0..=90.0).contains(&py);
+            let colour = if head {
+                [224, 172, 140]
+            } else if torso || arm {
+                if ((py / 4.0) as i32) % 2 == 0 {
+                    [40, 90, 200]
+                } else {
+                    [230, 230, 230]
+                }
+            } else if leg {
+                [60, 50, 40]
+            } else {
+                continue;
+            };
+            img.put_pixel(x, y, image::Rgba([colour[0], colour[1], colour[2], 255]));
+        }
+    }
+    img
+}
+
+/// Writes [`figure_rgba`] to `path`.
+pub fn write_figure(path: &Path, w: u32, h: u32) {
+    figure_rgba(w, h).save(path).expect("write fixture");
+}
