@@ -220,4 +220,25 @@ mod tests {
         assert!(!f.has_previous());
         assert_eq!(f.fuse(&solid(&g0, Vec3::Y), &g0, &c0), solid(&g0, Vec3::Y));
     }
+
+    #[test]
+    fn free_view_perspective_step_blends_the_centre() {
+        use crate::geometry::Fov;
+        use glam::Quat;
+        let mesh = TriMesh::uv_sphere(glam::Vec3::ZERO, 0.7, 32, 64);
+        let fov = Fov::symmetric(0.9, 1.0);
+        let eye = |yaw: f32| {
+            let q = Quat::from_rotation_y(yaw.to_radians());
+            Camera::perspective(q * glam::Vec3::new(0.0, 0.0, 2.5), q, fov, 0.05, 48, 48)
+        };
+        let (c0, c1) = (eye(100.0), eye(104.0));
+        let (g0, g1) = (rasterize(&mesh, &c0), rasterize(&mesh, &c1));
+        let mut f = SpatialFusion::new();
+        f.fuse(&solid(&g0, Vec3::X), &g0, &c0);
+        let out = f.fuse(&solid(&g1, Vec3::Y), &g1, &c1);
+        let wp = previous_weight(c1.angle_from_source());
+        assert!((wp - previous_weight(104f32.to_radians())).abs() < 1e-5);
+        let centre = out.data[24 * 48 + 24].truncate();
+        assert!((centre - (Vec3::Y * (1.0 - wp) + Vec3::X * wp)).length() < 1e-4, "{centre}");
+    }
 }

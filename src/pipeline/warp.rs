@@ -123,7 +123,7 @@ pub fn render_from_flow(
     let holes = (0..n).any(|i| target_gbuf.mask[i] && !known[i]);
     if holes {
         if known.iter().any(|&k| k) {
-            push_pull(&mut color, &known, w, h);
+            push_pull(&mut color, &known, Some(&target_gbuf.mask), w, h);
         } else {
             // Nothing seen at all: the mean colour of the person in the photo (grey without a person).
             let mean = mean_masked(source_rgb, source_mask).unwrap_or(Vec3::splat(0.5));
@@ -192,7 +192,8 @@ fn mean_masked(rgb: &RgbImage, mask: &GrayImage) -> Option<Vec3> {
 /// Multi-scale push-pull hole filling: known pixels keep their colour, holes get the coverage-weighted average of
 /// progressively coarser levels, upsampled bilinearly (smooth, no block artefacts). Every pixel ends with a
 /// colour as soon as one pixel is known.
-fn push_pull(color: &mut [Vec3], known: &[bool], w: usize, h: usize) {
+/// `needed` limits the finest level to the pixels whose colour is used (the target mask).
+fn push_pull(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usize, h: usize) {
     // Level 0: premultiplied colour and weight.
     let mut levels: Vec<(usize, usize, Vec<Vec4>)> = Vec::new();
     let base: Vec<Vec4> = color.iter().zip(known).map(|(c, &k)| if k { c.extend(1.0) } else { Vec4::ZERO }).collect();
@@ -226,9 +227,10 @@ fn push_pull(color: &mut [Vec3], known: &[bool], w: usize, h: usize) {
         let (cw, ch, coarse) = (&coarser[0].0, &coarser[0].1, &coarser[0].2);
         let (cw, ch) = (*cw, *ch);
         let (fw, fine) = (finer[k].0, &mut finer[k].2);
+        let finest = k == 0;
         fine.par_chunks_mut(fw).enumerate().for_each(|(r, row)| {
             for (c, px) in row.iter_mut().enumerate() {
-                if px.w >= 1.0 {
+                if px.w >= 1.0 || (finest && needed.is_some_and(|m| !m[r * fw + c])) {
                     continue;
                 }
                 // Fine pixel centre in coarse pixel coordinates.
@@ -413,7 +415,7 @@ mod tests {
             color[r * w + w - 1] = Vec3::Z;
             known[r * w + w - 1] = true;
         }
-        push_pull(&mut color, &known, w, h);
+        push_pull(&mut color, &known, None, w, h);
         assert_eq!(color[0], Vec3::X);
         assert_eq!(color[w - 1], Vec3::Z);
         let mid = color[8 * w + 16];
