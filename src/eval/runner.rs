@@ -252,9 +252,9 @@ fn eval_subject(mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [[Acc; 2]; 4]
     let oracle = PreparedInput::from_fof(normalised(), gt_fof, &popts, Default::default()).map_err(perr)?;
     let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
     let per_input = [0.0, ms_25d, ms_inflate, ms_oracle];
-    for (m, ms) in per_input.iter().enumerate() {
-        for g in 0..2 {
-            acc[m][g].ms_input.push(*ms);
+    for (a, ms) in acc.iter_mut().zip(per_input) {
+        for g in a.iter_mut() {
+            g.ms_input.push(ms);
         }
     }
     let mut renderers = [
@@ -273,7 +273,7 @@ fn eval_subject(mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [[Acc; 2]; 4]
             continue;
         };
         let gt = render_ground_truth(mesh, &cam);
-        for m in 0..4 {
+        for (m, acc_m) in acc.iter_mut().enumerate() {
             let t = Instant::now();
             let pred = match m {
                 0 => billboard(&rgb, &mask, &cam),
@@ -287,12 +287,12 @@ fn eval_subject(mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [[Acc; 2]; 4]
                     let gb = rasterize(&prepared.mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
                     let depth = gb.depth.iter().zip(&gb.mask).map(|(&d, &c)| if c { d } else { -1.0 }).collect();
-                    score(&gt, &Prediction { rgba: person, mask: m_mask, depth }, &mut acc[m][group], ms);
+                    score(&gt, &Prediction { rgba: person, mask: m_mask, depth }, &mut acc_m[group], ms);
                     continue;
                 }
             };
             let ms = t.elapsed().as_secs_f32() * 1e3;
-            score(&gt, &pred, &mut acc[m][group], ms);
+            score(&gt, &pred, &mut acc_m[group], ms);
         }
     }
     Ok(())
