@@ -363,3 +363,46 @@ mod dataset {
         ));
     }
 }
+
+mod eval_run {
+    use r2human::eval::runner::{run_eval, EvalOptions};
+
+    #[test]
+    fn eval_writes_reports_and_ranks_methods_sensibly() {
+        let dir = tempfile::tempdir().unwrap();
+        let bad = dir.path().join("broken.obj");
+        std::fs::write(&bad, "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        let opts = EvalOptions {
+            subjects: 1,
+            seed: 5,
+            out: dir.path().join("eval"),
+            scans: vec![bad.clone()],
+            size: 64,
+            yaws: vec![0.0, 30.0, 90.0, 180.0],
+            texture_size: 128,
+        };
+        let rep = run_eval(&opts).unwrap();
+        // The broken scan is reported by name, the synthetic subject still evaluated.
+        assert_eq!(rep.failed.len(), 1);
+        assert!(rep.failed[0].1.contains("broken.obj"), "{:?}", rep.failed);
+        let get = |m: &str, g: &str| rep.rows.iter().find(|r| r.method == m && r.group == g).unwrap().clone();
+        for r in &rep.rows {
+            assert!(r.ssim.is_finite() && r.mask_iou.is_finite() && r.depth_l1.is_finite(), "{r:?}");
+            assert!((0.0..=1.0).contains(&r.mask_iou) && r.ms_per_view >= 0.0);
+        }
+        // Seen from the side, a flat billboard covers far less of the person than oracle geometry.
+        let bb = get("billboard", "divergent");
+        let oracle = get("geometric+gt-fof", "divergent");
+        assert!(oracle.mask_iou > bb.mask_iou + 0.2, "{oracle:?} vs {bb:?}");
+        assert!(oracle.depth_l1 < bb.depth_l1, "{oracle:?} vs {bb:?}");
+        // Close to the input every method sees roughly the person's silhouette.
+        assert!(get("billboard", "close").mask_iou > 0.5);
+        let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
+        assert!(csv.starts_with("method,group,psnr,ssim,"));
+        assert!(csv.contains("ms_per_view,ms_per_input"));
+        assert_eq!(csv.lines().count(), 1 + rep.rows.len());
+        assert!(std::fs::read_to_string(opts.out.join("report.md")).unwrap().contains("| billboard | close |"));
+        let png = image::open(opts.out.join("error_vs_time.png")).unwrap();
+        assert_eq!((png.width(), png.height()), (800, 500));
+    }
+}

@@ -57,10 +57,9 @@ pub fn union_mask(a: &[bool], b: &[bool]) -> Vec<bool> {
 pub fn psnr(a: &SrgbImage, b: &SrgbImage, region: &[bool]) -> f32 {
     let mut sum = 0.0f64;
     let mut n = 0usize;
-    for i in 0..a.data.len().min(b.data.len()).min(region.len()) {
-        if region[i] {
-            let d = a.data[i] - b.data[i];
-            sum += d.length_squared() as f64 / 3.0;
+    for ((x, y), &r) in a.data.iter().zip(&b.data).zip(region) {
+        if r {
+            sum += (*x - *y).length_squared() as f64 / 3.0;
             n += 1;
         }
     }

@@ -1,9 +1,10 @@
 //! Ground truth and evaluation: rendering known views of synthetic subjects and scans ([`ground_truth`]) and
-//! writing them as a dataset ([`dataset`]), and the error metrics ([`metrics`]).
+//! writing them as a dataset ([`dataset`]), the error metrics ([`metrics`]) and the method comparison ([`runner`]).
 
 pub mod dataset;
 pub mod ground_truth;
 pub mod metrics;
+pub mod runner;
 
 use std::path::{Path, PathBuf};
 

@@ -252,9 +252,12 @@ mod tests {
     fn header_matches_numpy_layout() {
         let a = NpyArray::new(vec![2, 2, 3], NpyData::F32(vec![0.5; 12])).unwrap();
         let bytes = a.to_bytes();
-        let text = String::from_utf8_lossy(&bytes[10..64]);
+        let end = bytes.iter().position(|&b| b == b'\n').unwrap() + 1;
+        assert_eq!(u16::from_le_bytes([bytes[8], bytes[9]]) as usize, end - 10);
+        let text = String::from_utf8_lossy(&bytes[10..end]);
         assert!(text.starts_with("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2, 3), }"), "{text}");
-        assert_eq!(&bytes[64..68], &0.5f32.to_le_bytes());
+        assert_eq!(bytes.len(), end + 12 * 4);
+        assert_eq!(&bytes[end..end + 4], &0.5f32.to_le_bytes());
         let one_d = NpyArray::new(vec![3], NpyData::U8(vec![1, 2, 3])).unwrap().to_bytes();
         assert!(String::from_utf8_lossy(&one_d).contains("'shape': (3,)"));
     }

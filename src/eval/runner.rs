@@ -1,0 +1,471 @@
+//! `r2human eval`: renders each subject's source view, runs every method on it, and compares the novel views with
+//! ground truth, grouped like the paper's Tables 2 and 3: close views (at most 45 degrees from the input) and
+//! divergent views (at least 90 degrees). Metrics are those of [`super::metrics`] (read its conventions: sRGB over
+//! black, averaged over the union of predicted and true masks). LPIPS needs ImageNet-pretrained weights that
+//! cannot be fetched here: its column is left empty (`lpips` in the CSV) until a model is shipped.
+//!
+//! Methods, measured side by side on the same subjects and views:
+//! 1. `billboard`: the cut-out on the plane z = 0 (what most VR telepresence shows);
+//! 2. `2.5d`: only the visible front surface (the inflation prior's source depth) as a depth mesh;
+//! 3. `geometric+inflation`: the project's geometric renderer with the inflation prior;
+//! 4. `geometric+gt-fof`: the same with the ground-truth FOF (oracle geometry).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::{Vec3, Vec4};
+use serde::Serialize;
+
+use super::ground_truth::{render_ground_truth, GroundTruthView};
+use super::metrics::{depth_l1, mask_iou, psnr, ssim, union_mask, SrgbImage};
+use super::EvalError;
+use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
+use crate::geometry::camera::Camera;
+use crate::geometry::fof::Fof;
+use crate::geometry::inflate::{inflate_to_fof, InflateParams};
+use crate::geometry::mesh::TriMesh;
+use crate::geometry::raster::rasterize;
+use crate::io::mesh_io::TexturedMesh;
+use crate::io::npy::write_atomic;
+use crate::pipeline::input::{NormaliseTransform, NormalisedInput};
+use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
+use crate::synth::{self, SubjectParams, SynthAssets};
+
+/// Options of [`run_eval`] (the CLI's `r2human eval` flags).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalOptions {
+    /// Synthetic subjects (`--subjects`).
+    pub subjects: usize,
+    /// Seed (`--seed`), as for the dataset writer.
+    pub seed: u64,
+    /// Output folder (`--out`).
+    pub out: PathBuf,
+    /// User scans (`--scan FILE`, repeatable).
+    pub scans: Vec<PathBuf>,
+    /// Image side (512 like the reference).
+    pub size: usize,
+    /// Target view yaws in degrees (pitch 0).
+    pub yaws: Vec<f32>,
+    /// Texture side of synthetic subjects.
+    pub texture_size: usize,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            subjects: 8,
+            seed: 0,
+            out: PathBuf::from("eval"),
+            scans: Vec::new(),
+            size: 512,
+            yaws: vec![0.0, 20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0],
+            texture_size: 1024,
+        }
+    }
+}
+
+/// The methods compared.
+pub const METHODS: [&str; 4] = ["billboard", "2.5d", "geometric+inflation", "geometric+gt-fof"];
+
+/// One row of the report: a method on a view group.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ReportRow {
+    /// Method name (see [`METHODS`]).
+    pub method: String,
+    /// `close` (<= 45 deg) or `divergent` (>= 90 deg).
+    pub group: String,
+    /// Mean PSNR (dB) over the group's views (infinite values, i.e. identical views, are skipped).
+    pub psnr: f32,
+    /// Mean SSIM.
+    pub ssim: f32,
+    /// Mean mask IoU.
+    pub mask_iou: f32,
+    /// Mean depth L1 (body-cube units) on the union mask.
+    pub depth_l1: f32,
+    /// Median milliseconds per view.
+    pub ms_per_view: f32,
+    /// Median milliseconds per input (once per subject).
+    pub ms_per_input: f32,
+    /// Number of views averaged.
+    pub views: usize,
+}
+
+/// What [`run_eval`] produced.
+#[derive(Clone, Debug)]
+pub struct EvalReport {
+    /// The table.
+    pub rows: Vec<ReportRow>,
+    /// Subjects or scans that failed, with the reason.
+    pub failed: Vec<(String, String)>,
+    /// Peak resident memory of the process (MiB, from `/proc/self/status` VmHWM; 0 where unavailable).
+    pub peak_memory_mib: f32,
+}
+
+#[derive(Default)]
+struct Acc {
+    psnr: Vec<f32>,
+    ssim: Vec<f32>,
+    iou: Vec<f32>,
+    depth: Vec<f32>,
+    ms_view: Vec<f32>,
+    ms_input: Vec<f32>,
+}
+
+fn median(v: &[f32]) -> f32 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f32::total_cmp);
+    s[s.len() / 2]
+}
+
+fn mean(v: &[f32]) -> f32 {
+    let f: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if f.is_empty() {
+        f32::NAN
+    } else {
+        f.iter().sum::<f32>() / f.len() as f32
+    }
+}
+
+/// A method's rendering of one view.
+struct Prediction {
+    rgba: RgbaImage,
+    mask: Vec<bool>,
+    depth: Vec<f32>,
+}
+
+/// The cut-out on the plane z = 0 seen by `cam`.
+fn billboard(rgb: &RgbImage, mask: &GrayImage, cam: &Camera) -> Prediction {
+    let (w, h) = (cam.width, cam.height);
+    let src = Camera::source(rgb.width);
+    let mut rgba = RgbaImage::new(w, h, Vec4::ZERO);
+    let mut m = vec![false; w * h];
+    let mut depth = vec![-1.0; w * h];
+    for row in 0..h {
+        for col in 0..w {
+            let ray = cam.ray(col as f32 + 0.5, row as f32 + 0.5);
+            if ray.direction.z.abs() < 1e-6 {
+                continue;
+            }
+            let t = -ray.origin.z / ray.direction.z;
+            let p = ray.origin + t * ray.direction;
+            let Some(q) = src.project(p) else { continue };
+            let a = crate::buffer::sample_bilinear(mask, q.x - 0.5, q.y - 0.5, 0.0);
+            if a > 0.5 {
+                let c = crate::buffer::sample_bilinear(rgb, q.x - 0.5, q.y - 0.5, Vec3::ZERO);
+                let i = row * w + col;
+                rgba.data[i] = (c / a.max(1e-6)).min(Vec3::ONE).extend(1.0);
+                m[i] = true;
+                depth[i] = cam.view_from_world.transform_point3(p).z;
+            }
+        }
+    }
+    Prediction { rgba, mask: m, depth }
+}
+
+/// The front surface of a source depth map as a coloured grid mesh (quads between covered neighbours whose depth
+/// differs by less than `max_step`).
+fn depth_mesh(depth: &[f32], covered: &[bool], rgb: &RgbImage, mask: &GrayImage, max_step: f32) -> TriMesh {
+    let (w, h) = (rgb.width, rgb.height);
+    let src = Camera::source(w);
+    let mut index = vec![u32::MAX; w * h];
+    let mut positions = Vec::new();
+    let mut colors = Vec::new();
+    for row in 0..h {
+        for col in 0..w {
+            let i = row * w + col;
+            if covered[i] {
+                index[i] = positions.len() as u32;
+                positions.push(src.unproject(col as f32 + 0.5, row as f32 + 0.5, depth[i]));
+                colors.push((rgb.data[i] / mask.data[i].max(1e-3)).min(Vec3::ONE));
+            }
+        }
+    }
+    let mut triangles = Vec::new();
+    for row in 0..h.saturating_sub(1) {
+        for col in 0..w.saturating_sub(1) {
+            let q = [row * w + col, row * w + col + 1, (row + 1) * w + col + 1, (row + 1) * w + col];
+            if q.iter().any(|&i| index[i] == u32::MAX) {
+                continue;
+            }
+            let d = q.map(|i| depth[i]);
+            let (lo, hi) = d.iter().fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+            if hi - lo > max_step {
+                continue;
+            }
+            // Counter-clockwise seen from +z (image rows go down).
+            triangles.push([index[q[0]], index[q[3]], index[q[2]]]);
+            triangles.push([index[q[0]], index[q[2]], index[q[1]]]);
+        }
+    }
+    let mut m = TriMesh::new(positions, triangles);
+    m.colors = colors;
+    m
+}
+
+fn raster_prediction(mesh: &TriMesh, cam: &Camera) -> Prediction {
+    let g = rasterize(mesh, cam);
+    let n = g.width * g.height;
+    let mut rgba = RgbaImage::new(g.width, g.height, Vec4::ZERO);
+    let mut depth = vec![-1.0; n];
+    for i in 0..n {
+        if g.mask[i] {
+            let c = g.color.as_ref().map(|c| c[i]).unwrap_or(Vec3::splat(0.7));
+            rgba.data[i] = c.extend(1.0);
+            depth[i] = g.depth[i];
+        }
+    }
+    Prediction { rgba, mask: g.mask, depth }
+}
+
+/// Evaluates one subject; pushes into the accumulators `[method][group]`.
+fn eval_subject(mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [[Acc; 2]; 4]) -> Result<(), EvalError> {
+    let r = opts.size;
+    let src_cam = Camera::source(r);
+    let gt_src = render_ground_truth(mesh, &src_cam);
+    let lin = gt_src.to_linear_rgba();
+    let rgb: RgbImage = lin.map(|p| p.truncate());
+    let mask: GrayImage = Image { width: r, height: r, data: gt_src.mask.iter().map(|&m| m as u8 as f32).collect() };
+    let normalised = || NormalisedInput {
+        rgb: rgb.clone(),
+        mask: mask.clone(),
+        transform: NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
+    };
+    let popts = PrepareOptions { resolution: r, depth_samples: r, ..Default::default() };
+    let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
+
+    // Per-input work, timed per method.
+    let t = Instant::now();
+    let fof =
+        inflate_to_fof(&mask, popts.fof_order, &InflateParams::default()).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let inflated = PreparedInput::from_fof(normalised(), fof, &popts, Default::default()).map_err(perr)?;
+    let ms_inflate = t.elapsed().as_secs_f32() * 1e3;
+    let t = Instant::now();
+    let g = &inflated.source_gbuffer;
+    let front = depth_mesh(&g.depth, &g.mask, &rgb, &mask, 0.03);
+    let ms_25d = ms_inflate + t.elapsed().as_secs_f32() * 1e3;
+    let t = Instant::now();
+    let gt_fof = Fof::from_mesh(&mesh.mesh, r, popts.fof_order).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let oracle = PreparedInput::from_fof(normalised(), gt_fof, &popts, Default::default()).map_err(perr)?;
+    let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
+    let per_input = [0.0, ms_25d, ms_inflate, ms_oracle];
+    for (a, ms) in acc.iter_mut().zip(per_input) {
+        for g in a.iter_mut() {
+            g.ms_input.push(ms);
+        }
+    }
+    let mut renderers = [
+        ViewRenderer::new(&inflated, OcclusionFill::default(), false),
+        ViewRenderer::new(&oracle, OcclusionFill::default(), false),
+    ];
+
+    for &yaw in &opts.yaws {
+        let cam = Camera::orbit(yaw, 0.0, r, r);
+        let angle = cam.angle_from_source().to_degrees();
+        let group = if angle <= 45.0 + 1e-3 {
+            0
+        } else if angle >= 90.0 - 1e-3 {
+            1
+        } else {
+            continue;
+        };
+        let gt = render_ground_truth(mesh, &cam);
+        for (m, acc_m) in acc.iter_mut().enumerate() {
+            let t = Instant::now();
+            let pred = match m {
+                0 => billboard(&rgb, &mask, &cam),
+                1 => raster_prediction(&front, &cam),
+                _ => {
+                    let k = m - 2;
+                    let person = renderers[k].render_person(&cam).map_err(perr)?;
+                    let ms = t.elapsed().as_secs_f32() * 1e3;
+                    // Depth of the method's own geometry (not part of the timed rendering).
+                    let prepared = if k == 0 { &inflated } else { &oracle };
+                    let gb = rasterize(&prepared.mesh, &cam);
+                    let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
+                    let depth = gb.depth.iter().zip(&gb.mask).map(|(&d, &c)| if c { d } else { -1.0 }).collect();
+                    score(&gt, &Prediction { rgba: person, mask: m_mask, depth }, &mut acc_m[group], ms);
+                    continue;
+                }
+            };
+            let ms = t.elapsed().as_secs_f32() * 1e3;
+            score(&gt, &pred, &mut acc_m[group], ms);
+        }
+    }
+    Ok(())
+}
+
+fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
+    let a = SrgbImage::from_linear_premultiplied(&gt.to_linear_rgba());
+    let b = SrgbImage::from_linear_premultiplied(&pred.rgba);
+    let region = union_mask(&gt.mask, &pred.mask);
+    acc.psnr.push(psnr(&a, &b, &region));
+    acc.ssim.push(ssim(&a, &b, &region));
+    acc.iou.push(mask_iou(&gt.mask, &pred.mask));
+    acc.depth.push(depth_l1(&gt.depth, &gt.mask, &pred.depth, &pred.mask));
+    acc.ms_view.push(ms);
+}
+
+fn peak_memory_mib() -> f32 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| s.lines().find(|l| l.starts_with("VmHWM:")).map(str::to_string))
+        .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f32>().ok()))
+        .map(|kb| kb / 1024.0)
+        .unwrap_or(0.0)
+}
+
+/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
+/// and scans that fail are reported (in the summary and the Markdown) and skipped.
+pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
+    if opts.subjects == 0 && opts.scans.is_empty() {
+        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
+    }
+    if !(32..=2048).contains(&opts.size) {
+        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
+    let mut acc: [[Acc; 2]; 4] = Default::default();
+    let mut failed = Vec::new();
+    if opts.subjects > 0 {
+        let assets = SynthAssets::shared()?;
+        for i in 0..opts.subjects {
+            let name = format!("subject_{i:04}");
+            let seed = super::dataset::subject_seed(opts.seed, i);
+            let r = synth::generate(assets, &SubjectParams::sample(seed), opts.texture_size)
+                .map_err(EvalError::from)
+                .and_then(|s| eval_subject(&s.mesh, opts, &mut acc));
+            if let Err(e) = r {
+                failed.push((name, e.to_string()));
+            }
+        }
+    }
+    for scan in &opts.scans {
+        let r =
+            synth::scan::load_scan(scan).map_err(EvalError::from).and_then(|s| eval_subject(&s.mesh, opts, &mut acc));
+        if let Err(e) = r {
+            failed.push((scan.display().to_string(), e.to_string()));
+        }
+    }
+    let mut rows = Vec::new();
+    for (m, name) in METHODS.iter().enumerate() {
+        for (g, group) in ["close", "divergent"].iter().enumerate() {
+            let a = &acc[m][g];
+            if a.psnr.is_empty() {
+                continue;
+            }
+            rows.push(ReportRow {
+                method: name.to_string(),
+                group: group.to_string(),
+                psnr: mean(&a.psnr),
+                ssim: mean(&a.ssim),
+                mask_iou: mean(&a.iou),
+                depth_l1: mean(&a.depth),
+                ms_per_view: median(&a.ms_view),
+                ms_per_input: median(&a.ms_input),
+                views: a.psnr.len(),
+            });
+        }
+    }
+    if rows.is_empty() {
+        let first = failed.first().map(|f| format!("{}: {}", f.0, f.1)).unwrap_or_else(|| "no view in a group".into());
+        return Err(EvalError::AllFailed(first));
+    }
+    let report = EvalReport { rows, failed, peak_memory_mib: peak_memory_mib() };
+    write_reports(&opts.out, opts, &report)?;
+    Ok(report)
+}
+
+fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(), EvalError> {
+    let mut csv = String::from("method,group,psnr,ssim,lpips,mask_iou,depth_l1,ms_per_view,ms_per_input,views\n");
+    for r in &rep.rows {
+        csv.push_str(&format!(
+            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{}\n",
+            r.method, r.group, r.psnr, r.ssim, r.mask_iou, r.depth_l1, r.ms_per_view, r.ms_per_input, r.views
+        ));
+    }
+    let p = out.join("report.csv");
+    write_atomic(&p, csv.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
+    let mut md = format!(
+        "# r2human eval\n\n{} synthetic subject(s) (seed {}), {} scan(s), {}x{} views at yaws {:?} (pitch 0).\n\n\
+         Close = at most 45 degrees from the input view, divergent = at least 90 degrees. PSNR/SSIM on sRGB over \
+         black, averaged over the union of predicted and true masks; SSIM with an 11x11 Gaussian window (sigma \
+         1.5). Depth L1 in body-cube units on the union mask (uncovered = -1). LPIPS: not measured (needs \
+         ImageNet-pretrained weights that cannot be fetched here). Times: median wall-clock ms on this machine, \
+         CPU reference. Peak memory of the whole run: {:.0} MiB.\n\n\
+         | method | group | PSNR | SSIM | mask IoU | depth L1 | ms/view | ms/input | views |\n|---|---|---|---|---|---|---|---|---|\n",
+        opts.subjects,
+        opts.seed,
+        opts.scans.len(),
+        opts.size,
+        opts.size,
+        opts.yaws,
+        rep.peak_memory_mib
+    );
+    for r in &rep.rows {
+        md.push_str(&format!(
+            "| {} | {} | {:.2} | {:.4} | {:.4} | {:.4} | {:.1} | {:.1} | {} |\n",
+            r.method, r.group, r.psnr, r.ssim, r.mask_iou, r.depth_l1, r.ms_per_view, r.ms_per_input, r.views
+        ));
+    }
+    if !rep.failed.is_empty() {
+        md.push_str("\n## Failed inputs\n\n");
+        for (n, e) in &rep.failed {
+            md.push_str(&format!("- {n}: {e}\n"));
+        }
+    }
+    let p = out.join("report.md");
+    write_atomic(&p, md.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
+    plot(&out.join("error_vs_time.png"), rep)
+}
+
+fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
+    use plotters::prelude::*;
+    let (w, h) = (800u32, 500u32);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let perr = |e: String| EvalError::io(path, std::io::Error::other(e));
+        root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
+        let pts: Vec<&ReportRow> = rep.rows.iter().filter(|r| r.psnr.is_finite()).collect();
+        let xmax = pts.iter().map(|r| r.ms_per_view).fold(1.0f32, f32::max) * 1.2;
+        let (ymin, ymax) = pts.iter().fold((f32::MAX, f32::MIN), |(a, b), r| (a.min(r.psnr), b.max(r.psnr)));
+        let (ymin, ymax) = if ymin <= ymax { (ymin - 1.0, ymax + 1.0) } else { (0.0, 40.0) };
+        let mut chart = ChartBuilder::on(&root)
+            .caption("PSNR against time per view", ("sans-serif", 22))
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0f32..xmax, ymin..ymax)
+            .map_err(|e| perr(e.to_string()))?;
+        chart.configure_mesh().x_desc("ms per view").y_desc("PSNR (dB)").draw().map_err(|e| perr(e.to_string()))?;
+        let colors = [RED, BLUE, GREEN, MAGENTA];
+        for r in pts {
+            let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % 4];
+            let marker = if r.group == "close" { 0 } else { 1 };
+            let label = format!("{} ({})", r.method, r.group);
+            let p = (r.ms_per_view, r.psnr);
+            if marker == 0 {
+                chart.draw_series(std::iter::once(Circle::new(p, 6, c.filled()))).map_err(|e| perr(e.to_string()))?;
+            } else {
+                chart
+                    .draw_series(std::iter::once(TriangleMarker::new(p, 7, c.filled())))
+                    .map_err(|e| perr(e.to_string()))?;
+            }
+            chart
+                .draw_series(std::iter::once(Text::new(label, (p.0 + xmax * 0.01, p.1), ("sans-serif", 13))))
+                .map_err(|e| perr(e.to_string()))?;
+        }
+        root.present().map_err(|e| perr(e.to_string()))?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf)
+        .ok_or_else(|| EvalError::io(path, std::io::Error::other("plot buffer")))?;
+    let mut bytes = Vec::new();
+    image::DynamicImage::ImageRgb8(img)
+        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
+    write_atomic(path, &bytes).map_err(|e| EvalError::io(path, e))
+}
