@@ -60,11 +60,8 @@ fn orbit_writes_frames_gif_and_sheet() {
     let img = dir.path().join("person.png");
     common::write_figure(&img, 200, 260);
     let out = dir.path().join("orbit");
-    let (ok, text) = run(r2human()
-        .args(["render", "--orbit", "4", "--size", "64", "--image"])
-        .arg(&img)
-        .arg("--out")
-        .arg(&out));
+    let (ok, text) =
+        run(r2human().args(["render", "--orbit", "4", "--size", "64", "--image"]).arg(&img).arg("--out").arg(&out));
     assert!(ok, "{text}");
     for i in 0..4 {
         assert!(out.join(format!("view_{i:03}.png")).exists());

@@ -42,7 +42,10 @@ fn assert_closed(mesh: &TriMesh) {
     }
 }
 
-fn capsule_mask(res: usize, caps: &[((f32, f32), (f32, f32), f32)]) -> GrayImage {
+/// A capsule: segment end points and radius, in body-cube x, y.
+type Capsule = ((f32, f32), (f32, f32), f32);
+
+fn capsule_mask(res: usize, caps: &[Capsule]) -> GrayImage {
     GrayImage::from_fn(res, res, |col, row| {
         let p = ((col as f32 + 0.5) / (res as f32 * 0.5) - 1.0, 1.0 - (row as f32 + 0.5) / (res as f32 * 0.5));
         let inside = caps.iter().any(|&(a, b, r)| {

@@ -1,3 +1,5 @@
-//! `app` layer (see DESIGN in the README). Filled in by its own issue.
+//! `app` layer: live loops that schedule the pipeline (desktop mirror, XR session, capture).
 
 pub mod live;
+pub mod mirror;
+pub mod xr_session;

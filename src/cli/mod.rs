@@ -1,5 +1,6 @@
 //! Command-line commands: argument parsing and hand-over to the library. No algorithm lives here.
 
+mod data;
 mod render;
 
 use std::process::ExitCode;
@@ -24,6 +25,10 @@ pub enum Command {
     /// Run the whole pipeline on the embedded default person and panorama; writes an orbit (PNGs, GIF, contact
     /// sheet).
     Demo(render::DemoArgs),
+    /// Write a dataset of synthetic people with ground truth (source view, FOF, target views).
+    Dataset(data::DatasetArgs),
+    /// Write one synthetic person as a textured glTF binary (.glb).
+    Synth(data::SynthArgs),
 }
 
 /// Entry point of the binary: parses arguments, runs the command, prints errors as sentences.
@@ -33,6 +38,8 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Render(args) => render::run_render(&args),
         Command::Demo(args) => render::run_demo(&args),
+        Command::Dataset(args) => data::run_dataset(&args),
+        Command::Synth(args) => data::run_synth(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -46,5 +53,6 @@ pub fn main() -> ExitCode {
 fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_env("R2HUMAN_LOG")
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).try_init();
+    let _ =
+        tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).try_init();
 }

@@ -18,6 +18,24 @@ use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, ViewRenderer}
 /// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
 pub const DEFAULT_PERSON_PNG: &[u8] = include_bytes!("../../assets/demo/person.png");
 
+/// `--fill`: how occluded surfaces are coloured (see [`OcclusionFill`]).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FillArg {
+    /// The back shows the front's colours at the same place (what a person expects from one photo).
+    MirroredFront,
+    /// Colours diffused inward from the nearest visible pixels.
+    Propagate,
+}
+
+impl From<FillArg> for OcclusionFill {
+    fn from(f: FillArg) -> Self {
+        match f {
+            FillArg::MirroredFront => OcclusionFill::MirroredFront,
+            FillArg::Propagate => OcclusionFill::Propagate,
+        }
+    }
+}
+
 /// Options shared by everything that renders.
 #[derive(Args, Debug, Clone)]
 pub struct ViewOptions {
@@ -34,8 +52,8 @@ pub struct ViewOptions {
     #[arg(long, value_enum, default_value_t = GeometryMode::Inflate)]
     pub geometry: GeometryMode,
     /// How surfaces the photo does not show are coloured.
-    #[arg(long, value_enum, default_value_t = OcclusionFill::default())]
-    pub fill: OcclusionFill,
+    #[arg(long, value_enum, default_value_t = FillArg::MirroredFront)]
+    pub fill: FillArg,
     /// Number of Fourier occupancy coefficients (FOF-X N).
     #[arg(long, default_value_t = 32)]
     pub fof_order: usize,
@@ -139,7 +157,7 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     let prepared = prepare(&photo, &mask, &args.view)?;
     match args.orbit {
         None => {
-            let mut renderer = ViewRenderer::new(&prepared, args.view.fill, false);
+            let mut renderer = ViewRenderer::new(&prepared, args.view.fill.into(), false);
             let cam = Camera::orbit(args.yaw, args.view.pitch, args.view.size, args.view.size);
             let frame = renderer.render_frame(&cam, args.view.mode, &env)?;
             frame.save_png(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
@@ -164,7 +182,7 @@ pub fn render_orbit(
     n: usize,
     start_yaw: f32,
 ) -> Result<Vec<Frame>> {
-    let mut renderer = ViewRenderer::new(prepared, view.fill, true);
+    let mut renderer = ViewRenderer::new(prepared, view.fill.into(), true);
     let bar = ProgressBar::new(n as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} views ({elapsed})").expect("valid template"),
     );

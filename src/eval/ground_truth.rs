@@ -58,17 +58,11 @@ impl GroundTruthView {
 /// Renders the ground truth of `mesh` seen by `camera`.
 pub fn render_ground_truth(mesh: &TexturedMesh, camera: &Camera) -> GroundTruthView {
     let textured = mesh.texture.is_some() && mesh.mesh.uvs.len() == mesh.mesh.positions.len();
-    let g: GBuffer = if textured {
-        // The rasteriser interpolates one per-vertex vector attribute (`colors`); carry (u, v, 0) in it. Inside a
-        // triangle this is exactly UV interpolation (seam vertices are split, so no triangle straddles a seam).
-        let mut m = mesh.mesh.clone();
-        m.colors = m.uvs.iter().map(|uv| Vec3::new(uv.x, uv.y, 0.0)).collect();
-        rasterize(&m, camera)
-    } else {
-        rasterize(&mesh.mesh, camera)
-    };
+    // The rasteriser interpolates the per-vertex UVs (and colours, when present) itself.
+    let g: GBuffer = rasterize(&mesh.mesh, camera);
     let n = g.width * g.height;
-    let interp = g.color.as_deref();
+    let uv = g.uv.as_deref();
+    let color = g.color.as_deref();
     let mut albedo = vec![Vec3::ZERO; n];
     let mut depth = vec![BACKGROUND_DEPTH; n];
     let mut normal = vec![Vec3::ZERO; n];
@@ -78,9 +72,9 @@ pub fn render_ground_truth(mesh: &TexturedMesh, camera: &Camera) -> GroundTruthV
         }
         depth[i] = g.depth[i];
         normal[i] = g.normal[i].try_normalize().unwrap_or(Vec3::Z);
-        albedo[i] = match (textured, interp, &mesh.texture) {
-            (true, Some(c), Some(tex)) => sample_texture(tex, c[i].truncate()),
-            (false, Some(c), _) => c[i].clamp(Vec3::ZERO, Vec3::ONE),
+        albedo[i] = match (textured, uv, color, &mesh.texture) {
+            (true, Some(uv), _, Some(tex)) => sample_texture(tex, uv[i]),
+            (_, _, Some(c), _) => c[i].clamp(Vec3::ZERO, Vec3::ONE),
             _ => Vec3::splat(0.7),
         };
     }

@@ -1,8 +1,9 @@
 //! Ground truth and evaluation: rendering known views of synthetic subjects and scans ([`ground_truth`]) and
-//! writing them as a dataset ([`dataset`]).
+//! writing them as a dataset ([`dataset`]), and the error metrics ([`metrics`]).
 
 pub mod dataset;
 pub mod ground_truth;
+pub mod metrics;
 
 use std::path::{Path, PathBuf};
 

@@ -364,8 +364,8 @@ pub fn intervals_from_mesh(mesh: &TriMesh, width: usize, height: usize) -> Image
         if row_hi < row_lo {
             continue;
         }
-        for band in (row_lo as usize / BAND_ROWS)..=(row_hi as usize / BAND_ROWS) {
-            binned[band].push(ti as u32);
+        for list in &mut binned[row_lo as usize / BAND_ROWS..=row_hi as usize / BAND_ROWS] {
+            list.push(ti as u32);
         }
     }
     result.data.par_chunks_mut(BAND_ROWS * width).zip(binned.par_iter()).enumerate().for_each(|(band, (out, tris))| {

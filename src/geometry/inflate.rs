@@ -517,7 +517,7 @@ fn assemble(faces: &[[usize; 3]], pos: &[[f64; 2]], unknown: &[usize], n: usize)
         let p = f.map(|v| pos[v]);
         let cross = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[1][1] - p[0][1]) * (p[2][0] - p[0][0]);
         let area = 0.5 * cross.abs();
-        if !(area > 1e-18) {
+        if area.is_nan() || area <= 1e-18 {
             continue;
         }
         // Gradients of the barycentric basis: grad phi_i = perp(p_k - p_j) / (2A); K_ij = A grad_i . grad_j.
@@ -543,7 +543,7 @@ fn assemble(faces: &[[usize; 3]], pos: &[[f64; 2]], unknown: &[usize], n: usize)
             }
         }
     }
-    triplets.sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+    triplets.sort_unstable_by_key(|a| (a.0, a.1));
     let mut row_start = vec![0usize; n + 1];
     let mut cols = Vec::new();
     let mut vals: Vec<f64> = Vec::new();
@@ -594,7 +594,7 @@ fn conjugate_gradient(m: &Csr, b: &[f64], rel_tol: f64, max_iter: usize) -> Vec<
     for _ in 0..max_iter {
         mat_vec(m, &p, &mut ap);
         let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
-        if !(pap > 0.0) {
+        if pap.is_nan() || pap <= 0.0 {
             break;
         }
         let alpha = rz / pap;
@@ -761,7 +761,7 @@ mod tests {
             let limb = r == 30 && (50..90).contains(&c); // one pixel wide, touching nothing else
             let limb2 = c == 70 && (5..25).contains(&r);
             let blobs = r >= 60 && c >= 8 && (c % 8) < 5 && (r % 8) < 5; // many 5x5 components
-            let diagonal = r >= 56 && r < 60 && c >= 60 && ((c / 2) + (r / 2)) % 2 == 0; // saddle contacts
+            let diagonal = (56..60).contains(&r) && c >= 60 && ((c / 2) + (r / 2)) % 2 == 0; // saddle contacts
             if annulus || limb || limb2 || blobs || diagonal {
                 1.0
             } else {

@@ -4,7 +4,10 @@
 //! [`extract_mesh`] produces the same kind of surface while touching far less:
 //! - columns whose occupancy provably stays below 0.5 ([`Fof::is_empty_column`]) are never decoded unless a
 //!   neighbour needs them;
-//! - columns are decoded with a precomputed [`CosineTable`] (an axpy per coefficient, vectorised);
+//! - columns are decoded with a precomputed [`CosineTable`] (an axpy per coefficient, vectorised), and
+//!   lazily: only every 8th depth sample is decoded up front; a span between two such samples whose ends
+//!   clear the 0.5 level by more than a proven interpolation-error bound is classified without decoding, and
+//!   its values are decoded later only if a surface cell needs them;
 //! - per column the inside/outside state of every depth sample is packed into bit sets, so a 2x2 group of
 //!   columns finds its surface-crossing cells with a few word operations and only those cells are visited;
 //! - vertices are shared (one per crossed grid edge) through per-row edge caches, and row slabs run in
@@ -184,9 +187,35 @@ impl EdgeCache {
 
 /// Decoded values and inside bits of one row of columns.
 struct RowData {
+    /// `W x D` occupancy values; only meaningful for coarse samples and decoded spans.
     values: Vec<f32>,
+    /// `W x words` inside bits (exact for every sample, certified or decoded).
     bits: Vec<u64>,
     has_inside: Vec<bool>,
+    /// `W x spans` state: [`SPAN_OUTSIDE`], [`SPAN_INSIDE`] (certified, values not decoded) or [`SPAN_DECODED`].
+    spans: Vec<u8>,
+}
+
+const SPAN_OUTSIDE: u8 = 0;
+const SPAN_INSIDE: u8 = 1;
+const SPAN_DECODED: u8 = 2;
+/// Depth samples between two coarse (always decoded) samples.
+const SPAN: usize = 8;
+
+/// `out[i] = sum_k c_k table[k][lo + i]` in the same operation order as [`Fof::decode_column_with`], so
+/// values decoded piecewise are bit-identical to a whole-column decode.
+#[inline]
+fn decode_range(coeffs: &[f32], table: &CosineTable, lo: usize, out: &mut [f32]) {
+    out.fill(0.0);
+    for (k, &ck) in coeffs.iter().enumerate().take(table.n) {
+        if ck == 0.0 {
+            continue;
+        }
+        let basis = &table.values[k * table.samples + lo..k * table.samples + lo + out.len()];
+        for (o, &b) in out.iter_mut().zip(basis) {
+            *o += ck * b;
+        }
+    }
 }
 
 struct SlabOutput {
@@ -210,28 +239,89 @@ struct Extractor<'a> {
     table: CosineTable,
     needed: Vec<bool>,
     words: usize,
+    /// Number of coarse spans per column (`ceil((D - 1) / SPAN)`).
+    spans: usize,
 }
 
 impl Extractor<'_> {
+    /// Span `j` covers samples `j*SPAN ..= min((j+1)*SPAN, D-1)`.
+    #[inline]
+    fn span_bounds(&self, j: usize) -> (usize, usize) {
+        (j * SPAN, ((j + 1) * SPAN).min(self.grid.d - 1))
+    }
+
+    /// Decodes a row of columns lazily: the coarse samples (every [`SPAN`]-th and the last) exactly; a span
+    /// between two coarse samples is *certified* inside or outside without decoding when both ends clear the
+    /// level by more than the linear-interpolation error bound `L^2/8 * max|occ''|` (plus f32 rounding),
+    /// `max|occ''| <= (pi/D)^2 sum k^2 |c_k|` per sample step; otherwise it is decoded. The inside bits are
+    /// therefore exactly those of a full decode.
     fn decode_row(&self, row: usize, out: &mut RowData) {
         let (w, d) = (self.grid.w, self.grid.d);
+        let spans = self.spans;
         out.bits.fill(0);
         out.has_inside.fill(false);
+        let mut coarse = vec![0.0f32; 1];
         for col in 0..w {
             if !self.needed[row * w + col] {
                 continue;
             }
+            let c = self.fof.column(col, row);
+            let (mut sum_abs, mut m2) = (0.0f64, 0.0f64);
+            for (k, &ck) in c.iter().enumerate() {
+                sum_abs += (ck as f64).abs();
+                m2 += (k * k) as f64 * (ck as f64).abs();
+            }
+            let step2 = (std::f64::consts::PI / d as f64).powi(2) * m2;
+            let rounding = (c.len() as f64 + 2.0) * 2.5e-7 * sum_abs + 1e-6;
             let vals = &mut out.values[col * d..(col + 1) * d];
-            self.fof.decode_column_with(&self.table, col, row, vals);
+            for j in 0..=spans {
+                let idx = (j * SPAN).min(d - 1);
+                decode_range(c, &self.table, idx, &mut coarse);
+                vals[idx] = coarse[0];
+            }
             let bits = &mut out.bits[col * self.words..(col + 1) * self.words];
+            let states = &mut out.spans[col * spans..(col + 1) * spans];
             let mut any = false;
-            for (i, &v) in vals.iter().enumerate() {
-                if is_inside(v) {
-                    bits[i / 64] |= 1 << (i % 64);
-                    any = true;
+            for (j, state) in states.iter_mut().enumerate() {
+                let (lo, hi) = self.span_bounds(j);
+                let len = (hi - lo) as f64;
+                let margin = (len * len / 8.0 * step2 + rounding) as f32;
+                let (a, b) = (vals[lo], vals[hi]);
+                *state = if a.min(b) > ISO_LEVEL + margin {
+                    SPAN_INSIDE
+                } else if a.max(b) < ISO_LEVEL - margin {
+                    SPAN_OUTSIDE
+                } else {
+                    decode_range(c, &self.table, lo, &mut vals[lo..=hi]);
+                    SPAN_DECODED
+                };
+                for (i, &v) in vals.iter().enumerate().take(hi + 1).skip(lo) {
+                    let inside = match *state {
+                        SPAN_INSIDE => true,
+                        SPAN_OUTSIDE => false,
+                        _ => is_inside(v),
+                    };
+                    if inside {
+                        bits[i / 64] |= 1 << (i % 64);
+                        any = true;
+                    }
                 }
             }
             out.has_inside[col] = any;
+        }
+    }
+
+    /// Makes sure samples `dd` and `dd + 1` of column `col` hold decoded values. Both lie in span
+    /// `dd / SPAN` because spans include their upper end.
+    #[inline]
+    fn ensure_decoded(&self, data: &mut RowData, row: usize, col: usize, dd: usize) {
+        let j = dd / SPAN;
+        let state = &mut data.spans[col * self.spans + j];
+        if *state != SPAN_DECODED {
+            *state = SPAN_DECODED;
+            let (lo, hi) = self.span_bounds(j);
+            let d = self.grid.d;
+            decode_range(self.fof.column(col, row), &self.table, lo, &mut data.values[col * d + lo..=col * d + hi]);
         }
     }
 
@@ -239,7 +329,13 @@ impl Extractor<'_> {
     fn slab(&self, r0: usize, r1: usize) -> SlabOutput {
         let Grid { w, d, .. } = self.grid;
         let words = self.words;
-        let new_row = || RowData { values: vec![0.0; w * d], bits: vec![0; w * words], has_inside: vec![false; w] };
+        let spans = self.spans;
+        let new_row = || RowData {
+            values: vec![0.0; w * d],
+            bits: vec![0; w * words],
+            has_inside: vec![false; w],
+            spans: vec![SPAN_OUTSIDE; w * spans],
+        };
         let (mut top, mut bottom) = (new_row(), new_row());
         let len = w * d;
         // x and z edge caches of the top and bottom column rows, y edges between them.
@@ -280,6 +376,10 @@ impl Extractor<'_> {
                         bitsw &= bitsw - 1;
                         if dd >= valid_last {
                             break;
+                        }
+                        for col in cols {
+                            self.ensure_decoded(&mut top, r, col, dd);
+                            self.ensure_decoded(&mut bottom, r + 1, col, dd);
                         }
                         let value = |n: usize| {
                             let [ci, cj, ck] = corner(n);
@@ -348,8 +448,11 @@ impl Extractor<'_> {
 }
 
 /// Extracts the `occ = 0.5` surface of `fof` with `depth_samples` samples per ray (512 like the reference;
-/// clamped to `2..=`[`MAX_DEPTH_SAMPLES`]). Returns an empty mesh for an empty field or a grid smaller than
-/// 2x2. Vertices are shared, in body-cube coordinates, with area-weighted vertex normals.
+/// clamped to `2..=`[`MAX_DEPTH_SAMPLES`]). Returns an empty mesh for an empty field, a grid smaller than
+/// 2x2 or a coefficient buffer whose length is not `n * width * height`. Vertices are shared, in body-cube
+/// coordinates, with area-weighted vertex normals; the output is identical (same vertices and triangles, up
+/// to order) to [`extract_mesh_dense`]. Non-finite decoded values count as outside and never produce a
+/// non-finite vertex.
 pub fn extract_mesh(fof: &Fof, depth_samples: usize) -> TriMesh {
     let (w, h) = (fof.width, fof.height);
     if w < 2 || h < 2 || fof.n == 0 || fof.coeffs.len() != fof.n * w * h {
@@ -374,7 +477,14 @@ pub fn extract_mesh(fof: &Fof, depth_samples: usize) -> TriMesh {
     if !nonempty.iter().any(|&b| b) {
         return TriMesh::default();
     }
-    let ex = Extractor { fof, grid, table: CosineTable::new(fof.n, d), needed, words: d.div_ceil(64) };
+    let ex = Extractor {
+        fof,
+        grid,
+        table: CosineTable::new(fof.n, d),
+        needed,
+        words: d.div_ceil(64),
+        spans: (d - 1).div_ceil(SPAN),
+    };
     // Slabs of cell rows; skip slabs with no needed column at all.
     let slabs: Vec<(usize, usize)> = (0..h - 1)
         .step_by(SLAB_ROWS)

@@ -230,7 +230,7 @@ impl FastCamera {
     #[inline]
     pub fn project_view(&self, p: Vec3) -> Option<Vec3> {
         let w = if self.ortho { 1.0 } else { -p.z };
-        if !self.ortho && !(w >= self.near) {
+        if !self.ortho && (w.is_nan() || w < self.near) {
             return None;
         }
         let inv = 1.0 / w;
@@ -320,7 +320,7 @@ impl FastCamera {
         code
     }
 
-    fn to_screen(&self, c: &ClipVertex) -> ScreenVertex {
+    fn screen_of(&self, c: &ClipVertex) -> ScreenVertex {
         let iw = 1.0 / c.w;
         let (nx, ny) = (c.cx * iw, c.cy * iw);
         let hw = self.width as f32 * 0.5;
@@ -416,7 +416,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             *c = fc.clip_vertex(p);
             *oc = fc.outcode(c, guard);
             if *oc == 0 {
-                *sv = fc.to_screen(c);
+                *sv = fc.screen_of(c);
             }
         });
 
@@ -463,7 +463,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
         clip_polygon(fc, [s.clip[i0], s.clip[i1], s.clip[i2]], guard, &mut poly);
         for k in 1..poly.len().saturating_sub(1) {
             let fan = [poly[0], poly[k], poly[k + 1]];
-            let v = fan.map(|p| fc.to_screen(&p.c));
+            let v = fan.map(|p| fc.screen_of(&p.c));
             if v.iter().any(|v| !(v.u.is_finite() && v.v.is_finite() && v.iw.is_finite() && v.iw > 0.0)) {
                 continue;
             }

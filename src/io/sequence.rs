@@ -56,10 +56,8 @@ impl Frame {
 
 /// Writes an animated GIF of the frames' previews (looping, `delay_ms` per frame), atomically.
 pub fn write_gif(path: &Path, frames: &[Frame], delay_ms: u32) -> Result<(), IoError> {
-    let images: Vec<image::RgbaImage> = frames
-        .iter()
-        .map(|f| image::DynamicImage::ImageRgb8(image_io::to_srgb8(&f.preview())).into_rgba8())
-        .collect();
+    let images: Vec<image::RgbaImage> =
+        frames.iter().map(|f| image::DynamicImage::ImageRgb8(image_io::to_srgb8(&f.preview())).into_rgba8()).collect();
     image_io::write_atomic(path, |file| {
         let mut encoder = image::codecs::gif::GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
         encoder.set_repeat(image::codecs::gif::Repeat::Infinite).map_err(std::io::Error::other)?;
@@ -110,7 +108,13 @@ mod tests {
     fn gif_and_sheet_are_readable() {
         let dir = tempfile::tempdir().unwrap();
         let frames: Vec<Frame> = (0..5)
-            .map(|i| Frame::Ar(Image::from_fn(32, 32, |c, _| if c < 6 * i { Vec4::new(0.5, 0.1, 0.1, 1.0) } else { Vec4::ZERO })))
+            .map(|i| {
+                Frame::Ar(Image::from_fn(
+                    32,
+                    32,
+                    |c, _| if c < 6 * i { Vec4::new(0.5, 0.1, 0.1, 1.0) } else { Vec4::ZERO },
+                ))
+            })
             .collect();
         let gif = dir.path().join("o.gif");
         write_gif(&gif, &frames, 80).unwrap();

@@ -111,7 +111,7 @@ impl SpatialFusion {
                     }
                     let f = flowz.flow.data[i];
                     let p = sample_bilinear(prev_img, f.x, f.y, Vec4::ZERO);
-                    if !(p.w >= MIN_PREVIOUS_ALPHA) || !p.is_finite() {
+                    if !p.is_finite() || p.w < MIN_PREVIOUS_ALPHA {
                         continue;
                     }
                     let pre = p.truncate() / p.w;

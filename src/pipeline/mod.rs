@@ -20,6 +20,7 @@ use crate::geometry::raster::{self, GBuffer};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
+
 use fusion::SpatialFusion;
 use input::{InputError, NormalisedInput};
 use warp::OcclusionFill;
@@ -121,8 +122,9 @@ impl PreparedInput {
         let mut timings = StageTimings::default();
         let normalised = timings.time("normalise", || input::normalise(rgb, mask, opts.resolution))?;
         let fof = match opts.geometry {
-            GeometryMode::Inflate => timings
-                .time("geometry (inflate -> FOF)", || inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate))?,
+            GeometryMode::Inflate => timings.time("geometry (inflate -> FOF)", || {
+                inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+            })?,
         };
         Self::from_fof(normalised, fof, opts, timings)
     }
@@ -164,7 +166,7 @@ impl<'a> ViewRenderer<'a> {
         Self {
             input,
             fill,
-            fusion: fuse.then(SpatialFusion::default),
+            fusion: fuse.then(SpatialFusion::new),
             target: GBuffer::new(0, 0),
             timings: StageTimings::default(),
         }
@@ -199,7 +201,12 @@ impl<'a> ViewRenderer<'a> {
 
     /// A finished frame for `camera`: composited over the panorama in VR, the bare layer in AR (no panorama
     /// work at all in AR).
-    pub fn render_frame(&mut self, camera: &Camera, mode: Mode, environment: &Environment) -> Result<Frame, PipelineError> {
+    pub fn render_frame(
+        &mut self,
+        camera: &Camera,
+        mode: Mode,
+        environment: &Environment,
+    ) -> Result<Frame, PipelineError> {
         let person = self.render_person(camera)?;
         Ok(match mode {
             Mode::Vr => {

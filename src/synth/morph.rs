@@ -43,7 +43,8 @@ impl MorphLibrary {
         let file = std::fs::File::open(npz)
             .map_err(|e| err(format!("{e}; install it with `bash scripts/setup.d/synth.sh` (PyPI makehuman 1.3.2)")))?;
         let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| err(e.to_string()))?;
-        let mut raw: HashMap<String, (Option<Vec<u16>>, Option<Vec<[i16; 3]>>)> = HashMap::new();
+        type Halves = (Option<Vec<u16>>, Option<Vec<[i16; 3]>>);
+        let mut raw: HashMap<String, Halves> = HashMap::new();
         for i in 0..zip.len() {
             let mut entry = zip.by_index(i).map_err(|e| err(e.to_string()))?;
             let name = entry.name().to_string();

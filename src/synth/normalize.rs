@@ -32,7 +32,7 @@ pub fn compute(points: &[Vec3]) -> Option<Normalization> {
     }
     let (ymin, ymax) = points.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| (a.min(p.y), b.max(p.y)));
     let height = ymax - ymin;
-    if !(height > 0.0) || !height.is_finite() {
+    if height.is_nan() || height <= 0.0 || !height.is_finite() {
         return None;
     }
     let xz: Vec<Vec2> = points.iter().map(|p| Vec2::new(p.x, p.z)).collect();

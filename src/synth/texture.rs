@@ -171,7 +171,7 @@ fn random_fabric(rng: &mut Rng, denim_like: bool) -> Fabric {
         hsv(rng.uniform(), rng.range(0.2, 0.9), rng.range(0.05, 0.4))
     };
     let pattern = match rng.below(10) {
-        0 | 1 | 2 => Pattern::Solid,
+        0..=2 => Pattern::Solid,
         3 => Pattern::HorizontalStripes,
         4 => Pattern::VerticalStripes,
         5 => Pattern::Checks,

@@ -1,1 +1,120 @@
-//! `xr` layer (see DESIGN in the README). Filled in by its own issue.
+//! OpenXR client (XR_KHR_vulkan_enable2 on ash): runtime discovery ([`check`]), the Vulkan device the runtime
+//! asks for and the per-eye swapchains ([`gfx`]), the session state machine and frame loop ([`session`]), the
+//! placement of the person in the room ([`placement`]) and the render thread that keeps the display loop from
+//! ever waiting on the person renderer ([`pacing`]).
+//!
+//! The person renderer itself is not part of this layer: the session drives any [`EyeImageRenderer`] (the app
+//! layer plugs in the CPU pipeline; the Vulkan renderer can later render straight into the swapchain images,
+//! whose Vulkan handles [`gfx::VulkanContext`] keeps public).
+
+pub mod check;
+pub mod diag;
+pub mod gfx;
+pub mod mirror;
+pub mod pacing;
+pub mod placement;
+pub mod session;
+
+pub use check::{check_runtime, RuntimeReport};
+pub use pacing::{EyeImageRenderer, EyeRequest};
+pub use placement::{Controls, Placement};
+pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport, XrMode};
+
+use openxr as xr;
+
+/// Everything that can go wrong in the OpenXR client. Each message says what to do next.
+#[derive(Debug, thiserror::Error)]
+pub enum XrError {
+    /// The OpenXR loader library is not installed.
+    #[error(
+        "no OpenXR loader found ({0}): install the OpenXR loader and a runtime, e.g. on Debian/Ubuntu \
+         `apt install libopenxr-loader1 monado-service libopenxr1-monado`"
+    )]
+    LoaderMissing(String),
+    /// The loader is there but no runtime is active.
+    #[error(
+        "the OpenXR loader found no active runtime: install one (e.g. Monado: `apt install monado-service \
+         libopenxr1-monado`), start it (`monado-service`), or point XR_RUNTIME_JSON at its manifest"
+    )]
+    RuntimeUnavailable,
+    /// The runtime is installed but could not be reached (its service is not running).
+    #[error(
+        "the OpenXR runtime is installed but not running ({0}): start it (for Monado: `monado-service`) and retry"
+    )]
+    RuntimeNotRunning(xr::sys::Result),
+    /// The runtime is there but no headset is connected.
+    #[error("the OpenXR runtime reports no head-mounted display: connect and switch on the headset, then retry")]
+    NoHeadset,
+    /// A required extension is missing from the runtime.
+    #[error("the OpenXR runtime does not offer {0}, which r2human needs: use a runtime with Vulkan support")]
+    MissingExtension(&'static str),
+    /// An OpenXR call failed.
+    #[error("OpenXR call {call} failed: {result}")]
+    Openxr {
+        /// The OpenXR function that failed.
+        call: &'static str,
+        /// Its result code.
+        result: xr::sys::Result,
+    },
+    /// The Vulkan library could not be loaded.
+    #[error("no Vulkan loader found ({0}): install libvulkan1 and a Vulkan driver (e.g. mesa-vulkan-drivers)")]
+    VulkanLoader(String),
+    /// A Vulkan call failed.
+    #[error("Vulkan call {call} failed: {result}")]
+    Vulkan {
+        /// The Vulkan function that failed.
+        call: &'static str,
+        /// Its result code.
+        result: ash::vk::Result,
+    },
+    /// The runtime or device cannot do something r2human needs.
+    #[error("unsupported by the OpenXR runtime or Vulkan device: {0}")]
+    Unsupported(String),
+    /// The person renderer failed.
+    #[error("rendering an eye image failed: {0}")]
+    Render(String),
+}
+
+/// Adds the name of the failing OpenXR call to an `openxr` result.
+pub(crate) trait XrContext<T> {
+    /// Maps the error to [`XrError::Openxr`] naming `call`.
+    fn xr(self, call: &'static str) -> Result<T, XrError>;
+}
+
+impl<T> XrContext<T> for Result<T, xr::sys::Result> {
+    fn xr(self, call: &'static str) -> Result<T, XrError> {
+        self.map_err(|result| match result {
+            xr::sys::Result::ERROR_RUNTIME_UNAVAILABLE => XrError::RuntimeUnavailable,
+            xr::sys::Result::ERROR_FORM_FACTOR_UNAVAILABLE => XrError::NoHeadset,
+            xr::sys::Result::ERROR_RUNTIME_FAILURE
+            | xr::sys::Result::ERROR_INSTANCE_LOST
+            | xr::sys::Result::ERROR_INITIALIZATION_FAILED
+                if call == "xrCreateInstance" =>
+            {
+                XrError::RuntimeNotRunning(result)
+            }
+            result => XrError::Openxr { call, result },
+        })
+    }
+}
+
+/// Adds the name of the failing Vulkan call to an `ash` result.
+pub(crate) trait VkContext<T> {
+    /// Maps the error to [`XrError::Vulkan`] naming `call`.
+    fn vk(self, call: &'static str) -> Result<T, XrError>;
+}
+
+impl<T> VkContext<T> for Result<T, ash::vk::Result> {
+    fn vk(self, call: &'static str) -> Result<T, XrError> {
+        self.map_err(|result| XrError::Vulkan { call, result })
+    }
+}
+
+/// Loads the OpenXR loader library, turning "not installed" into [`XrError::LoaderMissing`].
+pub fn load_entry() -> Result<xr::Entry, XrError> {
+    // SAFETY: the library loaded is the system's OpenXR loader, which implements the OpenXR ABI.
+    unsafe { xr::Entry::load(&()) }.map_err(|e| match e {
+        xr::EntryError::Load(inner) => XrError::LoaderMissing(format!("libopenxr_loader.so.1: {inner}")),
+        xr::EntryError::Xr(result) => XrError::Openxr { call: "xrInitializeLoaderKHR", result },
+    })
+}

@@ -21,7 +21,11 @@ pub fn figure_rgba(w: u32, h: u32) -> image::RgbaImage {
             let colour = if head {
                 [224, 172, 140]
             } else if torso || arm {
-                if ((py / 4.0) as i32) % 2 == 0 { [40, 90, 200] } else { [230, 230, 230] }
+                if ((py / 4.0) as i32) % 2 == 0 {
+                    [40, 90, 200]
+                } else {
+                    [230, 230, 230]
+                }
             } else if leg {
                 [60, 50, 40]
             } else {

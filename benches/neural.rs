@@ -1,0 +1,118 @@
+//! Neural renderer speed on this machine's CPU (ONNX Runtime CPU provider): the decoder per view at 256x256 and
+//! 512x512 over a person-shaped target mask, and the encoder per input frame (512x512 source, resampled to the
+//! model's resolution), for every tier whose models are present.
+//!
+//! Models: `models/<tier>` of the project (the shipped `tiny`), or the tier folders inside `R2HUMAN_BENCH_MODELS`.
+//! Untrained `small`/`paper` models for speed measurements: `python -m train export-untrained --tier paper
+//! --out /tmp/bench_models/paper` (see train/README.md). Threads: `R2HUMAN_BENCH_THREADS` (default: ONNX
+//! Runtime's choice). Run: `cargo bench --bench neural`.
+
+use std::hint::black_box;
+use std::path::PathBuf;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use glam::Vec3;
+use r2human::buffer::{GrayImage, Image, RgbImage};
+use r2human::neural::{
+    default_model_dir, Coefficients, Decoder, Encoder, EncoderInput, ExecutionProvider, FeatureMap, RuntimeOptions,
+};
+
+fn model_dir(tier: &str) -> Option<PathBuf> {
+    if let Some(root) = std::env::var_os("R2HUMAN_BENCH_MODELS") {
+        let dir = PathBuf::from(root).join(tier);
+        return dir.join("decoder.onnx").is_file().then_some(dir);
+    }
+    default_model_dir(tier)
+}
+
+fn options() -> RuntimeOptions {
+    let threads = std::env::var("R2HUMAN_BENCH_THREADS").ok().and_then(|t| t.parse().ok());
+    RuntimeOptions { ep: ExecutionProvider::Cpu, intra_threads: threads, ..Default::default() }
+}
+
+/// A standing person's silhouette at `size x size`: torso, head, arms and legs (about 20% of the frame; its
+/// padded bounding box, which the decoder runs over, is about 40%).
+fn person_mask(size: usize) -> GrayImage {
+    let s = size as f32;
+    GrayImage::from_fn(size, size, |c, r| {
+        let (x, y) = ((c as f32 + 0.5) / s - 0.5, (r as f32 + 0.5) / s);
+        let head = (x / 0.07).powi(2) + ((y - 0.12) / 0.08).powi(2) < 1.0;
+        let torso = x.abs() < 0.13 && (0.2..0.55).contains(&y);
+        let arms = (0.14..0.2).contains(&x.abs()) && (0.22..0.55).contains(&y);
+        let legs = (0.02..0.11).contains(&x.abs()) && (0.55..0.95).contains(&y);
+        if head || torso || arms || legs {
+            1.0
+        } else {
+            0.0
+        }
+    })
+}
+
+fn bench_decoder(c: &mut Criterion) {
+    let mut group = c.benchmark_group("neural_decoder");
+    group.sample_size(10);
+    for tier in ["tiny", "small", "paper"] {
+        let Some(dir) = model_dir(tier) else {
+            eprintln!("neural bench: no {tier} models, skipping (see the bench's module docs)");
+            continue;
+        };
+        let mut dec = match Decoder::load(&dir.join("decoder.onnx"), &options()) {
+            Ok(d) => d,
+            Err(e) => {
+                eprintln!("neural bench: {e}");
+                continue;
+            }
+        };
+        let ch = dec.info().feature_channels;
+        for size in [256usize, 512] {
+            let mask = person_mask(size);
+            let n = size * size;
+            let warped = FeatureMap {
+                channels: ch,
+                width: size,
+                height: size,
+                data: (0..ch * n).map(|i| ((i * 7919) % 1000) as f32 / 1000.0 - 0.5).collect(),
+            };
+            let z = GrayImage::from_fn(size, size, |c, _| c as f32 / size as f32 - 0.5);
+            let normals = Image::new(size, size, Vec3::Z);
+            group.bench_function(format!("{tier}/{size}"), |b| {
+                b.iter(|| black_box(dec.run(&warped, &z, &normals, &mask).expect("decoder run")))
+            });
+        }
+    }
+    group.finish();
+}
+
+fn bench_encoder(c: &mut Criterion) {
+    let mut group = c.benchmark_group("neural_encoder");
+    group.sample_size(10);
+    for tier in ["tiny", "small", "paper"] {
+        let Some(dir) = model_dir(tier) else { continue };
+        let mut enc = match Encoder::load(&dir.join("encoder.onnx"), &options()) {
+            Ok(e) => e,
+            Err(e) => {
+                eprintln!("neural bench: {e}");
+                continue;
+            }
+        };
+        let fof_n = enc.info().fof_n;
+        let size = 512;
+        let mask = person_mask(size);
+        let rgb = RgbImage::from_fn(size, size, |c, r| Vec3::new(0.6, 0.4, (c + r) as f32 / 1024.0) * *mask.get(c, r));
+        let normals = Image::from_fn(size, size, |c, r| if *mask.get(c, r) > 0.0 { Vec3::Z } else { Vec3::ZERO });
+        let fof: Vec<f32> = (0..size * size * fof_n).map(|i| ((i % 97) as f32 - 48.0) / 100.0).collect();
+        let input = EncoderInput {
+            rgb: &rgb,
+            mask: &mask,
+            fof: Some(Coefficients { width: size, height: size, n: fof_n, data: &fof }),
+            normals: &normals,
+        };
+        group.bench_function(format!("{tier}/512-input"), |b| {
+            b.iter(|| black_box(enc.run(&input).expect("encoder run")))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_decoder, bench_encoder);
+criterion_main!(benches);

@@ -1,0 +1,60 @@
+#version 450
+// Geometric warp (src/pipeline/warp.rs, render_from_flow, first half): covered target pixels with a flow take the
+// source colour at the flow — when visible, or always with the mirrored-front fill — by a mask-aware bilinear
+// sample sum(w c) / sum(w m) (premultiplied source). Writes level 0 of the hole-filling pyramid:
+// (colour, 1) where known, 0 where a hole.
+#include "common.glsl"
+
+layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+
+layout(std430, set = 0, binding = 2) readonly buffer Color { vec4 color[]; };
+layout(std430, set = 0, binding = 3) readonly buffer Flow { vec4 flow[]; };
+layout(std430, set = 0, binding = 7) readonly buffer SourceColor { vec4 source_color[]; };
+layout(std430, set = 0, binding = 15) buffer Pyramid { vec4 pyramid[]; };
+
+void main() {
+    uint width = uint(frame.target.info.y);
+    uint height = uint(frame.target.info.z);
+    uvec2 id = gl_GlobalInvocationID.xy;
+    if (id.x >= width || id.y >= height) {
+        return;
+    }
+    uint index = id.y * width + id.x;
+    vec4 result = vec4(0.0);
+    vec4 f = flow[index];
+    bool take = f.w > 1.5 || (f.w > 0.5 && frame.params.w < 0.5);
+    if (color[index].w > 0.5 && take) {
+        int sw = int(frame.sizes.z);
+        int sh = int(frame.sizes.w);
+        float fx = f.x - 0.5;
+        float fy = f.y - 0.5;
+        float x0 = floor(fx);
+        float y0 = floor(fy);
+        float tx = fx - x0;
+        float ty = fy - y0;
+        int c0 = int(x0);
+        int r0 = int(y0);
+        vec3 acc = vec3(0.0);
+        float wm = 0.0;
+        for (int k = 0; k < 4; k++) {
+            int dc = k & 1;
+            int dr = k >> 1;
+            float wt = (dc == 0 ? 1.0 - tx : tx) * (dr == 0 ? 1.0 - ty : ty);
+            int c = c0 + dc;
+            int r = r0 + dr;
+            if (c < 0 || r < 0 || c >= sw || r >= sh || wt <= 0.0) {
+                continue;
+            }
+            vec4 s = source_color[r * sw + c];
+            float m = clamp(s.w, 0.0, 1.0);
+            if (m > 0.0) {
+                acc += s.rgb * wt;
+                wm += m * wt;
+            }
+        }
+        if (wm >= 0.05) {
+            result = vec4(acc / wm, 1.0);
+        }
+    }
+    pyramid[index] = result;
+}

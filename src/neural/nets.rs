@@ -1,0 +1,545 @@
+//! The three networks: [`FofNet`], [`Encoder`] (once per input frame) and [`Decoder`] (once per view, over the
+//! target mask's bounding box only).
+
+use std::path::{Path, PathBuf};
+
+use glam::{Vec2, Vec3, Vec4};
+use ort::session::{Session, SessionInputValue};
+use ort::value::TensorRef;
+
+use super::model::{check_no_extra_inputs, check_tensor, Dim, ModelInfo, ModelKind};
+use super::provider::{create_session, ActiveProvider, RuntimeOptions};
+use super::tensor::{
+    coefficients_tensor, image_tensor, normals_tensor, resample_plane, Coefficients, FeatureMap, PixelBox,
+};
+use super::NeuralError;
+use crate::buffer::{srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
+use crate::geometry::raster::GBuffer;
+use crate::geometry::zmap::FlowZ;
+
+/// A loaded session with its checked metadata.
+struct Net {
+    session: Session,
+    info: ModelInfo,
+    path: PathBuf,
+    provider: ActiveProvider,
+    name: &'static str,
+}
+
+impl Net {
+    fn load(path: &Path, kind: ModelKind, name: &'static str, options: &RuntimeOptions) -> Result<Self, NeuralError> {
+        let (session, provider) = create_session(path, name, options)?;
+        let info = ModelInfo::read(&session, path, kind)?;
+        Ok(Self { session, info, path: path.to_path_buf(), provider, name })
+    }
+
+    /// Runs the session on named planar tensors and returns the named output's shape and values, failing on
+    /// non-finite values.
+    fn run(
+        &mut self,
+        inputs: &[(&str, [usize; 4], &[f32])],
+        output: &str,
+    ) -> Result<(Vec<i64>, Vec<f32>), NeuralError> {
+        let name = self.name;
+        let run_err = |e: ort::Error| NeuralError::Run { model: name, reason: e.to_string() };
+        let mut values: Vec<(std::borrow::Cow<'_, str>, SessionInputValue<'_>)> = Vec::with_capacity(inputs.len());
+        for (input, shape, data) in inputs {
+            let tensor = TensorRef::from_array_view((*shape, *data)).map_err(run_err)?;
+            values.push(((*input).into(), tensor.into()));
+        }
+        let outputs = self.session.run(values).map_err(run_err)?;
+        let value = outputs
+            .get(output)
+            .ok_or_else(|| NeuralError::Run { model: name, reason: format!("no output named `{output}`") })?;
+        let (shape, data) = value.try_extract_tensor::<f32>().map_err(run_err)?;
+        let bad = data.iter().filter(|v| !v.is_finite()).count();
+        if bad > 0 {
+            return Err(NeuralError::NonFinite { model: name, count: bad, total: data.len() });
+        }
+        Ok((shape.to_vec(), data.to_vec()))
+    }
+
+    fn expect_output_shape(&self, shape: &[i64], want: [usize; 4]) -> Result<(), NeuralError> {
+        if shape.len() != 4 || shape.iter().zip(want).any(|(&s, w)| s != w as i64) {
+            return Err(NeuralError::Run {
+                model: self.name,
+                reason: format!("output shape {shape:?}, expected {want:?}"),
+            });
+        }
+        Ok(())
+    }
+}
+
+fn check_sizes(model: &'static str, what: &str, w: usize, h: usize, ew: usize, eh: usize) -> Result<(), NeuralError> {
+    if (w, h) != (ew, eh) {
+        return Err(NeuralError::BadInput { model, problem: format!("{what} is {w}x{h} but must be {ew}x{eh}") });
+    }
+    Ok(())
+}
+
+/// The FOF network: source photo (+ an optional prior FOF) to `N` FOF-X coefficients per pixel.
+pub struct FofNet {
+    net: Net,
+    has_prior: bool,
+}
+
+/// FOF coefficients predicted at the model's resolution, pixel-major (`HWN`), zero outside the mask.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FofPrediction {
+    /// Width in pixels (the model's resolution).
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Coefficients per pixel.
+    pub n: usize,
+    /// `width*height*n` values.
+    pub data: Vec<f32>,
+}
+
+impl FofPrediction {
+    /// A borrowed view for [`EncoderInput::fof`].
+    pub fn view(&self) -> Coefficients<'_> {
+        Coefficients { width: self.width, height: self.height, n: self.n, data: &self.data }
+    }
+}
+
+impl FofNet {
+    /// Loads and checks a FOF network (`r2human.kind = fof`; input `image` `[1,3,R,R]`, optional `prior`
+    /// `[1,N,R,R]`; output `fof` `[1,N,R,R]`).
+    pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
+        let net = Net::load(path, ModelKind::Fof, "FOF net", options)?;
+        let (r, n) = (net.info.resolution as i64, net.info.fof_n as i64);
+        check_tensor(&net.session, path, false, "image", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
+        let has_prior = net.session.inputs().iter().any(|i| i.name() == "prior");
+        if has_prior {
+            check_tensor(&net.session, path, false, "prior", [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
+        }
+        check_no_extra_inputs(&net.session, path, &["image", "prior"])?;
+        check_tensor(&net.session, path, true, "fof", [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
+        Ok(Self { net, has_prior })
+    }
+
+    /// The model's metadata.
+    pub fn info(&self) -> &ModelInfo {
+        &self.net.info
+    }
+
+    /// The execution provider the model runs on.
+    pub fn provider(&self) -> ActiveProvider {
+        self.net.provider
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.net.path
+    }
+
+    /// Predicts FOF coefficients for a square source photo (`rgb` linear and premultiplied, `mask` in `[0,1]`,
+    /// any size; resampled to the model's resolution). `prior` feeds the model's `prior` input when it has one
+    /// (zeros when `None`) and is ignored otherwise. The result is zero where the resampled mask is below 0.5.
+    pub fn run(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        prior: Option<Coefficients<'_>>,
+    ) -> Result<FofPrediction, NeuralError> {
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        let model = "FOF net";
+        if rgb.width != rgb.height || rgb.width == 0 {
+            return Err(NeuralError::BadInput {
+                model,
+                problem: format!("photo is {}x{}, not square", rgb.width, rgb.height),
+            });
+        }
+        check_sizes(model, "mask", mask.width, mask.height, rgb.width, rgb.height)?;
+        let image = image_tensor(rgb, mask, r);
+        let prior_tensor = match (&prior, self.has_prior) {
+            (Some(p), true) => {
+                check_sizes(model, "prior", p.width, p.height, rgb.width, rgb.height)?;
+                if p.n != n || p.data.len() != p.width * p.height * p.n {
+                    return Err(NeuralError::BadInput {
+                        model,
+                        problem: format!("prior has {} coefficients per pixel, the model takes {n}", p.n),
+                    });
+                }
+                Some(coefficients_tensor(p, r))
+            }
+            (None, true) => Some(vec![0.0; n * r * r]),
+            _ => None,
+        };
+        let mut inputs: Vec<(&str, [usize; 4], &[f32])> = vec![("image", [1, 3, r, r], &image)];
+        if let Some(p) = &prior_tensor {
+            inputs.push(("prior", [1, n, r, r], p));
+        }
+        let (shape, planes) = self.net.run(&inputs, "fof")?;
+        self.net.expect_output_shape(&shape, [1, n, r, r])?;
+        let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
+        let mut data = vec![0.0; r * r * n];
+        for (i, m) in small_mask.iter().enumerate() {
+            if *m >= 0.5 {
+                for k in 0..n {
+                    data[i * n + k] = planes[k * r * r + i];
+                }
+            }
+        }
+        Ok(FofPrediction { width: r, height: r, n, data })
+    }
+}
+
+/// What the encoder reads: the source photo, its FOF and its normals, all at the same square size.
+#[derive(Clone, Copy, Debug)]
+pub struct EncoderInput<'a> {
+    /// Source colour, linear, premultiplied by `mask`.
+    pub rgb: &'a RgbImage,
+    /// Source mask in `[0, 1]`.
+    pub mask: &'a GrayImage,
+    /// FOF-X coefficients (`N` = the model's `fof_n`); `None` feeds zeros, like the reference's test script.
+    pub fof: Option<Coefficients<'a>>,
+    /// Source view-space unit normals, zero in the background.
+    pub normals: &'a Image<Vec3>,
+}
+
+/// The feature encoder (runs once per input frame).
+pub struct Encoder {
+    net: Net,
+}
+
+impl Encoder {
+    /// Loads and checks an encoder (`r2human.kind = encoder`; inputs `image` `[1,3,R,R]`, `fof` `[1,N,R,R]`,
+    /// `normals` `[1,3,R,R]`; output `features` `[1,C,R/4,R/4]`).
+    pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
+        let net = Net::load(path, ModelKind::Encoder, "encoder", options)?;
+        let (r, n, c) = (net.info.resolution as i64, net.info.fof_n as i64, net.info.feature_channels as i64);
+        let s = &net.session;
+        check_tensor(s, path, false, "image", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
+        check_tensor(s, path, false, "fof", [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
+        check_tensor(s, path, false, "normals", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
+        check_no_extra_inputs(s, path, &["image", "fof", "normals"])?;
+        check_tensor(s, path, true, "features", [Dim::Is(c), Dim::Is(r / 4), Dim::Is(r / 4)])?;
+        Ok(Self { net })
+    }
+
+    /// The model's metadata.
+    pub fn info(&self) -> &ModelInfo {
+        &self.net.info
+    }
+
+    /// The execution provider the model runs on.
+    pub fn provider(&self) -> ActiveProvider {
+        self.net.provider
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.net.path
+    }
+
+    /// Encodes a square source frame (any size; resampled to the model's resolution `R`) into features at `R/4`.
+    pub fn run(&mut self, input: &EncoderInput<'_>) -> Result<FeatureMap, NeuralError> {
+        let (r, n, c) = (self.net.info.resolution, self.net.info.fof_n, self.net.info.feature_channels);
+        let model = "encoder";
+        let (w, h) = (input.rgb.width, input.rgb.height);
+        if w != h || w == 0 {
+            return Err(NeuralError::BadInput { model, problem: format!("photo is {w}x{h}, not square") });
+        }
+        check_sizes(model, "mask", input.mask.width, input.mask.height, w, h)?;
+        check_sizes(model, "normal map", input.normals.width, input.normals.height, w, h)?;
+        let image = image_tensor(input.rgb, input.mask, r);
+        let normals = normals_tensor(input.normals, r);
+        let fof = match &input.fof {
+            Some(f) => {
+                check_sizes(model, "FOF", f.width, f.height, w, h)?;
+                if f.n != n || f.data.len() != f.width * f.height * f.n {
+                    return Err(NeuralError::BadInput {
+                        model,
+                        problem: format!("FOF has {} coefficients per pixel, the model takes {n}", f.n),
+                    });
+                }
+                coefficients_tensor(f, r)
+            }
+            None => vec![0.0; n * r * r],
+        };
+        let inputs: [(&str, [usize; 4], &[f32]); 3] =
+            [("image", [1, 3, r, r], &image), ("fof", [1, n, r, r], &fof), ("normals", [1, 3, r, r], &normals)];
+        let (shape, data) = self.net.run(&inputs, "features")?;
+        self.net.expect_output_shape(&shape, [1, c, r / 4, r / 4])?;
+        Ok(FeatureMap { channels: c, width: r / 4, height: r / 4, data })
+    }
+}
+
+/// The Z-map decoder (runs once per view).
+pub struct Decoder {
+    net: Net,
+    /// Fixed spatial input size `(width, height)` when the model declares one.
+    fixed: Option<(usize, usize)>,
+}
+
+impl Decoder {
+    /// Loads and checks a decoder (`r2human.kind = decoder`; inputs `features` `[1,C,h,w]`, `zmap` `[1,1,h,w]`,
+    /// `normals` `[1,3,h,w]`; output `rgb` `[1,3,h,w]`; `h`, `w` dynamic or fixed).
+    pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
+        let net = Net::load(path, ModelKind::Decoder, "decoder", options)?;
+        let c = net.info.feature_channels as i64;
+        let s = &net.session;
+        let shape = check_tensor(s, path, false, "features", [Dim::Is(c), Dim::Any, Dim::Any])?;
+        let (h, w) = (shape[2], shape[3]);
+        let hw = |v: i64| if v < 0 { Dim::Any } else { Dim::Is(v) };
+        check_tensor(s, path, false, "zmap", [Dim::Is(1), hw(h), hw(w)])?;
+        check_tensor(s, path, false, "normals", [Dim::Is(3), hw(h), hw(w)])?;
+        check_no_extra_inputs(s, path, &["features", "zmap", "normals"])?;
+        check_tensor(s, path, true, "rgb", [Dim::Is(3), hw(h), hw(w)])?;
+        let fixed = (h > 0 && w > 0).then_some((w as usize, h as usize));
+        if let Some((fw, fh)) = fixed {
+            if fw % net.info.stride != 0 || fh % net.info.stride != 0 {
+                return Err(NeuralError::Signature {
+                    path: path.to_path_buf(),
+                    problem: format!("fixed input size {fw}x{fh} is not a multiple of its stride {}", net.info.stride),
+                });
+            }
+        }
+        Ok(Self { net, fixed })
+    }
+
+    /// The model's metadata.
+    pub fn info(&self) -> &ModelInfo {
+        &self.net.info
+    }
+
+    /// The execution provider the model runs on.
+    pub fn provider(&self) -> ActiveProvider {
+        self.net.provider
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.net.path
+    }
+
+    /// The region the decoder runs over for a target mask: the mask's bounding box grown by a margin (so the
+    /// network sees background context, as on a full frame), aligned and padded to the network's stride (or to its
+    /// fixed input size). `None` for an empty mask.
+    pub fn region(&self, mask: &GrayImage) -> Result<Option<PixelBox>, NeuralError> {
+        self.region_of(PixelBox::of_mask(mask), mask.width, mask.height)
+    }
+
+    fn region_of(&self, b: Option<PixelBox>, width: usize, height: usize) -> Result<Option<PixelBox>, NeuralError> {
+        let Some(b) = b else { return Ok(None) };
+        let stride = self.net.info.stride;
+        let mut p = b.padded(stride.max(8), stride, width, height);
+        if let Some((fw, fh)) = self.fixed {
+            // Centre the fixed window on the mask box with its origin on the stride grid, shifted by whole strides
+            // until it covers the box.
+            let s = stride as i64;
+            let place = |lo: i64, hi: i64, size: i64| -> Option<i64> {
+                let mut o = ((lo + hi - size) / 2).max(0) / s * s;
+                while o + size < hi {
+                    o += s;
+                }
+                (o <= lo).then_some(o)
+            };
+            match (place(b.x0, b.x1, fw as i64), place(b.y0, b.y1, fh as i64)) {
+                (Some(x0), Some(y0)) => p = PixelBox { x0, y0, x1: x0 + fw as i64, y1: y0 + fh as i64 },
+                _ => {
+                    return Err(NeuralError::BadInput {
+                        model: "decoder",
+                        problem: format!(
+                            "the target mask spans {}x{} px at ({}, {}) but this decoder has a fixed {fw}x{fh} input",
+                            b.width(),
+                            b.height(),
+                            b.x0,
+                            b.y0
+                        ),
+                    })
+                }
+            }
+        }
+        Ok(Some(p))
+    }
+
+    /// Renders a view from the pipeline's own buffers: warps the encoder's `features` by `flowz.flow` (continuous
+    /// pixel coordinates of the `source_res x source_res` source image, as [`crate::geometry::zmap::flow_and_zmap`]
+    /// gives them), decodes with `flowz.z` and the target normals, only over the padded bounding box of
+    /// `flowz.mask && target.mask`. Returns linear premultiplied RGBA at the target size (alpha 1 on covered
+    /// pixels, transparent elsewhere).
+    pub fn render_view(
+        &mut self,
+        features: &FeatureMap,
+        flowz: &FlowZ,
+        source_res: usize,
+        target: &GBuffer,
+    ) -> Result<RgbaImage, NeuralError> {
+        self.check_feature_channels(features.channels)?;
+        let (w, h) = (target.width, target.height);
+        let n = w * h;
+        if flowz.flow.width != w || flowz.flow.height != h || flowz.mask.len() != n || flowz.z.data.len() != n {
+            return Err(NeuralError::BadInput {
+                model: "decoder",
+                problem: format!("flow/Z-map is {}x{} but the target is {w}x{h}", flowz.flow.width, flowz.flow.height),
+            });
+        }
+        if target.mask.len() != n || target.normal.len() != n {
+            return Err(NeuralError::BadInput {
+                model: "decoder",
+                problem: "target G-buffer arrays do not match its size".into(),
+            });
+        }
+        if source_res == 0 {
+            return Err(NeuralError::BadInput { model: "decoder", problem: "source resolution is 0".into() });
+        }
+        let half = source_res as f32 * 0.5;
+        self.decode(
+            w,
+            h,
+            |i| if flowz.mask[i] && target.mask[i] { 1.0 } else { 0.0 },
+            |i| flowz.z.data[i],
+            |i| target.normal[i],
+            |col, row, out| {
+                // Pixel coordinates (centres at +0.5) to body-cube coordinates of the source camera.
+                let f = flowz.flow.get(col, row);
+                features.sample_cube(f.x / half - 1.0, 1.0 - f.y / half, out);
+            },
+        )
+    }
+
+    /// Renders a view: warps the encoder's `features` by `flow` (per target pixel, the source-camera body-cube
+    /// coordinates `(x_src, y_src)` of paper Eq. 4), then decodes with the Z-map (`z_src` per target pixel) and the
+    /// target view-space normals, only over [`Decoder::region`]. Returns linear premultiplied RGBA at the target
+    /// size with the mask as alpha; transparent outside the mask.
+    pub fn render(
+        &mut self,
+        features: &FeatureMap,
+        flow: &Image<Vec2>,
+        zmap: &GrayImage,
+        normals: &Image<Vec3>,
+        mask: &GrayImage,
+    ) -> Result<RgbaImage, NeuralError> {
+        self.check_feature_channels(features.channels)?;
+        check_sizes("decoder", "flow", flow.width, flow.height, mask.width, mask.height)?;
+        self.decode_images(zmap, normals, mask, |col, row, out| {
+            let f = flow.get(col, row);
+            features.sample_cube(f.x, f.y, out);
+        })
+    }
+
+    /// Decodes already-warped features (`warped`: `C` channels at the target size) with the Z-map and target
+    /// normals, only over [`Decoder::region`]; see [`Decoder::render`].
+    pub fn run(
+        &mut self,
+        warped: &FeatureMap,
+        zmap: &GrayImage,
+        normals: &Image<Vec3>,
+        mask: &GrayImage,
+    ) -> Result<RgbaImage, NeuralError> {
+        self.check_feature_channels(warped.channels)?;
+        check_sizes("decoder", "warped features", warped.width, warped.height, mask.width, mask.height)?;
+        let plane = warped.width * warped.height;
+        self.decode_images(zmap, normals, mask, |col, row, out| {
+            let i = row * warped.width + col;
+            for (c, o) in out.iter_mut().enumerate() {
+                *o = warped.data[c * plane + i];
+            }
+        })
+    }
+
+    fn decode_images(
+        &mut self,
+        zmap: &GrayImage,
+        normals: &Image<Vec3>,
+        mask: &GrayImage,
+        features_at: impl FnMut(usize, usize, &mut [f32]),
+    ) -> Result<RgbaImage, NeuralError> {
+        let (w, h) = (mask.width, mask.height);
+        check_sizes("decoder", "Z-map", zmap.width, zmap.height, w, h)?;
+        check_sizes("decoder", "normal map", normals.width, normals.height, w, h)?;
+        self.decode(w, h, |i| mask.data[i], |i| zmap.data[i], |i| normals.data[i], features_at)
+    }
+
+    fn check_feature_channels(&self, c: usize) -> Result<(), NeuralError> {
+        if c != self.net.info.feature_channels {
+            return Err(NeuralError::BadInput {
+                model: "decoder",
+                problem: format!("features have {c} channels, the model takes {}", self.net.info.feature_channels),
+            });
+        }
+        Ok(())
+    }
+
+    /// The shared decoder path over per-pixel accessors (`alpha`, `z`, `normal` by pixel index; `features_at` by
+    /// column and row): crop, pad, run, write back.
+    fn decode(
+        &mut self,
+        w: usize,
+        h: usize,
+        alpha: impl Fn(usize) -> f32,
+        zmap: impl Fn(usize) -> f32,
+        normal: impl Fn(usize) -> Vec3,
+        mut features_at: impl FnMut(usize, usize, &mut [f32]),
+    ) -> Result<RgbaImage, NeuralError> {
+        let mut out = RgbaImage::new(w, h, Vec4::ZERO);
+        let Some(p) = self.region_of(PixelBox::of_alpha(w, h, &alpha), w, h)? else { return Ok(out) };
+        let c = self.net.info.feature_channels;
+        let (pw, ph) = (p.width(), p.height());
+        let plane = pw * ph;
+        let mut feat = vec![0.0f32; c * plane];
+        let mut z = vec![0.0f32; plane];
+        let mut nrm = vec![0.0f32; 3 * plane];
+        let mut px = vec![0.0f32; c];
+        for row in 0..ph {
+            let y = p.y0 + row as i64;
+            if y < 0 || y >= h as i64 {
+                continue;
+            }
+            for col in 0..pw {
+                let x = p.x0 + col as i64;
+                if x < 0 || x >= w as i64 {
+                    continue;
+                }
+                let (x, y) = (x as usize, y as usize);
+                let m = alpha(y * w + x);
+                // Background (and unusable pixels) stay zero in every input, as in training.
+                if m.is_nan() || m <= 0.0 {
+                    continue;
+                }
+                let i = row * pw + col;
+                features_at(x, y, &mut px);
+                for (k, v) in px.iter().enumerate() {
+                    feat[k * plane + i] = if v.is_finite() { *v } else { 0.0 };
+                }
+                let zz = zmap(y * w + x);
+                z[i] = if zz.is_finite() { zz } else { 0.0 };
+                let n = normal(y * w + x);
+                if n.is_finite() {
+                    nrm[i] = n.x;
+                    nrm[plane + i] = n.y;
+                    nrm[2 * plane + i] = n.z;
+                }
+            }
+        }
+        let inputs: [(&str, [usize; 4], &[f32]); 3] =
+            [("features", [1, c, ph, pw], &feat), ("zmap", [1, 1, ph, pw], &z), ("normals", [1, 3, ph, pw], &nrm)];
+        let (shape, rgb) = self.net.run(&inputs, "rgb")?;
+        self.net.expect_output_shape(&shape, [1, 3, ph, pw])?;
+        for row in 0..ph {
+            let y = p.y0 + row as i64;
+            if y < 0 || y >= h as i64 {
+                continue;
+            }
+            for col in 0..pw {
+                let x = p.x0 + col as i64;
+                if x < 0 || x >= w as i64 {
+                    continue;
+                }
+                let (x, y) = (x as usize, y as usize);
+                let a = alpha(y * w + x);
+                if a.is_nan() || a <= 0.0 {
+                    continue;
+                }
+                let a = a.min(1.0);
+                let i = row * pw + col;
+                let lin = |v: f32| srgb_to_linear((v + 1.0) * 0.5) * a;
+                out.set(x, y, Vec4::new(lin(rgb[i]), lin(rgb[plane + i]), lin(rgb[2 * plane + i]), a));
+            }
+        }
+        Ok(out)
+    }
+}

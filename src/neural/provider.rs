@@ -1,0 +1,203 @@
+//! The ONNX Runtime environment (one per process) and sessions on the chosen execution provider, with fallback.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use ort::environment::Environment;
+use ort::ep;
+use ort::session::builder::GraphOptimizationLevel;
+use ort::session::Session;
+
+use super::library::{find_library, project_roots};
+use super::NeuralError;
+
+/// Which execution provider to run the models on (`--ep`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExecutionProvider {
+    /// TensorRT, else CUDA, else CPU: the first one that registers and loads the model.
+    #[default]
+    Auto,
+    /// NVIDIA TensorRT (with CUDA for the nodes TensorRT does not take), else CPU.
+    #[value(name = "tensorrt")]
+    TensorRt,
+    /// NVIDIA CUDA, else CPU.
+    Cuda,
+    /// The CPU provider only.
+    Cpu,
+}
+
+impl ExecutionProvider {
+    /// The providers tried, in order; the CPU provider always ends the list.
+    pub fn chain(self) -> &'static [ActiveProvider] {
+        match self {
+            Self::Auto => &[ActiveProvider::TensorRt, ActiveProvider::Cuda, ActiveProvider::Cpu],
+            Self::TensorRt => &[ActiveProvider::TensorRt, ActiveProvider::Cpu],
+            Self::Cuda => &[ActiveProvider::Cuda, ActiveProvider::Cpu],
+            Self::Cpu => &[ActiveProvider::Cpu],
+        }
+    }
+}
+
+/// The execution provider a session ended up on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ActiveProvider {
+    /// TensorRT (nodes it does not take run on CUDA or the CPU).
+    TensorRt,
+    /// CUDA (nodes it does not take run on the CPU).
+    Cuda,
+    /// CPU.
+    Cpu,
+}
+
+impl std::fmt::Display for ActiveProvider {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::TensorRt => "TensorRT",
+            Self::Cuda => "CUDA",
+            Self::Cpu => "CPU",
+        })
+    }
+}
+
+/// How to create sessions.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RuntimeOptions {
+    /// Requested execution provider.
+    pub ep: ExecutionProvider,
+    /// TensorRT: build fp16 engines.
+    pub trt_fp16: bool,
+    /// TensorRT: folder for the engine and timing caches (built engines are reused across runs); `None` disables
+    /// the cache.
+    pub trt_engine_cache: Option<PathBuf>,
+    /// Intra-op threads for the CPU provider; `None` lets ONNX Runtime use one per physical core.
+    pub intra_threads: Option<usize>,
+    /// The ONNX Runtime library; `None` searches `ORT_DYLIB_PATH`, then the project's `.tools/onnxruntime`.
+    pub library: Option<PathBuf>,
+}
+
+static ENVIRONMENT: Mutex<Option<(Environment, PathBuf)>> = Mutex::new(None);
+
+/// The process-wide ONNX Runtime environment, loading the library on first use (from `options.library`, else
+/// `ORT_DYLIB_PATH`, else the project's `.tools/onnxruntime`). ONNX Runtime allows one library and one environment
+/// per process: later calls return the first one (other ONNX users in the crate should call this too).
+pub fn environment(options: &RuntimeOptions) -> Result<Environment, NeuralError> {
+    let mut guard = ENVIRONMENT.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    if let Some((env, loaded)) = guard.as_ref() {
+        if let Some(wanted) = &options.library {
+            if wanted != loaded {
+                tracing::warn!(
+                    "ONNX Runtime is already loaded from `{}`; ignoring the request for `{}` (one library per process)",
+                    loaded.display(),
+                    wanted.display()
+                );
+            }
+        }
+        return Ok(env.clone());
+    }
+    let path = match &options.library {
+        Some(p) => p.clone(),
+        None => find_library(std::env::var_os("ORT_DYLIB_PATH").as_deref(), &project_roots())?,
+    };
+    let path = std::fs::canonicalize(&path)
+        .map_err(|e| NeuralError::LibraryLoad { path: path.clone(), reason: e.to_string() })?;
+    let builder =
+        ort::init_from(&path).map_err(|e| NeuralError::LibraryLoad { path: path.clone(), reason: e.to_string() })?;
+    let env = builder
+        .with_name("r2human")
+        .build()
+        .map_err(|e| NeuralError::LibraryLoad { path: path.clone(), reason: e.to_string() })?;
+    tracing::info!("ONNX Runtime loaded from `{}`", path.display());
+    *guard = Some((env.clone(), path));
+    Ok(env)
+}
+
+enum Attempt {
+    /// The provider could not be registered (not in this build, no driver, …).
+    Provider(String),
+    /// The session could not be created with the provider registered.
+    Session(String),
+}
+
+fn try_session(
+    env: &Environment,
+    path: &Path,
+    provider: ActiveProvider,
+    options: &RuntimeOptions,
+) -> Result<Session, Attempt> {
+    let mut builder = Session::builder(env).map_err(|e| Attempt::Session(e.to_string()))?;
+    builder =
+        builder.with_optimization_level(GraphOptimizationLevel::All).map_err(|e| Attempt::Session(e.to_string()))?;
+    if let Some(n) = options.intra_threads {
+        builder = builder.with_intra_threads(n.max(1)).map_err(|e| Attempt::Session(e.to_string()))?;
+    }
+    match provider {
+        ActiveProvider::Cpu => {}
+        ActiveProvider::Cuda => {
+            builder = builder
+                .with_execution_providers([ep::CUDA::default().build().error_on_failure()])
+                .map_err(|e| Attempt::Provider(e.to_string()))?;
+        }
+        ActiveProvider::TensorRt => {
+            let mut trt = ep::TensorRT::default().with_fp16(options.trt_fp16);
+            if let Some(dir) = &options.trt_engine_cache {
+                if let Err(e) = std::fs::create_dir_all(dir) {
+                    tracing::warn!("cannot create the TensorRT engine cache `{}`: {e}", dir.display());
+                }
+                let dir = dir.display().to_string();
+                trt = trt
+                    .with_engine_cache(true)
+                    .with_engine_cache_path(&dir)
+                    .with_timing_cache(true)
+                    .with_timing_cache_path(&dir);
+            }
+            builder = builder
+                .with_execution_providers([
+                    trt.build().error_on_failure(),
+                    // Nodes TensorRT does not take go to CUDA when it registers, else to the CPU.
+                    ep::CUDA::default().build().fail_silently(),
+                ])
+                .map_err(|e| Attempt::Provider(e.to_string()))?;
+        }
+    }
+    builder.commit_from_file(path).map_err(|e| Attempt::Session(e.to_string()))
+}
+
+/// Creates a session for the model at `path` on the first provider of `options.ep`'s chain that works, logging
+/// which one runs and why the others were skipped.
+pub(crate) fn create_session(
+    path: &Path,
+    what: &str,
+    options: &RuntimeOptions,
+) -> Result<(Session, ActiveProvider), NeuralError> {
+    if !path.is_file() {
+        return Err(NeuralError::ModelMissing { path: path.to_path_buf() });
+    }
+    let env = environment(options)?;
+    let chain = options.ep.chain();
+    for (i, &provider) in chain.iter().enumerate() {
+        let next = chain.get(i + 1).map_or_else(|| "nothing".to_string(), |p| p.to_string());
+        match try_session(&env, path, provider, options) {
+            Ok(session) => {
+                tracing::info!("{what} `{}` runs on {provider}", path.display());
+                return Ok((session, provider));
+            }
+            Err(Attempt::Provider(reason)) => {
+                tracing::warn!(
+                    "{provider} execution provider could not be registered for {what} ({reason}); falling back to \
+                     {next}. For GPU inference install onnxruntime-gpu 1.31.1 and set ORT_DYLIB_PATH to its library"
+                );
+            }
+            Err(Attempt::Session(reason)) if provider != ActiveProvider::Cpu => {
+                tracing::warn!(
+                    "{what} `{}` could not be loaded on {provider} ({reason}); falling back to {next}",
+                    path.display()
+                );
+            }
+            Err(Attempt::Session(reason)) => {
+                return Err(NeuralError::ModelLoad { path: path.to_path_buf(), reason });
+            }
+        }
+    }
+    // The chain always ends with the CPU provider, which either returns a session or an error above.
+    Err(NeuralError::ModelLoad { path: path.to_path_buf(), reason: "no execution provider could load it".into() })
+}

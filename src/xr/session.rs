@@ -1,0 +1,1037 @@
+//! The OpenXR session: instance and system, the Vulkan device the runtime asks for, one swapchain per eye, the
+//! session state machine, controller actions and the frame loop (wait, begin, locate views, upload, end).
+//!
+//! The person is rendered on a separate thread ([`super::pacing`]); the frame loop submits the newest finished
+//! image every frame and never waits for one. Every way a session can end — the frame budget, the runtime asking
+//! to exit, session loss, instance loss, the runtime process going away — ends the loop cleanly with an
+//! [`EndReason`]; only setup failures are errors.
+
+use std::fmt;
+use std::time::{Duration, Instant};
+
+use glam::{Quat, Vec2, Vec3};
+use openxr as xr;
+use xr::sys::Handle as _;
+
+use super::check::{blend_mode_name, extension_names};
+use super::diag::{DiagnosticLog, XrMessenger};
+use super::gfx::{format_name, EyeSwapchain, SwapchainFormat, VulkanContext};
+use super::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
+use super::pacing::{median_ms, EyeImageRenderer, EyeView, PacingStats, RenderMailbox, RenderRequest};
+use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
+use super::{load_entry, XrContext, XrError};
+use crate::buffer::RgbaImage;
+use crate::geometry::camera::{Camera, Fov};
+
+const VIEW_TYPE: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_STEREO;
+
+/// VR (the person in a panorama, opaque) or AR (the person as an alpha layer over the room).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum XrMode {
+    /// Opaque: the eye images are complete (panorama behind the person).
+    Vr,
+    /// See-through: the eye images are the person as a premultiplied alpha layer.
+    Ar,
+}
+
+/// How the session is run.
+#[derive(Clone, Debug)]
+pub struct SessionConfig {
+    /// VR or AR.
+    pub mode: XrMode,
+    /// Request exit after this many frames showing the person (`None`: run until the runtime ends the session).
+    pub max_person_frames: Option<u64>,
+    /// Request exit after this much time in the session loop (a safety net for unattended runs).
+    pub max_duration: Option<Duration>,
+    /// Largest eye image side in pixels; the runtime's recommended size is scaled down to fit (the CPU renderer
+    /// cannot fill full headset resolution at display rate).
+    pub eye_max_side: u32,
+    /// Read every fresh eye image back from the swapchain and keep the last pair (tests).
+    pub capture: bool,
+    /// Show the eye images side by side in a desktop window while the session runs (skipped with a warning when
+    /// there is no display).
+    pub mirror: bool,
+}
+
+impl Default for SessionConfig {
+    fn default() -> Self {
+        Self {
+            mode: XrMode::Vr,
+            max_person_frames: None,
+            max_duration: None,
+            eye_max_side: 512,
+            capture: false,
+            mirror: false,
+        }
+    }
+}
+
+/// The environment blend mode chosen for a mode, and how AR is achieved.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BlendChoice {
+    /// The blend mode submitted with every frame.
+    pub blend: xr::EnvironmentBlendMode,
+    /// Submit an XR_FB_passthrough layer under the person.
+    pub passthrough_fb: bool,
+    /// A notice for the user when the requested mode cannot be honoured fully.
+    pub notice: Option<String>,
+}
+
+/// Picks the blend mode: VR wants OPAQUE; AR wants ALPHA_BLEND, then ADDITIVE, then XR_FB_passthrough over
+/// OPAQUE, and finally plain OPAQUE with a notice (the person over black). `offered` is in the runtime's order of
+/// preference; an empty list is treated as OPAQUE (every runtime must support some mode).
+pub fn choose_blend(mode: XrMode, offered: &[xr::EnvironmentBlendMode], fb_passthrough: bool) -> BlendChoice {
+    use xr::EnvironmentBlendMode as B;
+    let has = |m: B| offered.contains(&m);
+    let first = offered.first().copied().unwrap_or(B::OPAQUE);
+    match mode {
+        XrMode::Vr if has(B::OPAQUE) || offered.is_empty() => {
+            BlendChoice { blend: B::OPAQUE, passthrough_fb: false, notice: None }
+        }
+        XrMode::Vr => BlendChoice {
+            blend: first,
+            passthrough_fb: false,
+            notice: Some(format!(
+                "the runtime offers no OPAQUE blend mode: VR is shown with {}",
+                blend_mode_name(first)
+            )),
+        },
+        XrMode::Ar if has(B::ALPHA_BLEND) => BlendChoice { blend: B::ALPHA_BLEND, passthrough_fb: false, notice: None },
+        XrMode::Ar if has(B::ADDITIVE) => BlendChoice { blend: B::ADDITIVE, passthrough_fb: false, notice: None },
+        XrMode::Ar if fb_passthrough => BlendChoice {
+            blend: if has(B::OPAQUE) || offered.is_empty() { B::OPAQUE } else { first },
+            passthrough_fb: true,
+            notice: None,
+        },
+        XrMode::Ar => BlendChoice {
+            blend: if has(B::OPAQUE) || offered.is_empty() { B::OPAQUE } else { first },
+            passthrough_fb: false,
+            notice: Some(
+                "AR: the runtime offers neither a see-through blend mode (ALPHA_BLEND, ADDITIVE) nor \
+                 XR_FB_passthrough, so the person is shown over black (OPAQUE)"
+                    .into(),
+            ),
+        },
+    }
+}
+
+/// What the application must do after a session state change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StateCommand {
+    /// Nothing.
+    None,
+    /// Call `xrBeginSession` (READY).
+    Begin,
+    /// Call `xrEndSession` (STOPPING).
+    End,
+    /// Leave the loop and destroy the session (EXITING or LOSS_PENDING).
+    Exit,
+}
+
+/// The session lifecycle: IDLE -> READY -> SYNCHRONIZED -> VISIBLE -> FOCUSED and back down through STOPPING to
+/// IDLE, then EXITING (or LOSS_PENDING from any state).
+#[derive(Clone, Debug, Default)]
+pub struct SessionStateMachine {
+    /// Current state (UNKNOWN before the first event).
+    pub state: xr::SessionState,
+    /// Between `xrBeginSession` and `xrEndSession`: the frame loop runs.
+    pub running: bool,
+    /// Every state entered, in order.
+    pub history: Vec<xr::SessionState>,
+}
+
+impl SessionStateMachine {
+    /// Records a state change and says what to do.
+    pub fn on_state(&mut self, state: xr::SessionState) -> StateCommand {
+        self.state = state;
+        self.history.push(state);
+        match state {
+            xr::SessionState::READY => {
+                self.running = true;
+                StateCommand::Begin
+            }
+            xr::SessionState::STOPPING => {
+                self.running = false;
+                StateCommand::End
+            }
+            xr::SessionState::EXITING | xr::SessionState::LOSS_PENDING => StateCommand::Exit,
+            _ => StateCommand::None,
+        }
+    }
+
+    /// Controller input is read only while focused; it pauses (reads as zero) otherwise.
+    pub fn input_enabled(&self) -> bool {
+        self.state == xr::SessionState::FOCUSED
+    }
+
+    /// The person is worth rendering only while the session is visible.
+    pub fn visible(&self) -> bool {
+        matches!(self.state, xr::SessionState::VISIBLE | xr::SessionState::FOCUSED)
+    }
+
+    /// Was this state ever entered?
+    pub fn reached(&self, state: xr::SessionState) -> bool {
+        self.history.contains(&state)
+    }
+}
+
+/// Why the session ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum EndReason {
+    /// The frame budget was reached; the runtime confirmed the exit.
+    FrameLimit,
+    /// The time budget was reached; the runtime confirmed the exit.
+    TimeLimit,
+    /// The runtime asked the application to exit (EXITING without a request).
+    RuntimeExit,
+    /// The session was lost (LOSS_PENDING), e.g. the headset was unplugged.
+    SessionLoss,
+    /// The runtime announced instance loss (XrEventDataInstanceLossPending).
+    InstanceLoss,
+    /// An OpenXR or Vulkan call failed mid-session (the runtime went away).
+    RuntimeGone(String),
+    /// The person renderer failed.
+    RenderFailed(String),
+}
+
+impl fmt::Display for EndReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            EndReason::FrameLimit => write!(f, "frame budget reached"),
+            EndReason::TimeLimit => write!(f, "time budget reached"),
+            EndReason::RuntimeExit => write!(f, "the runtime ended the session"),
+            EndReason::SessionLoss => write!(f, "the session was lost (headset gone?)"),
+            EndReason::InstanceLoss => write!(f, "the OpenXR runtime announced instance loss"),
+            EndReason::RuntimeGone(e) => write!(f, "the OpenXR runtime went away ({e})"),
+            EndReason::RenderFailed(e) => write!(f, "rendering failed: {e}"),
+        }
+    }
+}
+
+/// One eye image read back from the swapchain, with the cameras it was rendered for.
+#[derive(Clone, Debug)]
+pub struct EyeCapture {
+    /// Eye index.
+    pub eye: usize,
+    /// Decoded image (linear premultiplied RGBA).
+    pub image: RgbaImage,
+    /// The eye camera in body-cube coordinates.
+    pub body_camera: Camera,
+    /// The eye pose in the reference space.
+    pub view: EyeView,
+    /// The placement the image was rendered with.
+    pub placement: Placement,
+}
+
+/// What happened in a session.
+#[derive(Clone, Debug)]
+pub struct SessionReport {
+    /// Runtime name and version.
+    pub runtime: String,
+    /// System (headset) name.
+    pub system: String,
+    /// Vulkan device name.
+    pub vulkan_device: String,
+    /// Blend mode used and how AR was done.
+    pub blend: BlendChoice,
+    /// "STAGE" or "LOCAL".
+    pub reference_space: String,
+    /// Swapchain format name.
+    pub swapchain_format: String,
+    /// Eye image size.
+    pub eye_size: (u32, u32),
+    /// Every session state entered, in order.
+    pub states: Vec<xr::SessionState>,
+    /// Time from session creation to FOCUSED.
+    pub time_to_focused: Option<Duration>,
+    /// Frames submitted (`xrEndFrame` calls).
+    pub frames_submitted: u64,
+    /// Pacing of the person layer.
+    pub pacing: PacingStats,
+    /// Median per-eye render time (ms).
+    pub eye_render_ms: Option<f64>,
+    /// Number of eye renders.
+    pub eye_renders: usize,
+    /// Submitted frames per second while running.
+    pub display_fps: f64,
+    /// How the session ended.
+    pub end: EndReason,
+    /// OpenXR validation warnings/errors (XR_EXT_debug_utils; the core validation layer reports here).
+    pub xr_messages: Vec<String>,
+    /// Their count.
+    pub xr_message_count: usize,
+    /// Vulkan validation warnings/errors (VK_EXT_debug_utils).
+    pub vk_messages: Vec<String>,
+    /// Their count.
+    pub vk_message_count: usize,
+    /// The last fresh eye images read back from the swapchain (with `capture`).
+    pub captures: Vec<EyeCapture>,
+    /// The final placement of the person.
+    pub placement: Option<Placement>,
+    /// Images shown in the desktop mirror window (0 without a mirror).
+    pub mirror_presented: u64,
+}
+
+impl SessionReport {
+    /// Did the session reach a state?
+    pub fn reached(&self, state: xr::SessionState) -> bool {
+        self.states.contains(&state)
+    }
+}
+
+impl fmt::Display for SessionReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "runtime: {}; system: {}; Vulkan device: {}", self.runtime, self.system, self.vulkan_device)?;
+        writeln!(
+            f,
+            "blend mode: {}{}; reference space: {}; eye images {}x{} {}",
+            blend_mode_name(self.blend.blend),
+            if self.blend.passthrough_fb { " + XR_FB_passthrough" } else { "" },
+            self.reference_space,
+            self.eye_size.0,
+            self.eye_size.1,
+            self.swapchain_format
+        )?;
+        if let Some(n) = &self.blend.notice {
+            writeln!(f, "notice: {n}")?;
+        }
+        let states: Vec<String> = self.states.iter().map(|s| format!("{s:?}")).collect();
+        writeln!(f, "session states: {}", states.join(" -> "))?;
+        writeln!(
+            f,
+            "frames submitted: {} ({:.1} per second), with the person: {}, fresh renders: {:.0}%",
+            self.frames_submitted,
+            self.display_fps,
+            self.pacing.person_frames,
+            100.0 * self.pacing.fresh_share()
+        )?;
+        match self.pacing.median_latency_ms() {
+            Some(ms) => writeln!(f, "motion-to-photon latency of the person layer (median): {ms:.1} ms")?,
+            None => writeln!(f, "motion-to-photon latency: not measured (runtime lacks XR_KHR_convert_timespec_time)")?,
+        }
+        if let Some(ms) = self.eye_render_ms {
+            writeln!(f, "per-eye render time (median of {}): {ms:.1} ms", self.eye_renders)?;
+        }
+        if self.mirror_presented > 0 {
+            writeln!(f, "desktop mirror: {} images shown", self.mirror_presented)?;
+        }
+        writeln!(f, "validation messages: OpenXR {}, Vulkan {}", self.xr_message_count, self.vk_message_count)?;
+        write!(f, "session ended: {}", self.end)
+    }
+}
+
+/// Controller actions: move, turn/scale, recentre.
+struct Controllers {
+    set: xr::ActionSet,
+    move_xz: xr::Action<xr::Vector2f>,
+    turn_scale: xr::Action<xr::Vector2f>,
+    recentre: xr::Action<bool>,
+}
+
+impl Controllers {
+    fn new(instance: &xr::Instance) -> Result<Self, XrError> {
+        let set = instance.create_action_set("r2human", "r2human person placement", 0).xr("xrCreateActionSet")?;
+        let move_xz = set.create_action::<xr::Vector2f>("move", "Move the person", &[]).xr("xrCreateAction")?;
+        let turn_scale =
+            set.create_action::<xr::Vector2f>("turn_scale", "Turn and scale the person", &[]).xr("xrCreateAction")?;
+        let recentre = set.create_action::<bool>("recentre", "Recentre the person", &[]).xr("xrCreateAction")?;
+        let c = Self { set, move_xz, turn_scale, recentre };
+        // Bindings for common controllers; a profile the runtime does not know is skipped with a log line.
+        let profiles: [(&str, &[(&str, u8)]); 3] = [
+            ("/interaction_profiles/khr/simple_controller", &[("/user/hand/right/input/select/click", 2)]),
+            (
+                "/interaction_profiles/oculus/touch_controller",
+                &[
+                    ("/user/hand/left/input/thumbstick", 0),
+                    ("/user/hand/right/input/thumbstick", 1),
+                    ("/user/hand/right/input/a/click", 2),
+                ],
+            ),
+            (
+                "/interaction_profiles/valve/index_controller",
+                &[
+                    ("/user/hand/left/input/thumbstick", 0),
+                    ("/user/hand/right/input/thumbstick", 1),
+                    ("/user/hand/right/input/a/click", 2),
+                ],
+            ),
+        ];
+        for (profile, bindings) in profiles {
+            let result = (|| -> Result<(), xr::sys::Result> {
+                let mut list = Vec::new();
+                for &(path, which) in bindings {
+                    let p = instance.string_to_path(path)?;
+                    list.push(match which {
+                        0 => xr::Binding::new(&c.move_xz, p),
+                        1 => xr::Binding::new(&c.turn_scale, p),
+                        _ => xr::Binding::new(&c.recentre, p),
+                    });
+                }
+                instance.suggest_interaction_profile_bindings(instance.string_to_path(profile)?, &list)
+            })();
+            if let Err(e) = result {
+                tracing::info!("controller profile {profile} not used: {e}");
+            }
+        }
+        Ok(c)
+    }
+
+    /// Reads the controls (call only while focused, after `xrSyncActions`).
+    fn read(&self, session: &xr::Session<xr::Vulkan>) -> Controls {
+        let v2 = |a: &xr::Action<xr::Vector2f>| {
+            a.state(session, xr::Path::NULL)
+                .ok()
+                .filter(|s| s.is_active)
+                .map(|s| Vec2::new(s.current_state.x, s.current_state.y))
+                .unwrap_or(Vec2::ZERO)
+        };
+        let ts = v2(&self.turn_scale);
+        let recentre = self
+            .recentre
+            .state(session, xr::Path::NULL)
+            .ok()
+            .is_some_and(|s| s.is_active && s.current_state && s.changed_since_last_sync);
+        Controls { move_xz: v2(&self.move_xz), turn: -ts.x, scale: ts.y, recentre }
+    }
+}
+
+fn to_view(v: &xr::View) -> EyeView {
+    let p = v.pose.position;
+    let o = v.pose.orientation;
+    EyeView {
+        position: Vec3::new(p.x, p.y, p.z),
+        orientation: Quat::from_xyzw(o.x, o.y, o.z, o.w).normalize(),
+        fov: Fov {
+            angle_left: v.fov.angle_left,
+            angle_right: v.fov.angle_right,
+            angle_up: v.fov.angle_up,
+            angle_down: v.fov.angle_down,
+        },
+    }
+}
+
+fn to_posef(v: &EyeView) -> xr::Posef {
+    xr::Posef {
+        orientation: xr::Quaternionf { x: v.orientation.x, y: v.orientation.y, z: v.orientation.z, w: v.orientation.w },
+        position: xr::Vector3f { x: v.position.x, y: v.position.y, z: v.position.z },
+    }
+}
+
+fn to_fovf(f: &Fov) -> xr::Fovf {
+    xr::Fovf { angle_left: f.angle_left, angle_right: f.angle_right, angle_up: f.angle_up, angle_down: f.angle_down }
+}
+
+/// Scales a recommended eye size down so its larger side is at most `max_side` (never up, never below 16).
+pub fn eye_size(recommended: (u32, u32), max_side: u32) -> (u32, u32) {
+    let (w, h) = (recommended.0.max(1), recommended.1.max(1));
+    let max_side = max_side.max(16);
+    let s = (max_side as f64 / w.max(h) as f64).min(1.0);
+    (((w as f64 * s).round() as u32).max(16).min(w.max(16)), ((h as f64 * s).round() as u32).max(16).min(h.max(16)))
+}
+
+/// The head pose from the eye views: mean eye position, first eye's orientation.
+fn head_pose(views: &[EyeView]) -> (Vec3, Quat) {
+    let n = views.len().max(1) as f32;
+    let pos = views.iter().fold(Vec3::ZERO, |a, v| a + v.position) / n;
+    (pos, views.first().map(|v| v.orientation).unwrap_or(Quat::IDENTITY))
+}
+
+/// Runs one OpenXR session with `renderer` producing the eye images, until the frame/time budget, the runtime
+/// ending the session, or the runtime going away. Errors only for setup failures (no runtime, no headset, no
+/// Vulkan); everything after the session starts ends with an [`EndReason`] in the report.
+pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) -> Result<SessionReport, XrError> {
+    let entry = load_entry()?;
+    let available = entry.enumerate_extensions().xr("xrEnumerateInstanceExtensionProperties")?;
+    if !available.khr_vulkan_enable2 {
+        return Err(XrError::MissingExtension("XR_KHR_vulkan_enable2"));
+    }
+    let mut exts = xr::ExtensionSet::default();
+    exts.khr_vulkan_enable2 = true;
+    exts.khr_convert_timespec_time = available.khr_convert_timespec_time;
+    exts.ext_debug_utils = available.ext_debug_utils;
+    exts.fb_passthrough = config.mode == XrMode::Ar && available.fb_passthrough;
+    tracing::debug!("enabling OpenXR extensions: {:?}", extension_names(&exts));
+    let instance = entry
+        .create_instance(
+            &xr::ApplicationInfo {
+                application_name: "r2human",
+                application_version: 1,
+                engine_name: "r2human",
+                engine_version: 1,
+                api_version: xr::Version::new(1, 0, 0),
+            },
+            &exts,
+            &[],
+            &(),
+        )
+        .xr("xrCreateInstance")?;
+    let xr_log = DiagnosticLog::new();
+    let _messenger = XrMessenger::new(&instance, xr_log.clone());
+    let props = instance.properties().xr("xrGetInstanceProperties")?;
+    let runtime = format!("{} {}", props.runtime_name, props.runtime_version);
+    let system = instance.system(xr::FormFactor::HEAD_MOUNTED_DISPLAY).xr("xrGetSystem")?;
+    let system_name = instance.system_properties(system).xr("xrGetSystemProperties")?.system_name;
+    let modes = instance.enumerate_environment_blend_modes(system, VIEW_TYPE).xr("xrEnumerateEnvironmentBlendModes")?;
+    let blend = choose_blend(config.mode, &modes, instance.exts().fb_passthrough.is_some());
+    if let Some(n) = &blend.notice {
+        tracing::warn!("{n}");
+    }
+    let config_views =
+        instance.enumerate_view_configuration_views(system, VIEW_TYPE).xr("xrEnumerateViewConfigurationViews")?;
+    if config_views.is_empty() {
+        return Err(XrError::Unsupported("the headset reports no stereo views".into()));
+    }
+    let dims: Vec<(u32, u32)> = config_views
+        .iter()
+        .map(|v| eye_size((v.recommended_image_rect_width, v.recommended_image_rect_height), config.eye_max_side))
+        .collect();
+    let mut mirror_loop = None;
+    let mut mirror_instance_exts = Vec::new();
+    let mut mirror_device_exts = Vec::new();
+    if config.mirror {
+        let opened = MirrorEventLoop::new(dims[0].0 * dims.len() as u32, dims[0].1)
+            .and_then(|l| l.required_instance_extensions().map(|e| (l, e)));
+        match opened {
+            Ok((l, exts)) => {
+                mirror_loop = Some(l);
+                mirror_instance_exts = exts;
+                mirror_device_exts = DEVICE_EXTENSIONS.to_vec();
+            }
+            Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
+        }
+    }
+    let vk = VulkanContext::with_extensions(&instance, system, &mirror_instance_exts, &mirror_device_exts)?;
+    tracing::info!("OpenXR runtime {runtime}, system {system_name}, Vulkan device {}", vk.device_name);
+
+    // SAFETY: the Vulkan handles come from this runtime through XR_KHR_vulkan_enable2 and outlive the session
+    // (the session and everything holding it are locals declared after `vk`, so they are dropped first).
+    let (session, mut frame_wait, mut frame_stream) = unsafe {
+        use ash::vk::Handle;
+        instance.create_session::<xr::Vulkan>(
+            system,
+            &xr::vulkan::SessionCreateInfo {
+                instance: vk.instance.handle().as_raw() as _,
+                physical_device: vk.physical_device.as_raw() as _,
+                device: vk.device.handle().as_raw() as _,
+                queue_family_index: vk.queue_family_index,
+                queue_index: 0,
+            },
+        )
+    }
+    .xr("xrCreateSession")?;
+    let session_created = Instant::now();
+    let spaces = session.enumerate_reference_spaces().xr("xrEnumerateReferenceSpaces")?;
+    let (space_type, space_name) = if spaces.contains(&xr::ReferenceSpaceType::STAGE) {
+        (xr::ReferenceSpaceType::STAGE, "STAGE")
+    } else {
+        (xr::ReferenceSpaceType::LOCAL, "LOCAL")
+    };
+    let space = session.create_reference_space(space_type, xr::Posef::IDENTITY).xr("xrCreateReferenceSpace")?;
+    let controllers = Controllers::new(&instance)?;
+    session.attach_action_sets(&[&controllers.set]).xr("xrAttachSessionActionSets")?;
+
+    let formats = session.enumerate_swapchain_formats().xr("xrEnumerateSwapchainFormats")?;
+    let format = SwapchainFormat::choose(&formats).ok_or_else(|| {
+        let names: Vec<String> = formats.iter().map(|&f| format_name(f)).collect();
+        XrError::Unsupported(format!("no 8-bit RGBA swapchain format among {}", names.join(", ")))
+    })?;
+    let mut eyes = EyeSet { ctx: &vk, list: Vec::new() };
+    for &(w, h) in &dims {
+        eyes.list.push(EyeSwapchain::new(&vk, &session, format, w, h, config.capture)?);
+    }
+    let eye_dims = (eyes.list[0].width, eyes.list[0].height);
+    let passthrough = if blend.passthrough_fb {
+        let p =
+            session.create_passthrough(xr::PassthroughFlagsFB::IS_RUNNING_AT_CREATION).xr("xrCreatePassthroughFB")?;
+        let layer = session
+            .create_passthrough_layer(
+                &p,
+                xr::PassthroughFlagsFB::IS_RUNNING_AT_CREATION,
+                xr::PassthroughLayerPurposeFB::RECONSTRUCTION,
+            )
+            .xr("xrCreatePassthroughLayerFB")?;
+        Some((p, layer))
+    } else {
+        None
+    };
+
+    let mailbox = RenderMailbox::new();
+    let mut loop_state = LoopState {
+        sm: SessionStateMachine::default(),
+        pacing: PacingStats::default(),
+        frames_submitted: 0,
+        first_frame: None,
+        last_frame: None,
+        time_to_focused: None,
+        placement: None,
+        captures: Vec::new(),
+        mirror_loop,
+        mirror: None,
+        mirror_presented: 0,
+    };
+    let end = std::thread::scope(|scope| {
+        let m = mailbox.clone();
+        // The renderer's parallel work runs in its own pool with one core fewer than the machine has, so the
+        // display loop always finds a core free (it must make every frame deadline; the render thread need not).
+        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(cores.saturating_sub(1).max(1))
+            .thread_name(|i| format!("r2human-xr-render-{i}"))
+            .build();
+        let pool = match pool {
+            Ok(p) => p,
+            Err(e) => return EndReason::RenderFailed(format!("cannot start the render thread pool: {e}")),
+        };
+        let render_thread = std::thread::Builder::new()
+            .name("r2human-xr-render".into())
+            .spawn_scoped(scope, move || pool.install(|| m.run_render_loop(renderer, format)));
+        if let Err(e) = render_thread {
+            return EndReason::RenderFailed(format!("cannot start the render thread: {e}"));
+        }
+        let ctx = FrameContext {
+            config,
+            instance: &instance,
+            session: &session,
+            space: &space,
+            stage_has_floor: space_type == xr::ReferenceSpaceType::STAGE,
+            controllers: &controllers,
+            vk: &vk,
+            blend: &blend,
+            passthrough_layer: passthrough.as_ref().map(|(_, l)| l),
+            mailbox: &mailbox,
+            session_created,
+        };
+        let end = frame_loop(&ctx, &mut frame_wait, &mut frame_stream, &mut eyes.list, &mut loop_state);
+        mailbox.shutdown();
+        end
+    });
+    if loop_state.sm.running {
+        // The loop left while the session was still running (runtime gone or render failure): best effort.
+        let _ = session.end();
+    }
+    if let Some(m) = loop_state.mirror.take() {
+        loop_state.mirror_presented = m.presented;
+        m.destroy(&vk);
+    }
+    // SAFETY: waiting for the device to finish all uploads before the swapchains go away.
+    unsafe {
+        let _ = vk.device.device_wait_idle();
+    }
+    drop(eyes);
+    drop(passthrough);
+    drop((controllers, space, frame_wait, frame_stream, session));
+    let eye_times = mailbox.eye_times();
+    let display_fps = match (loop_state.first_frame, loop_state.last_frame) {
+        (Some(a), Some(b)) if b > a && loop_state.frames_submitted > 1 => {
+            (loop_state.frames_submitted - 1) as f64 / (b - a).as_secs_f64()
+        }
+        _ => 0.0,
+    };
+    let report = SessionReport {
+        runtime,
+        system: system_name,
+        vulkan_device: vk.device_name.clone(),
+        blend,
+        reference_space: space_name.into(),
+        swapchain_format: format_name(format.vk.as_raw() as u32),
+        eye_size: eye_dims,
+        states: loop_state.sm.history.clone(),
+        time_to_focused: loop_state.time_to_focused,
+        frames_submitted: loop_state.frames_submitted,
+        pacing: loop_state.pacing,
+        eye_render_ms: median_ms(&eye_times),
+        eye_renders: eye_times.len(),
+        display_fps,
+        end,
+        xr_messages: xr_log.messages(),
+        xr_message_count: xr_log.count(),
+        vk_messages: vk.validation.messages(),
+        vk_message_count: vk.validation.count(),
+        captures: loop_state.captures,
+        placement: loop_state.placement,
+        mirror_presented: loop_state.mirror_presented,
+    };
+    drop(vk);
+    Ok(report)
+}
+
+/// The eye swapchains, destroyed (GPU objects first) before the Vulkan device.
+struct EyeSet<'a> {
+    ctx: &'a VulkanContext,
+    list: Vec<EyeSwapchain>,
+}
+
+impl Drop for EyeSet<'_> {
+    fn drop(&mut self) {
+        for eye in self.list.drain(..) {
+            eye.destroy(self.ctx);
+        }
+    }
+}
+
+struct FrameContext<'a> {
+    config: &'a SessionConfig,
+    instance: &'a xr::Instance,
+    session: &'a xr::Session<xr::Vulkan>,
+    space: &'a xr::Space,
+    stage_has_floor: bool,
+    controllers: &'a Controllers,
+    vk: &'a VulkanContext,
+    blend: &'a BlendChoice,
+    passthrough_layer: Option<&'a xr::PassthroughLayerFB>,
+    mailbox: &'a RenderMailbox,
+    session_created: Instant,
+}
+
+struct LoopState {
+    sm: SessionStateMachine,
+    pacing: PacingStats,
+    frames_submitted: u64,
+    first_frame: Option<Instant>,
+    last_frame: Option<Instant>,
+    time_to_focused: Option<Duration>,
+    placement: Option<Placement>,
+    captures: Vec<EyeCapture>,
+    mirror_loop: Option<MirrorEventLoop>,
+    mirror: Option<Mirror>,
+    mirror_presented: u64,
+}
+
+/// How long to wait for the runtime to confirm an exit request before giving up on it.
+const EXIT_GRACE: Duration = Duration::from_secs(10);
+
+fn frame_loop(
+    ctx: &FrameContext<'_>,
+    frame_wait: &mut xr::FrameWaiter,
+    frame_stream: &mut xr::FrameStream<xr::Vulkan>,
+    eyes: &mut [EyeSwapchain],
+    st: &mut LoopState,
+) -> EndReason {
+    let mut events = xr::EventDataBuffer::new();
+    let mut exit_requested: Option<(Instant, EndReason)> = None;
+    let mut last_uploaded: Option<u64> = None;
+    let mut shown: Option<std::sync::Arc<super::pacing::RenderedFrame>> = None;
+    let mut request_seq = 0u64;
+    let mut last_frame_time: Option<Instant> = None;
+    let started = Instant::now();
+    let can_time = ctx.instance.exts().khr_convert_timespec_time.is_some();
+    let request_exit = |why: EndReason, exit_requested: &mut Option<(Instant, EndReason)>| {
+        if exit_requested.is_none() {
+            tracing::info!("requesting session exit: {why}");
+            if let Err(e) = ctx.session.request_exit() {
+                if e != xr::sys::Result::ERROR_SESSION_NOT_RUNNING {
+                    tracing::warn!("xrRequestExitSession failed: {e}");
+                }
+            }
+            *exit_requested = Some((Instant::now(), why));
+        }
+    };
+    loop {
+        // 1. Events: state changes, instance loss.
+        loop {
+            let event = match ctx.instance.poll_event(&mut events) {
+                Ok(Some(e)) => e,
+                Ok(None) => break,
+                Err(e) => return EndReason::RuntimeGone(format!("xrPollEvent: {e}")),
+            };
+            match event {
+                xr::Event::SessionStateChanged(e) => {
+                    tracing::info!("session state {:?}", e.state());
+                    if e.state() == xr::SessionState::FOCUSED && st.time_to_focused.is_none() {
+                        st.time_to_focused = Some(ctx.session_created.elapsed());
+                    }
+                    match st.sm.on_state(e.state()) {
+                        StateCommand::Begin => {
+                            if let Err(e) = ctx.session.begin(VIEW_TYPE) {
+                                st.sm.running = false;
+                                return EndReason::RuntimeGone(format!("xrBeginSession: {e}"));
+                            }
+                        }
+                        StateCommand::End => {
+                            if let Err(e) = ctx.session.end() {
+                                return EndReason::RuntimeGone(format!("xrEndSession: {e}"));
+                            }
+                        }
+                        StateCommand::Exit => {
+                            return if e.state() == xr::SessionState::LOSS_PENDING {
+                                EndReason::SessionLoss
+                            } else {
+                                exit_requested.take().map(|(_, why)| why).unwrap_or(EndReason::RuntimeExit)
+                            };
+                        }
+                        StateCommand::None => {}
+                    }
+                }
+                xr::Event::InstanceLossPending(_) => return EndReason::InstanceLoss,
+                xr::Event::EventsLost(e) => tracing::warn!("{} OpenXR events lost", e.lost_event_count()),
+                _ => {}
+            }
+        }
+        if let Some((since, why)) = &exit_requested {
+            // A session that never began has nothing to wind down: leave at once.
+            if !st.sm.reached(xr::SessionState::READY) {
+                return why.clone();
+            }
+            if since.elapsed() > EXIT_GRACE {
+                tracing::warn!("the runtime did not confirm the exit request within {EXIT_GRACE:?}");
+                return why.clone();
+            }
+        }
+        if let Some(e) = ctx.mailbox.error() {
+            request_exit(EndReason::RenderFailed(e), &mut exit_requested);
+        }
+        if ctx.config.max_duration.is_some_and(|d| started.elapsed() > d) {
+            request_exit(EndReason::TimeLimit, &mut exit_requested);
+        }
+        if let Some(m) = &mut st.mirror {
+            if !m.pump() {
+                tracing::info!("mirror window closed; the session goes on");
+                if let Some(m) = st.mirror.take() {
+                    st.mirror_presented = m.presented;
+                    m.destroy(ctx.vk);
+                }
+            }
+        }
+        if !st.sm.running {
+            std::thread::sleep(Duration::from_millis(5));
+            continue;
+        }
+
+        // 2. One frame.
+        let step = (|| -> Result<(), XrError> {
+            let fs = frame_wait.wait().xr("xrWaitFrame")?;
+            frame_stream.begin().xr("xrBeginFrame")?;
+            let now = Instant::now();
+            let dt = last_frame_time.map(|t| (now - t).as_secs_f32()).unwrap_or(0.0);
+            last_frame_time = Some(now);
+            let (flags, raw_views) =
+                ctx.session.locate_views(VIEW_TYPE, fs.predicted_display_time, ctx.space).xr("xrLocateViews")?;
+            let sampled_at = if can_time { ctx.instance.now().ok().map(|t| t.as_nanos()) } else { None };
+            let tracked = flags.contains(xr::ViewStateFlags::ORIENTATION_VALID | xr::ViewStateFlags::POSITION_VALID)
+                && raw_views.len() == eyes.len();
+            let views: Vec<EyeView> = raw_views.iter().map(to_view).collect();
+            if tracked {
+                let (head_pos, head_rot) = head_pose(&views);
+                let floor = Placement::floor_height(ctx.stage_has_floor, head_pos.y);
+                let placement = *st
+                    .placement
+                    .get_or_insert_with(|| Placement::in_front_of(head_pos, head_rot, floor, DEFAULT_DISTANCE));
+                // Input pauses while the session is not focused (xrSyncActions would fail anyway).
+                let controls = if st.sm.input_enabled() {
+                    ctx.session.sync_actions(&[(&ctx.controllers.set).into()]).xr("xrSyncActions")?;
+                    ctx.controllers.read(ctx.session)
+                } else {
+                    Controls::default()
+                };
+                if controls.is_active() {
+                    st.placement = Some(placement.apply(&controls, head_pos, head_rot, floor, dt));
+                }
+                if fs.should_render && st.sm.visible() {
+                    request_seq += 1;
+                    ctx.mailbox.request(RenderRequest {
+                        seq: request_seq,
+                        views: views.clone(),
+                        placement: st.placement.unwrap_or(placement),
+                        sizes: eyes.iter().map(|e| (e.width as usize, e.height as usize)).collect(),
+                        sampled_at,
+                    });
+                }
+            }
+            // Upload the newest finished image if it is new; otherwise re-submit the last one (the compositor
+            // reprojects it from the pose it was rendered for).
+            let mut fresh = false;
+            if fs.should_render {
+                if let Some(frame) = ctx.mailbox.latest() {
+                    if last_uploaded != Some(frame.request.seq) {
+                        for (i, eye) in eyes.iter_mut().enumerate() {
+                            let back = eye.upload(ctx.vk, &frame.encoded[i], ctx.config.capture)?;
+                            if let Some(bytes) = back {
+                                let image = eye.format.decode_image(&bytes, eye.width as usize, eye.height as usize);
+                                let cap = EyeCapture {
+                                    eye: i,
+                                    image,
+                                    body_camera: frame.cameras[i],
+                                    view: frame.request.views[i],
+                                    placement: frame.request.placement,
+                                };
+                                if let Some(slot) = st.captures.iter_mut().find(|c| c.eye == i) {
+                                    *slot = cap;
+                                } else {
+                                    st.captures.push(cap);
+                                }
+                            }
+                        }
+                        // The mirror window opens with the first image, so it maps above the runtime's own
+                        // window when both share a display.
+                        if let Some(l) = st.mirror_loop.take() {
+                            let (w, h) = (eyes[0].width, eyes[0].height);
+                            match Mirror::new(l, ctx.vk, w, h, eyes.len() as u32) {
+                                Ok(m) => st.mirror = Some(m),
+                                Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
+                            }
+                        }
+                        if let Some(m) = &mut st.mirror {
+                            let images: Vec<&[u8]> = frame.encoded.iter().map(|e| e.as_slice()).collect();
+                            let (w, h) = (eyes[0].width, eyes[0].height);
+                            if let Err(e) = m.present(ctx.vk, &images, eyes[0].format, w, h) {
+                                tracing::warn!("desktop mirror stopped: {e}");
+                                if let Some(m) = st.mirror.take() {
+                                    st.mirror_presented = m.presented;
+                                    m.destroy(ctx.vk);
+                                }
+                            }
+                        }
+                        last_uploaded = Some(frame.request.seq);
+                        shown = Some(frame);
+                        fresh = true;
+                    }
+                }
+            }
+            let person = shown.as_ref().filter(|_| fs.should_render && eyes.iter().all(|e| e.has_content()));
+            match person {
+                Some(frame) => {
+                    let proj_views: Vec<xr::CompositionLayerProjectionView<'_, xr::Vulkan>> = eyes
+                        .iter()
+                        .zip(&frame.request.views)
+                        .map(|(eye, v)| {
+                            xr::CompositionLayerProjectionView::new().pose(to_posef(v)).fov(to_fovf(&v.fov)).sub_image(
+                                xr::SwapchainSubImage::new().swapchain(&eye.handle).image_array_index(0).image_rect(
+                                    xr::Rect2Di {
+                                        offset: xr::Offset2Di { x: 0, y: 0 },
+                                        extent: xr::Extent2Di { width: eye.width as i32, height: eye.height as i32 },
+                                    },
+                                ),
+                            )
+                        })
+                        .collect();
+                    let flags = if ctx.config.mode == XrMode::Ar {
+                        // Premultiplied alpha (no UNPREMULTIPLIED_ALPHA flag): what the pipeline produces.
+                        xr::CompositionLayerFlags::BLEND_TEXTURE_SOURCE_ALPHA
+                    } else {
+                        xr::CompositionLayerFlags::EMPTY
+                    };
+                    let projection =
+                        xr::CompositionLayerProjection::new().layer_flags(flags).space(ctx.space).views(&proj_views);
+                    match ctx.passthrough_layer {
+                        Some(layer) => {
+                            // The crate has no public builder for this layer: build the raw struct (XR_FB_passthrough
+                            // ignores `space`) and pass it by its base header, as the crate's own layers are passed.
+                            let raw = xr::sys::CompositionLayerPassthroughFB {
+                                ty: xr::sys::CompositionLayerPassthroughFB::TYPE,
+                                next: std::ptr::null(),
+                                flags: xr::CompositionLayerFlags::BLEND_TEXTURE_SOURCE_ALPHA,
+                                space: xr::sys::Space::NULL,
+                                layer_handle: layer.as_raw(),
+                            };
+                            // SAFETY: CompositionLayerBase is a transparent wrapper of the base header every layer
+                            // struct starts with; `raw` outlives the xrEndFrame call.
+                            let pt: &xr::CompositionLayerBase<'_, xr::Vulkan> =
+                                unsafe { &*(&raw as *const xr::sys::CompositionLayerPassthroughFB).cast() };
+                            frame_stream
+                                .end(fs.predicted_display_time, ctx.blend.blend, &[pt, &projection])
+                                .xr("xrEndFrame")?;
+                        }
+                        None => {
+                            frame_stream
+                                .end(fs.predicted_display_time, ctx.blend.blend, &[&projection])
+                                .xr("xrEndFrame")?;
+                        }
+                    }
+                    st.pacing.record(fresh, fs.predicted_display_time.as_nanos(), frame.request.sampled_at);
+                }
+                None => {
+                    frame_stream.end(fs.predicted_display_time, ctx.blend.blend, &[]).xr("xrEndFrame")?;
+                }
+            }
+            st.frames_submitted += 1;
+            st.first_frame.get_or_insert(now);
+            st.last_frame = Some(now);
+            Ok(())
+        })();
+        if let Err(e) = step {
+            return EndReason::RuntimeGone(e.to_string());
+        }
+        if ctx.config.max_person_frames.is_some_and(|n| st.pacing.person_frames >= n) {
+            request_exit(EndReason::FrameLimit, &mut exit_requested);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use xr::EnvironmentBlendMode as B;
+    use xr::SessionState as S;
+
+    #[test]
+    fn blend_choice_follows_the_preference_order() {
+        let c = choose_blend(XrMode::Ar, &[B::OPAQUE, B::ADDITIVE, B::ALPHA_BLEND], true);
+        assert_eq!((c.blend, c.passthrough_fb, c.notice.is_none()), (B::ALPHA_BLEND, false, true));
+        let c = choose_blend(XrMode::Ar, &[B::OPAQUE, B::ADDITIVE], true);
+        assert_eq!((c.blend, c.passthrough_fb), (B::ADDITIVE, false));
+        let c = choose_blend(XrMode::Ar, &[B::OPAQUE], true);
+        assert_eq!((c.blend, c.passthrough_fb, c.notice.is_none()), (B::OPAQUE, true, true));
+        // Monado's simulated HMD: OPAQUE only, no passthrough -> OPAQUE with a notice.
+        let c = choose_blend(XrMode::Ar, &[B::OPAQUE], false);
+        assert_eq!((c.blend, c.passthrough_fb), (B::OPAQUE, false));
+        assert!(c.notice.unwrap().contains("over black"));
+        let c = choose_blend(XrMode::Vr, &[B::ADDITIVE, B::OPAQUE], false);
+        assert_eq!((c.blend, c.notice), (B::OPAQUE, None));
+        let c = choose_blend(XrMode::Vr, &[B::ADDITIVE], false);
+        assert_eq!(c.blend, B::ADDITIVE);
+        assert!(c.notice.is_some());
+        assert_eq!(choose_blend(XrMode::Vr, &[], false).blend, B::OPAQUE);
+    }
+
+    #[test]
+    fn state_machine_begins_ends_and_exits() {
+        let mut sm = SessionStateMachine::default();
+        assert_eq!(sm.on_state(S::IDLE), StateCommand::None);
+        assert!(!sm.running);
+        assert_eq!(sm.on_state(S::READY), StateCommand::Begin);
+        assert!(sm.running);
+        assert_eq!(sm.on_state(S::SYNCHRONIZED), StateCommand::None);
+        assert!(!sm.visible() && !sm.input_enabled());
+        sm.on_state(S::VISIBLE);
+        assert!(sm.visible() && !sm.input_enabled());
+        sm.on_state(S::FOCUSED);
+        assert!(sm.visible() && sm.input_enabled());
+        // Focus loss (e.g. a system menu) pauses input but keeps rendering.
+        sm.on_state(S::VISIBLE);
+        assert!(sm.visible() && !sm.input_enabled());
+        assert_eq!(sm.on_state(S::STOPPING), StateCommand::End);
+        assert!(!sm.running);
+        assert_eq!(sm.on_state(S::IDLE), StateCommand::None);
+        assert_eq!(sm.on_state(S::EXITING), StateCommand::Exit);
+        assert!(sm.reached(S::FOCUSED) && !sm.reached(S::LOSS_PENDING));
+        let expected =
+            [S::IDLE, S::READY, S::SYNCHRONIZED, S::VISIBLE, S::FOCUSED, S::VISIBLE, S::STOPPING, S::IDLE, S::EXITING];
+        assert_eq!(sm.history, expected);
+        let mut lost = SessionStateMachine::default();
+        lost.on_state(S::READY);
+        assert_eq!(lost.on_state(S::LOSS_PENDING), StateCommand::Exit);
+    }
+
+    #[test]
+    fn eye_size_scales_down_only() {
+        assert_eq!(eye_size((1440, 1600), 512), (461, 512));
+        assert_eq!(eye_size((300, 200), 512), (300, 200));
+        assert_eq!(eye_size((0, 0), 0), (16, 16));
+        assert_eq!(eye_size((4000, 10), 100), (100, 16));
+    }
+
+    #[test]
+    fn pose_conversions_round_trip() {
+        let v = EyeView {
+            position: Vec3::new(0.1, 1.6, -0.2),
+            orientation: Quat::from_rotation_y(0.3),
+            fov: Fov { angle_left: -0.8, angle_right: 0.7, angle_up: 0.75, angle_down: -0.85 },
+        };
+        let back = to_view(&xr::View { pose: to_posef(&v), fov: to_fovf(&v.fov) });
+        assert!((back.position - v.position).length() < 1e-7);
+        assert!(back.orientation.angle_between(v.orientation) < 1e-4);
+        assert_eq!(back.fov, v.fov);
+        let (p, q) = head_pose(&[v, EyeView { position: Vec3::new(0.3, 1.6, -0.2), ..v }]);
+        assert!((p - Vec3::new(0.2, 1.6, -0.2)).length() < 1e-6 && q == v.orientation);
+    }
+}

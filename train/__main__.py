@@ -1,0 +1,126 @@
+"""python -m train {fit,fit-fof,export,eval,synth} ... (see train/README.md)."""
+import argparse
+import json
+import sys
+
+from .nets import TIERS
+
+
+def _train_args(p):
+    p.add_argument("--data", required=True, help="an `r2human dataset` folder (dataset.json inside)")
+    p.add_argument("--tier", choices=sorted(TIERS), default="tiny")
+    p.add_argument("--out", required=True, help="run folder: checkpoints, train.log, log.jsonl")
+    p.add_argument("--resolution", type=int, default=None, help="training resolution (default: the tier's)")
+    p.add_argument("--steps", type=int, default=10_000, help="stop after this many optimiser steps")
+    p.add_argument("--minutes", type=float, default=0, help="also stop after this wall time (0: no limit)")
+    p.add_argument("--batch", type=int, default=4, help="batch per process (the paper: 4)")
+    p.add_argument("--lr", type=float, default=2e-4, help="Adam learning rate (the paper: 2e-4)")
+    p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--log-every", type=int, default=20)
+    p.add_argument("--threads", type=int, default=0,
+                   help="PyTorch CPU threads (0: PyTorch's default); 1 is fastest on a busy shared CPU")
+    p.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation at the end")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m train", description=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    p = sub.add_parser("fit", help="train encoder + decoder (single process, or under torchrun)")
+    _train_args(p)
+    p.add_argument("--ckpt-every", type=int, default=200)
+    p.add_argument("--resume", default=None, help="continue from a renderer.pt")
+    p.add_argument("--lambda-consistency", type=float, default=100.0, help="the paper: 100")
+    p.add_argument("--fof-dropout", type=float, default=0.3,
+                   help="probability of feeding zeros instead of the FOF (the released test script feeds zeros)")
+    p.add_argument("--lpips", default=None,
+                   help="TorchScript LPIPS module (x, y in [-1,1] -> distance); default: SSIM + gradient substitute")
+
+    p = sub.add_parser("fit-fof", help="train the FOF network (photo -> FOF-X coefficients)")
+    _train_args(p)
+
+    p = sub.add_parser("export", help="write encoder.onnx, decoder.onnx (+ fof.onnx) with metadata and check them")
+    p.add_argument("--renderer", required=True, help="renderer.pt from `fit`")
+    p.add_argument("--fof", default=None, help="fof.pt from `fit-fof`")
+    p.add_argument("--out", required=True, help="model folder, e.g. models/tiny")
+    p.add_argument("--tolerance", type=float, default=1e-3, help="max allowed |ONNX Runtime - PyTorch|")
+
+    p = sub.add_parser("export-untrained", help="export randomly initialised models of a tier (speed tests only)")
+    p.add_argument("--tier", choices=sorted(TIERS), required=True)
+    p.add_argument("--fof-n", type=int, default=32)
+    p.add_argument("--resolution", type=int, default=None, help="default: the tier's")
+    p.add_argument("--out", required=True)
+
+    p = sub.add_parser("eval", help="held-out evaluation of a checkpoint")
+    p.add_argument("--data", required=True)
+    p.add_argument("--renderer", default=None)
+    p.add_argument("--fof", default=None)
+
+    p = sub.add_parser("synth", help="write a tiny synthetic dataset (for tests and smoke runs only)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--subjects", type=int, default=6)
+    p.add_argument("--views", type=int, default=4)
+    p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--fof-n", type=int, default=8)
+    p.add_argument("--seed", type=int, default=0)
+
+    args = ap.parse_args(argv)
+    if getattr(args, "threads", 0):
+        import torch
+        torch.set_num_threads(args.threads)
+    if args.cmd == "fit":
+        from .fit import fit
+        fit(args)
+    elif args.cmd == "fit-fof":
+        from .fit import fit_fof
+        fit_fof(args)
+    elif args.cmd == "export":
+        from .export import export
+        export(args)
+    elif args.cmd == "export-untrained":
+        import os
+        import tempfile
+
+        import torch
+
+        from .export import export_fof, export_renderer
+        from .fit import R2HumanNet
+        from .nets import FofNet
+        res = args.resolution or TIERS[args.tier]["resolution"]
+        rec = {"untrained": True, "purpose": "speed measurements only: random weights", "tier": args.tier}
+        with tempfile.TemporaryDirectory() as tmp:
+            common = {"tier": args.tier, "fof_n": args.fof_n, "resolution": res, "recipe": rec}
+            torch.save({**common, "model": R2HumanNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/r.pt")
+            torch.save({**common, "model": FofNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/f.pt")
+            os.makedirs(args.out, exist_ok=True)
+            report = export_renderer(f"{tmp}/r.pt", args.out)
+            report.update(export_fof(f"{tmp}/f.pt", args.out))
+        print(json.dumps(report, indent=1, sort_keys=True))
+    elif args.cmd == "eval":
+        import torch
+
+        from .fit import R2HumanNet, evaluate_fof, evaluate_renderer
+        from .nets import FofNet
+        out = {}
+        if args.renderer:
+            ck = torch.load(args.renderer, map_location="cpu")
+            m = R2HumanNet(ck["tier"], ck["fof_n"])
+            m.load_state_dict(ck["model"])
+            out["renderer"] = evaluate_renderer(m, args.data, ck["resolution"], torch.device("cpu"))
+            out["renderer_zero_fof"] = evaluate_renderer(m, args.data, ck["resolution"], torch.device("cpu"), "zero")
+        if args.fof:
+            ck = torch.load(args.fof, map_location="cpu")
+            m = FofNet(ck["tier"], ck["fof_n"])
+            m.load_state_dict(ck["model"])
+            out["fof"] = evaluate_fof(m, args.data, ck["resolution"], torch.device("cpu"))
+        print(json.dumps(out, indent=1))
+    elif args.cmd == "synth":
+        from .synth import write_dataset
+        meta = write_dataset(args.out, args.subjects, args.views, args.resolution, args.fof_n, args.seed)
+        print(f"wrote {len(meta['subjects'])} subjects to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

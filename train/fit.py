@@ -1,0 +1,318 @@
+"""Training loops (renderer: encoder + decoder; FOF net), single-process or under torchrun (DistributedDataParallel).
+
+Single process (CPU or one GPU):   python -m train fit --data DIR --tier tiny --out runs/tiny
+Several GPUs / nodes:              torchrun --nproc_per_node=G [--nnodes ...] -m train fit --data DIR --tier paper ...
+Under torchrun every rank reads its DistributedSampler shard; rank 0 alone logs, evaluates and writes checkpoints.
+"""
+import json
+import math
+import os
+import time
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn as nn
+from torch.utils.data import DataLoader, DistributedSampler
+
+from . import losses
+from .dataset import R2Dataset
+from .geometry import transfer, warp
+from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters
+
+
+class R2HumanNet(nn.Module):
+    """Encoder + decoder, rendering the batch's ref and mv views from its source frame (paper Fig. 2)."""
+
+    def __init__(self, tier, fof_n):
+        super().__init__()
+        self.encoder = Encoder(tier, fof_n)
+        self.decoder = Decoder(tier)
+
+    def render(self, feats, b, view):
+        grid, z, mask = transfer(b[f"{view}_depth"], b[f"{view}_view_from_world"], b[f"{view}_half"],
+                                 b["src_view_from_world"], b["src_half"])
+        return self.decoder(warp(feats, grid, mask), z, b[f"{view}_normals"] * mask)
+
+    def forward(self, b, fof):
+        feats = self.encoder(b["src_image"], fof, b["src_normals"])
+        return self.render(feats, b, "ref"), self.render(feats, b, "mv")
+
+
+def geometric_baseline(b, view):
+    """The reference's geometric path for comparison: the source image warped by the flow (no occlusion test)."""
+    grid, _, mask = transfer(b[f"{view}_depth"], b[f"{view}_view_from_world"], b[f"{view}_half"],
+                             b["src_view_from_world"], b["src_half"])
+    img = warp(b["src_image"], grid, mask)
+    return img * mask + (-1) * (1 - mask)
+
+
+def masked_psnr_ssim(pred, target, mask):
+    """PSNR and SSIM over the mask on [0,1] images (per sample lists)."""
+    p, t = (pred.clamp(-1, 1) + 1) / 2, (target + 1) / 2
+    m = mask.expand_as(p)
+    out = []
+    s = losses.ssim_map(p * m, t * m)
+    for i in range(p.shape[0]):
+        n = m[i].sum().clamp_min(1.0)
+        mse = (((p[i] - t[i]) ** 2) * m[i]).sum() / n
+        psnr = 10 * math.log10(1.0 / max(float(mse), 1e-10))
+        out.append((psnr, float((s[i] * m[i]).sum() / n)))
+    return out
+
+
+def setup_distributed():
+    """(rank, world, device). Initialises the process group when launched by torchrun (WORLD_SIZE > 1)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    if torch.cuda.is_available():
+        device = torch.device("cuda", local)
+        torch.cuda.set_device(device)
+    else:
+        device = torch.device("cpu")
+    if world > 1:
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return rank, world, device
+
+
+class Logger:
+    def __init__(self, out, rank):
+        self.rank = rank
+        self.path = os.path.join(out, "train.log")
+        self.jsonl = os.path.join(out, "log.jsonl")
+        if rank == 0:
+            os.makedirs(out, exist_ok=True)
+
+    def __call__(self, msg, **record):
+        if self.rank != 0:
+            return
+        line = time.strftime("%Y-%m-%dT%H:%M:%SZ ", time.gmtime()) + msg
+        print(line, flush=True)
+        with open(self.path, "a") as f:
+            f.write(line + "\n")
+        if record:
+            with open(self.jsonl, "a") as f:
+                f.write(json.dumps(record) + "\n")
+
+
+def to_device(b, device):
+    return {k: v.to(device, non_blocking=True) for k, v in b.items()}
+
+
+def stop_flag(stop, device, world):
+    """Every rank stops when any rank wants to (rank 0's time budget)."""
+    if world == 1:
+        return stop
+    t = torch.tensor([1.0 if stop else 0.0], device=device)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return bool(t.item() > 0)
+
+
+@torch.no_grad()
+def evaluate_renderer(model, data, resolution, device, fof_mode="gt"):
+    """Held-out evaluation: every test subject's source against each of its views; PSNR/SSIM over the person for
+    the neural renderer and the geometric warp, grouped by the view's angle from the source (close <= 45 deg,
+    divergent >= 90 deg, as the paper's tables)."""
+    model.eval()
+    ds = R2Dataset(data, "test", resolution=resolution, cache=False)
+    groups = {"close": {"neural": [], "geometric": []}, "divergent": {"neural": [], "geometric": []},
+              "all": {"neural": [], "geometric": []}}
+    for i in range(len(ds)):
+        for v in range(ds.views):
+            ds.fixed_views = (v, v)
+            b = to_device({k: t[None] for k, t in ds[i].items()}, device)
+            fof = b["src_fof"] if fof_mode == "gt" else torch.zeros_like(b["src_fof"])
+            feats = model.encoder(b["src_image"], fof, b["src_normals"])
+            pred = model.render(feats, b, "ref")
+            geo = geometric_baseline(b, "ref")
+            angle = float(b["ref_angle"][0])
+            (pn, sn), = masked_psnr_ssim(pred, b["ref_rgb"], b["ref_mask"])
+            (pg, sg), = masked_psnr_ssim(geo, b["ref_rgb"], b["ref_mask"])
+            keys = ["all"] + (["close"] if angle <= 45 else []) + (["divergent"] if angle >= 90 else [])
+            for k in keys:
+                groups[k]["neural"].append((pn, sn))
+                groups[k]["geometric"].append((pg, sg))
+    model.train()
+    summary = {}
+    for g, d in groups.items():
+        summary[g] = {"views": len(d["neural"])}
+        for r, vals in d.items():
+            if vals:
+                summary[g][r] = {"psnr": float(np.mean([v[0] for v in vals])),
+                                 "ssim": float(np.mean([v[1] for v in vals]))}
+    return summary
+
+
+def recipe(args, tier, data_meta, steps, seconds, world):
+    return {"tier": tier, "data": os.path.abspath(args.data), "dataset_seed": data_meta.get("seed"),
+            "train_subjects": len(data_meta["split"]["train"]), "test_subjects": len(data_meta["split"]["test"]),
+            "resolution": args.resolution, "steps": steps, "batch": args.batch, "world_size": world,
+            "lr": args.lr, "optimizer": "Adam", "seconds": round(seconds),
+            "losses": {"consistency": getattr(args, "lambda_consistency", None), "pixel": losses.LAMBDA_PIXEL,
+                       "perceptual": losses.LAMBDA_PERCEPTUAL,
+                       "perceptual_kind": "lpips" if getattr(args, "lpips", None) else "ssim+gradient (LPIPS substitute)",
+                       "visibility_lambda": 0.02},
+            "fof_dropout": getattr(args, "fof_dropout", 0.0), "seed": args.seed, "torch": str(torch.__version__),
+            "resumed_from": getattr(args, "resume", None)}
+
+
+def fit(args):
+    rank, world, device = setup_distributed()
+    torch.manual_seed(args.seed + rank)
+    cfg = TIERS[args.tier]
+    args.resolution = args.resolution or cfg["resolution"]
+    log = Logger(args.out, rank)
+    ds = R2Dataset(args.data, "train", resolution=args.resolution, seed=args.seed)
+    sampler = DistributedSampler(ds, num_replicas=world, rank=rank, shuffle=True, seed=args.seed) if world > 1 else None
+    loader = DataLoader(ds, batch_size=args.batch, shuffle=sampler is None, sampler=sampler,
+                        num_workers=args.workers, drop_last=len(ds) >= args.batch * world)
+    model = R2HumanNet(args.tier, ds.fof_n).to(device)
+    start_step = 0
+    if args.resume and os.path.exists(args.resume):
+        ck = torch.load(args.resume, map_location=device)
+        model.load_state_dict(ck["model"])
+        start_step = ck.get("step", 0)
+        args.previous_recipe = ck.get("recipe")
+    net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None) \
+        if world > 1 else model
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    if args.resume and os.path.exists(args.resume) and "optimizer" in ck:
+        opt.load_state_dict(ck["optimizer"])
+    lpips = torch.jit.load(args.lpips, map_location=device).eval() if args.lpips else None
+    if lpips is not None:
+        for p in lpips.parameters():
+            p.requires_grad_(False)
+    losses.LAMBDA_CONSISTENCY = args.lambda_consistency
+    log(f"tier {args.tier}: encoder {count_parameters(model.encoder) / 1e6:.3f} M params, decoder "
+        f"{count_parameters(model.decoder) / 1e6:.3f} M; {len(ds)} train subjects at {args.resolution} px, "
+        f"fof_n {ds.fof_n}, world {world}, device {device}, threads {torch.get_num_threads()}")
+    t0 = time.time()
+    step, epoch, stop = start_step, 0, False
+    gen = torch.Generator().manual_seed(args.seed * 31 + rank)
+    running = {}
+    while not stop:
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        ds.set_epoch(epoch)
+        for b in loader:
+            b = to_device(b, device)
+            keep = (torch.rand(b["src_fof"].shape[0], 1, 1, 1, generator=gen) >= args.fof_dropout).float().to(device)
+            pred_ref, pred_mv = net(b, b["src_fof"] * keep)
+            loss, parts = losses.total_loss(pred_ref, pred_mv, b, lpips)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            for k, v in parts.items():
+                running[k] = running.get(k, 0.0) + v
+            running["n"] = running.get("n", 0) + 1
+            elapsed = time.time() - t0
+            if step % args.log_every == 0:
+                avg = {k: v / running["n"] for k, v in running.items() if k != "n"}
+                log(f"step {step} epoch {epoch} {elapsed:.0f}s " + " ".join(f"{k} {v:.4f}" for k, v in avg.items()),
+                    step=step, epoch=epoch, seconds=round(elapsed, 1), **avg)
+                running = {}
+            if rank == 0 and step % args.ckpt_every == 0:
+                save_checkpoint(args, model, opt, step, ds, elapsed, world)
+            stop = step >= args.steps or (args.minutes and elapsed > args.minutes * 60)
+            stop = stop_flag(stop, device, world)
+            if stop:
+                break
+        epoch += 1
+    elapsed = time.time() - t0
+    if rank == 0:
+        save_checkpoint(args, model, opt, step, ds, elapsed, world)
+        log(f"finished: {step} steps in {elapsed:.0f}s")
+        if not args.no_eval:
+            summary = evaluate_renderer(model, args.data, args.resolution, device)
+            log("held-out evaluation (PSNR dB / SSIM over the person): " + json.dumps(summary), eval=summary)
+    if world > 1:
+        dist.destroy_process_group()
+
+
+def save_checkpoint(args, model, opt, step, ds, elapsed, world):
+    path = os.path.join(args.out, "renderer.pt")
+    torch.save({"kind": "renderer", "tier": args.tier, "fof_n": ds.fof_n, "resolution": args.resolution,
+                "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                "recipe": {**recipe(args, args.tier, ds.meta, step, elapsed, world),
+                           "previous_stage": getattr(args, "previous_recipe", None)}}, path + ".tmp")
+    os.replace(path + ".tmp", path)
+
+
+def decode_occupancy(fof, samples=64):
+    """FOF-X decode at `samples` depths per pixel: [B,N,H,W] -> [B,samples,H,W] occupancy."""
+    n = fof.shape[1]
+    s = (torch.arange(samples, dtype=fof.dtype, device=fof.device) + 0.5) / samples
+    k = torch.arange(1, n, dtype=fof.dtype, device=fof.device)
+    basis = torch.cos(k[None, :] * math.pi * s[:, None])  # [samples, N-1]
+    return 0.5 * fof[:, :1] + torch.einsum("sk,bkhw->bshw", basis, fof[:, 1:])
+
+
+@torch.no_grad()
+def evaluate_fof(model, data, resolution, device):
+    """Held-out FOF accuracy: coefficient L1 over the person and volumetric IoU of the decoded 0.5 iso-surface."""
+    model.eval()
+    ds = R2Dataset(data, "test", resolution=resolution, cache=False, fixed_views=(0, 1))
+    l1s, ious = [], []
+    for i in range(len(ds)):
+        b = to_device({k: t[None] for k, t in ds[i].items()}, device)
+        pred = model(b["src_image"]) * b["src_mask"]
+        gt = b["src_fof"]
+        l1s.append(float(losses.masked_l1(pred, gt, b["src_mask"])))
+        po, go = decode_occupancy(pred) > 0.5, decode_occupancy(gt) > 0.5
+        ious.append(float((po & go).sum()) / max(float((po | go).sum()), 1.0))
+    model.train()
+    return {"subjects": len(ds), "coefficient_l1": float(np.mean(l1s)), "occupancy_iou": float(np.mean(ious))}
+
+
+def fit_fof(args):
+    rank, world, device = setup_distributed()
+    torch.manual_seed(args.seed + rank)
+    args.resolution = args.resolution or TIERS[args.tier]["resolution"]
+    log = Logger(args.out, rank)
+    ds = R2Dataset(args.data, "train", resolution=args.resolution, seed=args.seed)
+    sampler = DistributedSampler(ds, num_replicas=world, rank=rank, shuffle=True, seed=args.seed) if world > 1 else None
+    loader = DataLoader(ds, batch_size=args.batch, shuffle=sampler is None, sampler=sampler, num_workers=args.workers)
+    model = FofNet(args.tier, ds.fof_n).to(device)
+    net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None) \
+        if world > 1 else model
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    log(f"FOF net tier {args.tier}: {count_parameters(model) / 1e6:.3f} M params, {len(ds)} subjects at "
+        f"{args.resolution} px, fof_n {ds.fof_n}")
+    t0, step, epoch, stop, running = time.time(), 0, 0, False, []
+    while not stop:
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        for b in loader:
+            b = to_device(b, device)
+            pred = net(b["src_image"])
+            # Coefficients over the person, plus the decoded occupancy (what the mesh is extracted from).
+            loss = losses.masked_l1(pred, b["src_fof"], b["src_mask"]) + \
+                losses.masked_l1(decode_occupancy(pred, 32), decode_occupancy(b["src_fof"], 32), b["src_mask"])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            running.append(float(loss))
+            elapsed = time.time() - t0
+            if step % args.log_every == 0:
+                log(f"fof step {step} {elapsed:.0f}s loss {np.mean(running):.4f}", step=step,
+                    seconds=round(elapsed, 1), fof_loss=float(np.mean(running)))
+                running = []
+            stop = stop_flag(step >= args.steps or (args.minutes and elapsed > args.minutes * 60), device, world)
+            if stop:
+                break
+        epoch += 1
+    if rank == 0:
+        elapsed = time.time() - t0
+        rec = recipe(args, args.tier, ds.meta, step, elapsed, world)
+        rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": 1.0}
+        torch.save({"kind": "fof", "tier": args.tier, "fof_n": ds.fof_n, "resolution": args.resolution,
+                    "model": model.state_dict(), "step": step, "recipe": rec}, os.path.join(args.out, "fof.pt"))
+        log(f"FOF net finished: {step} steps in {elapsed:.0f}s")
+        if not args.no_eval:
+            summary = evaluate_fof(model, args.data, args.resolution, device)
+            log("held-out FOF evaluation: " + json.dumps(summary), fof_eval=summary)
+    if world > 1:
+        dist.destroy_process_group()

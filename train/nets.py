@@ -1,0 +1,204 @@
+"""The three networks at three size tiers: `paper` (the reference sizes), `small`, and `tiny` (CPU real time).
+
+Contracts (identical for every tier; the Rust side checks names, shapes and metadata, see src/neural/mod.rs):
+  encoder  image [B,3,R,R] (sRGB*mask*2-1), fof [B,N,R,R], normals [B,3,R,R] -> features [B,C,R/4,R/4]
+  decoder  features [B,C,h,w] (warped, zero outside the target mask), zmap [B,1,h,w] (source z, 0 outside),
+           normals [B,3,h,w] (target view space)                 -> rgb [B,3,h,w] (sRGB in [-1,1], no activation)
+           The Z-map is expanded inside the graph into cos(n*pi*z), sin(n*pi*z), n = 1..16 (32 channels), so the
+           paper tier's first convolution sees C + 32 + 3 = 256 + 32 + 3 = 291 channels, as the reference.
+  fof      image [B,3,R,R]                                       -> fof [B,N,R,R] (no activation)
+"""
+import math
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+ZMAP_FREQUENCIES = 16
+
+# Per tier: source resolution R, feature channels C, encoder kind/widths, decoder widths, FOF-net widths.
+TIERS = {
+    "tiny": dict(resolution=256, features=16, encoder="plain", encoder_widths=[16, 32], encoder_blocks=2,
+                 decoder_widths=[16, 24, 32], fof_widths=[16, 24, 32, 48]),
+    "small": dict(resolution=512, features=64, encoder="hrnet", encoder_widths=[16, 32, 64, 128], encoder_blocks=2,
+                  decoder_widths=[32, 64, 128, 256], fof_widths=[32, 48, 64, 96, 128]),
+    "paper": dict(resolution=512, features=256, encoder="hrnet", encoder_widths=[32, 64, 128, 256], encoder_blocks=4,
+                  decoder_widths=[64, 128, 256, 512, 1024], fof_widths=[48, 96, 192, 384, 384]),
+}
+
+
+def conv(cin, cout, k=3, s=1):
+    return nn.Conv2d(cin, cout, k, s, k // 2)
+
+
+class ConvAct(nn.Sequential):
+    def __init__(self, cin, cout, k=3, s=1):
+        super().__init__(conv(cin, cout, k, s), nn.ReLU(inplace=True))
+
+
+class BasicBlock(nn.Module):
+    """Residual block of two 3x3 convolutions (HRNet's BasicBlock without batch norm, which exports cleanly and
+    trains at batch size 1-4)."""
+
+    def __init__(self, c):
+        super().__init__()
+        self.a = conv(c, c)
+        self.b = conv(c, c)
+
+    def forward(self, x):
+        return F.relu(x + self.b(F.relu(self.a(x))))
+
+
+class PlainEncoder(nn.Module):
+    """tiny: two stride-2 convolutions to 1/4 resolution, residual blocks, 1x1 projection to C features."""
+
+    def __init__(self, cin, widths, blocks, features):
+        super().__init__()
+        self.stem = nn.Sequential(ConvAct(cin, widths[0], 3, 2), ConvAct(widths[0], widths[1], 3, 2))
+        self.blocks = nn.Sequential(*[BasicBlock(widths[1]) for _ in range(blocks)])
+        self.head = conv(widths[1], features, 1)
+
+    def forward(self, x):
+        return self.head(self.blocks(self.stem(x)))
+
+
+class HRNetEncoder(nn.Module):
+    """HRNetV2-like: a stride-4 stem, then stages that add one lower-resolution branch each (widths w, 2w, 4w, 8w)
+    with residual blocks and all-to-all exchange between branches; the HRNetV2 head upsamples every branch to 1/4,
+    concatenates and projects with 1x1 convolutions to C features. `paper` uses widths 32/64/128/256 (W32)."""
+
+    def __init__(self, cin, widths, blocks, features):
+        super().__init__()
+        self.stem = nn.Sequential(ConvAct(cin, 64, 3, 2), ConvAct(64, 64, 3, 2), ConvAct(64, widths[0], 3, 1))
+        self.widths = widths
+        self.stages = nn.ModuleList()
+        self.transitions = nn.ModuleList()
+        self.fuse = nn.ModuleList()
+        for stage in range(1, len(widths) + 1):
+            ws = widths[:stage]
+            if stage > 1:  # new branch from the lowest one
+                self.transitions.append(ConvAct(widths[stage - 2], widths[stage - 1], 3, 2))
+            self.stages.append(nn.ModuleList([nn.Sequential(*[BasicBlock(w) for _ in range(blocks)]) for w in ws]))
+            self.fuse.append(nn.ModuleList([nn.ModuleList([self._exchange(ws[j], ws[i], j - i) for j in range(stage)])
+                                            for i in range(stage)]))
+        total = sum(widths)
+        self.head = nn.Sequential(ConvAct(total, total, 1), conv(total, features, 1))
+
+    @staticmethod
+    def _exchange(cin, cout, levels):
+        if levels == 0:
+            return nn.Identity()
+        if levels > 0:  # from lower resolution: 1x1 then upsample (done in forward)
+            return conv(cin, cout, 1)
+        layers = []  # from higher resolution: stride-2 convolutions
+        for k in range(-levels):
+            last = k == -levels - 1
+            layers.append(conv(cin, cout if last else cin, 3, 2))
+            if not last:
+                layers.append(nn.ReLU(inplace=True))
+        return nn.Sequential(*layers)
+
+    def forward(self, x):
+        xs = [self.stem(x)]
+        for s, (blocks, fuse) in enumerate(zip(self.stages, self.fuse)):
+            if s > 0:
+                xs.append(self.transitions[s - 1](xs[-1]))
+            xs = [b(v) for b, v in zip(blocks, xs)]
+            out = []
+            for i in range(len(xs)):
+                acc = 0
+                for j in range(len(xs)):
+                    y = fuse[i][j](xs[j])
+                    if j > i:
+                        y = F.interpolate(y, size=xs[i].shape[-2:], mode="bilinear", align_corners=False)
+                    acc = acc + y
+                out.append(F.relu(acc))
+            xs = out
+        size = xs[0].shape[-2:]
+        cat = torch.cat([xs[0]] + [F.interpolate(v, size=size, mode="bilinear", align_corners=False) for v in xs[1:]], 1)
+        return self.head(cat)
+
+
+class UNet(nn.Module):
+    """U-Net: level 0 at full resolution, each further level halves it (stride-2 max pool) and uses `widths[i]`
+    channels; the up path uses transposed convolutions and skip concatenation like the reference decoder. `light`
+    (tiny) uses one convolution per level, a 1x1 input projection and additive skips to save multiply-adds."""
+
+    def __init__(self, cin, cout, widths, light=False):
+        super().__init__()
+        self.light = light
+        self.stride = 2 ** (len(widths) - 1)
+        if light:
+            self.inc = ConvAct(cin, widths[0], 1)
+            self.downs = nn.ModuleList([ConvAct(widths[i], widths[i + 1], 3, 2) for i in range(len(widths) - 1)])
+            self.mid = ConvAct(widths[-1], widths[-1])
+            self.ups = nn.ModuleList([nn.ConvTranspose2d(widths[i + 1], widths[i], 2, 2) for i in range(len(widths) - 1)])
+            # Full resolution gets a pointwise merge only: the 3x3 context comes from the levels below.
+            self.merge = nn.ModuleList([ConvAct(widths[i], widths[i], 1 if i == 0 else 3) for i in range(len(widths) - 1)])
+        else:
+            self.inc = nn.Sequential(ConvAct(cin, widths[0]), ConvAct(widths[0], widths[0]))
+            self.downs = nn.ModuleList([nn.Sequential(nn.MaxPool2d(2), ConvAct(widths[i], widths[i + 1]),
+                                                      ConvAct(widths[i + 1], widths[i + 1]))
+                                        for i in range(len(widths) - 1)])
+            self.mid = nn.Identity()
+            self.ups = nn.ModuleList([nn.ConvTranspose2d(widths[i + 1], widths[i], 2, 2) for i in range(len(widths) - 1)])
+            self.merge = nn.ModuleList([nn.Sequential(ConvAct(2 * widths[i], widths[i]), ConvAct(widths[i], widths[i]))
+                                        for i in range(len(widths) - 1)])
+        self.out = conv(widths[0], cout, 1)
+
+    def forward(self, x):
+        skips = [self.inc(x)]
+        for d in self.downs:
+            skips.append(d(skips[-1]))
+        y = self.mid(skips.pop())
+        for i in reversed(range(len(self.ups))):
+            up = self.ups[i](y)
+            skip = skips.pop()
+            y = self.merge[i](up + skip if self.light else torch.cat([up, skip], 1))
+        return self.out(y)
+
+
+def zmap_encoding(z):
+    """cos(n*pi*z), sin(n*pi*z) for n = 1..16: [B,1,H,W] -> [B,32,H,W]."""
+    n = torch.arange(1, ZMAP_FREQUENCIES + 1, dtype=z.dtype, device=z.device).view(1, -1, 1, 1)
+    a = z * n * math.pi
+    return torch.cat([torch.cos(a), torch.sin(a)], 1)
+
+
+class Encoder(nn.Module):
+    def __init__(self, tier, fof_n):
+        super().__init__()
+        cfg = TIERS[tier]
+        cin = 3 + fof_n + 3
+        if cfg["encoder"] == "plain":
+            self.net = PlainEncoder(cin, cfg["encoder_widths"], cfg["encoder_blocks"], cfg["features"])
+        else:
+            self.net = HRNetEncoder(cin, cfg["encoder_widths"], cfg["encoder_blocks"], cfg["features"])
+
+    def forward(self, image, fof, normals):
+        return self.net(torch.cat([image, fof, normals], 1))
+
+
+class Decoder(nn.Module):
+    def __init__(self, tier):
+        super().__init__()
+        cfg = TIERS[tier]
+        self.net = UNet(cfg["features"] + 2 * ZMAP_FREQUENCIES + 3, 3, cfg["decoder_widths"], light=tier == "tiny")
+        self.stride = self.net.stride
+
+    def forward(self, features, zmap, normals):
+        return self.net(torch.cat([features, zmap_encoding(zmap), normals], 1))
+
+
+class FofNet(nn.Module):
+    def __init__(self, tier, fof_n):
+        super().__init__()
+        self.net = UNet(3, fof_n, TIERS[tier]["fof_widths"], light=False)
+        self.stride = self.net.stride
+
+    def forward(self, image):
+        return self.net(image)
+
+
+def count_parameters(m):
+    return sum(p.numel() for p in m.parameters())

@@ -1,0 +1,255 @@
+"""Tests of the training package on a tiny synthetic dataset (python -m unittest discover -s train/tests -t .)."""
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import unittest
+
+import numpy as np
+import torch
+
+from train import losses
+from train.dataset import R2Dataset, downsample_view, view_angle_deg
+from train.fit import R2HumanNet, decode_occupancy
+from train.geometry import transfer, visibility
+from train.nets import TIERS, Decoder, Encoder, FofNet, UNet, zmap_encoding
+from train.synth import fof_from_intervals, orbit_view_from_world, write_dataset
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+_DATA = None
+
+
+def data():
+    """One shared synthetic dataset: 4 subjects (1 held out), 3 views, 32 px, N = 8."""
+    global _DATA
+    if _DATA is None:
+        _DATA = tempfile.mkdtemp(prefix="r2h_synth_")
+        write_dataset(_DATA, subjects=4, views=3, res=32, fof_n=8, seed=1, test=1)
+    return _DATA
+
+
+def batch(ds, i=0):
+    return {k: v[None] for k, v in ds[i].items()}
+
+
+class DatasetTest(unittest.TestCase):
+    def test_items_follow_the_contract(self):
+        ds = R2Dataset(data(), "train")
+        self.assertEqual((len(ds), ds.fof_n, ds.res), (3, 8, 32))
+        b = ds[0]
+        self.assertEqual(tuple(b["src_image"].shape), (3, 32, 32))
+        self.assertEqual(tuple(b["src_fof"].shape), (8, 32, 32))
+        m = b["src_mask"][0] > 0
+        # Premultiplied: background exactly -1, the person inside [-1, 1].
+        self.assertTrue(torch.all(b["src_image"][:, ~m] == -1))
+        self.assertTrue(b["src_image"].min() >= -1 and b["src_image"].max() <= 1)
+        n = b["ref_normals"].norm(dim=0)
+        self.assertTrue(torch.allclose(n[b["ref_mask"][0] > 0], torch.ones(1), atol=1e-4))
+        self.assertEqual(R2Dataset(data(), "test").subjects, ["subject_0003"])
+
+    def test_downsampling_keeps_depth_and_normals_meaningful(self):
+        ds = R2Dataset(data(), "train", resolution=16)
+        full = R2Dataset(data(), "train")
+        self.assertEqual(tuple(ds[0]["src_image"].shape), (3, 16, 16))
+        a, b = ds[0]["src_fof"], full[0]["src_fof"]
+        self.assertTrue(torch.allclose(a, b.view(8, 16, 2, 16, 2).mean((2, 4)), atol=1e-5))
+        rgba = np.zeros((4, 4, 4), np.float32)
+        depth = -np.ones((4, 4), np.float32)
+        depth[0, 0], depth[0, 1] = 0.2, 0.4
+        rgba[0, 0] = [1, 0, 0, 1]
+        normal = np.zeros((4, 4, 3), np.float32)
+        normal[0, 0] = normal[0, 1] = [0, 0, 1]
+        r, d, n = downsample_view(rgba, depth, normal, 2)
+        self.assertAlmostEqual(float(d[0, 0]), 0.3, places=6)  # mean over foreground sub-pixels only
+        self.assertEqual(float(d[1, 1]), -1.0)
+        self.assertAlmostEqual(float(r[0, 0, 3]), 0.25)
+        self.assertAlmostEqual(float(r[0, 0, 0]), 1.0)  # straight colour survives premultiplied averaging
+        self.assertTrue(np.allclose(n[0, 0], [0, 0, 1]))
+
+    def test_view_angle(self):
+        self.assertAlmostEqual(view_angle_deg(np.eye(4)), 0.0)
+        self.assertAlmostEqual(view_angle_deg(orbit_view_from_world(90, 0)), 90.0, places=4)
+        self.assertAlmostEqual(view_angle_deg(orbit_view_from_world(180, 0)), 180.0, places=4)
+
+
+class GeometryTest(unittest.TestCase):
+    def test_identity_transfer_is_pixel_centres_and_depth(self):
+        depth = torch.full((1, 1, 4, 4), -1.0)
+        depth[0, 0, 1, 2] = 0.25
+        eye, half = torch.eye(4)[None], torch.ones(1, 2)
+        grid, z, mask = transfer(depth, eye, half, eye, half)
+        self.assertEqual(float(mask.sum()), 1.0)
+        # col 2, row 1 of 4: x = 2.5/2 - 1 = 0.25, grid y = -(1 - 1.5/2) = -0.25.
+        self.assertTrue(torch.allclose(grid[0, 1, 2], torch.tensor([0.25, -0.25])))
+        self.assertAlmostEqual(float(z[0, 0, 1, 2]), 0.25)
+        self.assertEqual(float(z[0, 0, 0, 0]), 0.0)
+
+    def test_quarter_turn_maps_depth_to_source_x(self):
+        # A view rotated by yaw 90 deg: its view z axis is world +-x, so the source x of a pixel is +-its depth.
+        vfw = torch.tensor(orbit_view_from_world(90, 0), dtype=torch.float32)[None]
+        depth = torch.full((1, 1, 2, 2), 0.5)
+        grid, z, _ = transfer(depth, vfw, torch.ones(1, 2), torch.eye(4)[None], torch.ones(1, 2))
+        world = torch.linalg.inv(vfw[0]) @ torch.tensor([-0.5, 0.5, 0.5, 1.0])
+        self.assertTrue(torch.allclose(grid[0, 0, 0], torch.stack([world[0], -world[1]]), atol=1e-6))
+        self.assertAlmostEqual(float(z[0, 0, 0, 0]), float(world[2]), places=6)
+        self.assertAlmostEqual(abs(float(world[0])), 0.5, places=6)
+
+    def test_visibility_same_view_all_and_opposite_views_little(self):
+        ds = R2Dataset(data(), "train")
+        b = batch(ds)
+        _, vis = visibility(b["ref_depth"], b["ref_view_from_world"], b["ref_half"],
+                            b["ref_depth"], b["ref_view_from_world"], b["ref_half"])
+        self.assertEqual(float(vis.sum()), float((b["ref_depth"] > -1).sum()))
+        # The source view against the back view of the same body: almost nothing is visible in both.
+        from train.synth import render
+        name = ds.subjects[0]
+        with open(os.path.join(data(), name, "subject.json")) as f:
+            subject = json.load(f)["subject"]
+        back = torch.tensor(orbit_view_from_world(180, 0), dtype=torch.float32)[None]
+        _, d_back, _, _ = render(subject, back[0].double().numpy(), 32)
+        d_src = torch.from_numpy(np.load(os.path.join(data(), name, "source_depth.npy")))[None, None]
+        d_back = torch.from_numpy(d_back)[None, None]
+        _, vis = visibility(d_back, back, torch.ones(1, 2), d_src, torch.eye(4)[None], torch.ones(1, 2))
+        self.assertLess(float(vis.sum()), 0.1 * float((d_back > -1).sum()))
+        # ... while a small turn keeps most of it visible.
+        side = torch.tensor(orbit_view_from_world(20, 0), dtype=torch.float32)[None]
+        _, d_side, _, _ = render(subject, side[0].double().numpy(), 32)
+        d_side = torch.from_numpy(d_side)[None, None]
+        _, vis = visibility(d_side, side, torch.ones(1, 2), d_src, torch.eye(4)[None], torch.ones(1, 2))
+        self.assertGreater(float(vis.sum()), 0.6 * float((d_side > -1).sum()))
+
+
+class FofTest(unittest.TestCase):
+    def test_single_interval_coefficients_and_decode(self):
+        z_in, z_out = -0.3, 0.5
+        iv = [(np.array([[z_in]]), np.array([[z_out]]), np.array([[True]]))]
+        c = fof_from_intervals(iv, 32)
+        self.assertAlmostEqual(float(c[0, 0, 0]), z_out - z_in, places=5)
+        k = 3
+        want = (math.sin(k * math.pi * (z_out + 1) / 2) - math.sin(k * math.pi * (z_in + 1) / 2)) / (k * math.pi / 2)
+        self.assertAlmostEqual(float(c[0, 0, k]), want, places=5)
+        occ = decode_occupancy(torch.from_numpy(c).permute(2, 0, 1)[None], 64)[0, :, 0, 0]
+        s = (torch.arange(64) + 0.5) / 64 * 2 - 1  # z of each sample
+        inside = (s > z_in + 0.1) & (s < z_out - 0.1)
+        outside = (s < z_in - 0.1) | (s > z_out + 0.1)
+        self.assertTrue(torch.all(occ[inside] > 0.8) and torch.all(occ[outside] < 0.2), occ)
+
+    def test_overlapping_intervals_are_merged(self):
+        iv = [(np.array([[-0.5]]), np.array([[0.2]]), np.array([[True]])),
+              (np.array([[0.0]]), np.array([[0.4]]), np.array([[True]])),
+              (np.array([[0.6]]), np.array([[0.7]]), np.array([[True]]))]
+        c = fof_from_intervals(iv, 8)
+        self.assertAlmostEqual(float(c[0, 0, 0]), 0.9 + 0.1, places=5)
+
+
+class LossTest(unittest.TestCase):
+    def test_masked_l1_ssim_and_perceptual(self):
+        x = torch.rand(1, 3, 16, 16) * 2 - 1
+        m = torch.zeros(1, 1, 16, 16)
+        m[..., 4:12, 4:12] = 1
+        y = x.clone()
+        y[..., :2, :] += 5  # differences outside the mask do not count
+        self.assertAlmostEqual(float(losses.masked_l1(y, x, m)), 0.0)
+        self.assertAlmostEqual(float(losses.masked_l1(x + 0.5 * m, x, m)), 0.5, places=6)
+        self.assertTrue(torch.allclose(losses.ssim_map((x + 1) / 2, (x + 1) / 2), torch.ones(1), atol=1e-4))
+        self.assertAlmostEqual(float(losses.perceptual(y, x, m)), 0.0, places=4)
+        self.assertGreater(float(losses.perceptual(-x, x, m)), 0.5)
+
+    def test_ground_truth_views_are_consistent(self):
+        # Exact renders of one textured body from two views agree where Eq. 9 says both see the surface.
+        from train.synth import render
+        with open(os.path.join(data(), "subject_0000", "subject.json")) as f:
+            subject = json.load(f)["subject"]
+        b = {}
+        for name, yaw in (("ref", 0.0), ("mv", 20.0)):
+            m = orbit_view_from_world(yaw, 5)
+            rgba, d, _, _ = render(subject, m, 64)
+            b[name + "_rgb"] = torch.from_numpy(rgba[..., :3] * 2 - 1).permute(2, 0, 1)[None].float()
+            b[name + "_depth"] = torch.from_numpy(d)[None, None]
+            b[name + "_mask"] = torch.from_numpy((d > -1).astype(np.float32))[None, None]
+            b[name + "_view_from_world"] = torch.tensor(m, dtype=torch.float32)[None]
+            b[name + "_half"] = torch.ones(1, 2)
+        l_gt, frac = losses.consistency(b["ref_rgb"], b["mv_rgb"], b)
+        self.assertGreater(float(frac), 0.8)
+        l_bad, _ = losses.consistency(b["ref_rgb"], -b["mv_rgb"], b)
+        self.assertLess(float(l_gt), 0.06)
+        self.assertGreater(float(l_bad), 8 * float(l_gt))
+
+
+class NetsTest(unittest.TestCase):
+    def test_shapes_per_tier(self):
+        for tier in ("tiny", "small"):
+            c = TIERS[tier]["features"]
+            e, d, f = Encoder(tier, 8), Decoder(tier), FofNet(tier, 8)
+            with torch.no_grad():
+                feats = e(torch.zeros(1, 3, 64, 64), torch.zeros(1, 8, 64, 64), torch.zeros(1, 3, 64, 64))
+                self.assertEqual(tuple(feats.shape), (1, c, 16, 16))
+                s = d.stride
+                out = d(torch.zeros(1, c, 3 * s, 5 * s), torch.zeros(1, 1, 3 * s, 5 * s), torch.zeros(1, 3, 3 * s, 5 * s))
+                self.assertEqual(tuple(out.shape), (1, 3, 3 * s, 5 * s))
+                self.assertEqual(tuple(f(torch.zeros(1, 3, 64, 64)).shape), (1, 8, 64, 64))
+
+    def test_paper_decoder_sees_291_channels(self):
+        d = Decoder("paper")
+        first = d.net.inc[0][0]
+        self.assertEqual(first.in_channels, 291)
+        self.assertEqual([m.out_channels for m in d.net.downs.modules() if isinstance(m, torch.nn.Conv2d)][-1], 1024)
+
+    def test_zmap_encoding(self):
+        z = torch.tensor([0.25]).view(1, 1, 1, 1)
+        e = zmap_encoding(z)[0, :, 0, 0]
+        self.assertEqual(e.shape[0], 32)
+        self.assertAlmostEqual(float(e[0]), math.cos(math.pi * 0.25), places=6)
+        self.assertAlmostEqual(float(e[16 + 3]), math.sin(4 * math.pi * 0.25), places=6)
+
+    def test_unet_stride(self):
+        self.assertEqual(UNet(3, 3, [8, 8, 8], light=True).stride, 4)
+
+
+class TrainExportTest(unittest.TestCase):
+    def test_fit_export_and_onnx_agreement(self):
+        out = tempfile.mkdtemp(prefix="r2h_run_")
+        env = dict(os.environ, PYTHONPATH=ROOT)
+        base = [sys.executable, "-m", "train"]
+        common = ["--data", data(), "--tier", "tiny", "--resolution", "32", "--steps", "3", "--batch", "2",
+                  "--log-every", "1", "--threads", "1"]
+        subprocess.run(base + ["fit", *common, "--out", out], check=True, env=env, capture_output=True)
+        subprocess.run(base + ["fit-fof", *common, "--out", out], check=True, env=env, capture_output=True)
+        log = open(os.path.join(out, "train.log")).read()
+        self.assertIn("held-out evaluation", log)
+        self.assertIn("held-out FOF evaluation", log)
+        models = os.path.join(out, "models")
+        r = subprocess.run(base + ["export", "--renderer", os.path.join(out, "renderer.pt"), "--fof",
+                                   os.path.join(out, "fof.pt"), "--out", models], check=True, env=env,
+                           capture_output=True, text=True)
+        report = json.load(open(os.path.join(models, "export_report.json")))
+        self.assertLess(report["encoder"]["max_abs_diff"], 1e-3, r.stdout)
+        for v in report["decoder"].values():
+            self.assertLess(v["max_abs_diff"], 1e-3)
+        import onnx
+        m = onnx.load(os.path.join(models, "decoder.onnx"))
+        meta = {p.key: p.value for p in m.metadata_props}
+        self.assertEqual((meta["r2human.kind"], meta["r2human.tier"], meta["r2human.resolution"],
+                          meta["r2human.fof_n"], meta["r2human.stride"]), ("decoder", "tiny", "32", "8", "4"))
+        self.assertEqual(json.loads(meta["r2human.recipe"])["steps"], 3)
+        self.assertEqual([i.name for i in m.graph.input], ["features", "zmap", "normals"])
+
+    def test_torchrun_two_processes(self):
+        out = tempfile.mkdtemp(prefix="r2h_ddp_")
+        env = dict(os.environ, PYTHONPATH=ROOT, OMP_NUM_THREADS="1")
+        torchrun = os.path.join(os.path.dirname(sys.executable), "torchrun")
+        r = subprocess.run([torchrun, "--standalone", "--nproc_per_node=2", "-m", "train", "fit", "--data", data(),
+                            "--tier", "tiny", "--resolution", "16", "--steps", "2", "--batch", "1", "--log-every",
+                            "1", "--no-eval", "--threads", "1", "--out", out], env=env, capture_output=True, text=True)
+        self.assertEqual(r.returncode, 0, r.stderr[-3000:])
+        log = open(os.path.join(out, "train.log")).read()
+        self.assertIn("world 2", log)
+        self.assertEqual(log.count("step 1 "), 1)  # rank 0 alone logs
+        ck = torch.load(os.path.join(out, "renderer.pt"), map_location="cpu")
+        self.assertEqual(ck["recipe"]["world_size"], 2)
+
+
+if __name__ == "__main__":
+    unittest.main()
