@@ -1,6 +1,7 @@
 //! Command-line commands: argument parsing and hand-over to the library. No algorithm lives here.
 
 mod data;
+mod live;
 mod render;
 
 use std::process::ExitCode;
@@ -29,6 +30,14 @@ pub enum Command {
     Dataset(data::DatasetArgs),
     /// Write one synthetic person as a textured glTF binary (.glb).
     Synth(data::SynthArgs),
+    /// Measure error against run time for every method on synthetic subjects (and scans) with ground truth.
+    Eval(data::EvalArgs),
+    /// Open a desktop window: drag to orbit, wheel to zoom, V/A for VR/AR, G/N geometric/neural, S screenshot.
+    View(live::ViewArgs),
+    /// Run as an OpenXR application (VR panorama or AR passthrough); --check describes the runtime.
+    Xr(live::XrArgs),
+    /// List the cameras that can feed the pipeline.
+    Devices,
 }
 
 /// Entry point of the binary: parses arguments, runs the command, prints errors as sentences.
@@ -40,6 +49,10 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => render::run_demo(&args),
         Command::Dataset(args) => data::run_dataset(&args),
         Command::Synth(args) => data::run_synth(&args),
+        Command::Eval(args) => data::run_eval(&args),
+        Command::View(args) => live::run_view(&args),
+        Command::Xr(args) => live::run_xr(&args),
+        Command::Devices => live::run_devices(),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

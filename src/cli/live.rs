@@ -1,0 +1,111 @@
+//! `view`, `xr` and `devices`: the interactive and live commands.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+use crate::app::mirror::{self, Backend};
+use crate::app::xr_session::{self, XrOptions};
+use crate::compose::Mode;
+
+/// Arguments of `view`.
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless --mask is given.
+    #[arg(long)]
+    pub image: PathBuf,
+    /// Person mask (white = person), same size as the image.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Panorama behind the person in VR.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// Start in VR (panorama) or AR (person alone); V and A switch while running.
+    #[arg(long, value_enum, default_value_t = Mode::Vr)]
+    pub mode: Mode,
+    /// Engine for the person: the Vulkan passes or the CPU reference (falls back to CPU without a device).
+    #[arg(long, value_enum, default_value_t = Backend::Vulkan)]
+    pub backend: Backend,
+    /// Render this many frames and exit (for tests and benchmarks).
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Window size in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub size: u32,
+    /// Folder for screenshots (S key).
+    #[arg(long, default_value = ".")]
+    pub screenshot_dir: PathBuf,
+    /// Write the last frame to this PNG when the window closes.
+    #[arg(long)]
+    pub screenshot_on_exit: Option<PathBuf>,
+}
+
+/// Arguments of `xr`.
+#[derive(Args, Debug)]
+pub struct XrArgs {
+    /// Print the OpenXR runtime, its extensions, blend modes and view configuration, then exit.
+    #[arg(long)]
+    pub check: bool,
+    /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless --mask is given.
+    #[arg(long, required_unless_present = "check")]
+    pub image: Option<PathBuf>,
+    /// Person mask (white = person), same size as the image.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Panorama around the viewer in VR.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// VR (panorama) or AR (passthrough where the runtime offers it).
+    #[arg(long, value_enum, default_value_t = Mode::Vr)]
+    pub mode: Mode,
+    /// Stop after this many frames showing the person.
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Largest eye image side in pixels.
+    #[arg(long, default_value_t = 384)]
+    pub eye_size: u32,
+    /// Do not show the eye images in a desktop window.
+    #[arg(long)]
+    pub no_mirror: bool,
+}
+
+/// `r2human view`.
+pub fn run_view(args: &ViewArgs) -> Result<()> {
+    mirror::run_view(mirror::ViewOptions {
+        image: args.image.clone(),
+        mask: args.mask.clone(),
+        env: args.env.clone(),
+        mode: args.mode,
+        backend: args.backend,
+        frames: args.frames,
+        size: args.size,
+        screenshot_dir: args.screenshot_dir.clone(),
+        screenshot_on_exit: args.screenshot_on_exit.clone(),
+        ..Default::default()
+    })
+}
+
+/// `r2human xr`.
+pub fn run_xr(args: &XrArgs) -> Result<()> {
+    if args.check {
+        return xr_session::run_check();
+    }
+    let image = args.image.clone().expect("clap requires --image unless --check");
+    xr_session::run_xr(XrOptions {
+        image,
+        mask: args.mask.clone(),
+        env: args.env.clone(),
+        mode: args.mode,
+        frames: args.frames,
+        eye_size: args.eye_size,
+        mirror: !args.no_mirror,
+        ..Default::default()
+    })
+}
+
+/// `r2human devices`.
+pub fn run_devices() -> Result<()> {
+    print!("{}", crate::capture::camera::devices_report());
+    Ok(())
+}
