@@ -154,3 +154,25 @@ fn non_square_and_mask_file_inputs_work() {
     assert!(ok, "{text}");
     assert!(out.exists());
 }
+
+#[test]
+fn video_folder_writes_one_png_per_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = dir.path().join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    for i in 0..3 {
+        common::write_figure(&frames.join(format!("f{i}.png")), 150, 200);
+    }
+    let out = dir.path().join("out");
+    let (ok, text) = run(r2human()
+        .args(["render", "--segment", "alpha", "--yaw", "45", "--size", "64", "--video"])
+        .arg(&frames)
+        .arg("--out")
+        .arg(&out));
+    assert!(ok, "{text}");
+    let written = std::fs::read_dir(&out).unwrap().count();
+    assert_eq!(written, 3, "{text}");
+    let (ok, text) =
+        run(r2human().args(["render", "--segment", "nonsense", "--video"]).arg(&frames).arg("--out").arg(&out));
+    assert!(!ok && text.contains("--segment"), "{text}");
+}

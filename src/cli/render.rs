@@ -66,8 +66,15 @@ pub struct ViewOptions {
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Photo of a person (PNG/JPEG). Its alpha channel is the person mask unless --mask is given.
-    #[arg(long)]
-    pub image: PathBuf,
+    #[arg(long, required_unless_present = "video")]
+    pub image: Option<PathBuf>,
+    /// A video file or a folder of frames instead of --image: writes one PNG per input frame into --out.
+    #[arg(long, conflicts_with_all = ["image", "orbit"])]
+    pub video: Option<PathBuf>,
+    /// Person segmentation for --video: alpha (the frames' own), plate (clean plate: the first frames show the
+    /// empty scene), onnx (segmentation model installed by scripts/setup.sh) or auto.
+    #[arg(long, default_value = "auto")]
+    pub segment: String,
     /// Person mask (white = person), same size as the image.
     #[arg(long)]
     pub mask: Option<PathBuf>,
@@ -152,7 +159,11 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     if !args.yaw.is_finite() {
         bail!("--yaw must be a finite number of degrees");
     }
-    let (photo, mask) = load_person(&args.image, args.mask.as_deref())?;
+    if let Some(video) = &args.video {
+        return run_render_video(args, video);
+    }
+    let image = args.image.as_deref().context("--image or --video is required")?;
+    let (photo, mask) = load_person(image, args.mask.as_deref())?;
     let env = load_environment(&args.view)?;
     let prepared = prepare(&photo, &mask, &args.view)?;
     match args.orbit {
@@ -170,6 +181,28 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
             let frames = render_orbit(&prepared, &args.view, &env, n, args.yaw)?;
             write_orbit(&args.out, &frames)?;
         }
+    }
+    Ok(())
+}
+
+/// `render --video`: one PNG per input frame (frames that cannot be used are skipped with a message).
+fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
+    use crate::app::live::{render_video_views, LiveOptions};
+    use crate::capture::{open_video_path, SegmentMethod};
+    let Some(segment) = SegmentMethod::parse(&args.segment) else {
+        bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
+    };
+    let mut source = open_video_path(video, 25.0)?;
+    let live = LiveOptions { segment: segment.clone(), ..Default::default() };
+    let prepare = PrepareOptions { fof_order: args.view.fof_order, geometry: args.view.geometry, ..Default::default() };
+    let cam = Camera::orbit(args.yaw, args.view.pitch, args.view.size, args.view.size);
+    let report =
+        render_video_views(source.as_mut(), &segment, &live, &prepare, &cam, args.view.fill.into(), &args.out, |m| {
+            eprintln!("warning: {m}")
+        })?;
+    println!("wrote {} frames to {} ({} skipped)", report.written.len(), args.out.display(), report.skipped.len());
+    if report.written.is_empty() {
+        bail!("no frame could be rendered");
     }
     Ok(())
 }
