@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# The project's test command: sets up what is missing, then runs formatting, lint and the whole test suite.
+# The project's test command: sets up what is missing, then checks formatting and lints (clippy -D warnings) and
+# runs the whole test suite (unit, integration, Vulkan parity on lavapipe, the XR client against Monado).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 cargo fmt --all -- --check
+cargo clippy --all-targets -- -D warnings
 cargo test --all-targets --no-fail-fast 2>&1 | tee target/test.log

@@ -281,7 +281,7 @@ mod dataset {
                 assert!((n.length() - 1.0).abs() < 1e-4 && (-1.0..=1.0).contains(&depth[i]));
             }
             // c_0 is the occupied length along the ray: positive exactly where the source view sees the body.
-            fof_agree += ((fof[8 * i] > 1e-4) == !bg) as usize;
+            fof_agree += ((fof[8 * i] > 1e-4) != bg) as usize;
         }
         assert!(covered > 200, "{covered} covered pixels");
         assert!(fof_agree >= 64 * 64 - 8, "FOF and mask disagree on {} pixels", 64 * 64 - fof_agree);

@@ -11,7 +11,6 @@
 //! Library discovery lives in [`ort_library_path`] only, so it can be unified with `neural` later.
 
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 
 use ort::session::Session;
 use ort::value::TensorRef;
@@ -93,23 +92,13 @@ pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, CaptureError> {
         })
 }
 
-static ENVIRONMENT: Mutex<Option<ort::environment::Environment>> = Mutex::new(None);
-
-/// The process-wide ONNX Runtime environment (one library and one environment per process).
+/// The process-wide ONNX Runtime environment, shared with the neural renderer (ONNX Runtime allows one per
+/// process, so both must go through [`crate::neural::environment`]).
 fn environment() -> Result<ort::environment::Environment, CaptureError> {
-    let mut guard = ENVIRONMENT.lock().unwrap_or_else(|p| p.into_inner());
-    if let Some(env) = guard.as_ref() {
-        return Ok(env.clone());
-    }
     let path = ort_library_path()?;
-    let load = |e: String| CaptureError::Model(format!("cannot load ONNX Runtime from `{}`: {e}", path.display()));
-    let env = ort::init_from(&path)
-        .map_err(|e| load(e.to_string()))?
-        .with_name("r2human")
-        .build()
-        .map_err(|e| load(e.to_string()))?;
-    *guard = Some(env.clone());
-    Ok(env)
+    let options = crate::neural::RuntimeOptions { library: Some(path.clone()), ..Default::default() };
+    crate::neural::environment(&options)
+        .map_err(|e| CaptureError::Model(format!("cannot load ONNX Runtime from `{}`: {e}", path.display())))
 }
 
 /// The segmentation networks this module knows, told apart by their outputs when loaded.

@@ -566,10 +566,10 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     if let Some(uv) = out.uv.as_mut() {
         let uvs = &mesh.uvs;
         uv.par_chunks_mut(w).enumerate().for_each(|(row, ur)| {
-            for col in 0..w {
+            for (col, out_uv) in ur.iter_mut().enumerate() {
                 if let Some((t, b)) = resolve(row * w + col) {
                     let idx = mesh.triangles[t as usize].map(|i| i as usize);
-                    ur[col] = uvs[idx[0]] * b[0] + uvs[idx[1]] * b[1] + uvs[idx[2]] * b[2];
+                    *out_uv = uvs[idx[0]] * b[0] + uvs[idx[1]] * b[1] + uvs[idx[2]] * b[2];
                 }
             }
         });
