@@ -187,16 +187,7 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
         (Some(p), _) => Environment::load(p).with_context(|| format!("cannot use the panorama {}", p.display()))?,
         (None, _) => Environment::default_embedded(),
     };
-    let photo = image_io::load_image(&opts.image)?;
-    let mask = match &opts.mask {
-        Some(m) => image_io::load_mask(m, photo.rgb.width, photo.rgb.height)?,
-        None => photo.alpha.clone().ok_or_else(|| {
-            anyhow!(
-                "{} has no alpha channel, so the person cannot be told from the background: give a mask (white = person) or a PNG with transparency",
-                opts.image.display()
-            )
-        })?,
-    };
+    let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
     tracing::info!("preparing the input (segmentation mask, geometry, mesh)");
     let prepare =
         PrepareOptions { resolution: opts.resolution, depth_samples: opts.resolution, ..PrepareOptions::default() };

@@ -10,10 +10,10 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 
-use crate::buffer::{GrayImage, RgbaImage};
+use crate::buffer::RgbaImage;
 use crate::compose::{self, Mode};
 use crate::io::environment::Environment;
-use crate::io::image_io::{self, LoadedImage};
+use crate::io::image_io;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
 use crate::xr::{EyeImageRenderer, EyeRequest, SessionConfig, SessionReport, XrMode};
@@ -82,21 +82,6 @@ impl EyeImageRenderer for PipelineEyeRenderer<'_> {
     }
 }
 
-/// Loads the photo and its mask (the alpha channel, or `mask`).
-pub fn load_person(opts: &XrOptions) -> Result<(LoadedImage, GrayImage)> {
-    let photo = image_io::load_image(&opts.image)?;
-    let mask = match (&opts.mask, &photo.alpha) {
-        (Some(m), _) => image_io::load_mask(m, photo.rgb.width, photo.rgb.height)?,
-        (None, Some(a)) => a.clone(),
-        (None, None) => bail!(
-            "{} has no alpha channel, so the person cannot be told from the background: give a mask \
-             (white = person) or a PNG with transparency around the person",
-            opts.image.display()
-        ),
-    };
-    Ok((photo, mask))
-}
-
 /// Prepares the input and runs one OpenXR session; returns the session report.
 pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if !(16..=4096).contains(&opts.eye_size) {
@@ -105,7 +90,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if opts.frames == Some(0) {
         bail!("--frames 0 shows nothing: give at least 1, or leave it out to run until the headset session ends");
     }
-    let (photo, mask) = load_person(opts)?;
+    let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
     let prepared = PreparedInput::prepare(&photo.rgb, &mask, &PrepareOptions::default())
         .with_context(|| format!("preparing {}", opts.image.display()))?;
     let environment = match (opts.mode, &opts.env) {

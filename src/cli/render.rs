@@ -119,22 +119,6 @@ fn check_view_options(v: &ViewOptions) -> Result<()> {
     Ok(())
 }
 
-/// Loads the photo and its mask (alpha or --mask).
-pub fn load_person(image: &Path, mask: Option<&Path>) -> Result<(LoadedImage, GrayImage)> {
-    let photo = image_io::load_image(image)?;
-    let mask = match mask {
-        Some(m) => image_io::load_mask(m, photo.rgb.width, photo.rgb.height)?,
-        None => match &photo.alpha {
-            Some(a) => a.clone(),
-            None => bail!(
-                "{} has no alpha channel, so the person cannot be told from the background: give --mask FILE (white = person) or a PNG with transparency around the person",
-                image.display()
-            ),
-        },
-    };
-    Ok((photo, mask))
-}
-
 fn load_environment(view: &ViewOptions) -> Result<Environment> {
     match (&view.env, view.mode) {
         // AR needs no panorama: do not even read it.
@@ -163,7 +147,7 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
         return run_render_video(args, video);
     }
     let image = args.image.as_deref().context("--image or --video is required")?;
-    let (photo, mask) = load_person(image, args.mask.as_deref())?;
+    let (photo, mask) = image_io::load_person(image, args.mask.as_deref())?;
     let env = load_environment(&args.view)?;
     let prepared = prepare(&photo, &mask, &args.view)?;
     match args.orbit {
