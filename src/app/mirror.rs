@@ -782,7 +782,9 @@ impl App<'_, '_> {
 
     /// Title and overlay, at most 4 times a second (the overlay mask is uploaded only when its text changed).
     fn update_status(&mut self) {
-        if self.last_status.is_some_and(|t| t.elapsed() < Duration::from_millis(250)) && self.overlay_uploaded {
+        // The last frame of a scripted run always refreshes it, so the reported overlay is the final state.
+        let due = self.finished || self.last_status.is_none_or(|t| t.elapsed() >= Duration::from_millis(250));
+        if !due && self.overlay_uploaded {
             return;
         }
         self.last_status = Some(Instant::now());
