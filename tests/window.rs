@@ -116,6 +116,18 @@ fn run(opts: ViewOptions) -> ViewStats {
     stats
 }
 
+/// Copies `files` into `$R2HUMAN_WINDOW_KEEP/<prefix>-<name>` when that variable is set (to look at them).
+fn keep(prefix: &str, files: &[&Path]) {
+    if let Some(dir) = std::env::var_os("R2HUMAN_WINDOW_KEEP") {
+        let dir = PathBuf::from(dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in files {
+            let name = f.file_name().unwrap().to_string_lossy();
+            std::fs::copy(f, dir.join(format!("{prefix}-{name}"))).unwrap();
+        }
+    }
+}
+
 /// Pixels of the overlay's white letters in the top-left corner of an 8-bit image.
 fn white_in_corner(img: &image::RgbImage, w: u32, h: u32) -> usize {
     let mut n = 0;
@@ -167,6 +179,7 @@ fn mirror_window_renders_frames_and_screenshots_the_person() {
             resolution: 128,
             ..ViewOptions::default()
         });
+        keep("still", &[&shot, &presented]);
         assert_eq!(stats.frames, 6);
         assert_eq!(stats.backend, Backend::Vulkan);
         assert_eq!(stats.screenshots, vec![shot.clone()]);
@@ -251,6 +264,7 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
             resolution: 128,
             ..ViewOptions::default()
         });
+        keep("live", &[&shot, &presented]);
         let live = stats.live.clone().expect("live statistics");
         eprintln!("live: {live:?}\nmessages: {:?}", stats.messages);
         // The whole folder was read; the damaged frame became a message, not the end of the session.
@@ -300,6 +314,7 @@ fn resize_recreates_the_swapchain_on_the_cpu_backend() {
             resolution: 96,
             ..ViewOptions::default()
         });
+        keep("resized", &[&shot]);
         assert_eq!(stats.frames, 8);
         assert_eq!(stats.backend, Backend::Cpu);
         assert!(stats.swapchain_recreations >= 1, "the swapchain was never recreated");
