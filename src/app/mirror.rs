@@ -433,7 +433,7 @@ impl<'a> Engine<'a> {
     fn new(input: PersonInput<'a>, env: &'a Environment, backend: Backend) -> Self {
         let fill = OcclusionFill::default();
         let cpu_still = match (&input, backend) {
-            (PersonInput::Still(p), Backend::Cpu) => Some(ViewRenderer::new(*p, fill, true)),
+            (PersonInput::Still(p), Backend::Cpu) => Some(ViewRenderer::new(p, fill, true)),
             _ => None,
         };
         Self { backend, env, fill, input, cpu_still, uploaded: None, uploads: 0, blank: None }
