@@ -326,3 +326,27 @@ fn resize_recreates_the_swapchain_on_the_cpu_backend() {
         assert!(img.pixels().filter(|p| p[3] > 200).count() > 144 * 80 / 30);
     });
 }
+
+#[test]
+fn view_input_errors_are_sentences_before_any_window_opens() {
+    let run = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_r2human"))
+            .arg("view")
+            .args(args)
+            .env("R2HUMAN_LOG", "warn")
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY")
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "view {args:?} should fail");
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let missing = run(&["--video", "/nonexistent/r2human-frames"]);
+    assert!(missing.contains("cannot open") && missing.contains("--video"), "{missing}");
+    let both = run(&["--video", "a", "--camera", "0"]);
+    assert!(both.contains("cannot be used with"), "{both}");
+    let none = run(&[]);
+    assert!(none.contains("--image"), "{none}");
+    let seg = run(&["--video", "a", "--segment", "magic"]);
+    assert!(seg.contains("--segment magic is not known"), "{seg}");
+}
