@@ -125,10 +125,11 @@ impl GpuEyes {
     }
 
     /// The panorama yaw that keeps it locked to the room for a person turned by `placement_yaw`: the renderer
-    /// looks up body-cube directions `R_y(-placement_yaw) d`, and the panorama rotates a direction by `-yaw`, so
-    /// `base - placement_yaw` gives `R_y(-base) d` as for a room-locked lookup.
+    /// looks up body-cube directions `R_y(-placement_yaw) d`, and a panorama of yaw `y` is looked up along
+    /// `R_y(y) d` (see `io::environment::direction_to_uv`), so `base + placement_yaw` gives `R_y(base) d`, the
+    /// room-locked lookup.
     pub fn room_locked_yaw(base_yaw: f32, placement_yaw: f32) -> f32 {
-        base_yaw - placement_yaw
+        base_yaw + placement_yaw
     }
 
     fn upload_scene(&mut self, scene: &EyeScene) -> Result<(), gpu::GpuError> {

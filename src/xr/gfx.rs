@@ -445,7 +445,8 @@ impl EyeSwapchain {
             &ctx.gpu,
             vk::Extent2D { width, height },
             LINEAR_FORMAT,
-            vk::ImageUsageFlags::TRANSFER_DST | vk::ImageUsageFlags::TRANSFER_SRC,
+            // SAMPLED only because the image comes with a view (gpu::resources::Image2d); it is used by transfers.
+            vk::ImageUsageFlags::TRANSFER_DST | vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::SAMPLED,
             vk::ImageAspectFlags::COLOR,
         )
         .map_err(gpu_err)?;
