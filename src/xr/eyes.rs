@@ -2,6 +2,13 @@
 //! sequence) on the device the OpenXR runtime chose, fed with the person's mesh and source view once per input
 //! frame ([`EyeScene`], from a [`SceneFeed`]), rendering each eye's perspective camera on the GPU.
 //!
+//! Where the renderers run: on the OpenXR session's device, on a second queue of its queue family when there is
+//! one (the results are then copied GPU to GPU). A device with a single queue (lavapipe, many GPUs' graphics
+//! family) executes submissions in order, so the runtime's per-frame work in `xrEndFrame` would wait behind a
+//! whole eye render; there the renderers get their own device ([`GpuEyes::new`] with a separate `render`
+//! context) and each finished eye image is handed over through a host-visible staging buffer on the session's
+//! device, written by the render thread (one copy of the eye image per render, never in the display loop).
+//!
 //! The panorama is locked to the room, not to the person: the renderer looks it up in body-cube directions, so it
 //! is uploaded turned by the placement's yaw (and uploaded again when a controller turns the person).
 
@@ -9,6 +16,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use ash::vk;
+use glam::Vec4;
 
 use super::pacing::{EyeRenderer, EyeRequest};
 use super::placement::Placement;
@@ -17,8 +25,9 @@ use crate::buffer::{GrayImage, RgbImage};
 use crate::compose::Mode;
 use crate::geometry::raster::GBuffer;
 use crate::geometry::{Camera, TriMesh};
-use crate::gpu::{self, Renderer};
+use crate::gpu::{self, resources::Buffer, Renderer};
 use crate::io::environment::Environment;
+use crate::io::sequence::Frame;
 use crate::pipeline::warp::OcclusionFill;
 
 /// What the eyes show of one input frame: the person's mesh in body-cube coordinates and the source view the
@@ -70,8 +79,11 @@ const COPY_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// The per-eye Vulkan renderers and their inputs. See the module docs.
 pub struct GpuEyes {
-    ctx: Arc<gpu::Context>,
+    /// The OpenXR session's device (the copy fences live there).
+    session: Arc<gpu::Context>,
     renderers: Vec<Renderer>,
+    /// Per-eye staging buffers on the session's device when the renderers run on their own device.
+    staging: Option<Vec<Buffer>>,
     feed: Box<dyn SceneFeed>,
     has_scene: bool,
     mode: Mode,
@@ -89,9 +101,12 @@ impl std::fmt::Debug for GpuEyes {
 }
 
 impl GpuEyes {
-    /// One renderer per eye of the given sizes on `ctx`. VR needs the panorama (`environment`); AR ignores it.
+    /// One renderer per eye of the given sizes on `render`, for a session on `session` (the same context, or a
+    /// separate device: then each result is staged in host-visible memory of the session's device). VR needs the
+    /// panorama (`environment`); AR ignores it.
     pub fn new(
-        ctx: Arc<gpu::Context>,
+        session: Arc<gpu::Context>,
+        render: Arc<gpu::Context>,
         sizes: &[(usize, usize)],
         mode: XrMode,
         environment: Option<Environment>,
@@ -106,15 +121,25 @@ impl GpuEyes {
         }
         let mut renderers = Vec::with_capacity(sizes.len());
         for &(w, h) in sizes {
-            let mut r = Renderer::new(ctx.clone(), w, h)?;
+            let mut r = Renderer::new(render.clone(), w, h)?;
             r.set_fill(OcclusionFill::default());
             r.set_fusion(true);
             renderers.push(r);
         }
         let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
+        let staging = if Arc::ptr_eq(&session, &render) {
+            None
+        } else {
+            let mut list = Vec::with_capacity(sizes.len());
+            for &(w, h) in sizes {
+                list.push(Buffer::new(&session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC)?);
+            }
+            Some(list)
+        };
         Ok(Self {
-            ctx,
+            session,
             renderers,
+            staging,
             feed,
             has_scene: false,
             mode,
@@ -179,13 +204,25 @@ impl EyeRenderer for GpuEyes {
             ));
         }
         r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?;
-        Ok(r.output_buffer())
+        match self.staging.as_mut().and_then(|s| s.get_mut(eye.eye)) {
+            // Separate device: hand the result over through the session device's host-visible buffer. Safe to
+            // rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
+            Some(buffer) => {
+                let data: Vec<Vec4> = match r.read_output(mode) {
+                    Frame::Vr(img) => img.data.iter().map(|c| c.extend(1.0)).collect(),
+                    Frame::Ar(img) => img.data,
+                };
+                buffer.write(&data);
+                Ok(buffer.buffer)
+            }
+            None => Ok(r.output_buffer()),
+        }
     }
 
     fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String> {
         // SAFETY: the fence belongs to this device and is only reset by the display loop after it has seen a newer
         // frame, which this thread publishes only after this wait.
-        let result = unsafe { self.ctx.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
+        let result = unsafe { self.session.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
         match result {
             Ok(()) => Ok(()),
             Err(vk::Result::TIMEOUT) => {

@@ -10,6 +10,7 @@
 //! [`EndReason`]; only setup failures are errors.
 
 use std::fmt;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{Quat, Vec2, Vec3};
@@ -263,6 +264,8 @@ pub struct SessionReport {
     pub source_messages: Vec<String>,
     /// The renderer submits to the OpenXR session's queue (the device has one queue).
     pub renderer_shares_queue: bool,
+    /// Where the eyes were rendered and how they reached the swapchains.
+    pub render_path: String,
     /// Time the frame loop waited for the shared queue per frame (ms): median and maximum.
     pub queue_wait_ms: (Option<f64>, f64),
     /// Submitted frames per second while running.
@@ -325,11 +328,11 @@ impl fmt::Display for SessionReport {
         if let Some(ms) = self.eye_render_ms {
             writeln!(f, "per-eye GPU render time (median of {}): {ms:.1} ms", self.eye_renders)?;
         }
+        writeln!(f, "eyes rendered on {}", self.render_path)?;
         if let Some(ms) = self.queue_wait_ms.0 {
             writeln!(
                 f,
-                "frame loop wait for the {} queue per frame: median {ms:.2} ms, max {:.1} ms",
-                if self.renderer_shares_queue { "shared" } else { "session" },
+                "frame loop wait for the session queue lock per frame: median {ms:.2} ms, max {:.1} ms",
                 self.queue_wait_ms.1
             )?;
         }
@@ -581,7 +584,30 @@ pub fn run_session(
     }
     let eye_dims = (eyes[0].width, eyes[0].height);
     let sizes: Vec<(usize, usize)> = eyes.iter().map(|e| (e.width as usize, e.height as usize)).collect();
-    let mut renderer = GpuEyes::new(vk.gpu.clone(), &sizes, config.mode, environment, feed)
+    // On a one-queue device the renderer gets its own device, so the runtime's per-frame work on the session
+    // queue never waits behind an eye render (see `super::eyes`).
+    let render_ctx = if vk.renderer_shares_queue() {
+        let validation = std::env::var("VK_INSTANCE_LAYERS").is_ok_and(|l| l.contains("KHRONOS_validation"));
+        match crate::gpu::Context::new(&crate::gpu::ContextOptions { validation: Some(validation), display: None }) {
+            Ok(c) => Arc::new(c),
+            Err(e) => {
+                tracing::warn!("no separate render device ({e}); the eyes share the session's queue");
+                vk.gpu.clone()
+            }
+        }
+    } else {
+        vk.gpu.clone()
+    };
+    let render_path = if Arc::ptr_eq(&render_ctx, &vk.gpu) {
+        if vk.renderer_shares_queue() {
+            "the session's queue (copied on the GPU)".to_string()
+        } else {
+            "a second queue of the session's device (copied on the GPU)".to_string()
+        }
+    } else {
+        format!("its own device on {} (staged through host memory)", render_ctx.device_name())
+    };
+    let mut renderer = GpuEyes::new(vk.gpu.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
         .map_err(|e| XrError::Render(format!("cannot set up the GPU renderer: {e}")))?;
     let mut uploader = EyeUploader::new(&vk)?;
     let passthrough = if blend.passthrough_fb {
@@ -666,6 +692,22 @@ pub fn run_session(
     drop(passthrough);
     drop((controllers, space, frame_wait, frame_stream, session));
     let eye_times = mailbox.eye_times();
+    let (render_messages, render_message_count) = if Arc::ptr_eq(&render_ctx, &vk.gpu) {
+        (Vec::new(), 0)
+    } else {
+        // The loader's notice that VK_INSTANCE_LAYERS switched the layer on (it is how tests enable validation) is
+        // not a finding; the render device's messenger sees it because it exists from instance creation on.
+        let findings: Vec<String> = render_ctx
+            .validation()
+            .messages()
+            .into_iter()
+            .filter(|m| !(m.starts_with("env var '") && m.contains("defined and adding layers")))
+            .collect();
+        let notices = render_ctx.validation().messages().len() - findings.len();
+        let count = (render_ctx.validation().errors() + render_ctx.validation().warnings()) as usize;
+        (findings, count.saturating_sub(notices))
+    };
+    drop(render_ctx);
     let display_fps = match (loop_state.first_frame, loop_state.last_frame) {
         (Some(a), Some(b)) if b > a && loop_state.frames_submitted > 1 => {
             (loop_state.frames_submitted - 1) as f64 / (b - a).as_secs_f64()
@@ -697,8 +739,9 @@ pub fn run_session(
         end,
         xr_messages: xr_log.messages(),
         xr_message_count: xr_log.count(),
-        vk_messages: vk.validation.messages(),
-        vk_message_count: vk.validation.count(),
+        vk_messages: vk.validation.messages().into_iter().chain(render_messages).collect(),
+        vk_message_count: vk.validation.count() + render_message_count,
+        render_path,
         captures: loop_state.captures,
         placement: loop_state.placement,
         mirror_presented: loop_state.mirror_presented,
