@@ -12,8 +12,8 @@
 # Monado gets its own XDG_RUNTIME_DIR, shared with CMD. Whatever happens, Monado (and Xvfb) are stopped by PID and
 # everything mounted here is unmounted again (trap). The exit status is CMD's. Runs are serialised by a lock file.
 # Environment passed through to CMD: RUST_LOG RUST_BACKTRACE XR_ENABLE_API_LAYERS VK_INSTANCE_LAYERS
-# VK_LOADER_DEBUG XR_LOADER_DEBUG and every R2HUMAN_* variable; CMD also gets R2HUMAN_XR_IN_ROOT=1 and
-# R2HUMAN_XR_RUNTIME_PID (Monado's PID, empty with --no-runtime).
+# VK_LOADER_DEBUG XR_LOADER_DEBUG MESA_VK_ENABLE_SUBMIT_THREAD LP_NUM_THREADS and every R2HUMAN_* variable; CMD also
+# gets R2HUMAN_XR_IN_ROOT=1 and R2HUMAN_XR_RUNTIME_PID (Monado's PID, empty with --no-runtime).
 set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 source "$HERE/lib.sh"
@@ -112,7 +112,8 @@ fi
 
 PASS_ENV=(R2HUMAN_XR_IN_ROOT=1 R2HUMAN_XR_RUNTIME_PID="$MONADO_PID")
 [ "$XVFB" = 1 ] && PASS_ENV+=(DISPLAY=:99)
-for name in RUST_LOG RUST_BACKTRACE XR_ENABLE_API_LAYERS VK_INSTANCE_LAYERS VK_LOADER_DEBUG XR_LOADER_DEBUG; do
+for name in RUST_LOG RUST_BACKTRACE XR_ENABLE_API_LAYERS VK_INSTANCE_LAYERS VK_LOADER_DEBUG XR_LOADER_DEBUG \
+    MESA_VK_ENABLE_SUBMIT_THREAD LP_NUM_THREADS; do
     [ -n "${!name:-}" ] && PASS_ENV+=("$name=${!name}")
 done
 while IFS='=' read -r name _; do

@@ -1,37 +1,67 @@
-//! `r2human xr`: the person from one photo in a headset, per eye through the per-view pipeline, either standing in
-//! a 360-degree panorama (VR) or as an alpha layer over the room (AR); and `r2human xr --check`.
+//! `r2human xr`: the person from one photo — or from a live source, frame by frame — in a headset, rendered per
+//! eye on the GPU, either standing in a 360-degree panorama (VR) or as an alpha layer over the room (AR); and
+//! `r2human xr --check`.
 //!
-//! The OpenXR session, frame pacing and placement live in [`crate::xr`]; this module prepares the input once and
-//! plugs the CPU pipeline in as the eye renderer (one [`ViewRenderer`] per eye, so spatial fusion follows each eye's
-//! own view sequence).
+//! The OpenXR session, the per-eye Vulkan renderers, frame pacing and placement live in [`crate::xr`]; this module
+//! prepares the input (once for a photo; per frame on the live pipeline's worker thread for `--video`/`--camera`)
+//! and hands it to the session as [`EyeScene`]s.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 
-use crate::buffer::RgbaImage;
-use crate::compose::{self, Mode};
+use crate::app::live::{
+    camera_source, video_source, Completed, LatestReader, LiveOptions, LivePipeline, PrepareProcessor,
+};
+use crate::capture::{CameraRequest, SegmentMethod, SourceFactory};
+use crate::compose::Mode;
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
-use crate::xr::{EyeImageRenderer, EyeRequest, SessionConfig, SessionReport, XrMode};
+use crate::pipeline::{PrepareOptions, PreparedInput};
+use crate::xr::{EyeScene, SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
+
+/// Where the person comes from.
+#[derive(Clone, Debug)]
+pub enum XrInput {
+    /// A photo (PNG/JPEG); its alpha channel is the mask unless `mask` is given.
+    Image {
+        /// The photo.
+        path: PathBuf,
+        /// Person mask (white = person), same size as the image.
+        mask: Option<PathBuf>,
+    },
+    /// A video file or a folder of frames, played at `fps` (frame folders) through the live pipeline.
+    Video {
+        /// The file or folder.
+        path: PathBuf,
+        /// Frame rate of a folder of frames.
+        fps: f32,
+        /// Person segmentation.
+        segment: SegmentMethod,
+    },
+    /// A camera through the live pipeline.
+    Camera {
+        /// Which camera and format.
+        request: CameraRequest,
+        /// Person segmentation.
+        segment: SegmentMethod,
+    },
+}
 
 /// Options of `r2human xr`.
 #[derive(Clone, Debug)]
 pub struct XrOptions {
-    /// Photo of a person (PNG/JPEG); its alpha channel is the mask unless `mask` is given.
-    pub image: PathBuf,
-    /// Person mask (white = person), same size as the image.
-    pub mask: Option<PathBuf>,
+    /// The person.
+    pub input: XrInput,
     /// Panorama for VR (equirectangular PNG/JPEG or .hdr); the embedded one when `None`.
     pub env: Option<PathBuf>,
     /// VR or AR.
     pub mode: Mode,
     /// Stop after this many frames showing the person (`None`: until the runtime ends the session).
     pub frames: Option<u64>,
-    /// Largest eye image side in pixels (the CPU renderer cannot fill full headset resolution at display rate).
+    /// Largest eye image side in pixels (a software Vulkan device cannot fill full headset resolution).
     pub eye_size: u32,
     /// Stop after this long (`None`: no limit).
     pub duration: Option<Duration>,
@@ -42,8 +72,7 @@ pub struct XrOptions {
 impl Default for XrOptions {
     fn default() -> Self {
         Self {
-            image: PathBuf::new(),
-            mask: None,
+            input: XrInput::Image { path: PathBuf::new(), mask: None },
             env: None,
             mode: Mode::Vr,
             frames: None,
@@ -54,35 +83,70 @@ impl Default for XrOptions {
     }
 }
 
-/// The per-eye renderer on top of the CPU pipeline: person for the body-cube eye camera, composited over the
-/// room-locked panorama (VR, using the reference-space eye camera for the lookup) or left as the alpha layer (AR).
-pub struct PipelineEyeRenderer<'a> {
-    eyes: Vec<ViewRenderer<'a>>,
-    input: &'a PreparedInput,
-    environment: Option<&'a Environment>,
-}
-
-impl<'a> PipelineEyeRenderer<'a> {
-    /// A renderer for `input`; `environment` is the panorama in VR and `None` in AR.
-    pub fn new(input: &'a PreparedInput, environment: Option<&'a Environment>) -> Self {
-        Self { eyes: Vec::new(), input, environment }
+/// The renderer's view of a prepared input: mesh, source colour and mask, source G-buffer and camera.
+pub fn scene_from_prepared(input: &PreparedInput) -> EyeScene {
+    EyeScene {
+        mesh: input.mesh.clone(),
+        source_rgb: input.normalised.rgb.clone(),
+        source_mask: input.normalised.mask.clone(),
+        source_gbuffer: input.source_gbuffer.clone(),
+        source_camera: input.source_camera,
     }
 }
 
-impl EyeImageRenderer for PipelineEyeRenderer<'_> {
-    fn render_eye(&mut self, eye: &EyeRequest) -> std::result::Result<RgbaImage, String> {
-        while self.eyes.len() <= eye.eye {
-            self.eyes.push(ViewRenderer::new(self.input, OcclusionFill::default(), true));
+/// A live source as a scene feed: the newest completed frame of a [`LivePipeline`] (read without blocking), its
+/// messages passed on, and one message when the source ends (the session keeps showing the last person).
+pub struct LiveFeed {
+    pipeline: LivePipeline<PreparedInput>,
+    reader: LatestReader<Completed<PreparedInput>>,
+    last_sequence: u64,
+    errors_seen: u64,
+    ended_reported: bool,
+}
+
+impl LiveFeed {
+    /// Starts the live pipeline (capture and worker threads) on `factory`'s source with `segment`.
+    pub fn start(factory: SourceFactory, segment: SegmentMethod, prepare: PrepareOptions) -> Result<Self> {
+        let options = LiveOptions { segment, ..Default::default() };
+        let pipeline = LivePipeline::start(factory, PrepareProcessor::new(prepare), options)?;
+        tracing::info!("live input: {}", pipeline.describe());
+        let reader = pipeline.reader();
+        Ok(Self { pipeline, reader, last_sequence: 0, errors_seen: 0, ended_reported: false })
+    }
+}
+
+impl SceneFeed for LiveFeed {
+    fn poll(&mut self) -> Option<Arc<EyeScene>> {
+        let done = self.reader.get()?;
+        if done.sequence == self.last_sequence {
+            return None;
         }
-        let person = self.eyes[eye.eye].render_person(&eye.body_camera).map_err(|e| e.to_string())?;
-        Ok(match self.environment {
-            Some(env) => compose::compose_vr(&person, env, &eye.stage_camera).map(|c| c.extend(1.0)),
-            None => compose::compose_ar(&person),
-        })
+        self.last_sequence = done.sequence;
+        Some(Arc::new(scene_from_prepared(&done.output)))
+    }
+
+    fn take_messages(&mut self) -> Vec<String> {
+        let stats = self.pipeline.stats();
+        let mut out = Vec::new();
+        if stats.errors > self.errors_seen {
+            let new = (stats.errors - self.errors_seen) as usize;
+            let recent = self.pipeline.messages();
+            out.extend(recent.iter().skip(recent.len().saturating_sub(new)).cloned());
+            self.errors_seen = stats.errors;
+        }
+        if !self.ended_reported && self.pipeline.is_finished() {
+            self.ended_reported = true;
+            out.push(format!(
+                "the source `{}` ended after {} frames; the session goes on with the last person",
+                self.pipeline.describe(),
+                stats.read
+            ));
+        }
+        out
     }
 }
 
-/// Prepares the input and runs one OpenXR session; returns the session report.
+/// Prepares the input (or starts the live source) and runs one OpenXR session; returns the session report.
 pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if !(16..=4096).contains(&opts.eye_size) {
         bail!("eye size {} is out of range: use 16 to 4096 pixels", opts.eye_size);
@@ -90,15 +154,32 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if opts.frames == Some(0) {
         bail!("--frames 0 shows nothing: give at least 1, or leave it out to run until the headset session ends");
     }
-    let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
-    let prepared = PreparedInput::prepare(&photo.rgb, &mask, &PrepareOptions::default())
-        .with_context(|| format!("preparing {}", opts.image.display()))?;
+    let feed: Box<dyn SceneFeed> = match &opts.input {
+        XrInput::Image { path, mask } => {
+            let (photo, mask) = image_io::load_person(path, mask.as_deref())?;
+            let prepared = PreparedInput::prepare(&photo.rgb, &mask, &PrepareOptions::default())
+                .with_context(|| format!("preparing {}", path.display()))?;
+            Box::new(StaticScene::new(scene_from_prepared(&prepared)))
+        }
+        XrInput::Video { path, fps, segment } => {
+            if !(*fps > 0.0 && fps.is_finite()) {
+                bail!("--fps {fps} must be a positive number of frames per second");
+            }
+            Box::new(
+                LiveFeed::start(video_source(path, *fps), segment.clone(), PrepareOptions::default())
+                    .with_context(|| format!("opening {}", path.display()))?,
+            )
+        }
+        XrInput::Camera { request, segment } => Box::new(
+            LiveFeed::start(camera_source(request.clone()), segment.clone(), PrepareOptions::default())
+                .with_context(|| format!("opening camera {}", request.index))?,
+        ),
+    };
     let environment = match (opts.mode, &opts.env) {
         (Mode::Ar, _) => None,
         (Mode::Vr, Some(p)) => Some(Environment::load(p)?),
         (Mode::Vr, None) => Some(Environment::default_embedded()),
     };
-    let mut renderer = PipelineEyeRenderer::new(&prepared, environment.as_ref());
     let config = SessionConfig {
         mode: match opts.mode {
             Mode::Vr => XrMode::Vr,
@@ -110,7 +191,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
         capture: false,
         mirror: opts.mirror,
     };
-    let report = crate::xr::run_session(&config, &mut renderer)?;
+    let report = crate::xr::run_session(&config, feed, environment)?;
     if let crate::xr::EndReason::RenderFailed(e) = &report.end {
         bail!("the person renderer failed during the XR session: {e}");
     }
@@ -139,11 +220,20 @@ mod tests {
 
     #[test]
     fn bad_options_are_refused_with_a_sentence() {
-        let opts = XrOptions { image: "missing.png".into(), eye_size: 8, ..Default::default() };
+        let image = |p: &str| XrInput::Image { path: p.into(), mask: None };
+        let opts = XrOptions { input: image("missing.png"), eye_size: 8, ..Default::default() };
         assert!(run_xr_session(&opts).unwrap_err().to_string().contains("eye size 8"));
-        let opts = XrOptions { image: "missing.png".into(), frames: Some(0), ..Default::default() };
+        let opts = XrOptions { input: image("missing.png"), frames: Some(0), ..Default::default() };
         assert!(run_xr_session(&opts).unwrap_err().to_string().contains("--frames 0"));
-        let opts = XrOptions { image: "/nonexistent/person.png".into(), ..Default::default() };
+        let opts = XrOptions { input: image("/nonexistent/person.png"), ..Default::default() };
         assert!(run_xr_session(&opts).is_err());
+        let video = XrInput::Video { path: "/nonexistent/frames".into(), fps: 10.0, segment: SegmentMethod::Alpha };
+        let err = run_xr_session(&XrOptions { input: video, ..Default::default() }).unwrap_err();
+        assert!(format!("{err:#}").contains("/nonexistent/frames"), "{err:#}");
+        let video = XrInput::Video { path: "x".into(), fps: 0.0, segment: SegmentMethod::Alpha };
+        assert!(run_xr_session(&XrOptions { input: video, ..Default::default() })
+            .unwrap_err()
+            .to_string()
+            .contains("--fps"));
     }
 }

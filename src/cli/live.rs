@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 
 use crate::app::mirror::{self, Backend};
-use crate::app::xr_session::{self, XrOptions};
+use crate::app::xr_session::{self, XrInput, XrOptions};
 use crate::compose::Mode;
 
 /// Arguments of `view`.
@@ -64,11 +64,25 @@ pub struct XrArgs {
     #[arg(long)]
     pub check: bool,
     /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless --mask is given.
-    #[arg(long, required_unless_present = "check")]
+    #[arg(long, required_unless_present_any = ["check", "video", "camera"], conflicts_with_all = ["video", "camera"])]
     pub image: Option<PathBuf>,
     /// Person mask (white = person), same size as the image.
-    #[arg(long)]
+    #[arg(long, requires = "image")]
     pub mask: Option<PathBuf>,
+    /// A video file or a folder of frames instead of --image: the person follows the frames (the session keeps
+    /// the last person when the source ends or a frame is unusable).
+    #[arg(long, conflicts_with = "camera")]
+    pub video: Option<PathBuf>,
+    /// A camera (index from `r2human devices`) instead of --image.
+    #[arg(long)]
+    pub camera: Option<u32>,
+    /// Frame rate of a --video folder of frames.
+    #[arg(long, default_value_t = 25.0)]
+    pub fps: f32,
+    /// Person segmentation for --video/--camera: alpha (the frames' own), plate (clean plate: the first frames
+    /// show the empty scene), onnx (segmentation model installed by scripts/setup.sh) or auto.
+    #[arg(long, default_value = "auto")]
+    pub segment: String,
     /// Panorama around the viewer in VR.
     #[arg(long)]
     pub env: Option<PathBuf>,
@@ -115,10 +129,21 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
     if args.check {
         return xr_session::run_check();
     }
-    let image = args.image.clone().expect("clap requires --image unless --check");
+    let segment = || {
+        crate::capture::SegmentMethod::parse(&args.segment)
+            .ok_or_else(|| anyhow::anyhow!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment))
+    };
+    let input = match (&args.image, &args.video, args.camera) {
+        (_, Some(path), _) => XrInput::Video { path: path.clone(), fps: args.fps, segment: segment()? },
+        (_, None, Some(index)) => XrInput::Camera {
+            request: crate::capture::CameraRequest { index, ..Default::default() },
+            segment: segment()?,
+        },
+        (Some(path), None, None) => XrInput::Image { path: path.clone(), mask: args.mask.clone() },
+        (None, None, None) => anyhow::bail!("give --image, --video or --camera (or --check)"),
+    };
     xr_session::run_xr(XrOptions {
-        image,
-        mask: args.mask.clone(),
+        input,
         env: args.env.clone(),
         mode: args.mode,
         frames: args.frames,

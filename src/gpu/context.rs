@@ -4,7 +4,7 @@
 
 use std::ffi::{c_char, c_void, CStr, CString};
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::Mutex;
+use std::sync::{Mutex, MutexGuard};
 
 use ash::vk;
 use raw_window_handle::{RawDisplayHandle, RawWindowHandle};
@@ -106,6 +106,9 @@ pub struct Context {
     debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     log: Box<ValidationLog>,
     owned: bool,
+    /// Serialises submissions when the queue is shared between threads (an OpenXR frame loop and a render
+    /// thread): Vulkan requires external synchronisation of `vkQueueSubmit`/`vkQueueWaitIdle` on one queue.
+    queue_lock: Mutex<()>,
 }
 
 impl std::fmt::Debug for Context {
@@ -287,6 +290,7 @@ impl Context {
                 debug,
                 log,
                 owned: true,
+                queue_lock: Mutex::new(()),
             },
             surface,
         ))
@@ -328,6 +332,7 @@ impl Context {
             debug: None,
             log: Box::new(ValidationLog::default()),
             owned: false,
+            queue_lock: Mutex::new(()),
         })
     }
 
@@ -385,7 +390,14 @@ impl Context {
 
     /// Waits until the device is idle (used before destroying resources).
     pub fn wait_idle(&self) -> Result<(), GpuError> {
+        let _queue = self.lock_queue();
         unsafe { self.device.device_wait_idle() }.map_err(GpuError::vk("wait for the device"))
+    }
+
+    /// Locks the queue for a submission, present or wait from outside the renderer (the renderer takes the same
+    /// lock around its own submissions), so several threads can share the queue. Hold it only for the call.
+    pub fn lock_queue(&self) -> MutexGuard<'_, ()> {
+        self.queue_lock.lock().unwrap_or_else(|p| p.into_inner())
     }
 }
 

@@ -571,6 +571,13 @@ impl Renderer {
         })
     }
 
+    /// The output buffer (`vec4` per pixel, row-major, linear; VR: RGB and 1, AR: premultiplied RGBA) of the last
+    /// frame, for copies into images owned elsewhere (e.g. OpenXR swapchains). It is never reallocated; it is
+    /// rewritten by the next frame, so such copies must finish before the renderer is used again.
+    pub fn output_buffer(&self) -> vk::Buffer {
+        self.out.buffer
+    }
+
     fn write_all_descriptors(&mut self) {
         let buffers: [(u32, &Buffer); binding::COUNT as usize] = [
             (binding::FRAME, &self.frame),
@@ -1155,7 +1162,10 @@ impl Renderer {
                 .wait_semaphores(waits.as_ref().map_or(&[], |w| &w[..]))
                 .wait_dst_stage_mask(&stages[..count])
                 .signal_semaphores(signals.as_ref().map_or(&[], |s| &s[..]));
-            device.queue_submit(self.ctx.queue(), &[submit], self.fence).map_err(GpuError::vk("submit a frame"))?;
+            {
+                let _queue = self.ctx.lock_queue();
+                device.queue_submit(self.ctx.queue(), &[submit], self.fence).map_err(GpuError::vk("submit a frame"))?;
+            }
             let waited = device.wait_for_fences(&[self.fence], true, 10_000_000_000);
             device.reset_fences(&[self.fence]).map_err(GpuError::vk("reset the frame fence"))?;
             match waited {
@@ -1442,7 +1452,10 @@ impl Drop for Renderer {
         let device = self.ctx.device();
         // SAFETY: every submission was waited for; the device is idle with respect to these objects.
         unsafe {
-            let _ = device.queue_wait_idle(self.ctx.queue());
+            {
+                let _queue = self.ctx.lock_queue();
+                let _ = device.queue_wait_idle(self.ctx.queue());
+            }
             device.destroy_fence(self.fence, None);
             device.destroy_command_pool(self.command_pool, None);
             if let Some(t) = self.timer.take() {

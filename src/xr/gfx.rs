@@ -1,15 +1,14 @@
 //! The Vulkan side of the OpenXR client: the instance and device created through XR_KHR_vulkan_enable2 (so the
-//! runtime can add what it needs), and one swapchain per eye fed from a host-visible staging buffer.
+//! runtime can add what it needs), wrapped as a [`gpu::Context`] for the renderer, and one swapchain per eye filled
+//! on the GPU ([`EyeUploader`]): the renderer's float result is copied into a float image and blitted into the
+//! swapchain image, which converts it to the swapchain's 8-bit format (sRGB encoding included) in hardware.
 //!
-//! The raw handles stay public on [`VulkanContext`] and [`EyeSwapchain`] so a GPU renderer built from existing ash
-//! handles can render straight into the swapchain images instead of going through the staging copy.
-//!
-//! Colour: eye images are linear, premultiplied RGBA. For `*_SRGB` swapchain formats the bytes written are
-//! sRGB-encoded (the hardware decodes them back to linear when the compositor samples); for `*_UNORM` formats the
-//! runtime takes the values as linear, so the bytes are the linear values quantised directly.
+//! Colour: eye images are linear, premultiplied RGBA. For `*_SRGB` swapchain formats the blit encodes sRGB (the
+//! compositor decodes it back to linear when it samples); for `*_UNORM` formats the runtime takes the values as
+//! linear, so the blit quantises them directly. [`SwapchainFormat::decode`] reads read-back bytes the same way.
 
 use std::ffi::{c_char, CStr};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use ash::vk::{self, Handle};
 use glam::Vec4;
@@ -18,11 +17,15 @@ use openxr as xr;
 use super::diag::{vulkan_callback, DiagnosticLog};
 use super::{VkContext, XrContext, XrError};
 use crate::buffer::{linear_to_srgb, srgb_to_linear, RgbaImage};
+use crate::gpu::{self, resources::subresource, resources::Buffer, resources::Image2d};
 
-/// The Vulkan version r2human asks for (lavapipe and every desktop driver offer it).
-const VK_TARGET_VERSION: u32 = vk::make_api_version(0, 1, 1, 0);
+/// The Vulkan version r2human asks for (the renderer's; lavapipe and every desktop driver offer it).
+const VK_TARGET_VERSION: u32 = vk::make_api_version(0, 1, 2, 0);
 
-/// A swapchain colour format r2human can write from the CPU.
+/// The format of the per-eye float images the renderer's output is copied into (its `vec4` layout).
+pub const LINEAR_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+
+/// A swapchain colour format r2human can fill.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SwapchainFormat {
     /// The Vulkan format.
@@ -45,7 +48,13 @@ impl SwapchainFormat {
     /// The most preferred of [`SwapchainFormat::PREFERRED`] among the runtime's `offered` formats (raw VkFormat
     /// values, as `xrEnumerateSwapchainFormats` returns them), or `None`.
     pub fn choose(offered: &[u32]) -> Option<Self> {
-        Self::PREFERRED.into_iter().find(|f| offered.contains(&(f.vk.as_raw() as u32)))
+        Self::choose_where(offered, |_| true)
+    }
+
+    /// As [`SwapchainFormat::choose`], among the formats for which `usable` holds (e.g. the device can blit into
+    /// them).
+    pub fn choose_where(offered: &[u32], usable: impl Fn(vk::Format) -> bool) -> Option<Self> {
+        Self::PREFERRED.into_iter().find(|f| offered.contains(&(f.vk.as_raw() as u32)) && usable(f.vk))
     }
 
     /// Encodes one linear premultiplied RGBA pixel into the 4 bytes of this format.
@@ -87,15 +96,6 @@ impl SwapchainFormat {
         Vec4::new(lin(r), lin(g), lin(b), a as f32 / 255.0)
     }
 
-    /// Encodes a whole image (row 0 first, as Vulkan buffer-to-image copies expect).
-    pub fn encode_image(&self, img: &RgbaImage) -> Vec<u8> {
-        let mut out = Vec::with_capacity(img.data.len() * 4);
-        for px in &img.data {
-            out.extend_from_slice(&self.encode(*px));
-        }
-        out
-    }
-
     /// Decodes `width x height` pixels of this format into an image.
     pub fn decode_image(&self, bytes: &[u8], width: usize, height: usize) -> RgbaImage {
         RgbaImage::from_fn(width, height, |c, r| {
@@ -105,10 +105,10 @@ impl SwapchainFormat {
     }
 }
 
-/// The Vulkan instance, device and queue the OpenXR runtime asked for (XR_KHR_vulkan_enable2).
+/// The Vulkan instance, device and queue the OpenXR runtime asked for (XR_KHR_vulkan_enable2), and the renderer's
+/// [`gpu::Context`] wrapped around them.
 ///
-/// Field order is drop order irrelevant: [`Drop`] destroys in the right order. Everything created on the device
-/// (swapchains, buffers) must be dropped before this.
+/// Everything created on the device (swapchains, renderers, buffers) must be dropped before this.
 pub struct VulkanContext {
     /// The Vulkan loader.
     pub entry: ash::Entry,
@@ -118,17 +118,21 @@ pub struct VulkanContext {
     pub physical_device: vk::PhysicalDevice,
     /// The device created through `xrCreateVulkanDeviceKHR`.
     pub device: ash::Device,
-    /// Family of [`VulkanContext::queue`] (graphics-capable).
+    /// Family of [`VulkanContext::queue`] (graphics and compute).
     pub queue_family_index: u32,
-    /// The queue shared with the OpenXR runtime; only the display thread submits to it.
+    /// The queue given to the OpenXR session (index 0 of the family).
     pub queue: vk::Queue,
     /// Name of the physical device (e.g. "llvmpipe (LLVM 19...)").
     pub device_name: String,
     /// Vulkan validation warnings and errors (VK_EXT_debug_utils), when the extension is available.
     pub validation: Arc<DiagnosticLog>,
-    /// Command pool for the per-eye upload command buffers.
+    /// Command pool for the display thread's command buffers (uploads, mirror).
     pub command_pool: vk::CommandPool,
-    memory_properties: vk::PhysicalDeviceMemoryProperties,
+    /// The renderer's view of this device: queue 1 of the family when the device has two queues there (the
+    /// render thread then never contends with the OpenXR session's queue), else the session's queue.
+    pub gpu: Arc<gpu::Context>,
+    /// Serialises the session queue when the renderer does not share it (see [`VulkanContext::lock_queue`]).
+    own_queue_lock: Mutex<()>,
     debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
 }
 
@@ -148,10 +152,10 @@ impl VulkanContext {
         device_extensions: &[&CStr],
     ) -> Result<Self, XrError> {
         let reqs = xr_instance.graphics_requirements::<xr::Vulkan>(system).xr("xrGetVulkanGraphicsRequirements2KHR")?;
-        let target = xr::Version::new(1, 1, 0);
+        let target = xr::Version::new(1, 2, 0);
         if target < reqs.min_api_version_supported || target.major() > reqs.max_api_version_supported.major() {
             return Err(XrError::Unsupported(format!(
-                "the runtime needs Vulkan {} to {}, r2human uses 1.1",
+                "the runtime needs Vulkan {} to {}, r2human uses 1.2",
                 reqs.min_api_version_supported, reqs.max_api_version_supported
             )));
         }
@@ -217,7 +221,7 @@ impl VulkanContext {
         };
 
         // From here on, failures must destroy the instance: build the rest in a closure.
-        let rest = || -> Result<(vk::PhysicalDevice, ash::Device, u32, String), XrError> {
+        let rest = || -> Result<(vk::PhysicalDevice, ash::Device, u32, u32, String), XrError> {
             // SAFETY: the instance came from xrCreateVulkanInstanceKHR for this system.
             let physical_device = vk::PhysicalDevice::from_raw(
                 unsafe { xr_instance.vulkan_graphics_device(system, instance.handle().as_raw() as _) }
@@ -228,19 +232,22 @@ impl VulkanContext {
             let device_name =
                 props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             if props.api_version < VK_TARGET_VERSION {
-                return Err(XrError::Unsupported(format!("Vulkan device {device_name} does not support Vulkan 1.1")));
+                return Err(XrError::Unsupported(format!("Vulkan device {device_name} does not support Vulkan 1.2")));
             }
             // SAFETY: as above.
             let families = unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
-            let queue_family_index = families
+            let (queue_family_index, family) = families
                 .iter()
-                .position(|f| f.queue_flags.contains(vk::QueueFlags::GRAPHICS))
-                .ok_or_else(|| XrError::Unsupported(format!("Vulkan device {device_name} has no graphics queue")))?
-                as u32;
-            let priorities = [1.0f32];
+                .enumerate()
+                .find(|(_, f)| f.queue_flags.contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE))
+                .ok_or_else(|| {
+                    XrError::Unsupported(format!("Vulkan device {device_name} has no graphics+compute queue"))
+                })?;
+            let queue_count = family.queue_count.clamp(1, 2);
+            let priorities = [1.0f32; 2];
             let queues = [vk::DeviceQueueCreateInfo::default()
-                .queue_family_index(queue_family_index)
-                .queue_priorities(&priorities)];
+                .queue_family_index(queue_family_index as u32)
+                .queue_priorities(&priorities[..queue_count as usize])];
             let device_ext_ptrs: Vec<*const c_char> = device_extensions.iter().map(|e| e.as_ptr()).collect();
             let device_info =
                 vk::DeviceCreateInfo::default().queue_create_infos(&queues).enabled_extension_names(&device_ext_ptrs);
@@ -257,9 +264,9 @@ impl VulkanContext {
             .map_err(|r| XrError::Vulkan { call: "vkCreateDevice (via OpenXR)", result: vk::Result::from_raw(r) })?;
             // SAFETY: the runtime created a valid device on this instance.
             let device = unsafe { ash::Device::load(instance.fp_v1_0(), vk::Device::from_raw(raw_device as u64)) };
-            Ok((physical_device, device, queue_family_index, device_name))
+            Ok((physical_device, device, queue_family_index as u32, queue_count, device_name))
         };
-        let (physical_device, device, queue_family_index, device_name) = match rest() {
+        let (physical_device, device, queue_family_index, queue_count, device_name) = match rest() {
             Ok(v) => v,
             Err(e) => {
                 // SAFETY: nothing else was created on this instance.
@@ -272,10 +279,34 @@ impl VulkanContext {
                 return Err(e);
             }
         };
-        // SAFETY: valid device; queue 0 of the family exists (one was requested).
+        // SAFETY: the handles belong together and outlive the context: it is dropped (with everything created from
+        // it) before `Self::drop` destroys the device.
+        let gpu = unsafe {
+            gpu::Context::from_existing(
+                entry.clone(),
+                instance.clone(),
+                physical_device,
+                device.clone(),
+                queue_family_index,
+                queue_count - 1,
+            )
+        };
+        let gpu = match gpu {
+            Ok(g) => Arc::new(g),
+            Err(e) => {
+                // SAFETY: nothing was created on the device yet.
+                unsafe {
+                    device.destroy_device(None);
+                    if let Some((loader, m)) = &debug {
+                        loader.destroy_debug_utils_messenger(*m, None);
+                    }
+                    instance.destroy_instance(None);
+                }
+                return Err(XrError::Unsupported(format!("the OpenXR device cannot run the renderer: {e}")));
+            }
+        };
+        // SAFETY: valid device; queue 0 of the family exists (at least one was requested).
         let queue = unsafe { device.get_device_queue(queue_family_index, 0) };
-        // SAFETY: valid physical device.
-        let memory_properties = unsafe { instance.get_physical_device_memory_properties(physical_device) };
         let pool_info = vk::CommandPoolCreateInfo::default()
             .queue_family_index(queue_family_index)
             .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
@@ -289,7 +320,8 @@ impl VulkanContext {
             device_name,
             validation,
             command_pool: vk::CommandPool::null(),
-            memory_properties,
+            gpu,
+            own_queue_lock: Mutex::new(()),
             debug,
         };
         // SAFETY: valid device; on failure `ctx`'s Drop cleans up (null pool is skipped).
@@ -297,50 +329,47 @@ impl VulkanContext {
         Ok(ctx)
     }
 
-    /// Allocates a host-visible, host-coherent buffer of `size` bytes, persistently mapped.
-    pub fn host_buffer(&self, size: u64, usage: vk::BufferUsageFlags) -> Result<HostBuffer, XrError> {
-        let info = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
-        // SAFETY: valid device and create info; every object is destroyed on the error paths below.
-        unsafe {
-            let buffer = self.device.create_buffer(&info, None).vk("vkCreateBuffer")?;
-            let reqs = self.device.get_buffer_memory_requirements(buffer);
-            let wanted = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-            let Some(type_index) = (0..self.memory_properties.memory_type_count).find(|&i| {
-                reqs.memory_type_bits & (1 << i) != 0
-                    && self.memory_properties.memory_types[i as usize].property_flags.contains(wanted)
-            }) else {
-                self.device.destroy_buffer(buffer, None);
-                return Err(XrError::Unsupported("no host-visible coherent memory for staging buffers".into()));
-            };
-            let alloc = vk::MemoryAllocateInfo::default().allocation_size(reqs.size).memory_type_index(type_index);
-            let memory = match self.device.allocate_memory(&alloc, None) {
-                Ok(m) => m,
-                Err(e) => {
-                    self.device.destroy_buffer(buffer, None);
-                    return Err(XrError::Vulkan { call: "vkAllocateMemory", result: e });
-                }
-            };
-            let mapped = self
-                .device
-                .bind_buffer_memory(buffer, memory, 0)
-                .and_then(|_| self.device.map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty()));
-            match mapped {
-                Ok(ptr) => Ok(HostBuffer { buffer, memory, ptr: ptr as *mut u8, size: size as usize }),
-                Err(e) => {
-                    self.device.destroy_buffer(buffer, None);
-                    self.device.free_memory(memory, None);
-                    Err(XrError::Vulkan { call: "vkMapMemory", result: e })
-                }
-            }
+    /// Does the renderer submit to the OpenXR session's queue (a device with one queue in the family)?
+    pub fn renderer_shares_queue(&self) -> bool {
+        self.gpu.queue() == self.queue
+    }
+
+    /// Locks the OpenXR session's queue: hold it around every call that may use it — own submissions and presents,
+    /// and the OpenXR calls the runtime may submit from (`xrBeginFrame`, `xrEndFrame`, `xrAcquireSwapchainImage`,
+    /// `xrReleaseSwapchainImage`). It is the renderer's queue lock when the renderer shares the queue.
+    pub fn lock_queue(&self) -> MutexGuard<'_, ()> {
+        if self.renderer_shares_queue() {
+            self.gpu.lock_queue()
+        } else {
+            self.own_queue_lock.lock().unwrap_or_else(|p| p.into_inner())
         }
+    }
+
+    /// [`VulkanContext::lock_queue`], adding the time spent waiting for the lock to `waited`.
+    pub fn lock_queue_timed(&self, waited: &mut std::time::Duration) -> MutexGuard<'_, ()> {
+        let t = std::time::Instant::now();
+        let guard = self.lock_queue();
+        *waited += t.elapsed();
+        guard
+    }
+
+    /// Does the device support `features` for `format` with optimal tiling?
+    pub fn format_supports(&self, format: vk::Format, features: vk::FormatFeatureFlags) -> bool {
+        // SAFETY: valid physical device.
+        let props = unsafe { self.instance.get_physical_device_format_properties(self.physical_device, format) };
+        props.optimal_tiling_features.contains(features)
     }
 }
 
 impl Drop for VulkanContext {
     fn drop(&mut self) {
-        // SAFETY: the owner has dropped every object created on this device; wait for the queue first.
+        // SAFETY: the owner has dropped every object created on this device; wait for the queues first.
         unsafe {
-            let _ = self.device.device_wait_idle();
+            {
+                let _q = self.lock_queue();
+                let _g = (!self.renderer_shares_queue()).then(|| self.gpu.lock_queue());
+                let _ = self.device.device_wait_idle();
+            }
             if self.command_pool != vk::CommandPool::null() {
                 self.device.destroy_command_pool(self.command_pool, None);
             }
@@ -353,49 +382,8 @@ impl Drop for VulkanContext {
     }
 }
 
-/// A persistently mapped host-visible buffer. Destroy it with [`HostBuffer::destroy`] before the device.
-pub struct HostBuffer {
-    /// The buffer.
-    pub buffer: vk::Buffer,
-    /// Its memory (host visible and coherent).
-    pub memory: vk::DeviceMemory,
-    ptr: *mut u8,
-    size: usize,
-}
-
-// SAFETY: the mapping is plain memory; access is serialised by the owner (one thread at a time).
-unsafe impl Send for HostBuffer {}
-
-impl HostBuffer {
-    /// The mapped bytes.
-    pub fn bytes_mut(&mut self) -> &mut [u8] {
-        // SAFETY: `ptr` maps `size` bytes for the lifetime of the buffer; `&mut self` makes the access exclusive.
-        unsafe { std::slice::from_raw_parts_mut(self.ptr, self.size) }
-    }
-
-    /// The mapped bytes, read-only.
-    pub fn bytes(&self) -> &[u8] {
-        // SAFETY: as in `bytes_mut`.
-        unsafe { std::slice::from_raw_parts(self.ptr, self.size) }
-    }
-
-    /// Frees the buffer and its memory.
-    ///
-    /// # Safety
-    /// No submitted GPU work may still use the buffer.
-    pub unsafe fn destroy(&mut self, device: &ash::Device) {
-        // SAFETY: caller guarantees the GPU is done with it.
-        unsafe {
-            device.destroy_buffer(self.buffer, None);
-            device.free_memory(self.memory, None);
-        }
-        self.buffer = vk::Buffer::null();
-        self.memory = vk::DeviceMemory::null();
-        self.size = 0;
-    }
-}
-
-/// One eye's swapchain with its staging and (optional) readback buffers, command buffer and fence.
+/// One eye's swapchain, the float image the renderer's result is copied into (also the mirror's source), and an
+/// optional readback buffer (tests).
 pub struct EyeSwapchain {
     /// The OpenXR swapchain.
     pub handle: xr::Swapchain<xr::Vulkan>,
@@ -407,16 +395,15 @@ pub struct EyeSwapchain {
     pub height: u32,
     /// The colour format.
     pub format: SwapchainFormat,
-    staging: HostBuffer,
-    readback: Option<HostBuffer>,
-    cmd: vk::CommandBuffer,
-    fence: vk::Fence,
+    /// The last eye image in linear float ([`LINEAR_FORMAT`]); in TRANSFER_SRC_OPTIMAL after the first upload.
+    pub linear: Image2d,
+    readback: Option<Buffer>,
     released_once: bool,
 }
 
 impl EyeSwapchain {
     /// Creates a `width x height` swapchain of `format` for one eye. `readback` adds TRANSFER_SRC usage and a
-    /// readback buffer so [`EyeSwapchain::upload`] can read the image back from the swapchain.
+    /// readback buffer so [`EyeUploader`] can read the image back from the swapchain.
     pub fn new(
         ctx: &VulkanContext,
         session: &xr::Session<xr::Vulkan>,
@@ -425,6 +412,13 @@ impl EyeSwapchain {
         height: u32,
         readback: bool,
     ) -> Result<Self, XrError> {
+        if !ctx.format_supports(LINEAR_FORMAT, vk::FormatFeatureFlags::BLIT_SRC | vk::FormatFeatureFlags::TRANSFER_DST)
+        {
+            return Err(XrError::Unsupported(format!(
+                "Vulkan device {} cannot blit from {LINEAR_FORMAT:?} images",
+                ctx.device_name
+            )));
+        }
         let mut usage = xr::SwapchainUsageFlags::COLOR_ATTACHMENT
             | xr::SwapchainUsageFlags::TRANSFER_DST
             | xr::SwapchainUsageFlags::SAMPLED;
@@ -446,41 +440,23 @@ impl EyeSwapchain {
             .xr("xrCreateSwapchain")?;
         let images =
             handle.enumerate_images().xr("xrEnumerateSwapchainImages")?.into_iter().map(vk::Image::from_raw).collect();
-        let size = width as u64 * height as u64 * 4;
-        let mut staging = ctx.host_buffer(size, vk::BufferUsageFlags::TRANSFER_SRC)?;
-        let readback_buf = if readback {
-            match ctx.host_buffer(size, vk::BufferUsageFlags::TRANSFER_DST) {
-                Ok(b) => Some(b),
-                Err(e) => {
-                    // SAFETY: never used by the GPU.
-                    unsafe { staging.destroy(&ctx.device) };
-                    return Err(e);
-                }
-            }
+        let gpu_err = |e: gpu::GpuError| XrError::Unsupported(format!("eye image buffers: {e}"));
+        let linear = Image2d::new(
+            &ctx.gpu,
+            vk::Extent2D { width, height },
+            LINEAR_FORMAT,
+            // SAMPLED only because the image comes with a view (gpu::resources::Image2d); it is used by transfers.
+            vk::ImageUsageFlags::TRANSFER_DST | vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::SAMPLED,
+            vk::ImageAspectFlags::COLOR,
+        )
+        .map_err(gpu_err)?;
+        let readback = if readback {
+            let bytes = u64::from(width) * u64::from(height) * 4;
+            Some(Buffer::new(&ctx.gpu, bytes, vk::BufferUsageFlags::TRANSFER_DST).map_err(gpu_err)?)
         } else {
             None
         };
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(ctx.command_pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        // SAFETY: valid device and pool (the pool is only used from the display thread).
-        let cmd = unsafe { ctx.device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
-        let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
-        // SAFETY: valid device.
-        let fence = unsafe { ctx.device.create_fence(&fence_info, None) }.vk("vkCreateFence")?;
-        Ok(Self {
-            handle,
-            images,
-            width,
-            height,
-            format,
-            staging,
-            readback: readback_buf,
-            cmd,
-            fence,
-            released_once: false,
-        })
+        Ok(Self { handle, images, width, height, format, linear, readback, released_once: false })
     }
 
     /// Has an image been released at least once (so a projection layer may reference this swapchain)?
@@ -488,51 +464,80 @@ impl EyeSwapchain {
         self.released_once
     }
 
-    /// Acquires the next image, copies `pixels` (already encoded in [`EyeSwapchain::format`], `width*height*4`
-    /// bytes, top row first) through the staging buffer into it and releases it. With `read_back`, the image is
-    /// copied back out of the swapchain after the upload and returned (needs `readback` at creation).
-    pub fn upload(&mut self, ctx: &VulkanContext, pixels: &[u8], read_back: bool) -> Result<Option<Vec<u8>>, XrError> {
-        if pixels.len() != self.staging.size {
-            return Err(XrError::Render(format!(
-                "eye image has {} bytes, the {}x{} swapchain needs {}",
-                pixels.len(),
-                self.width,
-                self.height,
-                self.staging.size
-            )));
+    /// The last read-back image (valid once the upload that wrote it has finished; see [`EyeUploader`]).
+    fn read_back(&self) -> Option<RgbaImage> {
+        let rb = self.readback.as_ref()?;
+        let n = self.width as usize * self.height as usize * 4;
+        let bytes = rb.bytes().get(..n)?;
+        Some(self.format.decode_image(bytes, self.width as usize, self.height as usize))
+    }
+}
+
+/// Fills the eye swapchains from the renderer's result buffers with one GPU submission per frame: buffer -> float
+/// image copy, blit into the acquired swapchain image (format conversion), optional readback. Runs on the display
+/// thread; it waits only for its own previous submission, which has long finished by the time a new frame exists.
+pub struct EyeUploader {
+    cmd: vk::CommandBuffer,
+    fence: vk::Fence,
+    submitted: bool,
+    capture_pending: bool,
+}
+
+impl EyeUploader {
+    /// Allocates the command buffer and fence.
+    pub fn new(ctx: &VulkanContext) -> Result<Self, XrError> {
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(ctx.command_pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        // SAFETY: valid device and pool (the pool is only used from the display thread).
+        let cmd = unsafe { ctx.device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
+        // SAFETY: valid device.
+        let fence = match unsafe { ctx.device.create_fence(&vk::FenceCreateInfo::default(), None) } {
+            Ok(f) => f,
+            Err(e) => {
+                // SAFETY: never submitted.
+                unsafe { ctx.device.free_command_buffers(ctx.command_pool, &[cmd]) };
+                return Err(XrError::Vulkan { call: "vkCreateFence", result: e });
+            }
+        };
+        Ok(Self { cmd, fence, submitted: false, capture_pending: false })
+    }
+
+    /// Copies `sources[i]` (the renderer's result for eye `i`, `vec4` per pixel of the eye's size) into the next
+    /// image of each eye's swapchain, and with `capture` also back out into the eye's readback buffer. Returns the
+    /// fence that signals when the GPU has finished reading `sources`. Time spent waiting for the queue lock is
+    /// added to `waited`.
+    pub fn upload(
+        &mut self,
+        ctx: &VulkanContext,
+        eyes: &mut [EyeSwapchain],
+        sources: &[vk::Buffer],
+        capture: bool,
+        waited: &mut std::time::Duration,
+    ) -> Result<vk::Fence, XrError> {
+        if sources.len() != eyes.len() {
+            return Err(XrError::Render(format!("{} eye images for {} swapchains", sources.len(), eyes.len())));
+        }
+        self.wait(ctx)?;
+        let mut indices = Vec::with_capacity(eyes.len());
+        for eye in eyes.iter_mut() {
+            let index = {
+                let _q = ctx.lock_queue_timed(waited);
+                eye.handle.acquire_image().xr("xrAcquireSwapchainImage")?
+            };
+            eye.handle.wait_image(xr::Duration::INFINITE).xr("xrWaitSwapchainImage")?;
+            indices.push(index as usize);
         }
         let device = &ctx.device;
-        // SAFETY: the fence belongs to this device; waiting makes the staging buffer and command buffer free.
-        unsafe {
-            device.wait_for_fences(&[self.fence], true, u64::MAX).vk("vkWaitForFences")?;
-        }
-        let index = self.handle.acquire_image().xr("xrAcquireSwapchainImage")? as usize;
-        self.handle.wait_image(xr::Duration::INFINITE).xr("xrWaitSwapchainImage")?;
-        self.staging.bytes_mut().copy_from_slice(pixels);
-        let image = self.images[index];
-        let read_back = read_back && self.readback.is_some();
-        let range = vk::ImageSubresourceRange {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            base_mip_level: 0,
-            level_count: 1,
-            base_array_layer: 0,
-            layer_count: 1,
-        };
+        let range = subresource(vk::ImageAspectFlags::COLOR);
         let layers = vk::ImageSubresourceLayers {
             aspect_mask: vk::ImageAspectFlags::COLOR,
             mip_level: 0,
             base_array_layer: 0,
             layer_count: 1,
         };
-        let region = vk::BufferImageCopy {
-            buffer_offset: 0,
-            buffer_row_length: 0,
-            buffer_image_height: 0,
-            image_subresource: layers,
-            image_offset: vk::Offset3D::default(),
-            image_extent: vk::Extent3D { width: self.width, height: self.height, depth: 1 },
-        };
-        let barrier = |old, new, src_access, dst_access| {
+        let barrier = |image, old, new, src_access, dst_access| {
             vk::ImageMemoryBarrier::default()
                 .old_layout(old)
                 .new_layout(new)
@@ -543,37 +548,60 @@ impl EyeSwapchain {
                 .image(image)
                 .subresource_range(range)
         };
-        // SAFETY: the command buffer is idle (fence waited), every handle is valid, and the image is ours between
-        // xrWaitSwapchainImage and xrReleaseSwapchainImage.
+        let capture = capture && eyes.iter().all(|e| e.readback.is_some());
+        // SAFETY: the command buffer is idle (fence waited), every handle is valid, each swapchain image is ours
+        // between xrWaitSwapchainImage and xrReleaseSwapchainImage, and the source buffers were finished by the
+        // render thread (it waited on its own fence before publishing them).
         unsafe {
             device.reset_fences(&[self.fence]).vk("vkResetFences")?;
             device.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty()).vk("vkResetCommandBuffer")?;
             let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
             device.begin_command_buffer(self.cmd, &begin).vk("vkBeginCommandBuffer")?;
-            // The whole image is overwritten: discard the old contents (UNDEFINED -> TRANSFER_DST).
-            device.cmd_pipeline_barrier(
-                self.cmd,
-                vk::PipelineStageFlags::TOP_OF_PIPE,
-                vk::PipelineStageFlags::TRANSFER,
-                vk::DependencyFlags::empty(),
-                &[],
-                &[],
-                &[barrier(
-                    vk::ImageLayout::UNDEFINED,
+            for ((eye, &index), &source) in eyes.iter().zip(&indices).zip(sources) {
+                let target = eye.images[index];
+                let linear = eye.linear.image;
+                let extent = vk::Extent3D { width: eye.width, height: eye.height, depth: 1 };
+                // Both images are overwritten whole: discard the old contents. Earlier reads of the float image
+                // (blits, the mirror) finish first.
+                device.cmd_pipeline_barrier(
+                    self.cmd,
+                    vk::PipelineStageFlags::TRANSFER,
+                    vk::PipelineStageFlags::TRANSFER,
+                    vk::DependencyFlags::empty(),
+                    &[],
+                    &[],
+                    &[
+                        barrier(
+                            linear,
+                            vk::ImageLayout::UNDEFINED,
+                            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                            vk::AccessFlags::TRANSFER_READ,
+                            vk::AccessFlags::TRANSFER_WRITE,
+                        ),
+                        barrier(
+                            target,
+                            vk::ImageLayout::UNDEFINED,
+                            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                            vk::AccessFlags::empty(),
+                            vk::AccessFlags::TRANSFER_WRITE,
+                        ),
+                    ],
+                );
+                let copy = vk::BufferImageCopy {
+                    buffer_offset: 0,
+                    buffer_row_length: 0,
+                    buffer_image_height: 0,
+                    image_subresource: layers,
+                    image_offset: vk::Offset3D::default(),
+                    image_extent: extent,
+                };
+                device.cmd_copy_buffer_to_image(
+                    self.cmd,
+                    source,
+                    linear,
                     vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                    vk::AccessFlags::empty(),
-                    vk::AccessFlags::TRANSFER_WRITE,
-                )],
-            );
-            device.cmd_copy_buffer_to_image(
-                self.cmd,
-                self.staging.buffer,
-                image,
-                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                &[region],
-            );
-            let mut last_layout = vk::ImageLayout::TRANSFER_DST_OPTIMAL;
-            if let (true, Some(rb)) = (read_back, &self.readback) {
+                    &[copy],
+                );
                 device.cmd_pipeline_barrier(
                     self.cmd,
                     vk::PipelineStageFlags::TRANSFER,
@@ -582,81 +610,135 @@ impl EyeSwapchain {
                     &[],
                     &[],
                     &[barrier(
+                        linear,
                         vk::ImageLayout::TRANSFER_DST_OPTIMAL,
                         vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
                         vk::AccessFlags::TRANSFER_WRITE,
                         vk::AccessFlags::TRANSFER_READ,
                     )],
                 );
-                device.cmd_copy_image_to_buffer(
+                let corner = vk::Offset3D { x: eye.width as i32, y: eye.height as i32, z: 1 };
+                let blit = vk::ImageBlit {
+                    src_subresource: layers,
+                    src_offsets: [vk::Offset3D::default(), corner],
+                    dst_subresource: layers,
+                    dst_offsets: [vk::Offset3D::default(), corner],
+                };
+                device.cmd_blit_image(
                     self.cmd,
-                    image,
+                    linear,
                     vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                    rb.buffer,
-                    &[region],
+                    target,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &[blit],
+                    vk::Filter::NEAREST,
                 );
-                let host = vk::BufferMemoryBarrier::default()
-                    .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-                    .dst_access_mask(vk::AccessFlags::HOST_READ)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .buffer(rb.buffer)
-                    .offset(0)
-                    .size(vk::WHOLE_SIZE);
+                let mut last_layout = vk::ImageLayout::TRANSFER_DST_OPTIMAL;
+                if let (true, Some(rb)) = (capture, &eye.readback) {
+                    device.cmd_pipeline_barrier(
+                        self.cmd,
+                        vk::PipelineStageFlags::TRANSFER,
+                        vk::PipelineStageFlags::TRANSFER,
+                        vk::DependencyFlags::empty(),
+                        &[],
+                        &[],
+                        &[barrier(
+                            target,
+                            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                            vk::AccessFlags::TRANSFER_WRITE,
+                            vk::AccessFlags::TRANSFER_READ,
+                        )],
+                    );
+                    device.cmd_copy_image_to_buffer(
+                        self.cmd,
+                        target,
+                        vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                        rb.buffer,
+                        &[copy],
+                    );
+                    let host = vk::BufferMemoryBarrier::default()
+                        .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                        .dst_access_mask(vk::AccessFlags::HOST_READ)
+                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .buffer(rb.buffer)
+                        .offset(0)
+                        .size(vk::WHOLE_SIZE);
+                    device.cmd_pipeline_barrier(
+                        self.cmd,
+                        vk::PipelineStageFlags::TRANSFER,
+                        vk::PipelineStageFlags::HOST,
+                        vk::DependencyFlags::empty(),
+                        &[],
+                        &[host],
+                        &[],
+                    );
+                    last_layout = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+                }
+                // XR_KHR_vulkan_enable: a released colour image must be in COLOR_ATTACHMENT_OPTIMAL.
                 device.cmd_pipeline_barrier(
                     self.cmd,
                     vk::PipelineStageFlags::TRANSFER,
-                    vk::PipelineStageFlags::HOST,
+                    vk::PipelineStageFlags::ALL_COMMANDS,
                     vk::DependencyFlags::empty(),
                     &[],
-                    &[host],
                     &[],
+                    &[barrier(
+                        target,
+                        last_layout,
+                        vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                        vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::TRANSFER_READ,
+                        vk::AccessFlags::COLOR_ATTACHMENT_READ | vk::AccessFlags::SHADER_READ,
+                    )],
                 );
-                last_layout = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
             }
-            // XR_KHR_vulkan_enable: a released colour image must be in COLOR_ATTACHMENT_OPTIMAL.
-            device.cmd_pipeline_barrier(
-                self.cmd,
-                vk::PipelineStageFlags::TRANSFER,
-                vk::PipelineStageFlags::ALL_COMMANDS,
-                vk::DependencyFlags::empty(),
-                &[],
-                &[],
-                &[barrier(
-                    last_layout,
-                    vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
-                    vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::TRANSFER_READ,
-                    vk::AccessFlags::COLOR_ATTACHMENT_READ | vk::AccessFlags::SHADER_READ,
-                )],
-            );
             device.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
             let cmds = [self.cmd];
             let submit = vk::SubmitInfo::default().command_buffers(&cmds);
+            let _q = ctx.lock_queue_timed(waited);
             device.queue_submit(ctx.queue, &[submit], self.fence).vk("vkQueueSubmit")?;
         }
-        let out = if read_back {
-            // SAFETY: waiting on our own fence; afterwards the readback buffer holds the copied image.
-            unsafe { device.wait_for_fences(&[self.fence], true, u64::MAX).vk("vkWaitForFences")? };
-            self.readback.as_ref().map(|rb| rb.bytes().to_vec())
-        } else {
-            None
-        };
-        self.handle.release_image().xr("xrReleaseSwapchainImage")?;
-        self.released_once = true;
-        Ok(out)
+        self.submitted = true;
+        // A read-back not collected yet stays valid: its buffers are only rewritten by uploads with `capture`.
+        self.capture_pending |= capture;
+        for eye in eyes.iter_mut() {
+            let _q = ctx.lock_queue_timed(waited);
+            eye.handle.release_image().xr("xrReleaseSwapchainImage")?;
+            eye.released_once = true;
+        }
+        Ok(self.fence)
     }
 
-    /// Waits for this eye's GPU work and frees the Vulkan objects (the OpenXR swapchain is dropped with `self`).
-    pub fn destroy(mut self, ctx: &VulkanContext) {
-        // SAFETY: waiting for our fence means the GPU no longer uses the buffers or the command buffer.
+    /// The read-back eye images of the last upload with `capture`, once the GPU has finished it (never blocks;
+    /// `None` while it runs or when there is nothing new).
+    pub fn take_captures(&mut self, ctx: &VulkanContext, eyes: &[EyeSwapchain]) -> Option<Vec<RgbaImage>> {
+        if !self.capture_pending {
+            return None;
+        }
+        // SAFETY: our own fence.
+        if !unsafe { ctx.device.get_fence_status(self.fence) }.unwrap_or(false) {
+            return None;
+        }
+        self.capture_pending = false;
+        eyes.iter().map(EyeSwapchain::read_back).collect()
+    }
+
+    /// Waits for the last upload (before re-recording, and at the end of the session).
+    pub fn wait(&mut self, ctx: &VulkanContext) -> Result<(), XrError> {
+        if self.submitted {
+            // SAFETY: our own fence, submitted once since its last reset.
+            unsafe { ctx.device.wait_for_fences(&[self.fence], true, u64::MAX) }.vk("vkWaitForFences")?;
+        }
+        Ok(())
+    }
+
+    /// Frees the command buffer and fence (after the device is idle).
+    pub fn destroy(self, ctx: &VulkanContext) {
+        // SAFETY: the caller waited for the device; nothing uses these objects any more.
         unsafe {
-            let _ = ctx.device.wait_for_fences(&[self.fence], true, u64::MAX);
             ctx.device.destroy_fence(self.fence, None);
             ctx.device.free_command_buffers(ctx.command_pool, &[self.cmd]);
-            self.staging.destroy(&ctx.device);
-            if let Some(rb) = &mut self.readback {
-                rb.destroy(&ctx.device);
-            }
         }
     }
 }
@@ -719,7 +801,7 @@ mod tests {
     fn image_encoding_is_row_major_top_first() {
         let f = SwapchainFormat::PREFERRED[2];
         let img = RgbaImage::from_fn(2, 2, |c, r| Vec4::new(c as f32, r as f32, 0.0, 1.0));
-        let bytes = f.encode_image(&img);
+        let bytes: Vec<u8> = img.data.iter().flat_map(|p| f.encode(*p)).collect();
         assert_eq!(bytes, vec![0, 0, 0, 255, 255, 0, 0, 255, 0, 255, 0, 255, 255, 255, 0, 255]);
         assert_eq!(f.decode_image(&bytes, 2, 2), img);
     }

@@ -1,9 +1,10 @@
 //! Desktop mirror: both eye images side by side in a window while the session runs.
 //!
 //! The window (winit) is driven from the display loop with non-blocking event pumping, and presented through a
-//! Vulkan surface on the device the OpenXR runtime chose, from a host-visible staging buffer. Presentation never
-//! blocks the display loop: the present mode is IMMEDIATE or MAILBOX when offered, and an image that cannot be
-//! acquired at once is skipped. Closing the window only closes the mirror, not the session.
+//! Vulkan surface on the device the OpenXR runtime chose: the eyes' float images (see [`super::gfx::EyeSwapchain`])
+//! are blitted side by side into the window's image on the GPU. Presentation never blocks the display loop: the
+//! present mode is IMMEDIATE or MAILBOX when offered, and an image that cannot be acquired at once is skipped.
+//! Closing the window only closes the mirror, not the session.
 
 use std::ffi::c_char;
 use std::time::{Duration, Instant};
@@ -17,9 +18,9 @@ use winit::event_loop::{ActiveEventLoop, EventLoop};
 use winit::platform::pump_events::EventLoopExtPumpEvents;
 use winit::window::{Window, WindowId};
 
-use super::gfx::{HostBuffer, SwapchainFormat, VulkanContext};
+use super::gfx::VulkanContext;
 use super::{VkContext, XrError};
-use crate::buffer::{linear_to_srgb, srgb_to_linear};
+use crate::gpu::resources::{subresource, Image2d};
 
 #[derive(Default)]
 struct MirrorApp {
@@ -104,8 +105,6 @@ pub struct Mirror {
     images: Vec<vk::Image>,
     format: vk::SurfaceFormatKHR,
     extent: vk::Extent2D,
-    staging: HostBuffer,
-    source: (u32, u32),
     cmd: vk::CommandBuffer,
     fence: vk::Fence,
     acquired: vk::Semaphore,
@@ -118,15 +117,9 @@ pub struct Mirror {
 pub const DEVICE_EXTENSIONS: [&std::ffi::CStr; 1] = [ash::khr::swapchain::NAME];
 
 impl Mirror {
-    /// Opens the window (`eye_width * eyes x eye_height`) and its swapchain on `ctx`, which must have been created
-    /// with the loop's instance extensions and [`DEVICE_EXTENSIONS`].
-    pub fn new(
-        mut lp: MirrorEventLoop,
-        ctx: &VulkanContext,
-        eye_width: u32,
-        eye_height: u32,
-        eyes: u32,
-    ) -> Result<Self, XrError> {
+    /// Opens the window (sized by the event loop) and its swapchain on `ctx`, which must have been created with the
+    /// loop's instance extensions and [`DEVICE_EXTENSIONS`].
+    pub fn new(mut lp: MirrorEventLoop, ctx: &VulkanContext) -> Result<Self, XrError> {
         let deadline = Instant::now() + Duration::from_secs(5);
         while lp.app.window.is_none() {
             lp.pump();
@@ -157,8 +150,6 @@ impl Mirror {
             return Err(XrError::Unsupported("the OpenXR device's queue cannot present to the mirror window".into()));
         }
         let swapchain_fn = ash::khr::swapchain::Device::new(&ctx.instance, &ctx.device);
-        let source = (eye_width * eyes.max(1), eye_height);
-        let staging = ctx.host_buffer(source.0 as u64 * source.1 as u64 * 4, vk::BufferUsageFlags::TRANSFER_SRC)?;
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(ctx.command_pool)
             .level(vk::CommandBufferLevel::PRIMARY)
@@ -182,8 +173,6 @@ impl Mirror {
             images: Vec::new(),
             format: vk::SurfaceFormatKHR::default(),
             extent: vk::Extent2D::default(),
-            staging,
-            source,
             cmd,
             fence,
             acquired,
@@ -224,8 +213,11 @@ impl Mirror {
             ];
             let format = wanted
                 .iter()
+                .filter(|w| ctx.format_supports(**w, vk::FormatFeatureFlags::BLIT_DST))
                 .find_map(|w| formats.iter().find(|f| f.format == *w).copied())
-                .ok_or_else(|| XrError::Unsupported("the mirror window offers no 8-bit RGBA format".into()))?;
+                .ok_or_else(|| {
+                    XrError::Unsupported("the mirror window offers no 8-bit RGBA format to blit to".into())
+                })?;
             let mode = [vk::PresentModeKHR::IMMEDIATE, vk::PresentModeKHR::MAILBOX]
                 .into_iter()
                 .find(|m| modes.contains(m))
@@ -263,6 +255,7 @@ impl Mirror {
                 .old_swapchain(old);
             let swapchain = self.swapchain_fn.create_swapchain(&info, None).vk("vkCreateSwapchainKHR")?;
             if old != vk::SwapchainKHR::null() {
+                let _q = ctx.lock_queue();
                 let _ = ctx.device.queue_wait_idle(ctx.queue);
                 self.swapchain_fn.destroy_swapchain(old, None);
             }
@@ -283,17 +276,11 @@ impl Mirror {
         Ok(())
     }
 
-    /// Shows the eye images (each `eye_width x eye_height` in `eye_format`) side by side. Skips the frame instead of
-    /// waiting when no window image is free.
-    pub fn present(
-        &mut self,
-        ctx: &VulkanContext,
-        eyes: &[&[u8]],
-        eye_format: SwapchainFormat,
-        eye_width: u32,
-        eye_height: u32,
-    ) -> Result<(), XrError> {
-        if self.lp.app.closed {
+    /// Shows the eye images side by side (each scaled to its half of the window). `eyes` are the float images of
+    /// the eyes, in TRANSFER_SRC_OPTIMAL and written by earlier submissions on the session queue. Skips the frame
+    /// instead of waiting when no window image is free.
+    pub fn present(&mut self, ctx: &VulkanContext, eyes: &[&Image2d]) -> Result<(), XrError> {
+        if self.lp.app.closed || eyes.is_empty() {
             return Ok(());
         }
         if self.lp.app.resized || self.swapchain == vk::SwapchainKHR::null() {
@@ -302,22 +289,9 @@ impl Mirror {
                 return Ok(());
             }
         }
-        // SAFETY: our own fence; the previous present's copy must be done before the staging buffer is rewritten.
+        // SAFETY: our own fence; the previous present's commands must be done before the buffer is re-recorded.
+        // It has had a whole display frame to run.
         unsafe { ctx.device.wait_for_fences(&[self.fence], true, u64::MAX).vk("vkWaitForFences")? };
-        let window_format = SwapchainFormat {
-            vk: self.format.format,
-            srgb: matches!(self.format.format, vk::Format::B8G8R8A8_SRGB | vk::Format::R8G8B8A8_SRGB),
-            bgra: matches!(self.format.format, vk::Format::B8G8R8A8_SRGB | vk::Format::B8G8R8A8_UNORM),
-        };
-        fill_side_by_side(
-            self.staging.bytes_mut(),
-            self.source.0,
-            eyes,
-            eye_format,
-            window_format,
-            eye_width,
-            eye_height,
-        );
         // SAFETY: swapchain valid; timeout 0 never blocks.
         let acquire =
             unsafe { self.swapchain_fn.acquire_next_image(self.swapchain, 0, self.acquired, vk::Fence::null()) };
@@ -334,28 +308,33 @@ impl Mirror {
             Err(e) => return Err(XrError::Vulkan { call: "vkAcquireNextImageKHR", result: e }),
         };
         let image = self.images[index];
-        let range = vk::ImageSubresourceRange {
+        let range = subresource(vk::ImageAspectFlags::COLOR);
+        let layers = vk::ImageSubresourceLayers {
             aspect_mask: vk::ImageAspectFlags::COLOR,
-            base_mip_level: 0,
-            level_count: 1,
+            mip_level: 0,
             base_array_layer: 0,
             layer_count: 1,
         };
-        let copy_w = self.extent.width.min(self.source.0);
-        let copy_h = self.extent.height.min(self.source.1);
-        let region = vk::BufferImageCopy {
-            buffer_offset: 0,
-            buffer_row_length: self.source.0,
-            buffer_image_height: self.source.1,
-            image_subresource: vk::ImageSubresourceLayers {
-                aspect_mask: vk::ImageAspectFlags::COLOR,
-                mip_level: 0,
-                base_array_layer: 0,
-                layer_count: 1,
-            },
-            image_offset: vk::Offset3D::default(),
-            image_extent: vk::Extent3D { width: copy_w, height: copy_h, depth: 1 },
-        };
+        let n = eyes.len() as u32;
+        let (ww, wh) = (self.extent.width, self.extent.height);
+        let blits: Vec<(vk::Image, vk::ImageBlit)> = eyes
+            .iter()
+            .enumerate()
+            .map(|(i, e)| {
+                let i = i as u32;
+                let src = vk::Offset3D { x: e.extent.width as i32, y: e.extent.height as i32, z: 1 };
+                let blit = vk::ImageBlit {
+                    src_subresource: layers,
+                    src_offsets: [vk::Offset3D::default(), src],
+                    dst_subresource: layers,
+                    dst_offsets: [
+                        vk::Offset3D { x: (ww * i / n) as i32, y: 0, z: 0 },
+                        vk::Offset3D { x: (ww * (i + 1) / n) as i32, y: wh as i32, z: 1 },
+                    ],
+                };
+                (e.image, blit)
+            })
+            .collect();
         let to_dst = vk::ImageMemoryBarrier::default()
             .old_layout(vk::ImageLayout::UNDEFINED)
             .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
@@ -374,6 +353,10 @@ impl Mirror {
             .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
             .image(image)
             .subresource_range(range);
+        // The eye images were written by the upload's copy (an earlier submission on this queue).
+        let eyes_written = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::TRANSFER_READ);
         let device = &ctx.device;
         // SAFETY: the command buffer is idle (fence waited); the image was acquired (its semaphore is waited on).
         unsafe {
@@ -386,7 +369,7 @@ impl Mirror {
                 vk::PipelineStageFlags::TRANSFER,
                 vk::PipelineStageFlags::TRANSFER,
                 vk::DependencyFlags::empty(),
-                &[],
+                &[eyes_written],
                 &[],
                 &[to_dst],
             );
@@ -404,13 +387,17 @@ impl Mirror {
                 &[],
                 &[],
             );
-            device.cmd_copy_buffer_to_image(
-                self.cmd,
-                self.staging.buffer,
-                image,
-                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                &[region],
-            );
+            for (src, blit) in &blits {
+                device.cmd_blit_image(
+                    self.cmd,
+                    *src,
+                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                    image,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    std::slice::from_ref(blit),
+                    vk::Filter::NEAREST,
+                );
+            }
             device.cmd_pipeline_barrier(
                 self.cmd,
                 vk::PipelineStageFlags::TRANSFER,
@@ -430,6 +417,7 @@ impl Mirror {
                 .wait_dst_stage_mask(&stages)
                 .command_buffers(&cmds)
                 .signal_semaphores(&signals);
+            let _q = ctx.lock_queue();
             device.queue_submit(ctx.queue, &[submit], self.fence).vk("vkQueueSubmit")?;
             let swapchains = [self.swapchain];
             let indices = [index as u32];
@@ -449,7 +437,10 @@ impl Mirror {
     pub fn destroy(mut self, ctx: &VulkanContext) {
         // SAFETY: after the queue is idle nothing uses these objects.
         unsafe {
-            let _ = ctx.device.queue_wait_idle(ctx.queue);
+            {
+                let _q = ctx.lock_queue();
+                let _ = ctx.device.queue_wait_idle(ctx.queue);
+            }
             let _ = ctx.device.wait_for_fences(&[self.fence], true, u64::MAX);
             for s in self.rendered.drain(..) {
                 ctx.device.destroy_semaphore(s, None);
@@ -457,7 +448,6 @@ impl Mirror {
             ctx.device.destroy_semaphore(self.acquired, None);
             ctx.device.destroy_fence(self.fence, None);
             ctx.device.free_command_buffers(ctx.command_pool, &[self.cmd]);
-            self.staging.destroy(&ctx.device);
             if self.swapchain != vk::SwapchainKHR::null() {
                 self.swapchain_fn.destroy_swapchain(self.swapchain, None);
             }
@@ -465,68 +455,5 @@ impl Mirror {
         }
         self.lp.app.window = None;
         self.lp.pump();
-    }
-}
-
-/// Copies the eye images side by side into `out` (rows of `out_width` pixels), converting from `from` to `to`
-/// (byte order and sRGB/linear encoding).
-pub fn fill_side_by_side(
-    out: &mut [u8],
-    out_width: u32,
-    eyes: &[&[u8]],
-    from: SwapchainFormat,
-    to: SwapchainFormat,
-    eye_width: u32,
-    eye_height: u32,
-) {
-    let lut: [u8; 256] = std::array::from_fn(|v| {
-        let x = v as f32 / 255.0;
-        let y = match (from.srgb, to.srgb) {
-            (true, false) => srgb_to_linear(x),
-            (false, true) => linear_to_srgb(x),
-            _ => x,
-        };
-        (y * 255.0 + 0.5) as u8
-    });
-    let swap = from.bgra != to.bgra;
-    let (ew, eh, ow) = (eye_width as usize, eye_height as usize, out_width as usize);
-    for (e, src) in eyes.iter().enumerate() {
-        for row in 0..eh {
-            for col in 0..ew {
-                let s = (row * ew + col) * 4;
-                let d = (row * ow + e * ew + col) * 4;
-                if s + 4 > src.len() || d + 4 > out.len() {
-                    continue;
-                }
-                let (c0, c2) = if swap { (src[s + 2], src[s]) } else { (src[s], src[s + 2]) };
-                out[d] = lut[c0 as usize];
-                out[d + 1] = lut[src[s + 1] as usize];
-                out[d + 2] = lut[c2 as usize];
-                out[d + 3] = src[s + 3];
-            }
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use glam::Vec4;
-
-    #[test]
-    fn side_by_side_converts_order_and_encoding() {
-        let rgba_srgb = SwapchainFormat::PREFERRED[0];
-        let bgra_srgb = SwapchainFormat::PREFERRED[1];
-        let bgra_unorm = SwapchainFormat::PREFERRED[3];
-        let left = rgba_srgb.encode(Vec4::new(1.0, 0.5, 0.0, 1.0));
-        let right = rgba_srgb.encode(Vec4::new(0.0, 0.0, 1.0, 1.0));
-        let eyes: [&[u8]; 2] = [&left, &right];
-        let mut out = vec![0u8; 2 * 4];
-        fill_side_by_side(&mut out, 2, &eyes, rgba_srgb, bgra_srgb, 1, 1);
-        assert_eq!(&out[..4], &bgra_srgb.encode(Vec4::new(1.0, 0.5, 0.0, 1.0)));
-        assert_eq!(&out[4..], &bgra_srgb.encode(Vec4::new(0.0, 0.0, 1.0, 1.0)));
-        fill_side_by_side(&mut out, 2, &eyes, rgba_srgb, bgra_unorm, 1, 1);
-        // sRGB 188 (linear 0.5) becomes linear 128 in a UNORM window.
-        assert_eq!(&out[..4], &[0, 128, 255, 255]);
     }
 }

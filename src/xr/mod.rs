@@ -1,14 +1,16 @@
 //! OpenXR client (XR_KHR_vulkan_enable2 on ash): runtime discovery ([`check`]), the Vulkan device the runtime
-//! asks for and the per-eye swapchains ([`gfx`]), the session state machine and frame loop ([`session`]), the
-//! placement of the person in the room ([`placement`]) and the render thread that keeps the display loop from
-//! ever waiting on the person renderer ([`pacing`]).
+//! asks for, wrapped as the renderer's [`crate::gpu::Context`], and the per-eye swapchains filled on the GPU
+//! ([`gfx`]), the session state machine and frame loop ([`session`]), the placement of the person in the room
+//! ([`placement`]), the per-eye Vulkan renderers ([`eyes`]) and the render thread that keeps the display loop from
+//! ever waiting on them ([`pacing`]).
 //!
-//! The person renderer itself is not part of this layer: the session drives any [`EyeImageRenderer`] (the app
-//! layer plugs in the CPU pipeline; the Vulkan renderer can later render straight into the swapchain images,
-//! whose Vulkan handles [`gfx::VulkanContext`] keeps public).
+//! The eyes are rendered by [`crate::gpu::Renderer`] (one per eye) from an [`EyeScene`] — the person's mesh and
+//! source view, uploaded once per input frame from a [`SceneFeed`] (a still photo, or a live source in the app
+//! layer). No eye image passes through the CPU on its way to the headset.
 
 pub mod check;
 pub mod diag;
+pub mod eyes;
 pub mod gfx;
 pub mod mirror;
 pub mod pacing;
@@ -16,7 +18,8 @@ pub mod placement;
 pub mod session;
 
 pub use check::{check_runtime, RuntimeReport};
-pub use pacing::{EyeImageRenderer, EyeRequest};
+pub use eyes::{EyeScene, GpuEyes, SceneFeed, StaticScene};
+pub use pacing::{EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
 pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport, XrMode};
 

@@ -2,19 +2,24 @@
 //!
 //! The display loop posts a [`RenderRequest`] every frame (the latest predicted eye poses; an older request not
 //! yet started is simply replaced) and picks up the newest finished [`RenderedFrame`] whenever there is one. The
-//! render thread renders both eyes for the newest request it finds. A frame whose image is not new re-submits the
-//! previous image with the eye poses it was rendered for, so the compositor reprojects it to the current head pose.
-//! [`PacingStats`] measures what the viewer gets: the share of frames that showed a fresh render and the
-//! motion-to-photon latency of the person layer (pose sampling to predicted display time).
+//! render thread renders both eyes for the newest request it finds, on the GPU: a finished frame is a set of
+//! device buffers, which the display loop copies into the swapchain images with one small GPU submission (no
+//! pixels pass through the CPU). The render thread must not overwrite those buffers before that copy has run, so
+//! after publishing a frame it waits until the display loop hands back the copy's fence ([`RenderMailbox::consumed`])
+//! and waits on that fence itself — the display loop never waits for the render thread.
+//!
+//! A frame whose image is not new re-submits the previous image with the eye poses it was rendered for, so the
+//! compositor reprojects it to the current head pose. [`PacingStats`] measures what the viewer gets: the share of
+//! frames that showed a fresh render and the motion-to-photon latency of the person layer (pose sampling to
+//! predicted display time).
 
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
+use ash::vk;
 use glam::{Quat, Vec3};
 
-use super::gfx::SwapchainFormat;
 use super::placement::Placement;
-use crate::buffer::RgbaImage;
 use crate::geometry::camera::{Camera, Fov};
 
 /// One eye's pose and field of view in the reference space (metres), as `XrView` gives them.
@@ -54,28 +59,32 @@ pub struct EyeRequest {
     pub stage_camera: Camera,
 }
 
-/// Renders one eye's final image: linear, premultiplied RGBA of the camera's size (opaque in VR, the person as
-/// an alpha layer in AR). Implemented by the app layer on top of the per-view pipeline.
-pub trait EyeImageRenderer: Send {
-    /// Renders `eye`; the error text ends up in the session report.
-    fn render_eye(&mut self, eye: &EyeRequest) -> Result<RgbaImage, String>;
+/// The render thread's side of the eye renderer (implemented on the Vulkan renderer by
+/// [`super::eyes::GpuEyes`]). Errors are sentences for the session report.
+pub trait EyeRenderer: Send {
+    /// Takes new content (a new input frame, a panorama turned with the placement) without blocking; called
+    /// before every request. Returns whether something was uploaded.
+    fn refresh(&mut self, placement: &Placement) -> Result<bool, String>;
+    /// Is there anything to render yet (a live source may not have produced its first frame)?
+    fn has_content(&self) -> bool;
+    /// Renders one eye; returns the device buffer holding the result (`vec4` linear RGBA per pixel, row-major,
+    /// of the eye camera's size), valid until the next call for that eye.
+    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, String>;
+    /// Waits until the display loop's copy (signalled by `fence`) has finished reading the result buffers.
+    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String>;
+    /// Messages for the user since the last call (a live source that ended, a corrupt frame).
+    fn take_messages(&mut self) -> Vec<String>;
 }
 
-impl<F: FnMut(&EyeRequest) -> Result<RgbaImage, String> + Send> EyeImageRenderer for F {
-    fn render_eye(&mut self, eye: &EyeRequest) -> Result<RgbaImage, String> {
-        self(eye)
-    }
-}
-
-/// Both eyes rendered for one request, already encoded for the swapchain.
+/// Both eyes rendered for one request.
 #[derive(Debug)]
 pub struct RenderedFrame {
     /// The request this answers.
     pub request: RenderRequest,
     /// Per-eye cameras used (body-cube coordinates).
     pub cameras: Vec<Camera>,
-    /// Per-eye pixels in the swapchain format, top row first.
-    pub encoded: Vec<Vec<u8>>,
+    /// Per-eye result buffers on the device (see [`EyeRenderer::render_eye`]).
+    pub outputs: Vec<vk::Buffer>,
     /// Per-eye render time.
     pub eye_times: Vec<Duration>,
 }
@@ -85,8 +94,12 @@ struct Slots {
     pending: Option<RenderRequest>,
     shutdown: bool,
     latest: Option<Arc<RenderedFrame>>,
+    /// The newest frame whose copy was submitted, with the fence of that copy.
+    consumed: Option<(u64, vk::Fence)>,
     error: Option<String>,
     eye_times: Vec<Duration>,
+    uploads: u64,
+    messages: Vec<String>,
 }
 
 /// The mailbox between the display loop and the render thread.
@@ -96,72 +109,121 @@ pub struct RenderMailbox {
     wake: Condvar,
 }
 
+/// How many user messages a session keeps (the newest are dropped beyond this).
+const KEPT_MESSAGES: usize = 32;
+
 impl RenderMailbox {
     /// A new mailbox.
     pub fn new() -> Arc<Self> {
         Arc::new(Self::default())
     }
 
+    fn lock(&self) -> std::sync::MutexGuard<'_, Slots> {
+        self.slots.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
     /// Posts the newest request, replacing one the render thread has not picked up yet. Never blocks on rendering.
     pub fn request(&self, request: RenderRequest) {
-        if let Ok(mut s) = self.slots.lock() {
-            s.pending = Some(request);
-        }
-        self.wake.notify_one();
+        self.lock().pending = Some(request);
+        self.wake.notify_all();
     }
 
     /// The newest finished frame, if any.
     pub fn latest(&self) -> Option<Arc<RenderedFrame>> {
-        self.slots.lock().ok().and_then(|s| s.latest.clone())
+        self.lock().latest.clone()
+    }
+
+    /// The display loop submitted the copy of frame `seq` out of the result buffers; `fence` signals its end.
+    pub fn consumed(&self, seq: u64, fence: vk::Fence) {
+        self.lock().consumed = Some((seq, fence));
+        self.wake.notify_all();
     }
 
     /// The render thread's error, if it stopped on one.
     pub fn error(&self) -> Option<String> {
-        self.slots.lock().ok().and_then(|s| s.error.clone())
+        self.lock().error.clone()
     }
 
     /// Every per-eye render time so far.
     pub fn eye_times(&self) -> Vec<Duration> {
-        self.slots.lock().map(|s| s.eye_times.clone()).unwrap_or_default()
+        self.lock().eye_times.clone()
+    }
+
+    /// How many times new content was uploaded to the renderer.
+    pub fn uploads(&self) -> u64 {
+        self.lock().uploads
+    }
+
+    /// Messages for the user so far (at most 32).
+    pub fn messages(&self) -> Vec<String> {
+        self.lock().messages.clone()
     }
 
     /// Asks the render thread to stop after its current render.
     pub fn shutdown(&self) {
-        if let Ok(mut s) = self.slots.lock() {
-            s.shutdown = true;
-        }
+        self.lock().shutdown = true;
         self.wake.notify_all();
     }
 
+    fn record_messages(&self, messages: Vec<String>) {
+        if messages.is_empty() {
+            return;
+        }
+        let mut s = self.lock();
+        for m in messages {
+            tracing::warn!("{m}");
+            if s.messages.len() < KEPT_MESSAGES {
+                s.messages.push(m);
+            }
+        }
+    }
+
     /// The render thread's body: renders the newest request until [`RenderMailbox::shutdown`].
-    pub fn run_render_loop(&self, renderer: &mut dyn EyeImageRenderer, format: SwapchainFormat) {
+    pub fn run_render_loop(&self, renderer: &mut dyn EyeRenderer) {
+        // The frame whose result buffers the display loop may still be copying from.
+        let mut awaiting_copy: Option<u64> = None;
         loop {
-            let request = {
-                let Ok(mut s) = self.slots.lock() else { return };
+            let (request, copy_fence) = {
+                let mut s = self.lock();
                 loop {
                     if s.shutdown {
                         return;
                     }
-                    if let Some(r) = s.pending.take() {
-                        break r;
-                    }
-                    s = match self.wake.wait(s) {
-                        Ok(s) => s,
-                        Err(_) => return,
+                    let copied = match (awaiting_copy, s.consumed) {
+                        (None, _) => Some(None),
+                        (Some(seq), Some((done, fence))) if done >= seq => Some(Some(fence)),
+                        _ => None,
                     };
+                    if let (Some(fence), true) = (copied, s.pending.is_some()) {
+                        break (s.pending.take().expect("checked above"), fence);
+                    }
+                    s = self.wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
-            match render_request(renderer, &request, format) {
-                Ok(frame) => {
-                    if let Ok(mut s) = self.slots.lock() {
-                        s.eye_times.extend_from_slice(&frame.eye_times);
-                        s.latest = Some(Arc::new(frame));
-                    }
+            let result = (|| -> Result<Option<RenderedFrame>, String> {
+                if let Some(fence) = copy_fence {
+                    renderer.wait_copied(fence)?;
                 }
+                awaiting_copy = None;
+                if renderer.refresh(&request.placement)? {
+                    self.lock().uploads += 1;
+                }
+                self.record_messages(renderer.take_messages());
+                if !renderer.has_content() {
+                    return Ok(None);
+                }
+                render_request(renderer, &request).map(Some)
+            })();
+            match result {
+                Ok(Some(frame)) => {
+                    awaiting_copy = Some(frame.request.seq);
+                    let mut s = self.lock();
+                    s.eye_times.extend_from_slice(&frame.eye_times);
+                    s.latest = Some(Arc::new(frame));
+                }
+                Ok(None) => {}
                 Err(e) => {
-                    if let Ok(mut s) = self.slots.lock() {
-                        s.error = Some(e);
-                    }
+                    self.lock().error = Some(e);
                     return;
                 }
             }
@@ -169,28 +231,20 @@ impl RenderMailbox {
     }
 }
 
-/// Renders and encodes both eyes of one request.
-pub fn render_request(
-    renderer: &mut dyn EyeImageRenderer,
-    request: &RenderRequest,
-    format: SwapchainFormat,
-) -> Result<RenderedFrame, String> {
+/// Renders both eyes of one request.
+pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -> Result<RenderedFrame, String> {
     let mut cameras = Vec::with_capacity(request.views.len());
-    let mut encoded = Vec::with_capacity(request.views.len());
+    let mut outputs = Vec::with_capacity(request.views.len());
     let mut eye_times = Vec::with_capacity(request.views.len());
     for (eye, (view, &(w, h))) in request.views.iter().zip(&request.sizes).enumerate() {
         let body_camera = request.placement.eye_camera(view.position, view.orientation, view.fov, w, h);
         let stage_camera = Placement::stage_camera(view.position, view.orientation, view.fov, w, h);
         let start = Instant::now();
-        let img = renderer.render_eye(&EyeRequest { eye, body_camera, stage_camera })?;
-        if img.width != w || img.height != h {
-            return Err(format!("eye {eye}: renderer returned {}x{}, expected {w}x{h}", img.width, img.height));
-        }
+        outputs.push(renderer.render_eye(&EyeRequest { eye, body_camera, stage_camera })?);
         eye_times.push(start.elapsed());
-        encoded.push(format.encode_image(&img));
         cameras.push(body_camera);
     }
-    Ok(RenderedFrame { request: request.clone(), cameras, encoded, eye_times })
+    Ok(RenderedFrame { request: request.clone(), cameras, outputs, eye_times })
 }
 
 /// Per-frame pacing measurements of the person layer.
@@ -253,7 +307,7 @@ pub fn median_ms(values: &[Duration]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::Vec4;
+    use ash::vk::Handle;
 
     fn request(seq: u64) -> RenderRequest {
         let view =
@@ -264,6 +318,52 @@ mod tests {
             placement: Placement::in_front_of(Vec3::new(0.0, 1.6, 0.0), Quat::IDENTITY, 0.0, 1.75),
             sizes: vec![(8, 6), (8, 6)],
             sampled_at: Some(1_000),
+        }
+    }
+
+    /// A fake eye renderer: blocks while `gate` is closed (a slow GPU), records what it was asked.
+    #[derive(Default)]
+    struct Fake {
+        gate: Option<Arc<(Mutex<bool>, Condvar)>>,
+        content: bool,
+        fail: bool,
+        seen: Arc<Mutex<Vec<(usize, Vec3, Vec3)>>>,
+        waited: Arc<Mutex<Vec<u64>>>,
+        messages: Vec<String>,
+    }
+
+    impl EyeRenderer for Fake {
+        fn refresh(&mut self, _placement: &Placement) -> Result<bool, String> {
+            let first = !self.content;
+            self.content = true;
+            if first {
+                self.messages.push("first content".into());
+            }
+            Ok(first)
+        }
+        fn has_content(&self) -> bool {
+            self.content
+        }
+        fn render_eye(&mut self, e: &EyeRequest) -> Result<vk::Buffer, String> {
+            if self.fail {
+                return Err("decoder exploded".into());
+            }
+            if let Some(g) = &self.gate {
+                let (lock, cv) = &**g;
+                let mut open = lock.lock().unwrap();
+                while !*open {
+                    open = cv.wait(open).unwrap();
+                }
+            }
+            self.seen.lock().unwrap().push((e.eye, e.body_camera.position(), e.stage_camera.position()));
+            Ok(vk::Buffer::from_raw(100 + e.eye as u64))
+        }
+        fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String> {
+            self.waited.lock().unwrap().push(fence.as_raw());
+            Ok(())
+        }
+        fn take_messages(&mut self) -> Vec<String> {
+            std::mem::take(&mut self.messages)
         }
     }
 
@@ -284,42 +384,29 @@ mod tests {
     }
 
     #[test]
-    fn render_request_uses_the_placement_and_checks_sizes() {
+    fn render_request_uses_the_placement_for_each_eye() {
         let req = request(1);
-        let mut seen = Vec::new();
-        let mut r = |e: &EyeRequest| -> Result<RgbaImage, String> {
-            seen.push((e.eye, e.body_camera.position(), e.stage_camera.position()));
-            Ok(RgbaImage::new(e.body_camera.width, e.body_camera.height, Vec4::new(0.25, 0.5, 1.0, 1.0)))
-        };
-        let frame = render_request(&mut r, &req, SwapchainFormat::PREFERRED[2]).unwrap();
-        assert_eq!(frame.encoded.len(), 2);
-        assert_eq!(frame.encoded[0].len(), 8 * 6 * 4);
-        assert_eq!(&frame.encoded[1][..4], &[64, 128, 255, 255]);
+        let mut r = Fake { content: true, ..Default::default() };
+        let frame = render_request(&mut r, &req).unwrap();
+        assert_eq!(frame.outputs, vec![vk::Buffer::from_raw(100), vk::Buffer::from_raw(101)]);
+        assert_eq!((frame.cameras[0].width, frame.cameras[0].height), (8, 6));
+        let seen = r.seen.lock().unwrap();
         // Eye 0 at (0, 1.6, 0) in the room is at (0, 0.7, 1.75) in body units for the default placement.
         assert!((seen[0].1 - Vec3::new(0.0, 0.7, 1.75)).length() < 1e-5);
         assert!((seen[1].2 - Vec3::new(0.06, 1.6, 0.0)).length() < 1e-6);
-        let mut wrong = |_: &EyeRequest| -> Result<RgbaImage, String> { Ok(RgbaImage::new(2, 2, Vec4::ZERO)) };
-        assert!(render_request(&mut wrong, &req, SwapchainFormat::PREFERRED[0]).unwrap_err().contains("expected 8x6"));
     }
 
     #[test]
-    fn the_render_thread_renders_the_newest_request_and_never_blocks_the_poster() {
+    fn the_render_thread_renders_the_newest_request_and_waits_for_the_copy() {
         let mailbox = RenderMailbox::new();
         let gate = Arc::new((Mutex::new(false), Condvar::new()));
+        let fake = Fake { gate: Some(gate.clone()), ..Default::default() };
+        let waited = fake.waited.clone();
         std::thread::scope(|scope| {
             let m = mailbox.clone();
-            let g = gate.clone();
             scope.spawn(move || {
-                // A renderer that blocks until the test opens the gate (a slow decoder).
-                let mut r = move |e: &EyeRequest| -> Result<RgbaImage, String> {
-                    let (lock, cv) = &*g;
-                    let mut open = lock.lock().unwrap();
-                    while !*open {
-                        open = cv.wait(open).unwrap();
-                    }
-                    Ok(RgbaImage::new(e.body_camera.width, e.body_camera.height, Vec4::ONE))
-                };
-                m.run_render_loop(&mut r, SwapchainFormat::PREFERRED[0]);
+                let mut fake = fake;
+                m.run_render_loop(&mut fake);
             });
             // Posting many requests while the renderer is stuck returns immediately.
             let t = Instant::now();
@@ -333,13 +420,31 @@ mod tests {
                 *lock.lock().unwrap() = true;
                 cv.notify_all();
             }
-            // The thread renders what it picked up first, then only the newest pending request (50).
+            let wait_for = |seq: u64| {
+                let deadline = Instant::now() + Duration::from_secs(10);
+                while mailbox.latest().is_none_or(|f| f.request.seq != seq) {
+                    assert!(Instant::now() < deadline, "render thread never rendered request {seq}");
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            };
+            // The first request picked up (whichever it was) is rendered; the thread then holds the newest pending
+            // request (50) until the display loop hands back the copy of the first.
             let deadline = Instant::now() + Duration::from_secs(10);
-            while mailbox.latest().is_none_or(|f| f.request.seq != 50) {
-                assert!(Instant::now() < deadline, "render thread never rendered the newest request");
+            while mailbox.latest().is_none() {
+                assert!(Instant::now() < deadline, "nothing rendered");
                 std::thread::sleep(Duration::from_millis(1));
             }
+            let first = mailbox.latest().unwrap().request.seq;
+            if first != 50 {
+                std::thread::sleep(Duration::from_millis(50));
+                assert_eq!(mailbox.latest().unwrap().request.seq, first, "rendered over a frame still being copied");
+                mailbox.consumed(first, vk::Fence::from_raw(7));
+                wait_for(50);
+                assert_eq!(*waited.lock().unwrap(), vec![7], "the copy fence was not waited on");
+            }
             assert!(mailbox.eye_times().len() <= 4, "at most two requests rendered");
+            assert_eq!(mailbox.uploads(), 1);
+            assert_eq!(mailbox.messages(), vec!["first content".to_string()]);
             mailbox.shutdown();
         });
     }
@@ -348,8 +453,10 @@ mod tests {
     fn a_render_error_stops_the_thread_and_is_reported() {
         let mailbox = RenderMailbox::new();
         mailbox.request(request(1));
-        let mut r = |_: &EyeRequest| -> Result<RgbaImage, String> { Err("decoder exploded".into()) };
-        mailbox.run_render_loop(&mut r, SwapchainFormat::PREFERRED[0]);
+        let mut r = Fake { fail: true, ..Default::default() };
+        let m = mailbox.clone();
+        let t = std::thread::spawn(move || m.run_render_loop(&mut r));
+        t.join().unwrap();
         assert_eq!(mailbox.error().as_deref(), Some("decoder exploded"));
         assert!(mailbox.latest().is_none());
     }

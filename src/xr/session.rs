@@ -1,12 +1,16 @@
 //! The OpenXR session: instance and system, the Vulkan device the runtime asks for, one swapchain per eye, the
 //! session state machine, controller actions and the frame loop (wait, begin, locate views, upload, end).
 //!
-//! The person is rendered on a separate thread ([`super::pacing`]); the frame loop submits the newest finished
-//! image every frame and never waits for one. Every way a session can end — the frame budget, the runtime asking
+//! The person is rendered on the GPU by a separate thread ([`super::pacing`], [`super::eyes`]); the frame loop
+//! copies the newest finished eye images into the swapchains on the GPU ([`EyeUploader`]) and never waits for a
+//! render. The renderer and the OpenXR session share one Vulkan queue when the device has only one (lavapipe):
+//! every use of it is serialised by [`VulkanContext::lock_queue`], and the time the frame loop spends waiting for
+//! that lock is measured and reported. Every way a session can end — the frame budget, the runtime asking
 //! to exit, session loss, instance loss, the runtime process going away — ends the loop cleanly with an
 //! [`EndReason`]; only setup failures are errors.
 
 use std::fmt;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{Quat, Vec2, Vec3};
@@ -15,13 +19,15 @@ use xr::sys::Handle as _;
 
 use super::check::{blend_mode_name, extension_names};
 use super::diag::{DiagnosticLog, XrMessenger};
-use super::gfx::{format_name, EyeSwapchain, SwapchainFormat, VulkanContext};
+use super::eyes::{GpuEyes, SceneFeed};
+use super::gfx::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat, VulkanContext};
 use super::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
-use super::pacing::{median_ms, EyeImageRenderer, EyeView, PacingStats, RenderMailbox, RenderRequest};
+use super::pacing::{median_ms, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedFrame};
 use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
 use super::{load_entry, XrContext, XrError};
 use crate::buffer::RgbaImage;
 use crate::geometry::camera::{Camera, Fov};
+use crate::io::environment::Environment;
 
 const VIEW_TYPE: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_STEREO;
 
@@ -43,8 +49,8 @@ pub struct SessionConfig {
     pub max_person_frames: Option<u64>,
     /// Request exit after this much time in the session loop (a safety net for unattended runs).
     pub max_duration: Option<Duration>,
-    /// Largest eye image side in pixels; the runtime's recommended size is scaled down to fit (the CPU renderer
-    /// cannot fill full headset resolution at display rate).
+    /// Largest eye image side in pixels; the runtime's recommended size is scaled down to fit (a software Vulkan
+    /// device cannot fill full headset resolution at display rate).
     pub eye_max_side: u32,
     /// Read every fresh eye image back from the swapchain and keep the last pair (tests).
     pub capture: bool,
@@ -252,6 +258,16 @@ pub struct SessionReport {
     pub eye_render_ms: Option<f64>,
     /// Number of eye renders.
     pub eye_renders: usize,
+    /// Times new content (a new input frame) was uploaded to the renderer.
+    pub scene_uploads: u64,
+    /// Messages about the input (a live source that ended, a corrupt frame); the session went on.
+    pub source_messages: Vec<String>,
+    /// The renderer submits to the OpenXR session's queue (the device has one queue).
+    pub renderer_shares_queue: bool,
+    /// Where the eyes were rendered and how they reached the swapchains.
+    pub render_path: String,
+    /// Time the frame loop waited for the shared queue per frame (ms): median and maximum.
+    pub queue_wait_ms: (Option<f64>, f64),
     /// Submitted frames per second while running.
     pub display_fps: f64,
     /// How the session ended.
@@ -310,7 +326,21 @@ impl fmt::Display for SessionReport {
             None => writeln!(f, "motion-to-photon latency: not measured (runtime lacks XR_KHR_convert_timespec_time)")?,
         }
         if let Some(ms) = self.eye_render_ms {
-            writeln!(f, "per-eye render time (median of {}): {ms:.1} ms", self.eye_renders)?;
+            writeln!(f, "per-eye GPU render time (median of {}): {ms:.1} ms", self.eye_renders)?;
+        }
+        writeln!(f, "eyes rendered on {}", self.render_path)?;
+        if let Some(ms) = self.queue_wait_ms.0 {
+            writeln!(
+                f,
+                "frame loop wait for the session queue lock per frame: median {ms:.2} ms, max {:.1} ms",
+                self.queue_wait_ms.1
+            )?;
+        }
+        if self.scene_uploads > 1 {
+            writeln!(f, "input frames uploaded to the GPU: {}", self.scene_uploads)?;
+        }
+        for m in &self.source_messages {
+            writeln!(f, "input: {m}")?;
         }
         if self.mirror_presented > 0 {
             writeln!(f, "desktop mirror: {} images shown", self.mirror_presented)?;
@@ -436,10 +466,18 @@ fn head_pose(views: &[EyeView]) -> (Vec3, Quat) {
     (pos, views.first().map(|v| v.orientation).unwrap_or(Quat::IDENTITY))
 }
 
-/// Runs one OpenXR session with `renderer` producing the eye images, until the frame/time budget, the runtime
-/// ending the session, or the runtime going away. Errors only for setup failures (no runtime, no headset, no
-/// Vulkan); everything after the session starts ends with an [`EndReason`] in the report.
-pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) -> Result<SessionReport, XrError> {
+/// Runs one OpenXR session showing the person of `feed` (a still photo or a live source; each new scene is
+/// uploaded to the GPU once) in the eyes, over `environment` in VR, until the frame/time budget, the runtime ending
+/// the session, or the runtime going away. Errors only for setup failures (no runtime, no headset, no Vulkan, VR
+/// without a panorama); everything after the session starts ends with an [`EndReason`] in the report.
+pub fn run_session(
+    config: &SessionConfig,
+    feed: Box<dyn SceneFeed>,
+    environment: Option<Environment>,
+) -> Result<SessionReport, XrError> {
+    if config.mode == XrMode::Vr && environment.is_none() {
+        return Err(XrError::Render("VR needs a panorama to show around the person".into()));
+    }
     let entry = load_entry()?;
     let available = entry.enumerate_extensions().xr("xrEnumerateInstanceExtensionProperties")?;
     if !available.khr_vulkan_enable2 {
@@ -531,15 +569,47 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
     session.attach_action_sets(&[&controllers.set]).xr("xrAttachSessionActionSets")?;
 
     let formats = session.enumerate_swapchain_formats().xr("xrEnumerateSwapchainFormats")?;
-    let format = SwapchainFormat::choose(&formats).ok_or_else(|| {
+    let blittable = |f| vk.format_supports(f, ash::vk::FormatFeatureFlags::BLIT_DST);
+    let format = SwapchainFormat::choose_where(&formats, blittable).ok_or_else(|| {
         let names: Vec<String> = formats.iter().map(|&f| format_name(f)).collect();
-        XrError::Unsupported(format!("no 8-bit RGBA swapchain format among {}", names.join(", ")))
+        XrError::Unsupported(format!(
+            "no 8-bit RGBA swapchain format the device can blit to among {}",
+            names.join(", ")
+        ))
     })?;
-    let mut eyes = EyeSet { ctx: &vk, list: Vec::new() };
+    // Declared after `vk`, so dropped (swapchains, float images, readback buffers) before the device.
+    let mut eyes: Vec<EyeSwapchain> = Vec::new();
     for &(w, h) in &dims {
-        eyes.list.push(EyeSwapchain::new(&vk, &session, format, w, h, config.capture)?);
+        eyes.push(EyeSwapchain::new(&vk, &session, format, w, h, config.capture)?);
     }
-    let eye_dims = (eyes.list[0].width, eyes.list[0].height);
+    let eye_dims = (eyes[0].width, eyes[0].height);
+    let sizes: Vec<(usize, usize)> = eyes.iter().map(|e| (e.width as usize, e.height as usize)).collect();
+    // On a one-queue device the renderer gets its own device, so the runtime's per-frame work on the session
+    // queue never waits behind an eye render (see `super::eyes`).
+    let render_ctx = if vk.renderer_shares_queue() {
+        let validation = std::env::var("VK_INSTANCE_LAYERS").is_ok_and(|l| l.contains("KHRONOS_validation"));
+        match crate::gpu::Context::new(&crate::gpu::ContextOptions { validation: Some(validation), display: None }) {
+            Ok(c) => Arc::new(c),
+            Err(e) => {
+                tracing::warn!("no separate render device ({e}); the eyes share the session's queue");
+                vk.gpu.clone()
+            }
+        }
+    } else {
+        vk.gpu.clone()
+    };
+    let render_path = if Arc::ptr_eq(&render_ctx, &vk.gpu) {
+        if vk.renderer_shares_queue() {
+            "the session's queue (copied on the GPU)".to_string()
+        } else {
+            "a second queue of the session's device (copied on the GPU)".to_string()
+        }
+    } else {
+        format!("its own device on {} (staged through host memory)", render_ctx.device_name())
+    };
+    let mut renderer = GpuEyes::new(vk.gpu.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
+        .map_err(|e| XrError::Render(format!("cannot set up the GPU renderer: {e}")))?;
+    let mut uploader = EyeUploader::new(&vk)?;
     let passthrough = if blend.passthrough_fb {
         let p =
             session.create_passthrough(xr::PassthroughFlagsFB::IS_RUNNING_AT_CREATION).xr("xrCreatePassthroughFB")?;
@@ -565,26 +635,19 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
         time_to_focused: None,
         placement: None,
         captures: Vec::new(),
+        capture_of: None,
+        queue_waits: Vec::new(),
         mirror_loop,
         mirror: None,
         mirror_presented: 0,
     };
     let end = std::thread::scope(|scope| {
         let m = mailbox.clone();
-        // The renderer's parallel work runs in its own pool with one core fewer than the machine has, so the
-        // display loop always finds a core free (it must make every frame deadline; the render thread need not).
-        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(cores.saturating_sub(1).max(1))
-            .thread_name(|i| format!("r2human-xr-render-{i}"))
-            .build();
-        let pool = match pool {
-            Ok(p) => p,
-            Err(e) => return EndReason::RenderFailed(format!("cannot start the render thread pool: {e}")),
-        };
-        let render_thread = std::thread::Builder::new()
-            .name("r2human-xr-render".into())
-            .spawn_scoped(scope, move || pool.install(|| m.run_render_loop(renderer, format)));
+        let renderer = &mut renderer;
+        let render_thread =
+            std::thread::Builder::new().name("r2human-xr-render".into()).spawn_scoped(scope, move || {
+                m.run_render_loop(renderer);
+            });
         if let Err(e) = render_thread {
             return EndReason::RenderFailed(format!("cannot start the render thread: {e}"));
         }
@@ -601,12 +664,17 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
             mailbox: &mailbox,
             session_created,
         };
-        let end = frame_loop(&ctx, &mut frame_wait, &mut frame_stream, &mut eyes.list, &mut loop_state);
+        let end = frame_loop(&ctx, &mut frame_wait, &mut frame_stream, &mut eyes, &mut uploader, &mut loop_state);
         mailbox.shutdown();
         end
     });
+    // The render thread has ended; collect a capture still in flight.
+    if uploader.wait(&vk).is_ok() {
+        collect_captures(&mut uploader, &vk, &eyes, &mut loop_state);
+    }
     if loop_state.sm.running {
         // The loop left while the session was still running (runtime gone or render failure): best effort.
+        let _q = vk.lock_queue();
         let _ = session.end();
     }
     if let Some(m) = loop_state.mirror.take() {
@@ -615,12 +683,31 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
     }
     // SAFETY: waiting for the device to finish all uploads before the swapchains go away.
     unsafe {
+        let _q = vk.lock_queue();
         let _ = vk.device.device_wait_idle();
     }
+    uploader.destroy(&vk);
+    drop(renderer);
     drop(eyes);
     drop(passthrough);
     drop((controllers, space, frame_wait, frame_stream, session));
     let eye_times = mailbox.eye_times();
+    let (render_messages, render_message_count) = if Arc::ptr_eq(&render_ctx, &vk.gpu) {
+        (Vec::new(), 0)
+    } else {
+        // The loader's notice that VK_INSTANCE_LAYERS switched the layer on (it is how tests enable validation) is
+        // not a finding; the render device's messenger sees it because it exists from instance creation on.
+        let findings: Vec<String> = render_ctx
+            .validation()
+            .messages()
+            .into_iter()
+            .filter(|m| !(m.starts_with("env var '") && m.contains("defined and adding layers")))
+            .collect();
+        let notices = render_ctx.validation().messages().len() - findings.len();
+        let count = (render_ctx.validation().errors() + render_ctx.validation().warnings()) as usize;
+        (findings, count.saturating_sub(notices))
+    };
+    drop(render_ctx);
     let display_fps = match (loop_state.first_frame, loop_state.last_frame) {
         (Some(a), Some(b)) if b > a && loop_state.frames_submitted > 1 => {
             (loop_state.frames_submitted - 1) as f64 / (b - a).as_secs_f64()
@@ -641,32 +728,26 @@ pub fn run_session(config: &SessionConfig, renderer: &mut dyn EyeImageRenderer) 
         pacing: loop_state.pacing,
         eye_render_ms: median_ms(&eye_times),
         eye_renders: eye_times.len(),
+        scene_uploads: mailbox.uploads(),
+        source_messages: mailbox.messages(),
+        renderer_shares_queue: vk.renderer_shares_queue(),
+        queue_wait_ms: (
+            median_ms(&loop_state.queue_waits),
+            loop_state.queue_waits.iter().max().map_or(0.0, |d| d.as_secs_f64() * 1e3),
+        ),
         display_fps,
         end,
         xr_messages: xr_log.messages(),
         xr_message_count: xr_log.count(),
-        vk_messages: vk.validation.messages(),
-        vk_message_count: vk.validation.count(),
+        vk_messages: vk.validation.messages().into_iter().chain(render_messages).collect(),
+        vk_message_count: vk.validation.count() + render_message_count,
+        render_path,
         captures: loop_state.captures,
         placement: loop_state.placement,
         mirror_presented: loop_state.mirror_presented,
     };
     drop(vk);
     Ok(report)
-}
-
-/// The eye swapchains, destroyed (GPU objects first) before the Vulkan device.
-struct EyeSet<'a> {
-    ctx: &'a VulkanContext,
-    list: Vec<EyeSwapchain>,
-}
-
-impl Drop for EyeSet<'_> {
-    fn drop(&mut self) {
-        for eye in self.list.drain(..) {
-            eye.destroy(self.ctx);
-        }
-    }
 }
 
 struct FrameContext<'a> {
@@ -692,6 +773,10 @@ struct LoopState {
     time_to_focused: Option<Duration>,
     placement: Option<Placement>,
     captures: Vec<EyeCapture>,
+    /// The frame whose eye images are being read back (capture), with its request.
+    capture_of: Option<std::sync::Arc<RenderedFrame>>,
+    /// Per frame: time spent waiting for the shared queue lock.
+    queue_waits: Vec<Duration>,
     mirror_loop: Option<MirrorEventLoop>,
     mirror: Option<Mirror>,
     mirror_presented: u64,
@@ -700,11 +785,38 @@ struct LoopState {
 /// How long to wait for the runtime to confirm an exit request before giving up on it.
 const EXIT_GRACE: Duration = Duration::from_secs(10);
 
+/// Turns finished read-backs into [`EyeCapture`]s (never blocks).
+fn collect_captures(uploader: &mut EyeUploader, vk: &VulkanContext, eyes: &[EyeSwapchain], st: &mut LoopState) {
+    let Some(images) = uploader.take_captures(vk, eyes) else { return };
+    let Some(frame) = st.capture_of.take() else { return };
+    for (i, image) in images.into_iter().enumerate() {
+        let cap = EyeCapture {
+            eye: i,
+            image,
+            body_camera: frame.cameras[i],
+            view: frame.request.views[i],
+            placement: frame.request.placement,
+        };
+        if let Some(slot) = st.captures.iter_mut().find(|c| c.eye == i) {
+            *slot = cap;
+        } else {
+            st.captures.push(cap);
+        }
+    }
+}
+
+/// Runs `f` holding the session queue lock, adding the time spent waiting for the lock to `waited`.
+fn with_queue<T>(vk: &VulkanContext, waited: &mut Duration, f: impl FnOnce() -> T) -> T {
+    let _q = vk.lock_queue_timed(waited);
+    f()
+}
+
 fn frame_loop(
     ctx: &FrameContext<'_>,
     frame_wait: &mut xr::FrameWaiter,
     frame_stream: &mut xr::FrameStream<xr::Vulkan>,
     eyes: &mut [EyeSwapchain],
+    uploader: &mut EyeUploader,
     st: &mut LoopState,
 ) -> EndReason {
     let mut events = xr::EventDataBuffer::new();
@@ -748,7 +860,11 @@ fn frame_loop(
                             }
                         }
                         StateCommand::End => {
-                            if let Err(e) = ctx.session.end() {
+                            let ended = {
+                                let _q = ctx.vk.lock_queue();
+                                ctx.session.end()
+                            };
+                            if let Err(e) = ended {
                                 return EndReason::RuntimeGone(format!("xrEndSession: {e}"));
                             }
                         }
@@ -797,10 +913,13 @@ fn frame_loop(
             continue;
         }
 
+        collect_captures(uploader, ctx.vk, eyes, st);
+
         // 2. One frame.
+        let mut waited = Duration::ZERO;
         let step = (|| -> Result<(), XrError> {
             let fs = frame_wait.wait().xr("xrWaitFrame")?;
-            frame_stream.begin().xr("xrBeginFrame")?;
+            with_queue(ctx.vk, &mut waited, || frame_stream.begin()).xr("xrBeginFrame")?;
             let now = Instant::now();
             let dt = last_frame_time.map(|t| (now - t).as_secs_f32()).unwrap_or(0.0);
             last_frame_time = Some(now);
@@ -837,43 +956,29 @@ fn frame_loop(
                     });
                 }
             }
-            // Upload the newest finished image if it is new; otherwise re-submit the last one (the compositor
-            // reprojects it from the pose it was rendered for).
+            // Copy the newest finished eye images into the swapchains if they are new (GPU to GPU); otherwise
+            // re-submit the last ones (the compositor reprojects them from the poses they were rendered for).
             let mut fresh = false;
             if fs.should_render {
                 if let Some(frame) = ctx.mailbox.latest() {
                     if last_uploaded != Some(frame.request.seq) {
-                        for (i, eye) in eyes.iter_mut().enumerate() {
-                            let back = eye.upload(ctx.vk, &frame.encoded[i], ctx.config.capture)?;
-                            if let Some(bytes) = back {
-                                let image = eye.format.decode_image(&bytes, eye.width as usize, eye.height as usize);
-                                let cap = EyeCapture {
-                                    eye: i,
-                                    image,
-                                    body_camera: frame.cameras[i],
-                                    view: frame.request.views[i],
-                                    placement: frame.request.placement,
-                                };
-                                if let Some(slot) = st.captures.iter_mut().find(|c| c.eye == i) {
-                                    *slot = cap;
-                                } else {
-                                    st.captures.push(cap);
-                                }
-                            }
+                        let capture = ctx.config.capture && st.capture_of.is_none();
+                        let fence = uploader.upload(ctx.vk, eyes, &frame.outputs, capture, &mut waited)?;
+                        ctx.mailbox.consumed(frame.request.seq, fence);
+                        if capture {
+                            st.capture_of = Some(frame.clone());
                         }
                         // The mirror window opens with the first image, so it maps above the runtime's own
                         // window when both share a display.
                         if let Some(l) = st.mirror_loop.take() {
-                            let (w, h) = (eyes[0].width, eyes[0].height);
-                            match Mirror::new(l, ctx.vk, w, h, eyes.len() as u32) {
+                            match Mirror::new(l, ctx.vk) {
                                 Ok(m) => st.mirror = Some(m),
                                 Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
                             }
                         }
                         if let Some(m) = &mut st.mirror {
-                            let images: Vec<&[u8]> = frame.encoded.iter().map(|e| e.as_slice()).collect();
-                            let (w, h) = (eyes[0].width, eyes[0].height);
-                            if let Err(e) = m.present(ctx.vk, &images, eyes[0].format, w, h) {
+                            let images: Vec<_> = eyes.iter().map(|e| &e.linear).collect();
+                            if let Err(e) = m.present(ctx.vk, &images) {
                                 tracing::warn!("desktop mirror stopped: {e}");
                                 if let Some(m) = st.mirror.take() {
                                     st.mirror_presented = m.presented;
@@ -927,23 +1032,29 @@ fn frame_loop(
                             // struct starts with; `raw` outlives the xrEndFrame call.
                             let pt: &xr::CompositionLayerBase<'_, xr::Vulkan> =
                                 unsafe { &*(&raw as *const xr::sys::CompositionLayerPassthroughFB).cast() };
-                            frame_stream
-                                .end(fs.predicted_display_time, ctx.blend.blend, &[pt, &projection])
-                                .xr("xrEndFrame")?;
+                            with_queue(ctx.vk, &mut waited, || {
+                                frame_stream.end(fs.predicted_display_time, ctx.blend.blend, &[pt, &projection])
+                            })
+                            .xr("xrEndFrame")?;
                         }
                         None => {
-                            frame_stream
-                                .end(fs.predicted_display_time, ctx.blend.blend, &[&projection])
-                                .xr("xrEndFrame")?;
+                            with_queue(ctx.vk, &mut waited, || {
+                                frame_stream.end(fs.predicted_display_time, ctx.blend.blend, &[&projection])
+                            })
+                            .xr("xrEndFrame")?;
                         }
                     }
                     st.pacing.record(fresh, fs.predicted_display_time.as_nanos(), frame.request.sampled_at);
                 }
                 None => {
-                    frame_stream.end(fs.predicted_display_time, ctx.blend.blend, &[]).xr("xrEndFrame")?;
+                    with_queue(ctx.vk, &mut waited, || {
+                        frame_stream.end(fs.predicted_display_time, ctx.blend.blend, &[])
+                    })
+                    .xr("xrEndFrame")?;
                 }
             }
             st.frames_submitted += 1;
+            st.queue_waits.push(waited);
             st.first_frame.get_or_insert(now);
             st.last_frame = Some(now);
             Ok(())

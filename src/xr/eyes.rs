@@ -1,0 +1,276 @@
+//! The eyes on the Vulkan renderer: one [`gpu::Renderer`] per eye (so spatial fusion follows each eye's own view
+//! sequence) on the device the OpenXR runtime chose, fed with the person's mesh and source view once per input
+//! frame ([`EyeScene`], from a [`SceneFeed`]), rendering each eye's perspective camera on the GPU.
+//!
+//! Where the renderers run: on the OpenXR session's device, on a second queue of its queue family when there is
+//! one (the results are then copied GPU to GPU). A device with a single queue (lavapipe, many GPUs' graphics
+//! family) executes submissions in order, so the runtime's per-frame work in `xrEndFrame` would wait behind a
+//! whole eye render; there the renderers get their own device ([`GpuEyes::new`] with a separate `render`
+//! context) and each finished eye image is handed over through a host-visible staging buffer on the session's
+//! device, written by the render thread (one copy of the eye image per render, never in the display loop).
+//!
+//! The panorama is locked to the room, not to the person: the renderer looks it up in body-cube directions, so it
+//! is uploaded turned by the placement's yaw (and uploaded again when a controller turns the person).
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use ash::vk;
+use glam::Vec4;
+
+use super::pacing::{EyeRenderer, EyeRequest};
+use super::placement::Placement;
+use super::session::XrMode;
+use crate::buffer::{GrayImage, RgbImage};
+use crate::compose::Mode;
+use crate::geometry::raster::GBuffer;
+use crate::geometry::{Camera, TriMesh};
+use crate::gpu::{self, resources::Buffer, Renderer};
+use crate::io::environment::Environment;
+use crate::io::sequence::Frame;
+use crate::pipeline::warp::OcclusionFill;
+
+/// What the eyes show of one input frame: the person's mesh in body-cube coordinates and the source view the
+/// renderer warps (premultiplied linear RGB, its mask, the source G-buffer and camera, all of one size).
+#[derive(Clone, Debug)]
+pub struct EyeScene {
+    /// The person's mesh.
+    pub mesh: TriMesh,
+    /// Source colour, premultiplied linear RGB.
+    pub source_rgb: RgbImage,
+    /// Source mask in [0, 1].
+    pub source_mask: GrayImage,
+    /// Depth and normals of the mesh seen by the source camera.
+    pub source_gbuffer: GBuffer,
+    /// The source camera.
+    pub source_camera: Camera,
+}
+
+/// Where new scenes come from: a still photo (one scene) or a live source (a new scene per completed frame).
+/// Polled by the render thread before every request; must never block.
+pub trait SceneFeed: Send {
+    /// The newest scene if one completed since the last call.
+    fn poll(&mut self) -> Option<Arc<EyeScene>>;
+    /// Messages for the user since the last call (a source that ended, a corrupt frame).
+    fn take_messages(&mut self) -> Vec<String> {
+        Vec::new()
+    }
+}
+
+/// A feed with one scene (a still photo).
+pub struct StaticScene(Option<Arc<EyeScene>>);
+
+impl StaticScene {
+    /// A feed that yields `scene` once.
+    pub fn new(scene: EyeScene) -> Self {
+        Self(Some(Arc::new(scene)))
+    }
+}
+
+impl SceneFeed for StaticScene {
+    fn poll(&mut self) -> Option<Arc<EyeScene>> {
+        self.0.take()
+    }
+}
+
+/// How long the render thread waits for the display loop's copy out of its result buffers before giving up
+/// (the copy is a few hundred microseconds of GPU work; a stuck fence means a lost device).
+const COPY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// The per-eye Vulkan renderers and their inputs. See the module docs.
+pub struct GpuEyes {
+    /// The OpenXR session's device (the copy fences live there).
+    session: Arc<gpu::Context>,
+    renderers: Vec<Renderer>,
+    /// Per-eye staging buffers on the session's device when the renderers run on their own device.
+    staging: Option<Vec<Buffer>>,
+    feed: Box<dyn SceneFeed>,
+    has_scene: bool,
+    mode: Mode,
+    environment: Option<Environment>,
+    /// Yaw of the panorama as loaded (radians).
+    base_yaw: f32,
+    /// Placement yaw the panorama was last uploaded for.
+    uploaded_for_yaw: Option<f32>,
+}
+
+impl std::fmt::Debug for GpuEyes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuEyes").field("eyes", &self.renderers.len()).field("mode", &self.mode).finish()
+    }
+}
+
+impl GpuEyes {
+    /// One renderer per eye of the given sizes on `render`, for a session on `session` (the same context, or a
+    /// separate device: then each result is staged in host-visible memory of the session's device). VR needs the
+    /// panorama (`environment`); AR ignores it.
+    pub fn new(
+        session: Arc<gpu::Context>,
+        render: Arc<gpu::Context>,
+        sizes: &[(usize, usize)],
+        mode: XrMode,
+        environment: Option<Environment>,
+        feed: Box<dyn SceneFeed>,
+    ) -> Result<Self, gpu::GpuError> {
+        let mode = match mode {
+            XrMode::Vr => Mode::Vr,
+            XrMode::Ar => Mode::Ar,
+        };
+        if mode == Mode::Vr && environment.is_none() {
+            return Err(gpu::GpuError::Invalid("VR needs a panorama to show around the person".into()));
+        }
+        let mut renderers = Vec::with_capacity(sizes.len());
+        for &(w, h) in sizes {
+            let mut r = Renderer::new(render.clone(), w, h)?;
+            r.set_fill(OcclusionFill::default());
+            r.set_fusion(true);
+            renderers.push(r);
+        }
+        let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
+        let staging = if Arc::ptr_eq(&session, &render) {
+            None
+        } else {
+            let mut list = Vec::with_capacity(sizes.len());
+            for &(w, h) in sizes {
+                list.push(Buffer::new(&session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC)?);
+            }
+            Some(list)
+        };
+        Ok(Self {
+            session,
+            renderers,
+            staging,
+            feed,
+            has_scene: false,
+            mode,
+            environment: if mode == Mode::Vr { environment } else { None },
+            base_yaw,
+            uploaded_for_yaw: None,
+        })
+    }
+
+    /// The panorama yaw that keeps it locked to the room for a person turned by `placement_yaw`: the renderer
+    /// looks up body-cube directions `R_y(-placement_yaw) d`, and a panorama of yaw `y` is looked up along
+    /// `R_y(y) d` (see `io::environment::direction_to_uv`), so `base + placement_yaw` gives `R_y(base) d`, the
+    /// room-locked lookup.
+    pub fn room_locked_yaw(base_yaw: f32, placement_yaw: f32) -> f32 {
+        base_yaw + placement_yaw
+    }
+
+    fn upload_scene(&mut self, scene: &EyeScene) -> Result<(), gpu::GpuError> {
+        for r in &mut self.renderers {
+            r.set_mesh(&scene.mesh)?;
+            r.set_source_parts(&scene.source_rgb, &scene.source_mask, &scene.source_gbuffer, &scene.source_camera)?;
+        }
+        Ok(())
+    }
+}
+
+impl EyeRenderer for GpuEyes {
+    fn refresh(&mut self, placement: &Placement) -> Result<bool, String> {
+        let mut uploaded = false;
+        if let Some(scene) = self.feed.poll() {
+            self.upload_scene(&scene).map_err(|e| format!("uploading the person to the GPU: {e}"))?;
+            self.has_scene = true;
+            uploaded = true;
+        }
+        if let Some(env) = &mut self.environment {
+            if self.uploaded_for_yaw != Some(placement.yaw) {
+                env.yaw = Self::room_locked_yaw(self.base_yaw, placement.yaw);
+                for r in &mut self.renderers {
+                    r.set_environment(env).map_err(|e| format!("uploading the panorama to the GPU: {e}"))?;
+                }
+                self.uploaded_for_yaw = Some(placement.yaw);
+            }
+        }
+        Ok(uploaded)
+    }
+
+    fn has_content(&self) -> bool {
+        self.has_scene
+    }
+
+    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, String> {
+        let mode = self.mode;
+        let r = self
+            .renderers
+            .get_mut(eye.eye)
+            .ok_or_else(|| format!("eye {} has no renderer (the session has fewer eyes)", eye.eye))?;
+        if r.size() != (eye.body_camera.width, eye.body_camera.height) {
+            let (w, h) = r.size();
+            return Err(format!(
+                "eye {}: camera of {}x{} for a renderer of {w}x{h}",
+                eye.eye, eye.body_camera.width, eye.body_camera.height
+            ));
+        }
+        r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?;
+        match self.staging.as_mut().and_then(|s| s.get_mut(eye.eye)) {
+            // Separate device: hand the result over through the session device's host-visible buffer. Safe to
+            // rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
+            Some(buffer) => {
+                let data: Vec<Vec4> = match r.read_output(mode) {
+                    Frame::Vr(img) => img.data.iter().map(|c| c.extend(1.0)).collect(),
+                    Frame::Ar(img) => img.data,
+                };
+                buffer.write(&data);
+                Ok(buffer.buffer)
+            }
+            None => Ok(r.output_buffer()),
+        }
+    }
+
+    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String> {
+        // SAFETY: the fence belongs to this device and is only reset by the display loop after it has seen a newer
+        // frame, which this thread publishes only after this wait.
+        let result = unsafe { self.session.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
+        match result {
+            Ok(()) => Ok(()),
+            Err(vk::Result::TIMEOUT) => {
+                Err(format!("the copy into the swapchain did not finish within {COPY_TIMEOUT:?} (device lost?)"))
+            }
+            Err(e) => Err(format!("waiting for the copy into the swapchain failed: {e}")),
+        }
+    }
+
+    fn take_messages(&mut self) -> Vec<String> {
+        self.feed.take_messages()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::environment::direction_to_uv;
+    use glam::{Quat, Vec3};
+
+    #[test]
+    fn the_panorama_stays_locked_to_the_room_when_the_person_turns() {
+        // A stage direction d seen through a body camera is looked up as R_y(-placement_yaw) d with the uploaded
+        // yaw; it must land where the room-locked lookup of d with the base yaw lands.
+        for &(base, turn) in &[(0.0f32, 0.0f32), (0.3, 1.2), (-2.0, 0.7), (1.0, -3.0)] {
+            for d in [Vec3::new(0.3, 0.2, -0.9), Vec3::new(-0.8, -0.1, 0.4), Vec3::X] {
+                let d = d.normalize();
+                let body = Quat::from_rotation_y(-turn) * d;
+                let got = direction_to_uv(body, GpuEyes::room_locked_yaw(base, turn));
+                let want = direction_to_uv(d, base);
+                let du = (got.0 - want.0).abs();
+                assert!(du.min(1.0 - du) < 1e-5 && (got.1 - want.1).abs() < 1e-5, "{base} {turn} {d}: {got:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_static_scene_is_polled_once() {
+        let scene = EyeScene {
+            mesh: TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
+            source_rgb: RgbImage::new(4, 4, Vec3::ONE),
+            source_mask: GrayImage::new(4, 4, 1.0),
+            source_gbuffer: GBuffer::new(4, 4),
+            source_camera: Camera::source(4),
+        };
+        let mut feed = StaticScene::new(scene);
+        assert!(feed.poll().is_some());
+        assert!(feed.poll().is_none());
+        assert!(feed.take_messages().is_empty());
+    }
+}
