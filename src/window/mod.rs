@@ -187,7 +187,12 @@ impl Swapchain {
         let indices = [index];
         let info =
             vk::PresentInfoKHR::default().wait_semaphores(&waits).swapchains(&swapchains).image_indices(&indices);
-        match unsafe { self.loader.queue_present(self.ctx.queue(), &info) } {
+        // The queue may be shared with another thread (see `Context::lock_queue`).
+        let presented = {
+            let _queue = self.ctx.lock_queue();
+            unsafe { self.loader.queue_present(self.ctx.queue(), &info) }
+        };
+        match presented {
             Ok(suboptimal) => Ok(suboptimal),
             Err(vk::Result::ERROR_OUT_OF_DATE_KHR) => Ok(true),
             Err(e) => Err(GpuError::vk("present")(e)),
