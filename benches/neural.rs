@@ -1,6 +1,8 @@
 //! Neural renderer speed on this machine's CPU (ONNX Runtime CPU provider): the decoder per view at 256x256 and
-//! 512x512 over a person-shaped target mask, and the encoder per input frame (512x512 source, resampled to the
-//! model's resolution), for every tier whose models are present.
+//! 512x512 over a person-shaped target mask, the encoder per input frame (512x512 source, resampled to the
+//! model's resolution), for every tier whose models are present, and the whole per-view path of the shipped
+//! `tiny` (target raster + flow/Z-map + colour lookup + decoder + panorama compose, `ViewRenderer::render_frame`)
+//! at 256x256 against the 40 ms target, next to the geometric renderer on the same input.
 //!
 //! Models: `models/<tier>` of the project (the shipped `tiny`), or the tier folders inside `R2HUMAN_BENCH_MODELS`.
 //! Untrained `small`/`paper` models for speed measurements: `python -m train export-untrained --tier paper
@@ -12,10 +14,15 @@ use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::Vec3;
-use r2human::buffer::{GrayImage, Image, RgbImage};
+use r2human::buffer::{GrayImage, Image, RgbImage, RgbaImage};
+use r2human::compose::Mode;
+use r2human::geometry::Camera;
+use r2human::io::environment::Environment;
 use r2human::neural::{
     default_model_dir, Coefficients, Decoder, Encoder, EncoderInput, ExecutionProvider, FeatureMap, RuntimeOptions,
 };
+use r2human::pipeline::warp::OcclusionFill;
+use r2human::pipeline::{load_renderer, PrepareOptions, PreparedInput, RendererChoice, ViewRenderer};
 
 fn model_dir(tier: &str) -> Option<PathBuf> {
     if let Some(root) = std::env::var_os("R2HUMAN_BENCH_MODELS") {
@@ -75,8 +82,11 @@ fn bench_decoder(c: &mut Criterion) {
             };
             let z = GrayImage::from_fn(size, size, |c, _| c as f32 / size as f32 - 0.5);
             let normals = Image::new(size, size, Vec3::Z);
+            let lookup = RgbaImage::from_fn(size, size, |c, r| {
+                Vec3::new(0.5, c as f32 / size as f32, 0.3).extend(1.0) * *mask.get(c, r)
+            });
             group.bench_function(format!("{tier}/{size}"), |b| {
-                b.iter(|| black_box(dec.run(&warped, &z, &normals, &mask).expect("decoder run")))
+                b.iter(|| black_box(dec.run(&warped, &lookup, &z, &normals, &mask).expect("decoder run")))
             });
         }
     }
@@ -114,5 +124,36 @@ fn bench_encoder(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_decoder, bench_encoder);
+/// The whole per-view path at 256x256 (VR frame over the panorama) for the shipped `tiny` and the geometric
+/// renderer, on the person mask above turned into a prepared input at 512x512.
+fn bench_per_view(c: &mut Criterion) {
+    let Some(dir) = model_dir("tiny") else {
+        eprintln!("neural bench: no tiny models, skipping the per-view bench");
+        return;
+    };
+    let size = 512;
+    let mask = person_mask(size);
+    let rgb = RgbImage::from_fn(size, size, |c, r| Vec3::new(0.6, 0.4, (c + r) as f32 / 1024.0) * *mask.get(c, r));
+    let prepared = PreparedInput::prepare(&rgb, &mask, &PrepareOptions::default()).expect("prepare");
+    let neural = match load_renderer(RendererChoice::Neural, Some(&dir), &options()) {
+        Ok(n) => n,
+        Err(e) => {
+            eprintln!("neural bench: {e}");
+            return;
+        }
+    };
+    let env = Environment::default_embedded();
+    let mut group = c.benchmark_group("neural_per_view");
+    group.sample_size(10);
+    let cam = Camera::orbit(120.0, 10.0, 256, 256);
+    let mut geo = ViewRenderer::new(&prepared, OcclusionFill::MirroredFront, false);
+    group.bench_function("geometric/256", |b| b.iter(|| black_box(geo.render_frame(&cam, Mode::Vr, &env).unwrap())));
+    let mut net = ViewRenderer::for_renderer(&prepared, OcclusionFill::MirroredFront, false, neural.as_ref());
+    assert!(net.is_neural(), "the tiny encoder failed");
+    group.bench_function("tiny/256", |b| b.iter(|| black_box(net.render_frame(&cam, Mode::Vr, &env).unwrap())));
+    assert_eq!(net.neural_fallbacks, 0, "the decoder fell back to the geometric renderer");
+    group.finish();
+}
+
+criterion_group!(benches, bench_decoder, bench_encoder, bench_per_view);
 criterion_main!(benches);

@@ -3,13 +3,24 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
+use std::sync::{Arc, Mutex};
+
 use glam::{Vec2, Vec3, Vec4};
-use r2human::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage};
+use r2human::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
 use r2human::geometry::raster::GBuffer;
-use r2human::geometry::zmap::{FlowZ, FLOW_OUTSIDE};
+use r2human::geometry::zmap::{flow_and_zmap, FlowZ, FLOW_OUTSIDE};
+use r2human::geometry::Camera;
+use r2human::io::image_io;
 use r2human::neural::{
     environment, Coefficients, Decoder, Encoder, EncoderInput, ExecutionProvider, FeatureMap, FofNet, NeuralError,
     NeuralRuntime, RuntimeOptions,
+};
+use r2human::pipeline::warp::OcclusionFill;
+use r2human::pipeline::{
+    load_renderer, photo_lookup, NeuralRenderer, PipelineError, PrepareOptions, PreparedInput, RendererChoice,
+    ViewRenderer,
 };
 
 const R: usize = 16;
@@ -108,8 +119,32 @@ fn encoder_without_fof_feeds_zeros_and_background_is_minus_one() {
     assert!(f.data[q * q..2 * q * q].iter().all(|v| *v == 0.0));
 }
 
+/// A colour lookup pixel in the decoder's `warped_rgb` space: straight sRGB `*2-1`, 0 where unknown.
+fn net_rgb(p: Vec4) -> Vec3 {
+    if p.w <= 0.0 {
+        return Vec3::ZERO;
+    }
+    let c = p.truncate() / p.w;
+    Vec3::new(linear_to_srgb(c.x), linear_to_srgb(c.y), linear_to_srgb(c.z)) * 2.0 - 1.0
+}
+
+/// A colour lookup with known pixels (alpha 1, hashed colours) and a few unknown ones (alpha 0).
+fn hashed_lookup(w: usize, h: usize, salt: usize) -> RgbaImage {
+    RgbaImage::from_fn(w, h, |c, r| {
+        if (c + 3 * r) % 7 == 0 {
+            Vec4::ZERO
+        } else {
+            Vec3::new(hash(c, r, salt, 0.0, 1.0), hash(c, r, salt + 1, 0.0, 1.0), hash(c, r, salt + 2, 0.0, 1.0))
+                .extend(1.0)
+        }
+    })
+}
+
+/// The closed form of `good/decoder.onnx` (see make_fixtures.py): `warped_rgb + features[0:3] + 0.5 z +
+/// 0.25 n + Conv3x3(features[3])`, inputs zero outside the mask.
 fn fixture_decoder_expected(
     feat: &FeatureMap,
+    lookup: &RgbaImage,
     z: &GrayImage,
     n: &Image<Vec3>,
     mask: &GrayImage,
@@ -134,7 +169,8 @@ fn fixture_decoder_expected(
     let i = row * w + col;
     let nn = *n.get(col, row);
     let zz = *z.get(col, row);
-    let v = [0, 1, 2].map(|c| feat.data[c * plane + i] + 0.5 * zz + 0.25 * nn[c] + conv);
+    let photo = net_rgb(*lookup.get(col, row));
+    let v = [0, 1, 2].map(|c| photo[c] + feat.data[c * plane + i] + 0.5 * zz + 0.25 * nn[c] + conv);
     let lin = |v: f32| srgb_to_linear(((v + 1.0) * 0.5).clamp(0.0, 1.0)) * a;
     Vec4::new(lin(v[0]), lin(v[1]), lin(v[2]), a)
 }
@@ -164,6 +200,7 @@ fn decoder_runs_on_the_padded_mask_box_and_matches_closed_form() {
     }
     let z = GrayImage::from_fn(w, h, |c, r| hash(c, r, 3, -0.5, 0.5));
     let n = Image::from_fn(w, h, |c, r| Vec3::new(hash(c, r, 4, -1.0, 1.0), 0.3, 1.0).normalize());
+    let lookup = hashed_lookup(w, h, 20);
     for corner_pixel in [false, true] {
         if !corner_pixel {
             mask.set(39, 35, 0.0);
@@ -176,53 +213,17 @@ fn decoder_runs_on_the_padded_mask_box_and_matches_closed_form() {
             // The blob spans cols 11..=27, rows 8..=20: the decoder must not run over the whole frame.
             assert!(region.width() < w && region.height() < h, "{region:?}");
         }
-        let out = dec.run(&feat, &z, &n, &mask).unwrap();
+        let out = dec.run(&feat, &lookup, &z, &n, &mask).unwrap();
         let mut inside = 0;
         for r in 0..h {
             for c in 0..w {
-                let want = fixture_decoder_expected(&feat, &z, &n, &mask, c, r);
+                let want = fixture_decoder_expected(&feat, &lookup, &z, &n, &mask, c, r);
                 let got = *out.get(c, r);
                 assert!((got - want).abs().max_element() < 1e-4, "({c},{r}) corner {corner_pixel}: {got} vs {want}");
                 inside += (*mask.get(c, r) > 0.0) as usize;
             }
         }
         assert!(inside > 100);
-    }
-}
-
-#[test]
-fn decoder_render_warps_encoder_features_by_the_flow() {
-    let mut dec = Decoder::load(&data("good/decoder.onnx"), &cpu()).unwrap();
-    let (fw, fh) = (4, 4);
-    let mut src = FeatureMap::zeros(C, fw, fh);
-    for (i, v) in src.data.iter_mut().enumerate() {
-        *v = hash(i, 7, 0, -0.2, 0.2);
-    }
-    let (w, h) = (24, 20);
-    let mask = GrayImage::from_fn(w, h, |c, r| if (3..21).contains(&c) && (2..17).contains(&r) { 1.0 } else { 0.0 });
-    // Each target pixel looks up a source feature-pixel centre: x = (i+0.5)/(W/2) - 1, y = 1 - (j+0.5)/(H/2).
-    let pick = |c: usize, r: usize| ((c * 3 + r) % fw, (c + 2 * r) % fh);
-    let flow = Image::from_fn(w, h, |c, r| {
-        let (i, j) = pick(c, r);
-        Vec2::new((i as f32 + 0.5) / 2.0 - 1.0, 1.0 - (j as f32 + 0.5) / 2.0)
-    });
-    let mut warped = FeatureMap::zeros(C, w, h);
-    for r in 0..h {
-        for c in 0..w {
-            let (i, j) = pick(c, r);
-            for ch in 0..C {
-                warped.data[ch * w * h + r * w + c] = src.data[ch * fw * fh + j * fw + i];
-            }
-        }
-    }
-    let z = GrayImage::from_fn(w, h, |c, r| hash(c, r, 5, -0.5, 0.5));
-    let n = Image::from_fn(w, h, |_, _| Vec3::Z);
-    let a = dec.render(&src, &flow, &z, &n, &mask).unwrap();
-    for r in 0..h {
-        for c in 0..w {
-            let want = fixture_decoder_expected(&warped, &z, &n, &mask, c, r);
-            assert!((*a.get(c, r) - want).abs().max_element() < 1e-4, "({c},{r})");
-        }
     }
 }
 
@@ -267,16 +268,22 @@ fn decoder_render_view_takes_the_pipelines_flow_and_gbuffer() {
             }
         }
     }
-    let out = dec.render_view(&src, &flowz, source_res, &target).unwrap();
+    let lookup = hashed_lookup(w, h, 30);
+    let out = dec.render_view(&src, &flowz, source_res, &target, &lookup).unwrap();
     for r in 0..h {
         for c in 0..w {
-            let want = fixture_decoder_expected(&warped, &flowz.z, &normals, &mask, c, r);
+            let want = fixture_decoder_expected(&warped, &lookup, &flowz.z, &normals, &mask, c, r);
             assert!((*out.get(c, r) - want).abs().max_element() < 1e-4, "({c},{r}): {} vs {want}", out.get(c, r));
         }
     }
     assert_eq!(*out.get(2, 2), Vec4::ZERO);
     let bad = GBuffer::new(w + 1, h);
-    assert!(matches!(dec.render_view(&src, &flowz, source_res, &bad), Err(NeuralError::BadInput { .. })));
+    assert!(matches!(dec.render_view(&src, &flowz, source_res, &bad, &lookup), Err(NeuralError::BadInput { .. })));
+    let small = RgbaImage::new(w, h - 1, Vec4::ZERO);
+    match dec.render_view(&src, &flowz, source_res, &target, &small) {
+        Err(NeuralError::BadInput { problem, .. }) => assert!(problem.contains("colour lookup"), "{problem}"),
+        other => panic!("expected BadInput, got {:?}", other.map(|_| ())),
+    }
 }
 
 #[test]
@@ -292,15 +299,16 @@ fn decoder_with_a_fixed_input_size_uses_a_window_and_rejects_larger_masks() {
     };
     let z = GrayImage::new(w, h, 0.1);
     let n = Image::new(w, h, Vec3::X);
-    let out = dec.run(&feat, &z, &n, &small).unwrap();
+    let lookup = hashed_lookup(w, h, 40);
+    let out = dec.run(&feat, &lookup, &z, &n, &small).unwrap();
     for r in 0..h {
         for c in 0..w {
-            let want = fixture_decoder_expected(&feat, &z, &n, &small, c, r);
+            let want = fixture_decoder_expected(&feat, &lookup, &z, &n, &small, c, r);
             assert!((*out.get(c, r) - want).abs().max_element() < 1e-4, "({c},{r})");
         }
     }
     let big = GrayImage::from_fn(w, h, |c, _| if (2..15).contains(&c) { 1.0 } else { 0.0 });
-    match dec.run(&feat, &z, &n, &big) {
+    match dec.run(&feat, &lookup, &z, &n, &big) {
         Err(NeuralError::BadInput { problem, .. }) => assert!(problem.contains("fixed 8x8"), "{problem}"),
         other => panic!("expected BadInput, got {:?}", other.map(|_| ())),
     }
@@ -310,7 +318,8 @@ fn decoder_with_a_fixed_input_size_uses_a_window_and_rejects_larger_masks() {
 fn empty_mask_renders_a_transparent_image_without_running() {
     let mut dec = Decoder::load(&data("good/decoder.onnx"), &cpu()).unwrap();
     let mask = GrayImage::new(8, 8, 0.0);
-    let out = dec.run(&FeatureMap::zeros(C, 8, 8), &mask, &Image::new(8, 8, Vec3::Z), &mask).unwrap();
+    let lookup = RgbaImage::new(8, 8, Vec4::ONE);
+    let out = dec.run(&FeatureMap::zeros(C, 8, 8), &lookup, &mask, &Image::new(8, 8, Vec3::Z), &mask).unwrap();
     assert!(out.data.iter().all(|p| *p == Vec4::ZERO));
 }
 
@@ -386,6 +395,11 @@ fn bad_models_are_clear_errors() {
     let e = load_err("encoder_no_fof_n.onnx", enc_loader);
     assert!(matches!(&e, NeuralError::Metadata { key, .. } if key == "r2human.fof_n"), "{e}");
     assert!(e.to_string().contains("is missing"), "{e}");
+    // A decoder of the earlier three-input contract: the missing residual input is named, with what to do.
+    let e = load_err("decoder_3_inputs.onnx", dec_loader);
+    assert!(matches!(e, NeuralError::Signature { .. }), "{e}");
+    let msg = e.to_string();
+    assert!(msg.contains("no input named `warped_rgb`") && msg.contains("python -m train export"), "{msg}");
     // A decoder loaded as an encoder: wrong kind, named.
     let e = load_err("good/decoder.onnx", enc_loader);
     assert!(e.to_string().contains("is `decoder` but this file is loaded as the encoder"), "{e}");
@@ -414,7 +428,8 @@ fn corrupt_and_missing_files_are_errors_not_crashes() {
 fn nan_output_is_reported_not_rendered_black() {
     let mut dec = Decoder::load(&data("decoder_nan.onnx"), &cpu()).unwrap();
     let mask = GrayImage::from_fn(8, 8, |c, _| if c > 2 { 1.0 } else { 0.0 });
-    match dec.run(&FeatureMap::zeros(C, 8, 8), &mask, &Image::new(8, 8, Vec3::Z), &mask) {
+    let lookup = RgbaImage::new(8, 8, Vec4::ONE);
+    match dec.run(&FeatureMap::zeros(C, 8, 8), &lookup, &mask, &Image::new(8, 8, Vec3::Z), &mask) {
         Err(e @ NeuralError::NonFinite { .. }) => assert!(e.to_string().contains("non-finite"), "{e}"),
         other => panic!("expected NonFinite, got {:?}", other.map(|_| ())),
     }
@@ -425,8 +440,17 @@ fn wrong_input_sizes_are_errors() {
     let mut dec = Decoder::load(&data("good/decoder.onnx"), &cpu()).unwrap();
     let mask = GrayImage::new(8, 8, 1.0);
     let n = Image::new(8, 8, Vec3::Z);
-    assert!(matches!(dec.run(&FeatureMap::zeros(C + 1, 8, 8), &mask, &n, &mask), Err(NeuralError::BadInput { .. })));
-    assert!(matches!(dec.run(&FeatureMap::zeros(C, 8, 4), &mask, &n, &mask), Err(NeuralError::BadInput { .. })));
+    let lk = RgbaImage::new(8, 8, Vec4::ONE);
+    assert!(matches!(
+        dec.run(&FeatureMap::zeros(C + 1, 8, 8), &lk, &mask, &n, &mask),
+        Err(NeuralError::BadInput { .. })
+    ));
+    assert!(matches!(dec.run(&FeatureMap::zeros(C, 8, 4), &lk, &mask, &n, &mask), Err(NeuralError::BadInput { .. })));
+    let lk_small = RgbaImage::new(8, 7, Vec4::ONE);
+    assert!(matches!(
+        dec.run(&FeatureMap::zeros(C, 8, 8), &lk_small, &mask, &n, &mask),
+        Err(NeuralError::BadInput { .. })
+    ));
     let mut enc = Encoder::load(&data("good/encoder.onnx"), &cpu()).unwrap();
     let rgb = RgbImage::new(R, R + 1, Vec3::ZERO);
     let m = GrayImage::new(R, R + 1, 1.0);
@@ -489,12 +513,24 @@ fn shipped_tiny_models_load_and_render() {
     }
     let features = rt.encoder.run(&EncoderInput { rgb: &rgb, mask: &mask, fof: None, normals: &normals }).unwrap();
     assert_eq!(features.channels, rt.decoder.info().feature_channels);
-    // The source view itself: flow = the pixel's own body-cube position, Z-map = the card's depth 0.
-    let flow = Image::from_fn(size, size, |c, r| {
-        Vec2::new((c as f32 + 0.5) / (size as f32 / 2.0) - 1.0, 1.0 - (r as f32 + 0.5) / (size as f32 / 2.0))
-    });
-    let z = GrayImage::new(size, size, 0.0);
-    let out = rt.decoder.render(&features, &flow, &z, &normals, &mask).unwrap();
+    // The source view itself: flow = the pixel's own position, Z-map = the card's depth 0, the lookup = the card.
+    let mut target = GBuffer::new(size, size);
+    let mut flowz = FlowZ {
+        flow: Image::from_fn(size, size, |c, r| Vec2::new(c as f32 + 0.5, r as f32 + 0.5)),
+        z: GrayImage::new(size, size, 0.0),
+        mask: vec![false; size * size],
+    };
+    for r in 0..size {
+        for c in 0..size {
+            let i = r * size + c;
+            target.mask[i] = card(c, r);
+            flowz.mask[i] = card(c, r);
+            target.normal[i] = *normals.get(c, r);
+            target.depth[i] = 0.0;
+        }
+    }
+    let lookup = photo_lookup(&rgb, &mask, &Camera::source(size), &flowz);
+    let out = rt.decoder.render_view(&features, &flowz, size, &target, &lookup).unwrap();
     for r in 0..size {
         for c in 0..size {
             let p = *out.get(c, r);
@@ -502,4 +538,143 @@ fn shipped_tiny_models_load_and_render() {
             assert_eq!(p.w, if card(c, r) { 1.0 } else { 0.0 });
         }
     }
+}
+
+fn figure_input(resolution: usize) -> PreparedInput {
+    let photo = image_io::from_dynamic(&image::DynamicImage::ImageRgba8(common::figure_rgba(150, 200)));
+    let mask = photo.alpha.clone().unwrap();
+    let opts = PrepareOptions { resolution, depth_samples: resolution, ..Default::default() };
+    PreparedInput::prepare(&photo.rgb, &mask, &opts).unwrap()
+}
+
+/// An untrained residual decoder (zero-initialised last convolution, exported by `python -m train
+/// export-untrained --tier tiny`) reproduces the geometric renderer (`MirroredFront`, whose lookup ignores
+/// visibility) on every pixel where the photo has a colour, through the whole pipeline: encoder, flow, lookup,
+/// decoder over the mask box, sRGB round trip.
+#[test]
+fn zero_residual_decoder_is_the_geometric_renderer() {
+    let prepared = figure_input(96);
+    let neural = Arc::new(Mutex::new(NeuralRenderer::load(&data("untrained_tiny"), &cpu()).unwrap()));
+    let encoded = neural.lock().unwrap().encode(&prepared).unwrap();
+    assert_eq!(encoded.features.channels, 16);
+    let mut geo = ViewRenderer::new(&prepared, OcclusionFill::MirroredFront, false);
+    let mut net = ViewRenderer::with_neural(&prepared, OcclusionFill::MirroredFront, false, neural, encoded);
+    assert!(net.is_neural() && net.encode_time().is_some());
+    for yaw in [0.0f32, 35.0, 120.0, 180.0] {
+        let cam = Camera::orbit(yaw, 10.0, 80, 80);
+        let g = geo.render_person(&cam).unwrap();
+        let n = net.render_person(&cam).unwrap();
+        assert_eq!(net.neural_fallbacks, 0);
+        // Which pixels the photo has a colour for (the lookup's alpha).
+        let mut target = GBuffer::new(80, 80);
+        r2human::geometry::raster::rasterize_into(&mut target, &prepared.mesh, &cam);
+        let flowz = flow_and_zmap(&target, &cam, &prepared.source_camera);
+        let lookup = photo_lookup(&prepared.normalised.rgb, &prepared.normalised.mask, &prepared.source_camera, &flowz);
+        let mut known = 0;
+        for i in 0..80 * 80 {
+            assert!(n.data[i].is_finite() && n.data[i].max_element() <= 1.0 && n.data[i].min_element() >= 0.0);
+            if lookup.data[i].w > 0.0 {
+                known += 1;
+                assert!(
+                    (n.data[i] - g.data[i]).abs().max_element() < 2e-4,
+                    "yaw {yaw} px {i}: {} vs {}",
+                    n.data[i],
+                    g.data[i]
+                );
+            }
+            // Alpha is the coverage in both.
+            assert_eq!(n.data[i].w, g.data[i].w, "yaw {yaw} px {i}");
+        }
+        assert!(known > 500, "yaw {yaw}: only {known} pixels with a colour");
+    }
+}
+
+/// A decoder that outputs NaN: the view is drawn by the geometric renderer (identical to it, not black) and the
+/// fallback is counted; a working decoder in the same folder layout really draws the neural view.
+#[test]
+fn nan_decoder_falls_back_to_the_geometric_view() {
+    let prepared = figure_input(64);
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::copy(data("good/encoder.onnx"), tmp.path().join("encoder.onnx")).unwrap();
+    std::fs::copy(data("decoder_nan.onnx"), tmp.path().join("decoder.onnx")).unwrap();
+    let neural = load_renderer(RendererChoice::Neural, Some(tmp.path()), &cpu()).unwrap().expect("models load");
+    let mut r = ViewRenderer::for_renderer(&prepared, OcclusionFill::MirroredFront, false, Some(&neural));
+    assert!(r.is_neural());
+    let mut geo = ViewRenderer::new(&prepared, OcclusionFill::MirroredFront, false);
+    for (k, yaw) in [30.0f32, 200.0].into_iter().enumerate() {
+        let cam = Camera::orbit(yaw, 0.0, 48, 48);
+        let out = r.render_person(&cam).unwrap();
+        assert_eq!(r.neural_fallbacks, k + 1);
+        assert_eq!(out, geo.render_person(&cam).unwrap());
+        assert!(out.data.iter().filter(|p| p.w > 0.5 && p.truncate().max_element() > 0.01).count() > 100);
+    }
+    // The closed-form fixture decoder runs: no fallback, and its output differs from the geometric view.
+    std::fs::copy(data("good/decoder.onnx"), tmp.path().join("decoder.onnx")).unwrap();
+    let neural = load_renderer(RendererChoice::Auto, Some(tmp.path()), &cpu()).unwrap().expect("models load");
+    let mut r = ViewRenderer::for_renderer(&prepared, OcclusionFill::MirroredFront, false, Some(&neural));
+    let cam = Camera::orbit(30.0, 0.0, 48, 48);
+    let out = r.render_person(&cam).unwrap();
+    assert_eq!(r.neural_fallbacks, 0);
+    assert_ne!(out, geo.render_person(&cam).unwrap());
+}
+
+#[test]
+fn renderer_choice_resolves_models_and_reports_missing_ones() {
+    let tmp = tempfile::tempdir().unwrap();
+    assert!(load_renderer(RendererChoice::Geometric, Some(tmp.path()), &cpu()).unwrap().is_none());
+    // Auto without models: the geometric renderer (one warning), not an error.
+    assert!(load_renderer(RendererChoice::Auto, Some(tmp.path()), &cpu()).unwrap().is_none());
+    // Neural without models: an error that names the missing file.
+    match load_renderer(RendererChoice::Neural, Some(tmp.path()), &cpu()) {
+        Err(e @ PipelineError::Neural(NeuralError::ModelMissing { .. })) => {
+            assert!(e.to_string().contains("encoder.onnx"), "{e}")
+        }
+        other => panic!("expected a missing-model error, got {:?}", other.map(|o| o.is_some())),
+    }
+    // A folder with an old three-input decoder: neural fails naming the input, auto falls back.
+    std::fs::copy(data("good/encoder.onnx"), tmp.path().join("encoder.onnx")).unwrap();
+    std::fs::copy(data("decoder_3_inputs.onnx"), tmp.path().join("decoder.onnx")).unwrap();
+    let e = load_renderer(RendererChoice::Neural, Some(tmp.path()), &cpu()).err().expect("must fail");
+    assert!(e.to_string().contains("warped_rgb"), "{e}");
+    assert!(load_renderer(RendererChoice::Auto, Some(tmp.path()), &cpu()).unwrap().is_none());
+}
+
+/// `r2human eval` scores the neural methods next to the others when models load, and leaves them out otherwise.
+#[test]
+fn eval_includes_the_neural_rows_when_models_exist() {
+    use r2human::eval::runner::{run_eval_with, EvalOptions, NeuralEvalOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let opts = EvalOptions {
+        subjects: 1,
+        seed: 3,
+        out: dir.path().join("eval"),
+        scans: Vec::new(),
+        size: 48,
+        yaws: vec![20.0, 90.0, 180.0],
+        texture_size: 64,
+        save_views: false,
+    };
+    let nopts = NeuralEvalOptions { models: Some(data("untrained_tiny")), skip: false, ep: ExecutionProvider::Cpu };
+    let rep = run_eval_with(&opts, &nopts).unwrap();
+    assert_eq!(rep.neural_fallbacks, 0);
+    let get = |m: &str, g: &str| rep.rows.iter().find(|r| r.method == m && r.group == g).cloned();
+    for g in ["close", "divergent"] {
+        for (neural, geometric) in [("neural+inflation", "geometric+inflation"), ("neural+gt-fof", "geometric+gt-fof")]
+        {
+            let n = get(neural, g).unwrap_or_else(|| panic!("no {neural} {g} row in {:?}", rep.rows));
+            let geo = get(geometric, g).unwrap();
+            assert_eq!(n.views, geo.views);
+            assert!(n.psnr.is_finite() && n.ssim.is_finite() && n.ms_per_view > 0.0, "{n:?}");
+            // The encoder adds to the per-input time; the untrained (zero-residual) decoder draws the geometric
+            // lookup, so the same geometry scores about the same.
+            assert!(n.ms_per_input > geo.ms_per_input, "{n:?} vs {geo:?}");
+            assert!((n.mask_iou - geo.mask_iou).abs() < 0.02, "{n:?} vs {geo:?}");
+            assert!((n.psnr - geo.psnr).abs() < 1.5, "{n:?} vs {geo:?}");
+        }
+    }
+    let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
+    assert!(csv.contains("\nneural+inflation,divergent,") && csv.contains("\nneural+gt-fof,close,"), "{csv}");
+    let skip = NeuralEvalOptions { skip: true, ..nopts };
+    let rep = run_eval_with(&EvalOptions { out: dir.path().join("eval2"), ..opts }, &skip).unwrap();
+    assert!(rep.rows.iter().all(|r| !r.method.starts_with("neural")), "{:?}", rep.rows);
 }

@@ -14,6 +14,8 @@ import numpy as np
 import torch
 from PIL import Image
 
+from .geometry import srgb_to_linear
+
 FORMAT = "r2human-dataset"
 
 
@@ -151,10 +153,14 @@ class R2Dataset(torch.utils.data.Dataset):
                 src_cam = json.load(f)
         vfw, half = camera_tensors(src_cam)
         a = rgba[..., 3:]
+        mask = torch.from_numpy(((a[..., 0] > 0.5) & (depth > -1)).astype(np.float32))[None]
         src = {
             # Premultiplied by the mask, then *2-1: background -1 (the reference's img*mask input).
             "image": torch.from_numpy(rgba[..., :3] * a * 2 - 1).permute(2, 0, 1).float(),
-            "mask": torch.from_numpy(((a[..., 0] > 0.5) & (depth > -1)).astype(np.float32))[None],
+            # Linear light premultiplied by the mask, as the Rust pipeline holds the photo: the decoder's
+            # `warped_rgb` input is looked up in it (train/geometry.py warp_rgb).
+            "linear": srgb_to_linear(torch.from_numpy(rgba[..., :3]).permute(2, 0, 1).float()) * mask,
+            "mask": mask,
             "fof": torch.from_numpy(fof).permute(2, 0, 1).float().contiguous(),
             "normals": torch.from_numpy(normal).permute(2, 0, 1).float(),
             "view_from_world": vfw,

@@ -11,6 +11,9 @@ from .fit import R2HumanNet
 from .nets import TIERS, ZMAP_FREQUENCIES, FofNet
 
 FORMAT_VERSION = 1
+# The decoder's inputs, in order. `warped_rgb` (the residual decoder's photo lookup) cannot be called `rgb` like the
+# brief's wording because ONNX value names are unique and `rgb` is the output.
+DECODER_INPUTS = ("features", "zmap", "normals", "warped_rgb")
 
 
 def _metadata(path, entries):
@@ -71,13 +74,15 @@ def export_renderer(ckpt_path, out_dir, seed=0):
     def dec_inputs(h, w):
         return {"features": torch.randn(1, c, h, w, generator=g),
                 "zmap": torch.rand(1, 1, h, w, generator=g) * 2 - 1,
-                "normals": torch.nn.functional.normalize(torch.randn(1, 3, h, w, generator=g), dim=1)}
+                "normals": torch.nn.functional.normalize(torch.randn(1, 3, h, w, generator=g), dim=1),
+                "warped_rgb": torch.rand(1, 3, h, w, generator=g) * 2 - 1}
 
-    axes = {k: {2: "h", 3: "w"} for k in ["features", "zmap", "normals", "rgb"]}
-    _export(model.decoder, tuple(dec_inputs(res // 2, res // 2).values()), dec_path, ["features", "zmap", "normals"],
+    axes = {k: {2: "h", 3: "w"} for k in [*DECODER_INPUTS, "rgb"]}
+    _export(model.decoder, tuple(dec_inputs(res // 2, res // 2).values()), dec_path, list(DECODER_INPUTS),
             ["rgb"], axes)
     _metadata(dec_path, {**common, "r2human.kind": "decoder", "r2human.stride": stride,
-                         "r2human.zmap_frequencies": ZMAP_FREQUENCIES, "r2human.color_space": "srgb"})
+                         "r2human.zmap_frequencies": ZMAP_FREQUENCIES, "r2human.color_space": "srgb",
+                         "r2human.residual": "warped_rgb"})
     report["decoder"] = {f"{h}x{w}": {"max_abs_diff": _compare(dec_path, model.decoder, dec_inputs(h, w))}
                          for h, w in [(res, res), (stride * 9, stride * 5)]}
     return report

@@ -17,7 +17,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from . import losses
 from .dataset import R2Dataset
-from .geometry import transfer, warp
+from .geometry import transfer, warp, warp_rgb
 from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters
 
 
@@ -32,7 +32,8 @@ class R2HumanNet(nn.Module):
     def render(self, feats, b, view):
         grid, z, mask = transfer(b[f"{view}_depth"], b[f"{view}_view_from_world"], b[f"{view}_half"],
                                  b["src_view_from_world"], b["src_half"])
-        return self.decoder(warp(feats, grid, mask), z, b[f"{view}_normals"] * mask)
+        rgb, _ = warp_rgb(b["src_linear"], b["src_mask"], grid, mask)
+        return self.decoder(warp(feats, grid, mask), z, b[f"{view}_normals"] * mask, rgb)
 
     def forward(self, b, fof):
         feats = self.encoder(b["src_image"], fof, b["src_normals"])
@@ -40,11 +41,12 @@ class R2HumanNet(nn.Module):
 
 
 def geometric_baseline(b, view):
-    """The reference's geometric path for comparison: the source image warped by the flow (no occlusion test)."""
+    """The geometric renderer for comparison: the source photo looked up at the flow (mask-aware, no occlusion
+    test), i.e. the residual decoder's `warped_rgb` input and an untrained decoder's output."""
     grid, _, mask = transfer(b[f"{view}_depth"], b[f"{view}_view_from_world"], b[f"{view}_half"],
                              b["src_view_from_world"], b["src_half"])
-    img = warp(b["src_image"], grid, mask)
-    return img * mask + (-1) * (1 - mask)
+    rgb, _ = warp_rgb(b["src_linear"], b["src_mask"], grid, mask)
+    return rgb
 
 
 def masked_psnr_ssim(pred, target, mask):
@@ -153,6 +155,7 @@ def recipe(args, tier, data_meta, steps, seconds, world):
                        "perceptual": losses.LAMBDA_PERCEPTUAL,
                        "perceptual_kind": "lpips" if getattr(args, "lpips", None) else "ssim+gradient (LPIPS substitute)",
                        "visibility_lambda": 0.02},
+            "decoder": "residual: rgb = warped_rgb + UNet(...), last convolution zero-initialised",
             "fof_dropout": getattr(args, "fof_dropout", 0.0), "seed": args.seed, "torch": str(torch.__version__),
             "resumed_from": getattr(args, "resume", None)}
 

@@ -55,3 +55,39 @@ def visibility(depth_mv, vfw_mv, half_mv, depth_ref, vfw_ref, half_ref, lam=VISI
     a, b = z_ref + 1, d_ref + 1
     vis = (torch.abs(a - b) < lam * torch.minimum(a, b)) & (d_ref > -1) & inside & (mask > 0)
     return grid, vis.float()
+
+
+# --- The geometric colour lookup the residual decoder starts from (must match src/neural and src/pipeline/warp.rs) ---
+
+# Smallest bilinear mask weight accepted as "the source sees colour here" (src/pipeline/warp.rs MIN_MASK_WEIGHT).
+MIN_MASK_WEIGHT = 0.05
+
+
+def srgb_to_linear(v):
+    """sRGB-encoded [0,1] -> linear light (src/buffer.rs srgb_to_linear; clamps to [0,1])."""
+    v = v.clamp(0, 1)
+    return torch.where(v <= 0.04045, v / 12.92, ((v.clamp_min(0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(v):
+    """Linear light -> sRGB-encoded [0,1] (src/buffer.rs linear_to_srgb; clamps to [0,1])."""
+    v = v.clamp(0, 1)
+    return torch.where(v <= 0.0031308, v * 12.92, 1.055 * v.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
+
+
+@torch.no_grad()
+def warp_rgb(src_linear, src_mask, grid, mask):
+    """The decoder's `warped_rgb` input: the source photo looked up at the flow, exactly as the geometric renderer's
+    `MirroredFront` lookup without the visibility test (src/pipeline/warp.rs `sample_masked`).
+
+    src_linear [B,3,H,W]: linear RGB premultiplied by src_mask [B,1,H,W]; grid [B,h,w,2] from `transfer`; mask
+    [B,1,h,w] the target pixels with a flow. Per target pixel the four bilinear taps give sum(w*c) / sum(w*m) (taps
+    outside the image count zero, like grid_sample's zero padding and the Rust loop's skipped taps), clamped to
+    [0,1], sRGB-encoded and mapped to [-1,1]. Pixels whose mask weight sum(w*m) is below MIN_MASK_WEIGHT (the flow
+    lands outside the source silhouette) and pixels outside `mask` are 0.
+    Returns (rgb [B,3,h,w], known [B,1,h,w])."""
+    num = F.grid_sample(src_linear, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    den = F.grid_sample(src_mask.clamp(0, 1), grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    known = ((den >= MIN_MASK_WEIGHT) & (mask > 0)).float()
+    colour = linear_to_srgb((num / den.clamp_min(MIN_MASK_WEIGHT)).clamp(0, 1)) * 2 - 1
+    return colour * known, known

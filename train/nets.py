@@ -3,9 +3,16 @@
 Contracts (identical for every tier; the Rust side checks names, shapes and metadata, see src/neural/mod.rs):
   encoder  image [B,3,R,R] (sRGB*mask*2-1), fof [B,N,R,R], normals [B,3,R,R] -> features [B,C,R/4,R/4]
   decoder  features [B,C,h,w] (warped, zero outside the target mask), zmap [B,1,h,w] (source z, 0 outside),
-           normals [B,3,h,w] (target view space)                 -> rgb [B,3,h,w] (sRGB in [-1,1], no activation)
-           The Z-map is expanded inside the graph into cos(n*pi*z), sin(n*pi*z), n = 1..16 (32 channels), so the
-           paper tier's first convolution sees C + 32 + 3 = 256 + 32 + 3 = 291 channels, as the reference.
+           normals [B,3,h,w] (target view space), warped_rgb [B,3,h,w] (the geometric colour lookup at the flow,
+           sRGB in [-1,1], 0 where unknown; train/geometry.py warp_rgb)
+                                                                 -> rgb [B,3,h,w] (sRGB in [-1,1], no activation)
+           The Z-map is expanded inside the graph into cos(n*pi*z), sin(n*pi*z), n = 1..16 (32 channels). The
+           network predicts a RESIDUAL: rgb = warped_rgb + UNet(features, zmap encoding, normals, warped_rgb), with
+           the last convolution zero-initialised, so an untrained decoder reproduces the geometric renderer's colour
+           lookup and training only adds what the Z-map, normals and features say (occlusion, the back, shading).
+           This is a deliberate deviation from the paper (whose decoder sees C + 32 + 3 = 291 channels and no
+           photo): the tiny tier sees encoder features at 1/4 resolution only, and the skip keeps the photo's
+           full-resolution texture. The paper tier's first convolution sees 256 + 32 + 3 + 3 = 294 channels.
   fof      image [B,3,R,R]                                       -> fof [B,N,R,R] (no activation)
 """
 import math
@@ -180,14 +187,20 @@ class Encoder(nn.Module):
 
 
 class Decoder(nn.Module):
+    """Residual Z-map decoder: `warped_rgb + UNet(...)` (see the module docs for why)."""
+
     def __init__(self, tier):
         super().__init__()
         cfg = TIERS[tier]
-        self.net = UNet(cfg["features"] + 2 * ZMAP_FREQUENCIES + 3, 3, cfg["decoder_widths"], light=tier == "tiny")
+        self.net = UNet(cfg["features"] + 2 * ZMAP_FREQUENCIES + 3 + 3, 3, cfg["decoder_widths"],
+                        light=tier == "tiny")
+        # Zero residual at initialisation: the untrained decoder is the geometric lookup.
+        nn.init.zeros_(self.net.out.weight)
+        nn.init.zeros_(self.net.out.bias)
         self.stride = self.net.stride
 
-    def forward(self, features, zmap, normals):
-        return self.net(torch.cat([features, zmap_encoding(zmap), normals], 1))
+    def forward(self, features, zmap, normals, warped_rgb):
+        return warped_rgb + self.net(torch.cat([features, zmap_encoding(zmap), normals, warped_rgb], 1))
 
 
 class FofNet(nn.Module):

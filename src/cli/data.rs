@@ -96,6 +96,16 @@ pub struct EvalArgs {
     /// Also write every view's ground truth and each method's rendering as PNGs (DIR/views/...), to look at.
     #[arg(long)]
     pub save_views: bool,
+    /// Model folder of the neural methods (neural+inflation, neural+gt-fof); default: the project's models/tiny.
+    /// Without loadable models those rows are left out with one warning.
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+    /// Leave the neural methods out.
+    #[arg(long)]
+    pub no_neural: bool,
+    /// Execution provider of the neural methods: auto tries TensorRT, then CUDA, then the CPU.
+    #[arg(long, value_enum, default_value_t = crate::neural::ExecutionProvider::Auto)]
+    pub ep: crate::neural::ExecutionProvider,
 }
 
 /// `r2human eval`.
@@ -112,7 +122,9 @@ pub fn run_eval(args: &EvalArgs) -> Result<()> {
         save_views: args.save_views,
         ..Default::default()
     };
-    let report = crate::eval::runner::run_eval(&opts)?;
+    let neural =
+        crate::eval::runner::NeuralEvalOptions { models: args.models.clone(), skip: args.no_neural, ep: args.ep };
+    let report = crate::eval::runner::run_eval_with(&opts, &neural)?;
     for (name, why) in &report.failed {
         eprintln!("warning: {name} was skipped: {why}");
     }

@@ -13,8 +13,11 @@ use crate::geometry::Camera;
 use crate::io::environment::Environment;
 use crate::io::image_io::{self, LoadedImage};
 use crate::io::sequence::{self, Frame};
+use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, ViewRenderer};
+use crate::pipeline::{
+    load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice, SharedNeural, ViewRenderer,
+};
 
 /// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
 pub const DEFAULT_PERSON_PNG: &[u8] = include_bytes!("../../assets/demo/person.png");
@@ -61,6 +64,32 @@ pub struct ViewOptions {
     /// Camera pitch in degrees (positive looks down on the person).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub pitch: f32,
+    /// Which renderer draws the person: geometric (the photo warped through the geometry), neural (encoder +
+    /// residual decoder through ONNX Runtime; an error without models) or auto (neural when its models load, else
+    /// geometric with one warning).
+    #[arg(long, value_enum, default_value_t = RendererChoice::Geometric)]
+    pub renderer: RendererChoice,
+    /// Execution provider of the neural renderer: auto tries TensorRT, then CUDA, then the CPU.
+    #[arg(long, value_enum, default_value_t = ExecutionProvider::Auto)]
+    pub ep: ExecutionProvider,
+    /// Model folder of the neural renderer (encoder.onnx, decoder.onnx); default: the project's models/tiny.
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+}
+
+/// Loads the neural renderer the options ask for (`None`: geometric).
+fn neural_for(view: &ViewOptions) -> Result<Option<SharedNeural>> {
+    let options = RuntimeOptions { ep: view.ep, ..Default::default() };
+    Ok(load_renderer(view.renderer, view.models.as_deref(), &options)?)
+}
+
+fn report_fallbacks(renderer: &ViewRenderer<'_>) {
+    if renderer.neural_fallbacks > 0 {
+        eprintln!(
+            "warning: the neural decoder failed on {} view(s); the geometric renderer drew them",
+            renderer.neural_fallbacks
+        );
+    }
 }
 
 /// Arguments of `render`.
@@ -153,6 +182,7 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     let image = args.image.as_deref().context("--image or --video is required")?;
     let (photo, mask) = image_io::load_person(image, args.mask.as_deref())?;
     let env = load_environment(&args.view)?;
+    let neural = neural_for(&args.view)?;
     let prepared = prepare(&photo, &mask, &args.view)?;
     let (n, fill) = (args.orbit.unwrap_or(1), args.view.fill.into());
     let cams = orbit_cameras(n, args.yaw, args.view.pitch, args.view.size);
@@ -169,9 +199,10 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     }
     match args.orbit {
         None => {
-            let mut renderer = ViewRenderer::new(&prepared, args.view.fill.into(), false);
+            let mut renderer = ViewRenderer::for_renderer(&prepared, args.view.fill.into(), false, neural.as_ref());
             let cam = Camera::orbit(args.yaw, args.view.pitch, args.view.size, args.view.size);
             let frame = renderer.render_frame(&cam, args.view.mode, &env)?;
+            report_fallbacks(&renderer);
             frame.save_png(&args.out).with_context(|| format!("writing {}", args.out.display()))?;
             println!("wrote {}", args.out.display());
         }
@@ -179,7 +210,7 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
             if !(1..=720).contains(&n) {
                 bail!("--orbit {n} is out of range: use 1 to 720 views");
             }
-            let frames = render_orbit(&prepared, &args.view, &env, n, args.yaw)?;
+            let frames = render_orbit(&prepared, &args.view, &env, n, args.yaw, neural.as_ref())?;
             write_orbit(&args.out, &frames)?;
         }
     }
@@ -189,6 +220,13 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
 /// `render --video`: one PNG per input frame (frames that cannot be used are skipped with a message).
 fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
     use crate::app::live::{render_video_views, LiveOptions};
+    match args.view.renderer {
+        RendererChoice::Geometric => {}
+        RendererChoice::Auto => eprintln!("warning: --video renders with the geometric renderer (--renderer auto)"),
+        RendererChoice::Neural => {
+            bail!("--renderer neural does not support --video yet: use --image, or --renderer geometric")
+        }
+    }
     use crate::capture::{open_video_path, SegmentMethod};
     let Some(segment) = SegmentMethod::parse(&args.segment) else {
         bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
@@ -208,15 +246,17 @@ fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Renders `n` views evenly spaced in yaw starting at `start_yaw`, with spatial fusion across the sequence.
+/// Renders `n` views evenly spaced in yaw starting at `start_yaw`, with spatial fusion across the sequence, with
+/// the neural renderer when `neural` is given (else the geometric one).
 pub fn render_orbit(
     prepared: &PreparedInput,
     view: &ViewOptions,
     env: &Environment,
     n: usize,
     start_yaw: f32,
+    neural: Option<&SharedNeural>,
 ) -> Result<Vec<Frame>> {
-    let mut renderer = ViewRenderer::new(prepared, view.fill.into(), true);
+    let mut renderer = ViewRenderer::for_renderer(prepared, view.fill.into(), true, neural);
     let bar = ProgressBar::new(n as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} views ({elapsed})").expect("valid template"),
     );
@@ -229,6 +269,7 @@ pub fn render_orbit(
         bar.inc(1);
     }
     bar.finish();
+    report_fallbacks(&renderer);
     Ok(frames)
 }
 
@@ -254,8 +295,9 @@ pub fn run_demo(args: &DemoArgs) -> Result<()> {
     let photo = image_io::load_image_bytes(DEFAULT_PERSON_PNG, "embedded person.png")?;
     let mask = photo.alpha.clone().context("the embedded person image has an alpha channel")?;
     let env = load_environment(&args.view)?;
+    let neural = neural_for(&args.view)?;
     let prepared = prepare(&photo, &mask, &args.view)?;
-    let frames = render_orbit(&prepared, &args.view, &env, args.frames, 0.0)?;
+    let frames = render_orbit(&prepared, &args.view, &env, args.frames, 0.0, neural.as_ref())?;
     write_orbit(&args.out, &frames)?;
     println!(
         "per-input stages: {:.0} ms; mesh: {} triangles",

@@ -8,7 +8,13 @@
 //! 1. `billboard`: the cut-out on the plane z = 0 (what most VR telepresence shows);
 //! 2. `2.5d`: only the visible front surface (the inflation prior's source depth) as a depth mesh;
 //! 3. `geometric+inflation`: the project's geometric renderer with the inflation prior;
-//! 4. `geometric+gt-fof`: the same with the ground-truth FOF (oracle geometry).
+//! 4. `geometric+gt-fof`: the same with the ground-truth FOF (oracle geometry);
+//! 5. `neural+inflation`: the neural renderer (encoder + residual decoder, [`crate::pipeline::NeuralRenderer`]) on
+//!    the same inflation geometry as method 3 (per-input time = method 3's plus the encoder);
+//! 6. `neural+gt-fof`: the neural renderer on the oracle geometry of method 4.
+//!
+//! Methods 5 and 6 run when the neural models load ([`NeuralEvalOptions::models`], default `models/tiny`); otherwise
+//! one warning says why and their rows are absent.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -27,9 +33,10 @@ use crate::geometry::mesh::TriMesh;
 use crate::geometry::raster::rasterize;
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::write_atomic;
+use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::input::{NormaliseTransform, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
+use crate::pipeline::{load_renderer, PrepareOptions, PreparedInput, RendererChoice, SharedNeural, ViewRenderer};
 use crate::synth::{self, SubjectParams, SynthAssets};
 
 /// Options of [`run_eval`] (the CLI's `r2human eval` flags).
@@ -55,6 +62,17 @@ pub struct EvalOptions {
     pub save_views: bool,
 }
 
+/// How [`run_eval_with`] runs the neural methods 5 and 6.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NeuralEvalOptions {
+    /// Model folder; `None`: the project's `models/tiny` when found.
+    pub models: Option<PathBuf>,
+    /// Leave the neural methods out.
+    pub skip: bool,
+    /// Execution provider.
+    pub ep: ExecutionProvider,
+}
+
 impl Default for EvalOptions {
     fn default() -> Self {
         Self {
@@ -71,7 +89,8 @@ impl Default for EvalOptions {
 }
 
 /// The methods compared.
-pub const METHODS: [&str; 4] = ["billboard", "2.5d", "geometric+inflation", "geometric+gt-fof"];
+pub const METHODS: [&str; 6] =
+    ["billboard", "2.5d", "geometric+inflation", "geometric+gt-fof", "neural+inflation", "neural+gt-fof"];
 
 /// One row of the report: a method on a view group.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -108,6 +127,8 @@ pub struct EvalReport {
     pub failed: Vec<(String, String)>,
     /// Peak resident memory of the process (MiB, from `/proc/self/status` VmHWM; 0 where unavailable).
     pub peak_memory_mib: f32,
+    /// Views of the neural methods that the decoder failed on and the geometric renderer drew instead.
+    pub neural_fallbacks: usize,
 }
 
 #[derive(Default)]
@@ -231,8 +252,15 @@ fn raster_prediction(mesh: &TriMesh, cam: &Camera) -> Prediction {
     Prediction { rgba, mask: g.mask, depth }
 }
 
-/// Evaluates one subject; pushes into the accumulators `[method][group]`.
-fn eval_subject(name: &str, mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [[Acc; 2]; 4]) -> Result<(), EvalError> {
+/// Evaluates one subject; pushes into the accumulators `[method][group]` and counts neural fallbacks.
+fn eval_subject(
+    name: &str,
+    mesh: &TexturedMesh,
+    opts: &EvalOptions,
+    neural: Option<&SharedNeural>,
+    acc: &mut [[Acc; 2]; 6],
+    fallbacks: &mut usize,
+) -> Result<(), EvalError> {
     let r = opts.size;
     let src_cam = Camera::source(r);
     let gt_src = render_ground_truth(mesh, &src_cam);
@@ -261,16 +289,38 @@ fn eval_subject(name: &str, mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [
     let gt_fof = Fof::from_mesh(&mesh.mesh, r, popts.fof_order).map_err(|e| EvalError::Fof(e.to_string()))?;
     let oracle = PreparedInput::from_fof(normalised(), gt_fof, &popts, Default::default()).map_err(perr)?;
     let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
-    let per_input = [0.0, ms_25d, ms_inflate, ms_oracle];
+    // Methods 3..6: geometric and neural renderers on the inflation and the oracle geometry. A neural renderer
+    // exists only when its encoder ran (no geometric stand-in is ever scored as neural).
+    let prepared = [&inflated, &oracle];
+    let mut renderers: Vec<Option<ViewRenderer<'_>>> =
+        prepared.iter().map(|p| Some(ViewRenderer::new(p, OcclusionFill::default(), false))).collect();
+    for p in prepared {
+        let encoded = neural.map(|n| (n, n.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).encode(p)));
+        renderers.push(match encoded {
+            Some((n, Ok(e))) => {
+                Some(ViewRenderer::with_neural(p, OcclusionFill::default(), false, std::sync::Arc::clone(n), e))
+            }
+            Some((_, Err(e))) => {
+                tracing::warn!("neural encoder failed, the neural rows skip this subject: {e}");
+                None
+            }
+            None => None,
+        });
+    }
+    let encode_ms = |k: usize| renderers[k].as_ref().and_then(|r| r.encode_time()).map(|d| d.as_secs_f32() * 1e3);
+    let per_input = [
+        Some(0.0),
+        Some(ms_25d),
+        Some(ms_inflate),
+        Some(ms_oracle),
+        encode_ms(2).map(|e| ms_inflate + e),
+        encode_ms(3).map(|e| ms_oracle + e),
+    ];
     for (a, ms) in acc.iter_mut().zip(per_input) {
         for g in a.iter_mut() {
-            g.ms_input.push(ms);
+            g.ms_input.extend(ms);
         }
     }
-    let mut renderers = [
-        ViewRenderer::new(&inflated, OcclusionFill::default(), false),
-        ViewRenderer::new(&oracle, OcclusionFill::default(), false),
-    ];
 
     for &yaw in &opts.yaws {
         let cam = Camera::orbit(yaw, 0.0, r, r);
@@ -300,11 +350,13 @@ fn eval_subject(name: &str, mesh: &TexturedMesh, opts: &EvalOptions, acc: &mut [
                 1 => raster_prediction(&front, &cam),
                 _ => {
                     let k = m - 2;
-                    let person = renderers[k].render_person(&cam).map_err(perr)?;
+                    let Some(renderer) = renderers[k].as_mut() else { continue };
+                    let before = renderer.neural_fallbacks;
+                    let person = renderer.render_person(&cam).map_err(perr)?;
                     let ms = t.elapsed().as_secs_f32() * 1e3;
+                    *fallbacks += renderer.neural_fallbacks - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
-                    let prepared = if k == 0 { &inflated } else { &oracle };
-                    let gb = rasterize(&prepared.mesh, &cam);
+                    let gb = rasterize(&prepared[k % 2].mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
                     let depth = gb.depth.iter().zip(&gb.mask).map(|(&d, &c)| if c { d } else { -1.0 }).collect();
                     save(METHODS[m], &person)?;
@@ -343,8 +395,14 @@ fn peak_memory_mib() -> f32 {
 }
 
 /// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
-/// and scans that fail are reported (in the summary and the Markdown) and skipped.
+/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
+/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
 pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
+    run_eval_with(opts, &NeuralEvalOptions::default())
+}
+
+/// [`run_eval`] with explicit settings for the neural methods.
+pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
     if opts.subjects == 0 && opts.scans.is_empty() {
         return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
     }
@@ -352,8 +410,16 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
         return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
     }
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
-    let mut acc: [[Acc; 2]; 4] = Default::default();
+    let mut acc: [[Acc; 2]; 6] = Default::default();
     let mut failed = Vec::new();
+    let mut fallbacks = 0;
+    // Methods 5 and 6: `auto` semantics (one warning and no neural rows when the models do not load).
+    let neural = if nopts.skip {
+        None
+    } else {
+        let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
+        load_renderer(RendererChoice::Auto, nopts.models.as_deref(), &options).unwrap_or(None)
+    };
     if opts.subjects > 0 {
         let assets = SynthAssets::shared()?;
         for i in 0..opts.subjects {
@@ -361,7 +427,7 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
             let seed = super::dataset::subject_seed(opts.seed, i);
             let r = synth::generate(assets, &SubjectParams::sample(seed), opts.texture_size)
                 .map_err(EvalError::from)
-                .and_then(|s| eval_subject(&name, &s.mesh, opts, &mut acc));
+                .and_then(|s| eval_subject(&name, &s.mesh, opts, neural.as_ref(), &mut acc, &mut fallbacks));
             if let Err(e) = r {
                 failed.push((name, e.to_string()));
             }
@@ -371,7 +437,7 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
         let name = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
         let r = synth::scan::load_scan(scan)
             .map_err(EvalError::from)
-            .and_then(|s| eval_subject(&name, &s.mesh, opts, &mut acc));
+            .and_then(|s| eval_subject(&name, &s.mesh, opts, neural.as_ref(), &mut acc, &mut fallbacks));
         if let Err(e) = r {
             failed.push((scan.display().to_string(), e.to_string()));
         }
@@ -401,7 +467,7 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
         let first = failed.first().map(|f| format!("{}: {}", f.0, f.1)).unwrap_or_else(|| "no view in a group".into());
         return Err(EvalError::AllFailed(first));
     }
-    let report = EvalReport { rows, failed, peak_memory_mib: peak_memory_mib() };
+    let report = EvalReport { rows, failed, peak_memory_mib: peak_memory_mib(), neural_fallbacks: fallbacks };
     write_reports(&opts.out, opts, &report)?;
     Ok(report)
 }
@@ -459,6 +525,12 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             r.views
         ));
     }
+    if rep.neural_fallbacks > 0 {
+        md.push_str(&format!(
+            "\nThe neural decoder failed on {} view(s); the geometric renderer drew them (scored in the neural rows).\n",
+            rep.neural_fallbacks
+        ));
+    }
     if !rep.failed.is_empty() {
         md.push_str("\n## Failed inputs\n\n");
         for (n, e) in &rep.failed {
@@ -490,9 +562,9 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
             .build_cartesian_2d(0f32..xmax, ymin..ymax)
             .map_err(|e| perr(e.to_string()))?;
         chart.configure_mesh().x_desc("ms per view").y_desc("PSNR (dB)").draw().map_err(|e| perr(e.to_string()))?;
-        let colors = [RED, BLUE, GREEN, MAGENTA];
+        let colors = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
         for r in pts {
-            let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % 4];
+            let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % colors.len()];
             let marker = if r.group == "close" { 0 } else { 1 };
             let label = format!("{} ({})", r.method, r.group);
             let p = (r.ms_per_view, r.psnr);

@@ -5,7 +5,7 @@
 //! | --- | --- | --- |
 //! | `fof.onnx` (optional) | `image` `[1,3,R,R]` (+ optional `prior` `[1,N,R,R]`) | `fof` `[1,N,R,R]` |
 //! | `encoder.onnx` | `image` `[1,3,R,R]`, `fof` `[1,N,R,R]`, `normals` `[1,3,R,R]` | `features` `[1,C,R/4,R/4]` |
-//! | `decoder.onnx` | `features` `[1,C,h,w]`, `zmap` `[1,1,h,w]`, `normals` `[1,3,h,w]` | `rgb` `[1,3,h,w]` |
+//! | `decoder.onnx` | `features` `[1,C,h,w]`, `zmap` `[1,1,h,w]`, `normals` `[1,3,h,w]`, `warped_rgb` `[1,3,h,w]` | `rgb` `[1,3,h,w]` |
 //!
 //! - `image` is the source photo in the networks' colour space, **sRGB-encoded** and premultiplied by the mask, mapped
 //!   to `[-1, 1]` (`image*2-1`, so the background is `-1`), exactly as the reference feeds its encoder.
@@ -14,6 +14,16 @@
 //! - `zmap` is the raw source-view z of every target pixel (paper Eq. 4), zero in the background; the decoder graph
 //!   itself expands it into `cos(n*pi*z), sin(n*pi*z)`, `n = 1..16` (so the paper tier's first convolution sees
 //!   `256 + 32 + 3 = 291` channels).
+//! - `warped_rgb` is the geometric renderer's colour lookup at full target resolution: the source photo sampled at
+//!   the flow with the mask-aware bilinear sample (`sum(w*c)/sum(w*m)` over the four taps, in linear light),
+//!   clamped, sRGB-encoded and mapped to `[-1, 1]`; `0` where the flow lands outside the source silhouette or the
+//!   pixel is background ([`crate::pipeline::photo_lookup`]; `train/geometry.py` `warp_rgb` computes the same).
+//!   The decoder is **residual**: its graph outputs `warped_rgb + UNet(...)`, trained from a zero-initialised last
+//!   convolution, so an untrained decoder is the geometric renderer's `MirroredFront` lookup (without the
+//!   visibility test) and training adds occlusion, back-side and shading corrections. This deviates from the paper
+//!   on purpose: the `tiny` tier sees encoder features at 1/4 resolution only, and the skip keeps the photo's
+//!   full-resolution texture. A decoder of the earlier three-input contract is rejected at load, naming the
+//!   missing `warped_rgb`. (It is not called `rgb` because ONNX value names are unique and `rgb` is the output.)
 //! - `rgb` is sRGB in `[-1, 1]`; [`Decoder`] turns it into linear premultiplied RGBA with the target mask as alpha.
 //!
 //! Every model carries metadata (`r2human.kind`, `r2human.tier`, `r2human.resolution`, `r2human.fof_n`,
@@ -37,7 +47,7 @@ use std::path::{Path, PathBuf};
 
 pub use library::{find_library, library_candidates, ORT_LIBRARY_FILE, ORT_TOOLS_SUBDIR};
 pub use model::{ModelInfo, ModelKind, FORMAT_VERSION};
-pub use nets::{Decoder, Encoder, EncoderInput, FofNet, FofPrediction};
+pub use nets::{Decoder, Encoder, EncoderInput, FofNet, FofPrediction, DECODER_INPUTS};
 pub use provider::{environment, ActiveProvider, ExecutionProvider, RuntimeOptions};
 pub use tensor::{Coefficients, FeatureMap, PixelBox};
 

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{Vec2, Vec3, Vec4};
+use glam::{Vec3, Vec4};
 use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
 
@@ -13,7 +13,7 @@ use super::tensor::{
     coefficients_tensor, image_tensor, normals_tensor, resample_plane, Coefficients, FeatureMap, PixelBox,
 };
 use super::NeuralError;
-use crate::buffer::{srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
+use crate::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
 use crate::geometry::raster::GBuffer;
 use crate::geometry::zmap::FlowZ;
 
@@ -267,7 +267,18 @@ impl Encoder {
     }
 }
 
-/// The Z-map decoder (runs once per view).
+/// The decoder's inputs, in the order the exporter writes them. `warped_rgb` is the residual decoder's colour lookup
+/// (see [`Decoder`]); it is not called `rgb` because ONNX value names are unique and `rgb` is the output.
+pub const DECODER_INPUTS: [&str; 4] = ["features", "zmap", "normals", "warped_rgb"];
+
+/// The residual Z-map decoder (runs once per view).
+///
+/// Its graph computes `rgb = warped_rgb + UNet(features, zmap encoding, normals, warped_rgb)`: `warped_rgb` is the
+/// geometric renderer's colour lookup (the source photo at the flow, mask-aware, without the visibility test; see
+/// [`crate::pipeline::photo_lookup`]), and training starts from a zero-initialised last convolution, so an
+/// untrained decoder reproduces the geometric renderer and training adds what the Z-map, normals and features
+/// say (occlusion, the back, shading). This deviates from the paper on purpose: the `tiny` tier sees encoder
+/// features at 1/4 resolution only, and the skip keeps the photo's full-resolution texture.
 pub struct Decoder {
     net: Net,
     /// Fixed spatial input size `(width, height)` when the model declares one.
@@ -276,7 +287,8 @@ pub struct Decoder {
 
 impl Decoder {
     /// Loads and checks a decoder (`r2human.kind = decoder`; inputs `features` `[1,C,h,w]`, `zmap` `[1,1,h,w]`,
-    /// `normals` `[1,3,h,w]`; output `rgb` `[1,3,h,w]`; `h`, `w` dynamic or fixed).
+    /// `normals` `[1,3,h,w]`, `warped_rgb` `[1,3,h,w]`; output `rgb` `[1,3,h,w]`; `h`, `w` dynamic or fixed). A
+    /// decoder of the earlier three-input contract is rejected with an error that names the missing `warped_rgb`.
     pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
         let net = Net::load(path, ModelKind::Decoder, "decoder", options)?;
         let c = net.info.feature_channels as i64;
@@ -286,7 +298,18 @@ impl Decoder {
         let hw = |v: i64| if v < 0 { Dim::Any } else { Dim::Is(v) };
         check_tensor(s, path, false, "zmap", [Dim::Is(1), hw(h), hw(w)])?;
         check_tensor(s, path, false, "normals", [Dim::Is(3), hw(h), hw(w)])?;
-        check_no_extra_inputs(s, path, &["features", "zmap", "normals"])?;
+        if !s.inputs().iter().any(|i| i.name() == "warped_rgb") {
+            return Err(NeuralError::Signature {
+                path: path.to_path_buf(),
+                problem: "has no input named `warped_rgb` [1, 3, h, w]: it is a decoder of the earlier \
+                          three-input contract (features, zmap, normals), while this build runs the residual \
+                          decoder that adds the geometric colour lookup. Retrain and re-export it with this \
+                          version's `python -m train fit` and `python -m train export`"
+                    .into(),
+            });
+        }
+        check_tensor(s, path, false, "warped_rgb", [Dim::Is(3), hw(h), hw(w)])?;
+        check_no_extra_inputs(s, path, &DECODER_INPUTS)?;
         check_tensor(s, path, true, "rgb", [Dim::Is(3), hw(h), hw(w)])?;
         let fixed = (h > 0 && w > 0).then_some((w as usize, h as usize));
         if let Some((fw, fh)) = fixed {
@@ -358,7 +381,9 @@ impl Decoder {
 
     /// Renders a view from the pipeline's own buffers: warps the encoder's `features` by `flowz.flow` (continuous
     /// pixel coordinates of the `source_res x source_res` source image, as [`crate::geometry::zmap::flow_and_zmap`]
-    /// gives them), decodes with `flowz.z` and the target normals, only over the padded bounding box of
+    /// gives them), decodes with `flowz.z`, the target normals and `lookup` (the geometric colour lookup at the
+    /// target size, from [`crate::pipeline::photo_lookup`]: linear premultiplied RGBA whose alpha is 1 where the
+    /// photo has a colour for the pixel and 0 where it has none), only over the padded bounding box of
     /// `flowz.mask && target.mask`. Returns linear premultiplied RGBA at the target size (alpha 1 on covered
     /// pixels, transparent elsewhere).
     pub fn render_view(
@@ -367,6 +392,7 @@ impl Decoder {
         flowz: &FlowZ,
         source_res: usize,
         target: &GBuffer,
+        lookup: &RgbaImage,
     ) -> Result<RgbaImage, NeuralError> {
         self.check_feature_channels(features.channels)?;
         let (w, h) = (target.width, target.height);
@@ -383,6 +409,7 @@ impl Decoder {
                 problem: "target G-buffer arrays do not match its size".into(),
             });
         }
+        check_sizes("decoder", "colour lookup", lookup.width, lookup.height, w, h)?;
         if source_res == 0 {
             return Err(NeuralError::BadInput { model: "decoder", problem: "source resolution is 0".into() });
         }
@@ -393,6 +420,7 @@ impl Decoder {
             |i| if flowz.mask[i] && target.mask[i] { 1.0 } else { 0.0 },
             |i| flowz.z.data[i],
             |i| target.normal[i],
+            |i| lookup_tensor_value(lookup.data[i]),
             |col, row, out| {
                 // Pixel coordinates (centres at +0.5) to body-cube coordinates of the source camera.
                 let f = flowz.flow.get(col, row);
@@ -401,39 +429,22 @@ impl Decoder {
         )
     }
 
-    /// Renders a view: warps the encoder's `features` by `flow` (per target pixel, the source-camera body-cube
-    /// coordinates `(x_src, y_src)` of paper Eq. 4), then decodes with the Z-map (`z_src` per target pixel) and the
-    /// target view-space normals, only over [`Decoder::region`]. Returns linear premultiplied RGBA at the target
-    /// size with the mask as alpha; transparent outside the mask.
-    pub fn render(
-        &mut self,
-        features: &FeatureMap,
-        flow: &Image<Vec2>,
-        zmap: &GrayImage,
-        normals: &Image<Vec3>,
-        mask: &GrayImage,
-    ) -> Result<RgbaImage, NeuralError> {
-        self.check_feature_channels(features.channels)?;
-        check_sizes("decoder", "flow", flow.width, flow.height, mask.width, mask.height)?;
-        self.decode_images(zmap, normals, mask, |col, row, out| {
-            let f = flow.get(col, row);
-            features.sample_cube(f.x, f.y, out);
-        })
-    }
-
-    /// Decodes already-warped features (`warped`: `C` channels at the target size) with the Z-map and target
-    /// normals, only over [`Decoder::region`]; see [`Decoder::render`].
+    /// Decodes already-warped features (`warped`: `C` channels at the target size) with the Z-map, the target
+    /// normals and the colour `lookup` (as in [`Decoder::render_view`]), only over [`Decoder::region`] of `mask`.
+    /// Returns linear premultiplied RGBA at the target size with the mask as alpha; transparent outside the mask.
     pub fn run(
         &mut self,
         warped: &FeatureMap,
+        lookup: &RgbaImage,
         zmap: &GrayImage,
         normals: &Image<Vec3>,
         mask: &GrayImage,
     ) -> Result<RgbaImage, NeuralError> {
         self.check_feature_channels(warped.channels)?;
         check_sizes("decoder", "warped features", warped.width, warped.height, mask.width, mask.height)?;
+        check_sizes("decoder", "colour lookup", lookup.width, lookup.height, mask.width, mask.height)?;
         let plane = warped.width * warped.height;
-        self.decode_images(zmap, normals, mask, |col, row, out| {
+        self.decode_images(zmap, normals, mask, lookup, |col, row, out| {
             let i = row * warped.width + col;
             for (c, o) in out.iter_mut().enumerate() {
                 *o = warped.data[c * plane + i];
@@ -446,12 +457,21 @@ impl Decoder {
         zmap: &GrayImage,
         normals: &Image<Vec3>,
         mask: &GrayImage,
+        lookup: &RgbaImage,
         features_at: impl FnMut(usize, usize, &mut [f32]),
     ) -> Result<RgbaImage, NeuralError> {
         let (w, h) = (mask.width, mask.height);
         check_sizes("decoder", "Z-map", zmap.width, zmap.height, w, h)?;
         check_sizes("decoder", "normal map", normals.width, normals.height, w, h)?;
-        self.decode(w, h, |i| mask.data[i], |i| zmap.data[i], |i| normals.data[i], features_at)
+        self.decode(
+            w,
+            h,
+            |i| mask.data[i],
+            |i| zmap.data[i],
+            |i| normals.data[i],
+            |i| lookup_tensor_value(lookup.data[i]),
+            features_at,
+        )
     }
 
     fn check_feature_channels(&self, c: usize) -> Result<(), NeuralError> {
@@ -464,8 +484,9 @@ impl Decoder {
         Ok(())
     }
 
-    /// The shared decoder path over per-pixel accessors (`alpha`, `z`, `normal` by pixel index; `features_at` by
-    /// column and row): crop, pad, run, write back.
+    /// The shared decoder path over per-pixel accessors (`alpha`, `z`, `normal`, `rgb` (network space) by pixel
+    /// index; `features_at` by column and row): crop, pad, run, write back.
+    #[allow(clippy::too_many_arguments)]
     fn decode(
         &mut self,
         w: usize,
@@ -473,6 +494,7 @@ impl Decoder {
         alpha: impl Fn(usize) -> f32,
         zmap: impl Fn(usize) -> f32,
         normal: impl Fn(usize) -> Vec3,
+        rgb_in: impl Fn(usize) -> Vec3,
         mut features_at: impl FnMut(usize, usize, &mut [f32]),
     ) -> Result<RgbaImage, NeuralError> {
         let mut out = RgbaImage::new(w, h, Vec4::ZERO);
@@ -483,6 +505,7 @@ impl Decoder {
         let mut feat = vec![0.0f32; c * plane];
         let mut z = vec![0.0f32; plane];
         let mut nrm = vec![0.0f32; 3 * plane];
+        let mut photo = vec![0.0f32; 3 * plane];
         let mut px = vec![0.0f32; c];
         for row in 0..ph {
             let y = p.y0 + row as i64;
@@ -513,10 +536,20 @@ impl Decoder {
                     nrm[plane + i] = n.y;
                     nrm[2 * plane + i] = n.z;
                 }
+                let p = rgb_in(y * w + x);
+                if p.is_finite() {
+                    photo[i] = p.x;
+                    photo[plane + i] = p.y;
+                    photo[2 * plane + i] = p.z;
+                }
             }
         }
-        let inputs: [(&str, [usize; 4], &[f32]); 3] =
-            [("features", [1, c, ph, pw], &feat), ("zmap", [1, 1, ph, pw], &z), ("normals", [1, 3, ph, pw], &nrm)];
+        let inputs: [(&str, [usize; 4], &[f32]); 4] = [
+            ("features", [1, c, ph, pw], &feat),
+            ("zmap", [1, 1, ph, pw], &z),
+            ("normals", [1, 3, ph, pw], &nrm),
+            ("warped_rgb", [1, 3, ph, pw], &photo),
+        ];
         let (shape, rgb) = self.net.run(&inputs, "rgb")?;
         self.net.expect_output_shape(&shape, [1, 3, ph, pw])?;
         for row in 0..ph {
@@ -542,4 +575,15 @@ impl Decoder {
         }
         Ok(out)
     }
+}
+
+/// One pixel of the colour lookup (linear premultiplied RGBA, alpha > 0 where the photo has a colour) in the
+/// decoder's `warped_rgb` space: straight colour clamped to `[0, 1]`, sRGB-encoded, `*2-1`; `0` where unknown
+/// (exactly `train/geometry.py`'s `warp_rgb`).
+fn lookup_tensor_value(p: Vec4) -> Vec3 {
+    if !(p.w > 0.0 && p.is_finite()) {
+        return Vec3::ZERO;
+    }
+    let c = p.truncate() / p.w;
+    Vec3::new(linear_to_srgb(c.x), linear_to_srgb(c.y), linear_to_srgb(c.z)) * 2.0 - 1.0
 }

@@ -4,22 +4,35 @@
 //!   source depth/normals).
 //! - [`ViewRenderer`]: everything computed per view (target raster -> flow/Z-map/visibility -> warp -> spatial
 //!   fusion), reusing its buffers from view to view.
+//!
+//! Two renderers draw the person ([`RendererChoice`]): the geometric warp ([`warp::render_geometric`]) and the
+//! neural one ([`NeuralRenderer`]: the encoder once per [`PreparedInput`] ([`NeuralRenderer::encode`]), the
+//! residual decoder per view over the target mask's bounding box ([`ViewRenderer::with_neural`])). Spatial
+//! fusion applies to both. A decoder failure or non-finite output on a view logs a warning and that view is drawn
+//! by the geometric renderer: never a black frame.
 
 pub mod fusion;
 pub mod input;
 pub mod warp;
 
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crate::buffer::{GrayImage, RgbImage, RgbaImage};
+use glam::{Vec2, Vec4};
+use rayon::prelude::*;
+
+use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::compose::{self, Mode};
 use crate::geometry::fof::{Fof, FofError};
 use crate::geometry::inflate::{self, InflateError, InflateParams};
 use crate::geometry::marching;
 use crate::geometry::raster::{self, GBuffer};
+use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
+use crate::neural::{Coefficients, EncoderInput, FeatureMap, NeuralError, NeuralRuntime, RuntimeOptions};
 
 use fusion::SpatialFusion;
 use input::{InputError, NormalisedInput};
@@ -43,6 +56,15 @@ pub enum PipelineError {
     /// A stage produced NaN or infinity (a bug: reported instead of drawing a broken frame).
     #[error("internal error: the {0} stage produced non-finite values; please report this with the input")]
     NonFinite(&'static str),
+    /// The neural renderer was requested explicitly and cannot run.
+    #[error("neural renderer: {0}")]
+    Neural(#[from] NeuralError),
+    /// The neural renderer was requested explicitly but no model folder was given or found.
+    #[error(
+        "neural renderer: no model folder found (looked for models/{0}/encoder.onnx next to the working \
+         directory, the executable and the source tree). Pass --models DIR, or use --renderer geometric"
+    )]
+    NoModels(String),
 }
 
 /// Where the per-input geometry comes from.
@@ -97,6 +119,157 @@ impl StageTimings {
     pub fn total(&self) -> Duration {
         self.0.iter().map(|(_, d)| *d).sum()
     }
+}
+
+/// Which renderer draws the person (`--renderer`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum RendererChoice {
+    /// The geometric warp of the photo (no network).
+    #[default]
+    Geometric,
+    /// The neural renderer (encoder + residual Z-map decoder through ONNX Runtime); an error when its models or
+    /// the ONNX Runtime library cannot be loaded.
+    Neural,
+    /// The neural renderer when its models and ONNX Runtime load, else the geometric one with one warning.
+    Auto,
+}
+
+/// The model tier the product ships and looks for by default (`models/tiny`).
+pub const DEFAULT_MODEL_TIER: &str = "tiny";
+
+/// A neural renderer shared by every [`ViewRenderer`] that uses it (the two eyes of an XR session, say): the
+/// decoder runs under the lock, one view at a time.
+pub type SharedNeural = Arc<Mutex<NeuralRenderer>>;
+
+/// Resolves `--renderer`, `--models` and `--ep`: `Ok(None)` for the geometric renderer, `Ok(Some(..))` with loaded
+/// models for the neural one. [`RendererChoice::Neural`] fails when the models cannot be loaded;
+/// [`RendererChoice::Auto`] then logs one warning (saying how to enable the neural renderer) and returns `None`.
+/// `models` defaults to [`crate::neural::default_model_dir`] of [`DEFAULT_MODEL_TIER`].
+pub fn load_renderer(
+    choice: RendererChoice,
+    models: Option<&Path>,
+    options: &RuntimeOptions,
+) -> Result<Option<SharedNeural>, PipelineError> {
+    if choice == RendererChoice::Geometric {
+        return Ok(None);
+    }
+    let dir: Option<PathBuf> =
+        models.map(Path::to_path_buf).or_else(|| crate::neural::default_model_dir(DEFAULT_MODEL_TIER));
+    let loaded = match dir {
+        Some(dir) => NeuralRenderer::load(&dir, options).map_err(PipelineError::from),
+        None => Err(PipelineError::NoModels(DEFAULT_MODEL_TIER.to_string())),
+    };
+    match (loaded, choice) {
+        (Ok(n), _) => {
+            tracing::info!(
+                "neural renderer: {} models from `{}` on {}",
+                n.runtime.encoder.info().tier,
+                n.runtime.dir.display(),
+                n.runtime.decoder.provider()
+            );
+            Ok(Some(Arc::new(Mutex::new(n))))
+        }
+        (Err(e), RendererChoice::Auto) => {
+            tracing::warn!(
+                "using the geometric renderer: {e}. To enable the neural one, install ONNX Runtime with \
+                 `bash scripts/setup.d/neural.sh` and pass --models DIR (see train/README.md)"
+            );
+            Ok(None)
+        }
+        (Err(e), _) => Err(e),
+    }
+}
+
+/// The neural renderer: the encoder, residual decoder (and optional FOF net) of one model folder.
+pub struct NeuralRenderer {
+    /// The loaded, mutually checked models.
+    pub runtime: NeuralRuntime,
+}
+
+/// The encoder's output for one [`PreparedInput`] (computed once per input frame, shared by every view).
+#[derive(Clone, Debug)]
+pub struct NeuralInput {
+    /// Features at 1/4 of the model's resolution.
+    pub features: Arc<FeatureMap>,
+    /// How long the encoder took (per-input time, on top of [`PreparedInput::timings`]).
+    pub encode_time: Duration,
+}
+
+impl NeuralRenderer {
+    /// Loads the models of `dir` (see [`NeuralRuntime::load`]).
+    pub fn load(dir: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
+        Ok(Self { runtime: NeuralRuntime::load(dir, options)? })
+    }
+
+    /// Runs the encoder on a prepared input: its normalised photo and mask, the source normals of its geometry,
+    /// and its FOF when the model takes the same number of coefficients (zeros otherwise, as the reference's test
+    /// script feeds).
+    pub fn encode(&mut self, input: &PreparedInput) -> Result<NeuralInput, NeuralError> {
+        let start = Instant::now();
+        let g = &input.source_gbuffer;
+        let normals = Image { width: g.width, height: g.height, data: g.normal.clone() };
+        let f = &input.fof;
+        let fof = (f.n == self.runtime.encoder.info().fof_n
+            && f.width == input.normalised.rgb.width
+            && f.height == input.normalised.rgb.height)
+            .then_some(Coefficients { width: f.width, height: f.height, n: f.n, data: &f.coeffs });
+        let features = self.runtime.encoder.run(&EncoderInput {
+            rgb: &input.normalised.rgb,
+            mask: &input.normalised.mask,
+            fof,
+            normals: &normals,
+        })?;
+        Ok(NeuralInput { features: Arc::new(features), encode_time: start.elapsed() })
+    }
+
+    /// Renders one view with the decoder: flow and Z-map of `target` (already rasterised for `camera`), the
+    /// colour lookup ([`photo_lookup`]), then the decoder over the target mask's bounding box. `flowz` is scratch
+    /// memory reused between views.
+    pub fn render_view(
+        &mut self,
+        input: &PreparedInput,
+        encoded: &NeuralInput,
+        target: &GBuffer,
+        camera: &Camera,
+        flowz: &mut FlowZ,
+    ) -> Result<RgbaImage, NeuralError> {
+        flow_and_zmap_into(flowz, target, camera, &input.source_camera);
+        let lookup = photo_lookup(&input.normalised.rgb, &input.normalised.mask, &input.source_camera, flowz);
+        self.runtime.decoder.render_view(&encoded.features, flowz, input.source_camera.width, target, &lookup)
+    }
+}
+
+/// The residual decoder's colour lookup (its `warped_rgb` input): for every target pixel with a flow, the source
+/// photo (`source_rgb` linear, premultiplied by `source_mask`) sampled at the flow with the mask-aware bilinear
+/// sample of the geometric renderer ([`warp::sample_masked`]), clamped to `[0, 1]`. This is the geometric
+/// renderer's `MirroredFront` lookup without the visibility test and without filling holes: alpha is 1 where the
+/// photo has a colour and 0 where the flow lands outside the source silhouette (or there is no flow).
+pub fn photo_lookup(source_rgb: &RgbImage, source_mask: &GrayImage, source_cam: &Camera, flowz: &FlowZ) -> RgbaImage {
+    let (w, h) = (flowz.flow.width, flowz.flow.height);
+    let mut out = RgbaImage::new(w, h, Vec4::ZERO);
+    if w * h == 0
+        || flowz.mask.len() != w * h
+        || source_mask.width != source_rgb.width
+        || source_mask.height != source_rgb.height
+    {
+        return out;
+    }
+    // Flow is in the source camera's pixels; the photo may have another size.
+    let scale = Vec2::new(
+        source_rgb.width as f32 / source_cam.width.max(1) as f32,
+        source_rgb.height as f32 / source_cam.height.max(1) as f32,
+    );
+    out.data.par_chunks_mut(w).enumerate().for_each(|(row, line)| {
+        for (col, o) in line.iter_mut().enumerate() {
+            let i = row * w + col;
+            if flowz.mask[i] {
+                if let Some(c) = warp::sample_masked(source_rgb, source_mask, flowz.flow.data[i] * scale) {
+                    *o = c.clamp(glam::Vec3::ZERO, glam::Vec3::ONE).extend(1.0);
+                }
+            }
+        }
+    });
+    out
 }
 
 /// Everything computed once per input frame.
@@ -156,8 +329,18 @@ pub struct ViewRenderer<'a> {
     fill: OcclusionFill,
     fusion: Option<SpatialFusion>,
     target: GBuffer,
+    neural: Option<NeuralView>,
     /// Per-view stage times of the last view.
     pub timings: StageTimings,
+    /// Views the neural decoder failed on (error or non-finite output) that the geometric renderer drew instead.
+    pub neural_fallbacks: usize,
+}
+
+/// The neural state of a [`ViewRenderer`].
+struct NeuralView {
+    renderer: SharedNeural,
+    encoded: NeuralInput,
+    flowz: FlowZ,
 }
 
 impl<'a> ViewRenderer<'a> {
@@ -168,8 +351,55 @@ impl<'a> ViewRenderer<'a> {
             fill,
             fusion: fuse.then(SpatialFusion::new),
             target: GBuffer::new(0, 0),
+            neural: None,
             timings: StageTimings::default(),
+            neural_fallbacks: 0,
         }
+    }
+
+    /// A renderer that draws with the neural decoder, given the encoder's output for `input`
+    /// ([`NeuralRenderer::encode`], once per input and shared by every view and eye). `fill` is used by the
+    /// geometric fallback.
+    pub fn with_neural(
+        input: &'a PreparedInput,
+        fill: OcclusionFill,
+        fuse: bool,
+        renderer: SharedNeural,
+        encoded: NeuralInput,
+    ) -> Self {
+        let mut r = Self::new(input, fill, fuse);
+        r.neural = Some(NeuralView { renderer, encoded, flowz: FlowZ::default() });
+        r
+    }
+
+    /// [`ViewRenderer::with_neural`] when `neural` is given and its encoder runs on `input`, else
+    /// [`ViewRenderer::new`] (an encoder failure logs a warning and the views are drawn geometrically).
+    pub fn for_renderer(
+        input: &'a PreparedInput,
+        fill: OcclusionFill,
+        fuse: bool,
+        neural: Option<&SharedNeural>,
+    ) -> Self {
+        let Some(shared) = neural else { return Self::new(input, fill, fuse) };
+        let encoded = shared.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).encode(input);
+        match encoded {
+            Ok(encoded) => Self::with_neural(input, fill, fuse, Arc::clone(shared), encoded),
+            Err(e) => {
+                tracing::warn!("the neural encoder failed on this input, using the geometric renderer: {e}");
+                Self::new(input, fill, fuse)
+            }
+        }
+    }
+
+    /// The encoder's time for this renderer's input, when it draws with the neural decoder.
+    pub fn encode_time(&self) -> Option<Duration> {
+        self.neural.as_ref().map(|n| n.encoded.encode_time)
+    }
+
+    /// Whether views are drawn by the neural decoder (falling back to the geometric renderer per view on
+    /// failure).
+    pub fn is_neural(&self) -> bool {
+        self.neural.is_some()
     }
 
     /// The person alone for `camera`: premultiplied linear RGBA.
@@ -177,17 +407,38 @@ impl<'a> ViewRenderer<'a> {
         let mut timings = StageTimings::default();
         let input = self.input;
         timings.time("target raster", || raster::rasterize_into(&mut self.target, &input.mesh, camera));
-        let person = timings.time("flow + Z-map + warp", || {
-            warp::render_geometric(
-                &input.normalised.rgb,
-                &input.normalised.mask,
-                &input.source_gbuffer,
-                &input.source_camera,
-                &self.target,
-                camera,
-                self.fill,
-            )
+        let target = &self.target;
+        let neural = self.neural.as_mut().map(|nv| {
+            timings.time("flow + Z-map + decoder", || {
+                let mut renderer = nv.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+                renderer.render_view(input, &nv.encoded, target, camera, &mut nv.flowz)
+            })
         });
+        let person = match neural {
+            Some(Ok(person)) => person,
+            failed_or_geometric => {
+                if let Some(Err(e)) = failed_or_geometric {
+                    // One warning per renderer; later failures are counted and logged at debug level.
+                    if self.neural_fallbacks == 0 {
+                        tracing::warn!("neural renderer failed on a view, drawing it with the geometric one: {e}");
+                    } else {
+                        tracing::debug!("neural renderer failed again (geometric fallback): {e}");
+                    }
+                    self.neural_fallbacks += 1;
+                }
+                timings.time("flow + Z-map + warp", || {
+                    warp::render_geometric(
+                        &input.normalised.rgb,
+                        &input.normalised.mask,
+                        &input.source_gbuffer,
+                        &input.source_camera,
+                        target,
+                        camera,
+                        self.fill,
+                    )
+                })
+            }
+        };
         let person = match self.fusion.as_mut() {
             Some(f) => timings.time("spatial fusion", || f.fuse(&person, &self.target, camera)),
             None => person,

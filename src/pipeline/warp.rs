@@ -142,9 +142,10 @@ pub fn render_from_flow(
     out
 }
 
-/// Mask-aware bilinear sample of a premultiplied image: `sum(w c) / sum(w m)`; `None` where the mask weight is
-/// too small (the point is essentially outside the person).
-fn sample_masked(rgb: &RgbImage, mask: &GrayImage, p: Vec2) -> Option<Vec3> {
+/// Mask-aware bilinear sample of a premultiplied image at continuous pixel coordinates `p` (centres at +0.5):
+/// `sum(w c) / sum(w m)` over the four taps; `None` where the mask weight is too small (the point is essentially
+/// outside the person). Public so the neural decoder's colour lookup is this exact function.
+pub fn sample_masked(rgb: &RgbImage, mask: &GrayImage, p: Vec2) -> Option<Vec3> {
     if !p.is_finite() {
         return None;
     }

@@ -13,7 +13,7 @@ import torch
 from train import losses
 from train.dataset import R2Dataset, downsample_view, view_angle_deg
 from train.fit import R2HumanNet, decode_occupancy
-from train.geometry import transfer, visibility
+from train.geometry import linear_to_srgb, srgb_to_linear, transfer, visibility, warp_rgb
 from train.nets import TIERS, Decoder, Encoder, FofNet, UNet, zmap_encoding
 from train.synth import fof_from_intervals, orbit_view_from_world, write_dataset
 
@@ -121,6 +121,45 @@ class GeometryTest(unittest.TestCase):
         self.assertGreater(float(vis.sum()), 0.6 * float((d_side > -1).sum()))
 
 
+class WarpRgbTest(unittest.TestCase):
+    def test_srgb_conversions_match_the_rust_formulas(self):
+        v = torch.tensor([0.0, 0.02, 0.04045, 0.5, 1.0, 1.5, -0.2])
+        lin = srgb_to_linear(v)
+        want = [0.0, 0.02 / 12.92, 0.04045 / 12.92, ((0.5 + 0.055) / 1.055) ** 2.4, 1.0, 1.0, 0.0]
+        self.assertTrue(torch.allclose(lin, torch.tensor(want), atol=1e-7), lin)
+        x = torch.linspace(0, 1, 101)
+        self.assertTrue(torch.allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-5))
+        self.assertAlmostEqual(float(linear_to_srgb(torch.tensor(0.002))), 0.002 * 12.92, places=7)
+
+    def test_identity_view_gives_straight_colour_and_zero_outside(self):
+        h = w = 8
+        mask = torch.zeros(1, 1, h, w)
+        mask[..., 2:6, 3:7] = 1
+        srgb = torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(1))
+        lin = srgb_to_linear(srgb) * mask
+        depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
+        eye, half = torch.eye(4)[None], torch.ones(1, 2)
+        grid, _, tmask = transfer(depth, eye, half, eye, half)
+        rgb, known = warp_rgb(lin, mask, grid, tmask)
+        self.assertTrue(torch.equal(known, mask))
+        self.assertTrue(torch.allclose(rgb, (srgb * 2 - 1) * mask, atol=1e-5))
+
+    def test_silhouette_edge_is_not_darkened_and_far_outside_is_unknown(self):
+        # A white square; a target pixel looking up exactly between the last inside and the first outside
+        # column gets white (mask-aware), not grey; one looking far outside the square is unknown (0).
+        h = w = 8
+        mask = torch.zeros(1, 1, h, w)
+        mask[..., :, :4] = 1
+        lin = mask.expand(1, 3, h, w).clone()
+        # grid x for the edge between columns 3 and 4 is 0; y of row 3's centre is -(1 - 3.5/4) = -0.125.
+        grid = torch.tensor([[[[0.0, -0.125], [0.9, -0.125], [-3.0, 0.0]]]])
+        tmask = torch.ones(1, 1, 1, 3)
+        rgb, known = warp_rgb(lin, mask, grid, tmask)
+        self.assertTrue(torch.allclose(rgb[0, :, 0, 0], torch.ones(3), atol=1e-5), rgb)
+        self.assertEqual(known[0, 0, 0].tolist(), [1.0, 0.0, 0.0])
+        self.assertEqual(rgb[0, :, 0, 1:].abs().sum().item(), 0.0)
+
+
 class FofTest(unittest.TestCase):
     def test_single_interval_coefficients_and_decode(self):
         z_in, z_out = -0.3, 0.5
@@ -187,14 +226,15 @@ class NetsTest(unittest.TestCase):
                 feats = e(torch.zeros(1, 3, 64, 64), torch.zeros(1, 8, 64, 64), torch.zeros(1, 3, 64, 64))
                 self.assertEqual(tuple(feats.shape), (1, c, 16, 16))
                 s = d.stride
-                out = d(torch.zeros(1, c, 3 * s, 5 * s), torch.zeros(1, 1, 3 * s, 5 * s), torch.zeros(1, 3, 3 * s, 5 * s))
+                out = d(torch.zeros(1, c, 3 * s, 5 * s), torch.zeros(1, 1, 3 * s, 5 * s), torch.zeros(1, 3, 3 * s, 5 * s),
+                        torch.zeros(1, 3, 3 * s, 5 * s))
                 self.assertEqual(tuple(out.shape), (1, 3, 3 * s, 5 * s))
                 self.assertEqual(tuple(f(torch.zeros(1, 3, 64, 64)).shape), (1, 8, 64, 64))
 
-    def test_paper_decoder_sees_291_channels(self):
+    def test_paper_decoder_sees_291_channels_plus_the_warped_photo(self):
         d = Decoder("paper")
         first = d.net.inc[0][0]
-        self.assertEqual(first.in_channels, 291)
+        self.assertEqual(first.in_channels, 291 + 3)
         self.assertEqual([m.out_channels for m in d.net.downs.modules() if isinstance(m, torch.nn.Conv2d)][-1], 1024)
 
     def test_zmap_encoding(self):
@@ -203,6 +243,18 @@ class NetsTest(unittest.TestCase):
         self.assertEqual(e.shape[0], 32)
         self.assertAlmostEqual(float(e[0]), math.cos(math.pi * 0.25), places=6)
         self.assertAlmostEqual(float(e[16 + 3]), math.sin(4 * math.pi * 0.25), places=6)
+
+    def test_untrained_decoder_is_the_geometric_lookup_and_training_moves_it(self):
+        d = Decoder("tiny")
+        g = torch.Generator().manual_seed(3)
+        args = (torch.randn(2, 16, 8, 12, generator=g), torch.rand(2, 1, 8, 12, generator=g),
+                torch.randn(2, 3, 8, 12, generator=g), torch.rand(2, 3, 8, 12, generator=g) * 2 - 1)
+        with torch.no_grad():
+            self.assertTrue(torch.equal(d(*args), args[3]))
+        # The zero-initialised last convolution still receives a gradient, so the residual can be learned.
+        loss = (d(*args) - 0.3).abs().mean()
+        loss.backward()
+        self.assertGreater(float(d.net.out.weight.grad.abs().sum()), 0.0)
 
     def test_unet_stride(self):
         self.assertEqual(UNet(3, 3, [8, 8, 8], light=True).stride, 4)
@@ -234,7 +286,7 @@ class TrainExportTest(unittest.TestCase):
         self.assertEqual((meta["r2human.kind"], meta["r2human.tier"], meta["r2human.resolution"],
                           meta["r2human.fof_n"], meta["r2human.stride"]), ("decoder", "tiny", "32", "8", "4"))
         self.assertEqual(json.loads(meta["r2human.recipe"])["steps"], 3)
-        self.assertEqual([i.name for i in m.graph.input], ["features", "zmap", "normals"])
+        self.assertEqual([i.name for i in m.graph.input], ["features", "zmap", "normals", "warped_rgb"])
 
     def test_torchrun_two_processes(self):
         out = tempfile.mkdtemp(prefix="r2h_ddp_")

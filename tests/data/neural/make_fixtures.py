@@ -2,8 +2,10 @@
 
 Every model has a closed-form output so the Rust tests can check real numbers, not just "it ran":
   good/encoder.onnx  features = Conv1x1(AvgPool4(concat(image, fof, normals)))   with the weights W_ENC below
-  good/decoder.onnx  rgb = features[0:3] + 0.5*zmap + 0.25*normals + Conv3x3(features[3] -> 3 ch, all 0.1)
+  good/decoder.onnx  rgb = warped_rgb + features[0:3] + 0.5*zmap + 0.25*normals
+                           + Conv3x3(features[3] -> 3 ch, all 0.1)
                            + 0 * Upsample4(AvgPool4(features[0:3]))   (the last term fails unless h, w % 4 == 0)
+  decoder_3_inputs.onnx    the same without `warped_rgb` (the pre-residual contract: must be rejected by name)
   good/fof.onnx      fof_k = (k+1) * image[k % 3]
 and broken variants (wrong names, shapes, kind, metadata, NaN output, fixed size, prior input).
 Needs only `onnx` and `numpy`.
@@ -62,7 +64,7 @@ def encoder(path, image_ch=3, metadata=None):
          metadata if metadata is not None else meta("encoder"))
 
 
-def decoder(path, feat_name="features", nan=False, fixed=None, metadata=None, channels=C):
+def decoder(path, feat_name="features", nan=False, fixed=None, metadata=None, channels=C, residual=True):
     h, w = fixed if fixed else ("h", "w")
     starts, ends, axes = (numpy_helper.from_array(np.array(v, np.int64), n)
                           for v, n in (([0], "s0"), ([3], "s3"), ([1], "ax")))
@@ -85,15 +87,22 @@ def decoder(path, feat_name="features", nan=False, fixed=None, metadata=None, ch
         helper.make_node("Add", ["f3", "zt"], ["a1"]),
         helper.make_node("Add", ["a1", "nt"], ["a2"]),
         helper.make_node("Add", ["a2", "ct"], ["a3"]),
-        helper.make_node("Add", ["a3", "upz"], ["rgb" if not nan else "a4"]),
+        helper.make_node("Add", ["a3", "upz"], ["a3b"]),
     ]
+    last = "rgb" if not nan else "a4"
+    if residual:
+        nodes.append(helper.make_node("Add", ["a3b", "warped_rgb"], [last]))
+    else:
+        nodes.append(helper.make_node("Identity", ["a3b"], [last]))
     if nan:  # sqrt of a negative number: NaN everywhere
         nodes += [helper.make_node("Abs", ["a4"], ["ab"]),
                   helper.make_node("Neg", ["ab"], ["ng"]),
                   helper.make_node("Sub", ["ng", "half"], ["neg"]),
                   helper.make_node("Sqrt", ["neg"], ["rgb"])]
-    save(path, nodes, [t(feat_name, [1, channels, h, w]), t("zmap", [1, 1, h, w]), t("normals", [1, 3, h, w])],
-         [t("rgb", [1, 3, h, w])], [starts, ends, axes, s4, e4, k3, half, quarter, zero, scales],
+    inputs = [t(feat_name, [1, channels, h, w]), t("zmap", [1, 1, h, w]), t("normals", [1, 3, h, w])]
+    if residual:
+        inputs.append(t("warped_rgb", [1, 3, h, w]))
+    save(path, nodes, inputs, [t("rgb", [1, 3, h, w])], [starts, ends, axes, s4, e4, k3, half, quarter, zero, scales],
          metadata if metadata is not None else meta("decoder", r2human__stride="4"))
 
 
@@ -119,6 +128,7 @@ if __name__ == "__main__":
     decoder("decoder_fixed.onnx", fixed=(8, 8))
     decoder("decoder_nan.onnx", nan=True)
     decoder("decoder_wrong_name.onnx", feat_name="feat")
+    decoder("decoder_3_inputs.onnx", residual=False)
     encoder("encoder_wrong_channels.onnx", image_ch=5)
     encoder("encoder_labelled_decoder.onnx", metadata=meta("decoder"))
     encoder("encoder_no_fof_n.onnx", metadata=meta("encoder", r2human__fof_n=None))
