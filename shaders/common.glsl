@@ -26,7 +26,8 @@ layout(std140, set = 0, binding = 0) uniform Frame {
     uvec4 sizes;
     // x: previous view valid (0/1), y: feature channels, z: feature width, w: feature height
     uvec4 flags;
-    // x: swizzle to BGRA when encoding (0/1), y: output is an AR layer shown over grey (0/1)
+    // x: swizzle to BGRA when encoding (0/1), y: output is an AR layer shown over grey (0/1),
+    // z, w: size of the text overlay rectangle at the top left (0: none)
     uvec4 output_format;
 } frame;
 

@@ -4,6 +4,12 @@
 //! Sizes are small (lavapipe is a CPU rasteriser on shared cores). When no Vulkan driver is installed at all the
 //! tests print why and return (the setup script installs lavapipe, so CI always runs them).
 
+mod common;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+use std::process::Command;
 use std::sync::Arc;
 
 use glam::{Quat, Vec3, Vec4};
@@ -14,6 +20,35 @@ use r2human::geometry::zmap::{flow_and_zmap, visibility, VISIBILITY_LAMBDA};
 use r2human::geometry::{Camera, Fov, TriMesh};
 use r2human::gpu::{Context, ContextOptions, GpuError, Renderer};
 use r2human::io::environment::Environment;
+
+/// Counts heap allocations per thread, so a test can check that a frame allocates nothing on the host.
+struct CountingAllocator;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; the counter is a const-initialised thread local without destructor.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
 
 fn context() -> Option<Arc<Context>> {
     if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
@@ -412,4 +447,153 @@ fn end_to_end_person_and_frames_match_cpu() {
         assert!(pp >= 40.0, "person PSNR {pp}");
     }
     assert_clean(&ctx);
+}
+
+#[test]
+fn frames_allocate_nothing_create_nothing_and_upload_nothing() {
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 48;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 64);
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_mesh(&mesh).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    r.set_environment(&test_env()).unwrap();
+    r.set_fusion(true);
+    let cams: Vec<Camera> = (0..12).map(|i| Camera::orbit(13.0 * i as f32, 5.0, n, n)).collect();
+    r.render_frame(&cams[0], r2human::compose::Mode::Vr, None).unwrap();
+    let before = r.counters();
+    assert_eq!((before.mesh_uploads, before.source_uploads, before.frames), (1, 1, 1));
+    let allocs = allocations();
+    for (i, cam) in cams.iter().enumerate().skip(1) {
+        let mode = if i % 2 == 0 { r2human::compose::Mode::Vr } else { r2human::compose::Mode::Ar };
+        r.render_frame(cam, mode, None).unwrap();
+    }
+    let allocs = allocations() - allocs;
+    let after = r.counters();
+    assert_eq!(allocs, 0, "host allocations during 11 frames");
+    assert_eq!(
+        after,
+        r2human::gpu::RendererCounters { frames: before.frames + 11, ..before },
+        "frames must not create resources or pipelines, nor upload the mesh or the source"
+    );
+    // A new mesh of the same size reuses the buffers: an upload, no new resource.
+    r.set_mesh(&mesh).unwrap();
+    assert_eq!(r.counters().resources_created, before.resources_created);
+    assert_eq!(r.counters().mesh_uploads, 2);
+    assert_clean(&ctx);
+}
+
+#[test]
+fn stage_times_come_from_gpu_timestamps() {
+    let Some(ctx) = context() else { return };
+    let mesh = scene();
+    let n = 48;
+    let (src_img, src_g, src_cam) = source_view(&mesh, 64);
+    let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
+    r.set_mesh(&mesh).unwrap();
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    r.set_environment(&test_env()).unwrap();
+    let t = std::time::Instant::now();
+    r.render_frame(&Camera::orbit(30.0, 0.0, n, n), r2human::compose::Mode::Vr, None).unwrap();
+    let wall = t.elapsed();
+    let times = r.stage_times();
+    if times.is_empty() {
+        eprintln!("SKIPPED: the device has no timestamp queries");
+        return;
+    }
+    let names: Vec<&str> = times.iter().map(|(n, _)| *n).collect();
+    assert_eq!(names, ["raster", "flow + Z-map", "warp", "hole fill", "fusion", "keep previous", "compose VR"]);
+    let total: std::time::Duration = times.iter().map(|(_, d)| *d).sum();
+    assert!(total > std::time::Duration::ZERO && total <= wall, "GPU {total:?} within wall {wall:?}");
+    // An unmoved view with unchanged inputs reuses the last person layer.
+    r.render_frame(&Camera::orbit(30.0, 0.0, n, n), r2human::compose::Mode::Ar, None).unwrap();
+    let names: Vec<&str> = r.stage_times().iter().map(|(n, _)| *n).collect();
+    assert_eq!(names, ["reuse previous", "compose AR"]);
+    assert_clean(&ctx);
+}
+
+fn r2human_cmd() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_r2human"));
+    c.env("R2HUMAN_LOG", "warn");
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        let dir = std::env::temp_dir().join("r2human-xdg");
+        let _ = std::fs::create_dir_all(&dir);
+        c.env("XDG_RUNTIME_DIR", dir);
+    }
+    c
+}
+
+fn run_render(args: &[&str], image: &Path, out: &Path, extra_env: &[(&str, &str)]) -> String {
+    let mut c = r2human_cmd();
+    c.arg("render").args(args).arg("--image").arg(image).arg("--out").arg(out);
+    for (k, v) in extra_env {
+        c.env(k, v);
+    }
+    let o = c.output().expect("run r2human");
+    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "r2human render {args:?} failed:\n{text}");
+    text
+}
+
+fn png_psnr(a: &Path, b: &Path) -> f64 {
+    let a = image::open(a).unwrap().to_rgba8();
+    let b = image::open(b).unwrap().to_rgba8();
+    assert_eq!(a.dimensions(), b.dimensions());
+    let x: Vec<f32> = a.as_raw().iter().map(|&v| f32::from(v) / 255.0).collect();
+    let y: Vec<f32> = b.as_raw().iter().map(|&v| f32::from(v) / 255.0).collect();
+    psnr(&x, &y)
+}
+
+#[test]
+fn cli_render_backend_vulkan_matches_cpu_and_falls_back_without_a_device() {
+    if context().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let img = dir.path().join("person.png");
+    common::write_figure(&img, 120, 160);
+    let common_args = ["--size", "96", "--yaw", "40", "--pitch", "10"];
+    let cpu = dir.path().join("cpu.png");
+    let gpu = dir.path().join("gpu.png");
+    run_render(&[&common_args[..], &["--backend", "cpu"]].concat(), &img, &cpu, &[]);
+    let log = run_render(
+        &[&common_args[..], &["--backend", "vulkan"]].concat(),
+        &img,
+        &gpu,
+        &[("R2HUMAN_VULKAN_VALIDATION", "1")],
+    );
+    assert!(!log.contains("Validation") && !log.contains("VUID"), "validation messages:\n{log}");
+    let p = png_psnr(&cpu, &gpu);
+    eprintln!("render --backend vulkan vs cpu, VR view: PSNR {p:.1} dB");
+    assert!(p >= 40.0, "PSNR {p}");
+    // The person is really there (not two equal empty panoramas): the striped shirt's blue.
+    let shot = image::open(&gpu).unwrap().to_rgb8();
+    let blue = shot.pixels().filter(|p| p[2] > 150 && p[0] < 100).count();
+    assert!(blue > 96 * 96 / 50, "{blue} shirt pixels");
+
+    // An AR orbit (spatial fusion across the views) on both backends.
+    let cpu_dir = dir.path().join("cpu_orbit");
+    let gpu_dir = dir.path().join("gpu_orbit");
+    let orbit = ["--size", "64", "--mode", "ar", "--orbit", "3", "--yaw", "20"];
+    run_render(&[&orbit[..], &["--backend", "cpu"]].concat(), &img, &cpu_dir, &[]);
+    run_render(&[&orbit[..], &["--backend", "vulkan"]].concat(), &img, &gpu_dir, &[]);
+    for i in 0..3 {
+        let name = format!("view_{i:03}.png");
+        let p = png_psnr(&cpu_dir.join(&name), &gpu_dir.join(&name));
+        eprintln!("AR orbit view {i}: PSNR {p:.1} dB");
+        assert!(p >= 40.0, "view {i}: PSNR {p}");
+    }
+
+    // No Vulkan driver: one clear message, then the CPU path (the very same image).
+    let fallback = dir.path().join("fallback.png");
+    let log = run_render(
+        &[&common_args[..], &["--backend", "vulkan"]].concat(),
+        &img,
+        &fallback,
+        &[("VK_ICD_FILENAMES", "/nonexistent/icd.json"), ("VK_DRIVER_FILES", "/nonexistent/icd.json")],
+    );
+    assert!(log.contains("rendering on the CPU instead") && log.contains("Vulkan"), "{log}");
+    assert_eq!(log.matches("warning:").count(), 2, "one message (two lines):\n{log}");
+    assert_eq!(image::open(&fallback).unwrap().to_rgb8(), image::open(&cpu).unwrap().to_rgb8());
 }

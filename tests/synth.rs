@@ -380,6 +380,7 @@ mod eval_run {
             size: 64,
             yaws: vec![0.0, 30.0, 90.0, 180.0],
             texture_size: 128,
+            save_views: true,
         };
         let rep = run_eval(&opts).unwrap();
         // The broken scan is reported by name, the synthetic subject still evaluated.
@@ -404,5 +405,12 @@ mod eval_run {
         assert!(std::fs::read_to_string(opts.out.join("report.md")).unwrap().contains("| billboard | close |"));
         let png = image::open(opts.out.join("error_vs_time.png")).unwrap();
         assert_eq!((png.width(), png.height()), (800, 500));
+        // Saved views: seen from the input camera, the billboard is the input itself (no half-pixel shift).
+        let views = opts.out.join("views").join("subject_0000");
+        let gt = image::open(views.join("yaw000_ground_truth.png")).unwrap().to_rgb8();
+        let bb = image::open(views.join("yaw000_billboard.png")).unwrap().to_rgb8();
+        let differing = gt.pixels().zip(bb.pixels()).filter(|(a, b)| a != b).count();
+        assert!(differing * 200 < gt.len() / 3, "{differing} of {} pixels differ", gt.len() / 3);
+        assert!(views.join("yaw180_geometric_gt-fof.png").exists());
     }
 }

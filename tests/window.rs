@@ -1,18 +1,39 @@
 //! The mirror window under a virtual X server (Xvfb): open it, render frames through the Vulkan swapchain on
-//! lavapipe with validation on, write a screenshot and check the person is in it. The test starts its own Xvfb
-//! and skips (with the reason printed) only when no Xvfb binary exists.
+//! lavapipe with validation on, write screenshots and check the person is in them; the text overlay is in the
+//! presented image and not in screenshots; live input from an image folder with a corrupt frame; a resize.
+//!
+//! winit allows one event loop per process, so every test re-runs this test binary as a child process for its
+//! scenario (`R2HUMAN_WINDOW_CHILD=<test name>`), against one Xvfb started by the parent. The tests skip (with
+//! the reason printed) only when no Xvfb binary exists.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use r2human::app::mirror::{run_view_with_stats, Backend, ViewOptions};
+use r2human::app::mirror::{run_view_with_stats, Backend, ScriptAction, ScriptStep, ViewOptions, ViewStats};
+use r2human::capture::synthetic::{walker, WalkerParams};
+use r2human::capture::SegmentMethod;
 use r2human::compose::Mode;
+
+const CHILD_ENV: &str = "R2HUMAN_WINDOW_CHILD";
+
+/// Window scenarios are heavy (software rendering on shared cores): one at a time.
+static SERIAL: Mutex<()> = Mutex::new(());
 
 struct Xvfb(Child);
 
 impl Drop for Xvfb {
     fn drop(&mut self) {
+        // SIGTERM first, so the server removes its socket and lock file; SIGKILL if it does not go.
+        let _ = Command::new("kill").args(["-TERM", &self.0.id().to_string()]).status();
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(3) {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
@@ -27,7 +48,9 @@ fn start_xvfb() -> Option<(Xvfb, String)> {
     // A display number unlikely to collide with other test runs on the machine.
     for n in 0..20 {
         let display = 140 + (std::process::id() as usize + n * 7) % 300;
-        if Path::new(&format!("/tmp/.X11-unix/X{display}")).exists() {
+        if Path::new(&format!("/tmp/.X11-unix/X{display}")).exists()
+            || Path::new(&format!("/tmp/.X{display}-lock")).exists()
+        {
             continue;
         }
         let child = Command::new(&bin)
@@ -37,9 +60,12 @@ fn start_xvfb() -> Option<(Xvfb, String)> {
             .stderr(Stdio::null())
             .spawn()
             .ok()?;
-        let guard = Xvfb(child);
+        let mut guard = Xvfb(child);
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(10) {
+            if let Ok(Some(_)) = guard.0.try_wait() {
+                break; // this server died (display taken): try the next number
+            }
             if Path::new(&format!("/tmp/.X11-unix/X{display}")).exists() {
                 return Some((guard, format!(":{display}")));
             }
@@ -47,6 +73,73 @@ fn start_xvfb() -> Option<(Xvfb, String)> {
         }
     }
     None
+}
+
+/// Runs `body` in a child process of this test binary under Xvfb (see the module docs); in the child, runs it.
+fn in_window_child(name: &str, body: impl FnOnce()) {
+    if std::env::var(CHILD_ENV).as_deref() == Ok(name) {
+        body();
+        return;
+    }
+    let _serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
+    let Some((_xvfb, display)) = start_xvfb() else {
+        eprintln!("SKIPPED: no Xvfb binary on PATH (install xvfb)");
+        return;
+    };
+    let xdg = std::env::temp_dir().join("r2human-xdg");
+    std::fs::create_dir_all(&xdg).unwrap();
+    let out = Command::new(std::env::current_exe().unwrap())
+        .args([name, "--exact", "--nocapture", "--test-threads=1"])
+        .env(CHILD_ENV, name)
+        .env("DISPLAY", &display)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("R2HUMAN_VULKAN_VALIDATION", "1")
+        .env("XDG_RUNTIME_DIR", std::env::var_os("XDG_RUNTIME_DIR").unwrap_or(xdg.into_os_string()))
+        .output()
+        .unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    eprintln!("{text}");
+    assert!(out.status.success(), "the window scenario {name} failed (output above)");
+    assert!(text.contains("1 passed"), "the child did not run {name}");
+}
+
+fn run(opts: ViewOptions) -> ViewStats {
+    let stats = match run_view_with_stats(opts) {
+        Ok(s) => s,
+        Err(e) => panic!("the mirror failed: {e:#}"),
+    };
+    eprintln!(
+        "window: {} frames on {} ({:?}), median {:?}, overlay {:?}",
+        stats.frames, stats.device, stats.backend, stats.median_frame, stats.overlay
+    );
+    assert_eq!(stats.validation_messages, 0, "validation messages (see the log)");
+    stats
+}
+
+/// Copies `files` into `$R2HUMAN_WINDOW_KEEP/<prefix>-<name>` when that variable is set (to look at them).
+fn keep(prefix: &str, files: &[&Path]) {
+    if let Some(dir) = std::env::var_os("R2HUMAN_WINDOW_KEEP") {
+        let dir = PathBuf::from(dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in files {
+            let name = f.file_name().unwrap().to_string_lossy();
+            std::fs::copy(f, dir.join(format!("{prefix}-{name}"))).unwrap();
+        }
+    }
+}
+
+/// Pixels of the overlay's white letters in the top-left corner of an 8-bit image.
+fn white_in_corner(img: &image::RgbImage, w: u32, h: u32) -> usize {
+    let mut n = 0;
+    for y in 0..h.min(img.height()) {
+        for x in 0..w.min(img.width()) {
+            let p = img.get_pixel(x, y);
+            if p[0] == 255 && p[1] == 255 && p[2] == 255 {
+                n += 1;
+            }
+        }
+    }
+    n
 }
 
 /// A person-shaped magenta silhouette with alpha (head, torso, legs) on a transparent background.
@@ -68,59 +161,168 @@ fn write_person(path: &Path) {
 
 #[test]
 fn mirror_window_renders_frames_and_screenshots_the_person() {
-    let Some((_xvfb, display)) = start_xvfb() else {
-        eprintln!("SKIPPED: no Xvfb binary on PATH (install xvfb)");
-        return;
-    };
-    std::env::set_var("DISPLAY", &display);
-    std::env::remove_var("WAYLAND_DISPLAY");
-    std::env::set_var("R2HUMAN_VULKAN_VALIDATION", "1");
-    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
-        let dir = std::env::temp_dir().join("r2human-xdg");
-        std::fs::create_dir_all(&dir).unwrap();
-        std::env::set_var("XDG_RUNTIME_DIR", dir);
-    }
-    let dir = tempfile::tempdir().unwrap();
-    let person = dir.path().join("person.png");
-    write_person(&person);
-    let shot = dir.path().join("shot.png");
-    let opts = ViewOptions {
-        image: person,
-        mode: Mode::Vr,
-        backend: Backend::Vulkan,
-        frames: Some(6),
-        size: 128,
-        screenshot_dir: dir.path().to_path_buf(),
-        screenshot_on_exit: Some(shot.clone()),
-        resolution: 128,
-        ..ViewOptions::default()
-    };
-    let stats = match run_view_with_stats(opts) {
-        Ok(s) => s,
-        Err(e) => panic!("the mirror failed: {e:#}"),
-    };
-    eprintln!("window: {} frames on {}, median {:?}", stats.frames, stats.device, stats.median_frame);
-    assert_eq!(stats.frames, 6);
-    assert_eq!(stats.validation_messages, 0, "validation messages (see the log)");
-    assert_eq!(stats.screenshots, vec![shot.clone()]);
-    let img = image::open(&shot).unwrap().to_rgb8();
-    assert_eq!(img.dimensions(), (128, 128));
-    // The person is magenta (strong red and blue, little green); the panorama has nothing like it.
-    let magenta = |p: &image::Rgb<u8>| p[0] > 150 && p[2] > 130 && p[1] < 90;
-    let mut count = 0usize;
-    let (mut cx, mut cy) = (0.0f64, 0.0f64);
-    for (x, y, p) in img.enumerate_pixels() {
-        if magenta(p) {
-            count += 1;
-            cx += f64::from(x);
-            cy += f64::from(y);
+    in_window_child("mirror_window_renders_frames_and_screenshots_the_person", || {
+        let dir = tempfile::tempdir().unwrap();
+        let person = dir.path().join("person.png");
+        write_person(&person);
+        let shot = dir.path().join("shot.png");
+        let presented = dir.path().join("presented.png");
+        let stats = run(ViewOptions {
+            image: person,
+            mode: Mode::Vr,
+            backend: Backend::Vulkan,
+            frames: Some(6),
+            size: 128,
+            screenshot_dir: dir.path().to_path_buf(),
+            screenshot_on_exit: Some(shot.clone()),
+            presented_on_exit: Some(presented.clone()),
+            resolution: 128,
+            ..ViewOptions::default()
+        });
+        keep("still", &[&shot, &presented]);
+        assert_eq!(stats.frames, 6);
+        assert_eq!(stats.backend, Backend::Vulkan);
+        assert_eq!(stats.screenshots, vec![shot.clone()]);
+        let img = image::open(&shot).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (128, 128));
+        // The person is magenta (strong red and blue, little green); the panorama has nothing like it.
+        let magenta = |p: &image::Rgb<u8>| p[0] > 150 && p[2] > 130 && p[1] < 90;
+        let mut count = 0usize;
+        let (mut cx, mut cy) = (0.0f64, 0.0f64);
+        for (x, y, p) in img.enumerate_pixels() {
+            if magenta(p) {
+                count += 1;
+                cx += f64::from(x);
+                cy += f64::from(y);
+            }
         }
+        assert!(count > 128 * 128 / 20, "only {count} person pixels in the screenshot");
+        let (cx, cy) = (cx / count as f64, cy / count as f64);
+        assert!((cx - 64.0).abs() < 16.0 && (cy - 64.0).abs() < 24.0, "the person is off centre: ({cx}, {cy})");
+        for (x, y) in [(2, 2), (125, 2)] {
+            assert!(!magenta(img.get_pixel(x, y)));
+        }
+        // The overlay: frame time, backend, mode and shading in the presented image (white letters on a dark
+        // plate in the top-left corner), and not in the screenshot.
+        let line = &stats.overlay[0];
+        assert!(line.contains("MS/FRAME") && line.contains("VULKAN") && line.contains("VR"), "{line}");
+        let shown = image::open(&presented).unwrap().to_rgb8();
+        assert_eq!(shown.dimensions(), (128, 128));
+        let ink = white_in_corner(&shown, 128, 30);
+        assert!(ink > 60, "only {ink} overlay letter pixels in the presented image");
+        // The screenshot is the view without the overlay: where the window shows letters, it does not.
+        let letters_in_shot = (0..30u32)
+            .flat_map(|y| (0..128u32).map(move |x| (x, y)))
+            .filter(|&(x, y)| shown.get_pixel(x, y).0 == [255; 3] && img.get_pixel(x, y).0 == [255; 3])
+            .count();
+        assert!(letters_in_shot * 10 < ink, "{letters_in_shot} of {ink} letter pixels are in the screenshot too");
+        // Below the overlay the presented image is the rendered view (8-bit sRGB of the same frame).
+        let (a, b) = (shown.get_pixel(64, 80), img.get_pixel(64, 80));
+        assert!((0..3).all(|c| (i32::from(a[c]) - i32::from(b[c])).abs() <= 1), "{a:?} vs {b:?}");
+    });
+}
+
+/// Writes the synthetic walker as RGBA PNGs `f_0.png …` (straight alpha = exact mask) and one corrupt file.
+fn write_walker_folder(dir: &Path, frames: usize, corrupt: usize) {
+    let p = WalkerParams { width: 120, height: 96, frames, fps: 30.0, noise: 0.0 };
+    for i in 0..frames {
+        let path = dir.join(format!("f_{i}.png"));
+        if i == corrupt {
+            std::fs::write(&path, b"\x89PNG\r\n\x1a\n this frame is damaged").unwrap();
+            continue;
+        }
+        let (rgb, a) = walker(&p, i);
+        let mut img = image::RgbaImage::new(p.width as u32, p.height as u32);
+        for (k, px) in img.pixels_mut().enumerate() {
+            let q = |v: f32| (r2human::buffer::linear_to_srgb(v) * 255.0).round() as u8;
+            let c = rgb.data[k];
+            *px = image::Rgba([q(c.x), q(c.y), q(c.z), (a.data[k] * 255.0).round() as u8]);
+        }
+        img.save(path).unwrap();
     }
-    assert!(count > 128 * 128 / 20, "only {count} person pixels in the screenshot");
-    let (cx, cy) = (cx / count as f64, cy / count as f64);
-    assert!((cx - 64.0).abs() < 16.0 && (cy - 64.0).abs() < 24.0, "the person is off centre: ({cx}, {cy})");
-    // The corners show the panorama, not the person.
-    for (x, y) in [(2, 2), (125, 2)] {
-        assert!(!magenta(img.get_pixel(x, y)));
-    }
+}
+
+#[test]
+fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
+    in_window_child("live_folder_source_with_a_corrupt_frame_keeps_the_last_person", || {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = dir.path().join("frames");
+        std::fs::create_dir_all(&frames).unwrap();
+        write_walker_folder(&frames, 6, 2);
+        let shot = dir.path().join("live.png");
+        let presented = dir.path().join("presented.png");
+        let stats = run(ViewOptions {
+            video: Some(frames),
+            segment: SegmentMethod::Alpha,
+            fps: 30.0,
+            mode: Mode::Ar,
+            backend: Backend::Vulkan,
+            frames: Some(4),
+            size: 128,
+            screenshot_on_exit: Some(shot.clone()),
+            presented_on_exit: Some(presented.clone()),
+            resolution: 128,
+            ..ViewOptions::default()
+        });
+        keep("live", &[&shot, &presented]);
+        let live = stats.live.clone().expect("live statistics");
+        eprintln!("live: {live:?}\nmessages: {:?}", stats.messages);
+        // The whole folder was read; the damaged frame became a message, not the end of the session.
+        assert!(stats.source_finished);
+        assert_eq!(live.read, 5, "five readable frames");
+        assert!(live.completed >= 1 && live.completed <= 5);
+        assert!(stats.messages.iter().any(|m| m.contains("f_2.png") && m.contains("could not be read")));
+        // New frames were uploaded once each (never per display frame), and the window went on showing the
+        // last person after the source ended.
+        assert!(stats.live_uploads >= 1 && stats.live_uploads <= live.completed, "{} uploads", stats.live_uploads);
+        assert!(stats.person_frames >= 4);
+        assert!(stats.frames_after_source_end >= 1);
+        assert!(stats.frames > stats.live_uploads);
+        // The overlay carries the live statistics and says the source ended.
+        assert!(stats.overlay.iter().any(|l| l.starts_with("LIVE") && l.contains("LATENCY")), "{:?}", stats.overlay);
+        assert!(stats.overlay.iter().any(|l| l.contains("SOURCE ENDED")), "{:?}", stats.overlay);
+        // The screenshot (AR layer) shows the walker: red shirt, blue trousers, transparent around.
+        let img = image::open(&shot).unwrap().to_rgba8();
+        let opaque = img.pixels().filter(|p| p[3] > 200).count();
+        let shirt = img.pixels().filter(|p| p[3] > 200 && p[0] > 120 && p[1] < 90 && p[2] < 90).count();
+        assert!(opaque > 128 * 128 / 30 && shirt > 40, "{opaque} person pixels, {shirt} shirt pixels");
+        assert!(img.pixels().filter(|p| p[3] == 0).count() > 128 * 128 / 2);
+        let shown = image::open(&presented).unwrap().to_rgb8();
+        assert!(white_in_corner(&shown, 128, 40) > 60);
+    });
+}
+
+#[test]
+fn resize_recreates_the_swapchain_on_the_cpu_backend() {
+    in_window_child("resize_recreates_the_swapchain_on_the_cpu_backend", || {
+        let dir = tempfile::tempdir().unwrap();
+        let person = dir.path().join("person.png");
+        write_person(&person);
+        let shot = dir.path().join("resized.png");
+        let stats = run(ViewOptions {
+            image: person,
+            mode: Mode::Vr,
+            backend: Backend::Cpu,
+            frames: Some(8),
+            size: 96,
+            screenshot_on_exit: Some(shot.clone()),
+            script: vec![
+                ScriptStep { at_frame: 2, action: ScriptAction::Resize { width: 144, height: 80 } },
+                ScriptStep { at_frame: 3, action: ScriptAction::Key('a') },
+                ScriptStep { at_frame: 3, action: ScriptAction::Drag(-50.0, 0.0) },
+            ],
+            resolution: 96,
+            ..ViewOptions::default()
+        });
+        keep("resized", &[&shot]);
+        assert_eq!(stats.frames, 8);
+        assert_eq!(stats.backend, Backend::Cpu);
+        assert!(stats.swapchain_recreations >= 1, "the swapchain was never recreated");
+        assert_eq!(stats.final_size, (144, 80));
+        assert!(stats.overlay[0].contains("CPU") && stats.overlay[0].contains("AR"), "{:?}", stats.overlay);
+        // The last frame is an AR layer of the new size with the person in it.
+        let img = image::open(&shot).unwrap().to_rgba8();
+        assert_eq!(img.dimensions(), (144, 80));
+        assert!(img.pixels().filter(|p| p[3] > 200).count() > 144 * 80 / 30);
+    });
 }

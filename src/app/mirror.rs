@@ -2,17 +2,25 @@
 //! Vulkan per-view passes or by the CPU reference (then only presented through Vulkan).
 //!
 //! Controls: drag with the left button to orbit, wheel to zoom, `V`/`A` switch VR/AR, `G`/`N` geometric/neural
-//! (neural only when a decoder is available), `S` writes a screenshot (atomic PNG). The window title shows the
-//! mode and the frame time (median of the last frames). `--frames N` renders N frames and exits.
+//! (neural only when a decoder is available), `S` writes a screenshot (atomic PNG, the view without overlay).
+//! A text overlay drawn into the presented image shows the frame time (median of the last 30 frames), the
+//! backend, VR/AR, geometric/neural, the GPU time per pass and, with live input, the pipeline's throughput,
+//! latency, per-stage medians and latest message. `--frames N` renders N frames and exits.
+//!
+//! Input: a photo (prepared once), or live frames (`--video` file or folder, `--camera N`) through
+//! [`crate::app::live::LivePipeline`]: the display loop renders from the latest completed frame without ever
+//! waiting for it and uploads a frame's mesh and source view once, when it first sees it. A corrupt frame, a
+//! source that ends or a camera that disappears becomes a message in the overlay; the last person stays.
 //!
 //! Faults: a resized or minimised window recreates the swapchain (nothing is drawn while minimised); a lost
-//! device or surface ends the loop with an error that says so.
+//! device or surface ends the loop with an error that says so ([`describe_fault`]).
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context as _};
+use glam::Vec3;
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -21,13 +29,17 @@ use winit::keyboard::{Key, NamedKey};
 use winit::raw_window_handle::{HasDisplayHandle, HasWindowHandle};
 use winit::window::{Window, WindowId};
 
+use crate::app::live::{self, Completed, LatestReader, LiveOptions, LivePipeline, LiveStats, PrepareProcessor};
+use crate::buffer::Image;
+use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
 use crate::geometry::Camera;
-use crate::gpu::{Context, GpuError, PresentTarget, Renderer};
+use crate::gpu::{offline, Context, GpuError, OverlayMask, PresentTarget, Renderer};
 use crate::io::environment::Environment;
 use crate::io::image_io;
 use crate::io::sequence::Frame;
-use crate::pipeline::{PrepareOptions, PreparedInput};
+use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
 use crate::window::{Acquired, Swapchain};
 
 /// Which engine computes the person.
@@ -50,27 +62,69 @@ pub enum Shading {
     Neural,
 }
 
+/// A scripted input event for automated runs (tests, demos): applied before frame `at_frame` is rendered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ScriptAction {
+    /// Ask the window system for a new inner size (the swapchain is recreated when the window changes).
+    Resize {
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+    },
+    /// A key press, as if typed (`v`, `a`, `g`, `n`, `s`).
+    Key(char),
+    /// A mouse drag by this many pixels (orbit).
+    Drag(f32, f32),
+}
+
+/// One step of a script: what to do before which presented frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScriptStep {
+    /// Number of frames presented before the action (0 = before the first frame).
+    pub at_frame: u64,
+    /// The action.
+    pub action: ScriptAction,
+}
+
 /// Options of [`run_view`].
 #[derive(Clone, Debug)]
 pub struct ViewOptions {
-    /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless `mask` is given.
+    /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless `mask` is given. Leave empty
+    /// with `video` or `camera`.
     pub image: PathBuf,
     /// Person mask (white = person), same size as the image.
     pub mask: Option<PathBuf>,
+    /// Live input from a video file or an image-sequence folder instead of `image`.
+    pub video: Option<PathBuf>,
+    /// Live input from a camera instead of `image`.
+    pub camera: Option<CameraRequest>,
+    /// Person segmentation of live frames.
+    pub segment: SegmentMethod,
+    /// Frame rate assumed for image-sequence folders (they have none of their own).
+    pub fps: f32,
     /// Panorama behind the person in VR (default: the embedded one).
     pub env: Option<PathBuf>,
     /// Start in VR or AR.
     pub mode: Mode,
     /// Engine for the person.
     pub backend: Backend,
-    /// Render this many frames, then exit (`None`: until the window is closed).
+    /// Render this many frames, then exit (`None`: until the window is closed). With live input, the frames
+    /// must show the person, and a file source is also played to its end.
     pub frames: Option<u64>,
     /// Initial window size (square), pixels.
     pub size: u32,
     /// Folder for `S` screenshots.
     pub screenshot_dir: PathBuf,
-    /// Write the last frame to this PNG when the loop ends (for tests and scripted runs).
+    /// Write the last frame to this PNG when the loop ends (for tests and scripted runs). Like `S`
+    /// screenshots, it is the rendered view without the text overlay.
     pub screenshot_on_exit: Option<PathBuf>,
+    /// Write the last presented 8-bit image (overlay included, as the window shows it) to this PNG at exit.
+    pub presented_on_exit: Option<PathBuf>,
+    /// Draw the text overlay (frame time, backend, mode, live statistics) into the window.
+    pub overlay: bool,
+    /// Scripted input events (resize, keys, drags), for tests and demos.
+    pub script: Vec<ScriptStep>,
     /// Source (FOF grid) resolution of the prepared input; 512 like the reference.
     pub resolution: usize,
 }
@@ -80,6 +134,10 @@ impl Default for ViewOptions {
         Self {
             image: PathBuf::new(),
             mask: None,
+            video: None,
+            camera: None,
+            segment: SegmentMethod::Auto,
+            fps: 25.0,
             env: None,
             mode: Mode::Vr,
             backend: Backend::Vulkan,
@@ -87,6 +145,9 @@ impl Default for ViewOptions {
             size: 512,
             screenshot_dir: PathBuf::from("."),
             screenshot_on_exit: None,
+            presented_on_exit: None,
+            overlay: true,
+            script: Vec::new(),
             resolution: crate::geometry::SOURCE_RESOLUTION,
         }
     }
@@ -97,14 +158,34 @@ impl Default for ViewOptions {
 pub struct ViewStats {
     /// Frames presented.
     pub frames: u64,
+    /// Frames presented that showed a person (all of them for a photo; live input starts without one).
+    pub person_frames: u64,
     /// Median frame time (render + present) over the presented frames.
     pub median_frame: Duration,
-    /// Screenshots written.
+    /// Screenshots written (rendered views, no overlay).
     pub screenshots: Vec<PathBuf>,
     /// Validation-layer errors + warnings seen (0 unless validation is on).
     pub validation_messages: u32,
     /// The Vulkan device that ran the window.
     pub device: String,
+    /// The engine that rendered the person (`Cpu` when Vulkan was asked for but not available).
+    pub backend: Backend,
+    /// Swapchain recreations (resize, out of date, suboptimal).
+    pub swapchain_recreations: u64,
+    /// Size of the last presented frame.
+    pub final_size: (u32, u32),
+    /// The overlay lines of the last frame (empty when the overlay is off).
+    pub overlay: Vec<String>,
+    /// Live input: new completed frames picked up by the display loop (each uploaded once).
+    pub live_uploads: u64,
+    /// Live input: the pipeline's counters and stage medians at the end.
+    pub live: Option<LiveStats>,
+    /// Live input: the pipeline's messages (corrupt frames, a lost camera, the end of the source).
+    pub messages: Vec<String>,
+    /// Live input: the source had ended and been fully processed.
+    pub source_finished: bool,
+    /// Live input: frames presented after the source ended (the last person stays on screen).
+    pub frames_after_source_end: u64,
 }
 
 /// Orbit camera state driven by the mouse.
@@ -150,27 +231,54 @@ impl Orbit {
     }
 }
 
-/// The person engine behind the window.
-pub trait PersonEngine {
-    /// Is the neural decoder available?
-    fn has_neural(&self) -> bool {
-        false
+/// `render --backend`: renders one frame per camera on the chosen backend. `Ok(None)` means "use the CPU
+/// path": the CPU was asked for, or Vulkan was asked for but no device is usable (the reason is printed once
+/// on stderr, with the fallback). Other GPU failures are errors.
+pub fn render_on_backend(
+    backend: Backend,
+    input: &PreparedInput,
+    env: &Environment,
+    cameras: &[Camera],
+    mode: Mode,
+    fill: OcclusionFill,
+    fusion: bool,
+) -> anyhow::Result<Option<Vec<Frame>>> {
+    if backend == Backend::Cpu {
+        return Ok(None);
     }
+    match offline::render_views(input, env, cameras, mode, fill, fusion) {
+        Ok(frames) => Ok(Some(frames)),
+        Err(e @ (GpuError::NoVulkan(_) | GpuError::NoDevice(_))) => {
+            eprintln!("warning: {e}\nwarning: rendering on the CPU instead (--backend cpu)");
+            Ok(None)
+        }
+        Err(e) => Err(anyhow::Error::new(e).context("the Vulkan backend failed")),
+    }
+}
 
-    /// Renders the frame for `camera` and presents it into `target` through `renderer` (whose size is the
-    /// camera's). Returns the rendered frame when `want_frame` is set (screenshots).
-    fn frame(
-        &mut self,
-        renderer: &mut Renderer,
-        camera: &Camera,
-        mode: Mode,
-        shading: Shading,
-        target: PresentTarget,
-        want_frame: bool,
-    ) -> anyhow::Result<Option<Frame>>;
+/// The cameras of an orbit: `n` views evenly spaced in yaw from `start_yaw`, at `pitch`, `size x size` (the
+/// same views as `r2human render --orbit`).
+pub fn orbit_cameras(n: usize, start_yaw: f32, pitch: f32, size: usize) -> Vec<Camera> {
+    (0..n).map(|i| Camera::orbit(start_yaw + 360.0 * i as f32 / n.max(1) as f32, pitch, size, size)).collect()
+}
 
-    /// Uploads whatever the engine keeps on the GPU into a (new) renderer, e.g. after a resize.
-    fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()>;
+/// Turns a loop error into the message the user sees: a lost device or surface ends the window cleanly with
+/// a sentence that says so; anything else is passed through.
+pub fn describe_fault(e: anyhow::Error) -> anyhow::Error {
+    match e.downcast::<GpuError>() {
+        Ok(GpuError::DeviceLost) => {
+            anyhow!("the Vulkan device was lost (driver reset or GPU fault); the mirror window closed — start it again")
+        }
+        Ok(GpuError::Surface(s)) => anyhow!("the window surface was lost ({s}); the mirror window closed"),
+        Ok(other) => anyhow::Error::new(other),
+        Err(e) => e,
+    }
+}
+
+/// Can a window of this inner size be drawn into? A minimised window reports 0x0: nothing is rendered or
+/// presented (and the swapchain is not recreated) until it has an area again.
+pub fn drawable(width: u32, height: u32) -> bool {
+    width > 0 && height > 0
 }
 
 /// Opens the mirror window for a photo and runs until closed (or for `opts.frames` frames).
@@ -183,23 +291,43 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
     if !(64..=1024).contains(&opts.resolution) {
         bail!("source resolution {} is out of range: use 64 to 1024 (512 is the reference's)", opts.resolution);
     }
-    let env = match (&opts.env, opts.mode) {
-        (Some(p), _) => Environment::load(p).with_context(|| format!("cannot use the panorama {}", p.display()))?,
-        (None, _) => Environment::default_embedded(),
+    let sources = [!opts.image.as_os_str().is_empty(), opts.video.is_some(), opts.camera.is_some()];
+    if sources.iter().filter(|&&b| b).count() != 1 {
+        bail!("give exactly one input: --image PATH, --video PATH (a video file or an image folder) or --camera N");
+    }
+    if !(opts.fps.is_finite() && opts.fps > 0.0 && opts.fps <= 1000.0) {
+        bail!("--fps {} is out of range: use a rate above 0 and up to 1000", opts.fps);
+    }
+    let env = match &opts.env {
+        Some(p) => Environment::load(p).with_context(|| format!("cannot use the panorama {}", p.display()))?,
+        None => Environment::default_embedded(),
     };
-    let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
-    tracing::info!("preparing the input (segmentation mask, geometry, mesh)");
     let prepare =
         PrepareOptions { resolution: opts.resolution, depth_samples: opts.resolution, ..PrepareOptions::default() };
-    let input = PreparedInput::prepare(&photo.rgb, &mask, &prepare)?;
-    let mut engine = engines::build(&input, &env, opts.backend);
-    let stats = run_window(&mut *engine, &opts)?;
+    let factory = match (&opts.video, &opts.camera) {
+        (Some(path), _) => Some(live::video_source(path, opts.fps)),
+        (None, Some(request)) => Some(live::camera_source(request.clone())),
+        (None, None) => None,
+    };
+    let still;
+    let input = if let Some(factory) = factory {
+        let live_opts = LiveOptions { segment: opts.segment.clone(), ..LiveOptions::default() };
+        let pipeline = LivePipeline::start(factory, PrepareProcessor::new(prepare), live_opts)?;
+        tracing::info!("live input: {}", pipeline.describe());
+        PersonInput::Live(Box::new(LiveInput::new(pipeline, opts.camera.is_some())))
+    } else {
+        let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
+        tracing::info!("preparing the input (segmentation mask, geometry, mesh)");
+        still = PreparedInput::prepare(&photo.rgb, &mask, &prepare)?;
+        PersonInput::Still(&still)
+    };
+    let mut engine = Engine::new(input, &env, opts.backend);
+    let stats = run_window(&mut engine, &opts)?;
     tracing::info!("view: {} frames, median {:.2} ms", stats.frames, stats.median_frame.as_secs_f64() * 1e3);
     Ok(stats)
 }
 
-/// Runs the window loop with any engine (see [`run_view`]).
-pub fn run_window(engine: &mut dyn PersonEngine, opts: &ViewOptions) -> anyhow::Result<ViewStats> {
+fn run_window(engine: &mut Engine<'_>, opts: &ViewOptions) -> anyhow::Result<ViewStats> {
     if opts.size < 16 || opts.size > 4096 {
         bail!("window size {} is out of range: use 16 to 4096 pixels", opts.size);
     }
@@ -224,9 +352,12 @@ pub fn run_window(engine: &mut dyn PersonEngine, opts: &ViewOptions) -> anyhow::
         window: None,
         drag: None,
         cursor: (0.0, 0.0),
-        frame_times: Vec::new(),
-        last_title: Instant::now(),
+        frame_times: Vec::with_capacity(4096),
+        last_status: None,
+        overlay_lines: Vec::new(),
+        overlay_uploaded: false,
         presented: 0,
+        finished: false,
         screenshot_requested: false,
         resized: false,
         error: None,
@@ -240,7 +371,248 @@ pub fn run_window(engine: &mut dyn PersonEngine, opts: &ViewOptions) -> anyhow::
     times.sort();
     app.stats.median_frame = times.get(times.len() / 2).copied().unwrap_or_default();
     app.stats.frames = app.presented;
+    app.stats.overlay = app.overlay_lines.clone();
+    app.stats.backend = app.engine.backend;
+    app.engine.report(&mut app.stats);
     Ok(app.stats)
+}
+
+/// Where the person comes from.
+enum PersonInput<'a> {
+    /// One photo, prepared once.
+    Still(&'a PreparedInput),
+    /// A video, image folder or camera through the live pipeline.
+    Live(Box<LiveInput>),
+}
+
+/// The display side of the live pipeline: the latest completed frame, never waited for.
+struct LiveInput {
+    pipeline: LivePipeline<PreparedInput>,
+    reader: LatestReader<Completed<PreparedInput>>,
+    current: Option<Arc<Completed<PreparedInput>>>,
+    camera: bool,
+    stats: LiveStats,
+    stats_at: Option<Instant>,
+    finished: bool,
+    frames_after_end: u64,
+}
+
+impl LiveInput {
+    fn new(pipeline: LivePipeline<PreparedInput>, camera: bool) -> Self {
+        let reader = pipeline.reader();
+        Self {
+            pipeline,
+            reader,
+            current: None,
+            camera,
+            stats: LiveStats::default(),
+            stats_at: None,
+            finished: false,
+            frames_after_end: 0,
+        }
+    }
+}
+
+/// Renders the person for the window: the Vulkan passes or the CPU reference (then only presented through
+/// Vulkan), from a photo or from the live pipeline's latest completed frame.
+struct Engine<'a> {
+    backend: Backend,
+    env: &'a Environment,
+    fill: OcclusionFill,
+    input: PersonInput<'a>,
+    /// CPU reference for a photo (keeps spatial fusion between frames).
+    cpu_still: Option<ViewRenderer<'a>>,
+    /// Completion sequence of the live frame that is on the GPU (re-uploaded only when it changes).
+    uploaded: Option<u64>,
+    uploads: u64,
+    /// Shown until a live source has completed its first frame.
+    blank: Option<Frame>,
+}
+
+impl<'a> Engine<'a> {
+    fn new(input: PersonInput<'a>, env: &'a Environment, backend: Backend) -> Self {
+        let fill = OcclusionFill::default();
+        let cpu_still = match (&input, backend) {
+            (PersonInput::Still(p), Backend::Cpu) => Some(ViewRenderer::new(p, fill, true)),
+            _ => None,
+        };
+        Self { backend, env, fill, input, cpu_still, uploaded: None, uploads: 0, blank: None }
+    }
+
+    /// Switches to the CPU reference (no usable Vulkan renderer for the person).
+    fn fall_back_to_cpu(&mut self) {
+        self.backend = Backend::Cpu;
+        if let PersonInput::Still(p) = self.input {
+            self.cpu_still = Some(ViewRenderer::new(p, self.fill, true));
+        }
+    }
+
+    /// A new renderer (first frame, resize): everything on the GPU must be uploaded again.
+    fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
+        let (w, h) = renderer.size();
+        self.blank = Some(Frame::Vr(Image::new(w, h, Vec3::splat(0.05))));
+        self.uploaded = None;
+        if self.backend == Backend::Vulkan {
+            renderer.set_environment(self.env)?;
+            if let PersonInput::Still(p) = self.input {
+                offline::upload_input(renderer, p, None, self.fill, true)?;
+                self.uploaded = Some(0);
+            }
+        }
+        Ok(())
+    }
+
+    /// Picks up a newly completed live frame (never blocks); uploads it once when the GPU renders.
+    fn update(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
+        let PersonInput::Live(live) = &mut self.input else { return Ok(()) };
+        if let Some(done) = live.reader.get() {
+            if live.current.as_ref().is_none_or(|c| c.sequence != done.sequence) {
+                live.current = Some(Arc::clone(done));
+            }
+        }
+        let Some(current) = live.current.as_ref() else { return Ok(()) };
+        if self.backend == Backend::Vulkan && self.uploaded != Some(current.sequence) {
+            offline::upload_input(renderer, &current.output, None, self.fill, true)?;
+            self.uploaded = Some(current.sequence);
+            self.uploads += 1;
+        } else if self.backend == Backend::Cpu && self.uploaded != Some(current.sequence) {
+            self.uploaded = Some(current.sequence);
+            self.uploads += 1;
+        }
+        if !live.finished && live.pipeline.is_finished() {
+            live.finished = true;
+            tracing::info!("the source ended: the last person stays on screen");
+        }
+        Ok(())
+    }
+
+    /// Is there a person to show?
+    fn has_person(&self) -> bool {
+        match &self.input {
+            PersonInput::Still(_) => true,
+            PersonInput::Live(live) => live.current.is_some(),
+        }
+    }
+
+    /// `Some(finished)` for live input: has a file source been played to its end (a camera never ends: `true`
+    /// once it has shown a person)?
+    fn live_done(&self) -> Option<bool> {
+        match &self.input {
+            PersonInput::Still(_) => None,
+            PersonInput::Live(live) => Some(live.camera || live.pipeline.is_finished()),
+        }
+    }
+
+    /// A live source that ended without a single usable frame.
+    fn live_failed(&mut self) -> Option<String> {
+        let PersonInput::Live(live) = &mut self.input else { return None };
+        if live.current.is_some() || !live.pipeline.is_finished() {
+            return None;
+        }
+        // The worker publishes its last frame before it reports being finished: look once more.
+        if let Some(done) = live.reader.get() {
+            live.current = Some(Arc::clone(done));
+            return None;
+        }
+        let last = live.pipeline.messages().last().cloned().unwrap_or_default();
+        Some(format!("no frame of {} could be processed; {last}", live.pipeline.describe()))
+    }
+
+    fn frame(
+        &mut self,
+        renderer: &mut Renderer,
+        camera: &Camera,
+        mode: Mode,
+        target: PresentTarget,
+        want_frame: bool,
+    ) -> anyhow::Result<Option<Frame>> {
+        if let PersonInput::Live(live) = &mut self.input {
+            if live.finished {
+                live.frames_after_end += 1;
+            }
+        }
+        let current = match &self.input {
+            PersonInput::Still(p) => Some(*p),
+            PersonInput::Live(live) => live.current.as_ref().map(|c| &c.output),
+        };
+        let Some(input) = current else {
+            let blank = self.blank.as_ref().context("the engine was not attached to a renderer")?;
+            renderer.present_frame(blank, target)?;
+            return Ok(want_frame.then(|| blank.clone()));
+        };
+        match self.backend {
+            Backend::Vulkan => {
+                renderer.render_frame(camera, mode, Some(target))?;
+                Ok(want_frame.then(|| renderer.read_output(mode)))
+            }
+            Backend::Cpu => {
+                let frame = match self.cpu_still.as_mut() {
+                    Some(view) => view.render_frame(camera, mode, self.env)?,
+                    // Live frames change under the view: a fresh reference renderer (no fusion) per frame.
+                    None => ViewRenderer::new(input, self.fill, false).render_frame(camera, mode, self.env)?,
+                };
+                renderer.present_frame(&frame, target)?;
+                Ok(want_frame.then_some(frame))
+            }
+        }
+    }
+
+    /// Overlay lines about the input (live statistics, the latest message); refreshed at most 4 times a second.
+    fn status_lines(&mut self, lines: &mut Vec<String>) {
+        let PersonInput::Live(live) = &mut self.input else { return };
+        if live.stats_at.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
+            live.stats = live.pipeline.stats();
+            live.stats_at = Some(Instant::now());
+        }
+        let s = &live.stats;
+        let latency = s.stages.iter().find(|st| st.name == "frame").map_or(0.0, |st| st.median_ms());
+        lines.push(format!(
+            "LIVE {:.1}/{:.1} FPS  LATENCY {latency:.0} MS  {} READ {} DONE {} DROPPED",
+            s.throughput_fps, s.source_fps, s.read, s.completed, s.dropped
+        ));
+        let stages: Vec<String> = s
+            .stages
+            .iter()
+            .filter(|st| st.name != "frame")
+            .map(|st| format!("{} {:.0}", short_stage(&st.name), st.median_ms()))
+            .collect();
+        if !stages.is_empty() {
+            lines.push(format!("STAGES MS: {}", stages.join(" ")));
+        }
+        if live.current.is_none() {
+            lines.push(format!("WAITING FOR THE FIRST FRAME OF {}", live.pipeline.describe()));
+        }
+        if live.pipeline.is_finished() {
+            lines.push("SOURCE ENDED: SHOWING THE LAST FRAME".to_string());
+        }
+        if let Some(m) = live.pipeline.messages().last() {
+            lines.push(m.clone());
+        }
+    }
+
+    fn report(&mut self, stats: &mut ViewStats) {
+        stats.live_uploads = self.uploads;
+        if let PersonInput::Live(live) = &self.input {
+            stats.live = Some(live.pipeline.stats());
+            stats.messages = live.pipeline.messages();
+            stats.source_finished = live.pipeline.is_finished();
+            stats.frames_after_source_end = live.frames_after_end;
+        }
+    }
+}
+
+/// Short stage names for the overlay.
+fn short_stage(name: &str) -> &str {
+    match name {
+        "segment" => "SEG",
+        "smooth" => "MASK",
+        "normalise" => "NORM",
+        "geometry (inflate -> FOF)" => "FOF",
+        "smooth geometry" => "SMOOTH",
+        "mesh (FOF -> marching cubes)" => "MESH",
+        "source raster" => "SRC",
+        other => other,
+    }
 }
 
 struct Graphics {
@@ -249,8 +621,8 @@ struct Graphics {
     renderer: Renderer,
 }
 
-struct App<'a> {
-    engine: &'a mut dyn PersonEngine,
+struct App<'a, 'e> {
+    engine: &'a mut Engine<'e>,
     opts: &'a ViewOptions,
     mode: Mode,
     shading: Shading,
@@ -261,15 +633,19 @@ struct App<'a> {
     drag: Option<(f64, f64)>,
     cursor: (f64, f64),
     frame_times: Vec<Duration>,
-    last_title: Instant,
+    last_status: Option<Instant>,
+    overlay_lines: Vec<String>,
+    overlay_uploaded: bool,
     presented: u64,
+    /// The last requested frame (`--frames`) has been rendered.
+    finished: bool,
     screenshot_requested: bool,
     resized: bool,
     error: Option<anyhow::Error>,
     stats: ViewStats,
 }
 
-impl App<'_> {
+impl App<'_, '_> {
     fn fail(&mut self, event_loop: &ActiveEventLoop, e: anyhow::Error) {
         if self.error.is_none() {
             self.error = Some(e);
@@ -284,14 +660,28 @@ impl App<'_> {
         let window = event_loop.create_window(attrs).map_err(|e| anyhow!("cannot create the window: {e}"))?;
         let display = window.display_handle().map_err(|e| anyhow!("no display handle: {e}"))?.as_raw();
         let handle = window.window_handle().map_err(|e| anyhow!("no window handle: {e}"))?.as_raw();
-        let (ctx, surface) = Context::with_surface(display, handle, None)?;
+        let (ctx, surface) = match Context::with_surface(display, handle, None) {
+            Ok(c) => c,
+            Err(e @ (GpuError::NoVulkan(_) | GpuError::NoDevice(_))) => {
+                bail!("{e}; the window presents through Vulkan, so `view` needs a Vulkan driver (use `r2human render --backend cpu` without one)")
+            }
+            Err(e) => return Err(e.into()),
+        };
         let ctx = Arc::new(ctx);
         let size = window.inner_size();
         let swapchain = Swapchain::new(&ctx, surface, size.width.max(1), size.height.max(1))?;
         let mut renderer =
             Renderer::new(ctx.clone(), swapchain.extent.width as usize, swapchain.extent.height as usize)?;
-        self.engine.attach(&mut renderer)?;
-        tracing::info!("view: {} on {}", swapchain.extent.width, ctx.device_name());
+        if let Err(e) = self.engine.attach(&mut renderer) {
+            if self.engine.backend == Backend::Vulkan {
+                eprintln!("warning: the Vulkan passes cannot run ({e:#}); rendering the person on the CPU instead");
+                self.engine.fall_back_to_cpu();
+                self.engine.attach(&mut renderer)?;
+            } else {
+                return Err(e);
+            }
+        }
+        tracing::info!("view: {}x{} on {}", swapchain.extent.width, swapchain.extent.height, ctx.device_name());
         self.gfx = Some(Graphics { ctx, swapchain, renderer });
         self.window = Some(window);
         Ok(())
@@ -301,21 +691,41 @@ impl App<'_> {
     fn recreate(&mut self) -> anyhow::Result<bool> {
         let (Some(gfx), Some(window)) = (self.gfx.as_mut(), self.window.as_ref()) else { return Ok(false) };
         let size = window.inner_size();
-        if size.width == 0 || size.height == 0 {
+        if !drawable(size.width, size.height) {
             return Ok(false);
         }
         if !gfx.swapchain.recreate(size.width, size.height)? {
             return Ok(false);
         }
+        self.stats.swapchain_recreations += 1;
         let extent = gfx.swapchain.extent;
         if gfx.renderer.size() != (extent.width as usize, extent.height as usize) {
             gfx.renderer = Renderer::new(gfx.ctx.clone(), extent.width as usize, extent.height as usize)?;
             self.engine.attach(&mut gfx.renderer)?;
+            self.overlay_uploaded = false;
         }
         Ok(true)
     }
 
+    fn run_script(&mut self) {
+        let due: Vec<ScriptAction> =
+            self.opts.script.iter().filter(|s| s.at_frame == self.presented).map(|s| s.action).collect();
+        for action in due {
+            match action {
+                ScriptAction::Resize { width, height } => {
+                    if let Some(w) = &self.window {
+                        let _ = w.request_inner_size(PhysicalSize::new(width.max(1), height.max(1)));
+                    }
+                    self.resized = true;
+                }
+                ScriptAction::Key(c) => self.key(&Key::Character(c.to_string().into())),
+                ScriptAction::Drag(dx, dy) => self.orbit.drag(dx, dy),
+            }
+        }
+    }
+
     fn redraw(&mut self) -> anyhow::Result<()> {
+        self.run_script();
         if self.resized {
             self.resized = false;
             if !self.recreate()? {
@@ -324,6 +734,7 @@ impl App<'_> {
         }
         let Some(gfx) = self.gfx.as_mut() else { return Ok(()) };
         let start = Instant::now();
+        self.engine.update(&mut gfx.renderer)?;
         let acquired = gfx.swapchain.acquire()?;
         let Acquired::Image { index, image, ready, rendered } = acquired else {
             self.resized = true;
@@ -331,15 +742,26 @@ impl App<'_> {
         };
         let (w, h) = gfx.renderer.size();
         let camera = self.orbit.camera(w, h);
-        let last = self.opts.frames.is_some_and(|n| self.presented + 1 >= n);
+        let last = is_last_frame(self.opts, self.engine, self.presented, self.stats.person_frames);
+        self.finished = last;
         let want = self.screenshot_requested || (last && self.opts.screenshot_on_exit.is_some());
         let target = PresentTarget { image, wait: ready, signal: rendered, bgra: gfx.swapchain.is_bgra() };
-        let frame = self.engine.frame(&mut gfx.renderer, &camera, self.mode, self.shading, target, want)?;
+        let has_person = self.engine.has_person();
+        let frame = self.engine.frame(&mut gfx.renderer, &camera, self.mode, target, want)?;
         if gfx.swapchain.present(index)? {
             self.resized = true;
         }
         self.presented += 1;
+        if has_person {
+            self.stats.person_frames += 1;
+        }
+        self.stats.final_size = (w as u32, h as u32);
         self.frame_times.push(start.elapsed());
+        if last {
+            if let Some(path) = &self.opts.presented_on_exit {
+                image_io::write_encoded(path, image::DynamicImage::ImageRgb8(gfx.renderer.read_presented()))?;
+            }
+        }
         if let Some(frame) = frame {
             if self.screenshot_requested {
                 self.screenshot_requested = false;
@@ -354,36 +776,65 @@ impl App<'_> {
                 }
             }
         }
-        self.update_title();
+        self.update_status();
         Ok(())
     }
 
-    fn update_title(&mut self) {
-        if self.last_title.elapsed() < Duration::from_millis(250) && self.presented > 1 {
+    /// Title and overlay, at most 4 times a second (the overlay mask is uploaded only when its text changed).
+    fn update_status(&mut self) {
+        // The last frame of a scripted run always refreshes it, so the reported overlay is the final state.
+        let due = self.finished || self.last_status.is_none_or(|t| t.elapsed() >= Duration::from_millis(250));
+        if !due && self.overlay_uploaded {
             return;
         }
-        self.last_title = Instant::now();
+        self.last_status = Some(Instant::now());
         let recent = &self.frame_times[self.frame_times.len().saturating_sub(30)..];
         let mut sorted = recent.to_vec();
         sorted.sort();
         let median = sorted.get(sorted.len() / 2).copied().unwrap_or_default();
         let ms = median.as_secs_f64() * 1e3;
+        let mode = match self.mode {
+            Mode::Vr => "VR",
+            Mode::Ar => "AR",
+        };
+        let shading = match self.shading {
+            Shading::Geometric => "geometric",
+            Shading::Neural => "neural",
+        };
+        let backend = match self.engine.backend {
+            Backend::Cpu => "CPU",
+            Backend::Vulkan => "VULKAN",
+        };
+        let fps = if ms > 0.0 { 1e3 / ms } else { 0.0 };
         let title = format!(
-            "r2human | {} | {} | {:?} | {ms:.1} ms/frame ({:.0} fps) | drag: orbit, wheel: zoom, V/A, G/N, S: screenshot",
-            match self.mode {
-                Mode::Vr => "VR",
-                Mode::Ar => "AR",
-            },
-            match self.shading {
-                Shading::Geometric => "geometric",
-                Shading::Neural => "neural",
-            },
-            self.opts.backend,
-            if ms > 0.0 { 1e3 / ms } else { 0.0 },
+            "r2human | {mode} | {shading} | {backend} | {ms:.1} ms/frame ({fps:.0} fps) | drag: orbit, wheel: zoom, V/A, G/N, S: screenshot"
         );
         if let Some(w) = &self.window {
             w.set_title(&title);
         }
+        if !self.opts.overlay {
+            return;
+        }
+        let mut lines = vec![format!("{ms:.1} MS/FRAME {fps:.0} FPS | {backend} | {mode} | {shading}")];
+        if let Some(gfx) = &self.gfx {
+            let times = gfx.renderer.stage_times();
+            if self.engine.backend == Backend::Vulkan && times.len() > 1 {
+                let parts: Vec<String> =
+                    times.iter().map(|(n, d)| format!("{n} {:.1}", d.as_secs_f64() * 1e3)).collect();
+                lines.push(format!("GPU MS: {}", parts.join(" ")));
+            }
+        }
+        self.engine.status_lines(&mut lines);
+        if lines == self.overlay_lines && self.overlay_uploaded {
+            return;
+        }
+        if let Some(gfx) = self.gfx.as_mut() {
+            let (w, h) = gfx.renderer.size();
+            let scale = if w >= 1200 { 2 } else { 1 };
+            gfx.renderer.set_overlay(Some(&OverlayMask::text(&lines, w, h / 2, scale)));
+            self.overlay_uploaded = true;
+        }
+        self.overlay_lines = lines;
     }
 
     fn key(&mut self, key: &Key) {
@@ -392,16 +843,32 @@ impl App<'_> {
             "v" => self.mode = Mode::Vr,
             "a" => self.mode = Mode::Ar,
             "g" => self.shading = Shading::Geometric,
-            "n" => {
-                if self.engine.has_neural() {
-                    self.shading = Shading::Neural;
-                } else {
-                    tracing::warn!("no neural decoder is available: staying with the geometric warp");
-                }
-            }
+            "n" => tracing::warn!("no neural decoder is available: staying with the geometric warp"),
             "s" => self.screenshot_requested = true,
             _ => {}
         }
+    }
+
+    /// Ends the loop when the requested frames are done (or a live source produced nothing at all).
+    fn check_end(&mut self, event_loop: &ActiveEventLoop) {
+        if let Some(reason) = self.engine.live_failed() {
+            self.fail(event_loop, anyhow!(reason));
+            return;
+        }
+        // The frame just rendered was the last one asked for (decided before rendering it, so that it is the
+        // one saved by --screenshot-on-exit).
+        if self.finished {
+            event_loop.exit();
+        }
+    }
+}
+
+/// Will the loop end after the frame about to be rendered (`presented` and `person_frames` so far)?
+fn is_last_frame(opts: &ViewOptions, engine: &Engine<'_>, presented: u64, person_frames: u64) -> bool {
+    let Some(n) = opts.frames else { return false };
+    match engine.live_done() {
+        None => presented + 1 >= n,
+        Some(done) => done && engine.has_person() && person_frames + 1 >= n,
     }
 }
 
@@ -414,7 +881,7 @@ fn save_frame(path: &std::path::Path, frame: &Frame) -> anyhow::Result<()> {
     Ok(())
 }
 
-impl ApplicationHandler for App<'_> {
+impl ApplicationHandler for App<'_, '_> {
     fn resumed(&mut self, event_loop: &ActiveEventLoop) {
         if self.window.is_none() {
             if let Err(e) = self.create(event_loop) {
@@ -429,18 +896,10 @@ impl ApplicationHandler for App<'_> {
             WindowEvent::Resized(_) => self.resized = true,
             WindowEvent::RedrawRequested => {
                 if let Err(e) = self.redraw() {
-                    let e = match e.downcast::<GpuError>() {
-                        Ok(GpuError::DeviceLost) => anyhow!("the Vulkan device was lost; the mirror window closed"),
-                        Ok(GpuError::Surface(s)) => anyhow!("the window surface was lost ({s}); the mirror closed"),
-                        Ok(other) => anyhow::Error::new(other),
-                        Err(e) => e,
-                    };
-                    self.fail(event_loop, e);
+                    self.fail(event_loop, describe_fault(e));
                     return;
                 }
-                if self.opts.frames.is_some_and(|n| self.presented >= n) {
-                    event_loop.exit();
-                }
+                self.check_end(event_loop);
             }
             WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
                 self.drag = (state == ElementState::Pressed).then_some(self.cursor);
@@ -490,86 +949,40 @@ impl ApplicationHandler for App<'_> {
     }
 }
 
-/// The engines: the CPU reference pipeline or the Vulkan passes, both over one prepared input.
-mod engines {
-    use super::*;
-    use crate::pipeline::warp::OcclusionFill;
-    use crate::pipeline::{PreparedInput, ViewRenderer};
-
-    /// Builds the engine for a prepared input.
-    pub fn build<'a>(input: &'a PreparedInput, env: &'a Environment, backend: Backend) -> Box<dyn PersonEngine + 'a> {
-        match backend {
-            Backend::Cpu => Box::new(CpuEngine { view: ViewRenderer::new(input, OcclusionFill::default(), true), env }),
-            Backend::Vulkan => Box::new(VulkanEngine { input, env }),
-        }
-    }
-
-    /// The CPU reference renders; Vulkan only presents.
-    struct CpuEngine<'a> {
-        view: ViewRenderer<'a>,
-        env: &'a Environment,
-    }
-
-    impl PersonEngine for CpuEngine<'_> {
-        fn frame(
-            &mut self,
-            renderer: &mut Renderer,
-            camera: &Camera,
-            mode: Mode,
-            _shading: Shading,
-            target: PresentTarget,
-            want_frame: bool,
-        ) -> anyhow::Result<Option<Frame>> {
-            let frame = self.view.render_frame(camera, mode, self.env)?;
-            renderer.present_frame(&frame, target)?;
-            Ok(want_frame.then_some(frame))
-        }
-
-        fn attach(&mut self, _renderer: &mut Renderer) -> anyhow::Result<()> {
-            Ok(())
-        }
-    }
-
-    /// Every per-view stage on the GPU; the input is uploaded once per renderer.
-    struct VulkanEngine<'a> {
-        input: &'a PreparedInput,
-        env: &'a Environment,
-    }
-
-    impl PersonEngine for VulkanEngine<'_> {
-        fn frame(
-            &mut self,
-            renderer: &mut Renderer,
-            camera: &Camera,
-            mode: Mode,
-            _shading: Shading,
-            target: PresentTarget,
-            want_frame: bool,
-        ) -> anyhow::Result<Option<Frame>> {
-            renderer.render_frame(camera, mode, Some(target))?;
-            Ok(want_frame.then(|| renderer.read_output(mode)))
-        }
-
-        fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
-            let input = self.input;
-            renderer.set_mesh(&input.mesh)?;
-            renderer.set_source_parts(
-                &input.normalised.rgb,
-                &input.normalised.mask,
-                &input.source_gbuffer,
-                &input.source_camera,
-            )?;
-            renderer.set_environment(self.env)?;
-            renderer.set_fill(OcclusionFill::default());
-            renderer.set_fusion(true);
-            Ok(())
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_minimised_window_is_not_drawn() {
+        assert!(!drawable(0, 0));
+        assert!(!drawable(0, 480));
+        assert!(!drawable(640, 0));
+        assert!(drawable(1, 1));
+    }
+
+    #[test]
+    fn lost_device_and_surface_become_clear_messages() {
+        let lost = describe_fault(anyhow::Error::new(GpuError::DeviceLost)).to_string();
+        assert!(lost.contains("device was lost") && lost.contains("start it again"), "{lost}");
+        let surface = describe_fault(anyhow::Error::new(GpuError::Surface("gone".into()))).to_string();
+        assert!(surface.contains("surface was lost (gone)") && surface.contains("closed"), "{surface}");
+        let other = describe_fault(anyhow!("something else")).to_string();
+        assert_eq!(other, "something else");
+        // The Vulkan result codes map to those variants.
+        assert!(matches!(GpuError::vk("present")(ash::vk::Result::ERROR_DEVICE_LOST), GpuError::DeviceLost));
+        assert!(matches!(GpuError::vk("present")(ash::vk::Result::ERROR_SURFACE_LOST_KHR), GpuError::Surface(_)));
+    }
+
+    #[test]
+    fn orbit_cameras_match_the_render_orbit_spacing() {
+        let cams = orbit_cameras(4, 10.0, -5.0, 32);
+        assert_eq!(cams.len(), 4);
+        for (i, cam) in cams.iter().enumerate() {
+            assert_eq!(*cam, Camera::orbit(10.0 + 90.0 * i as f32, -5.0, 32, 32));
+        }
+        assert!(orbit_cameras(0, 0.0, 0.0, 32).is_empty());
+    }
 
     #[test]
     fn orbit_drag_and_wheel_stay_bounded() {

@@ -93,6 +93,9 @@ pub struct EvalArgs {
     /// Image side in pixels.
     #[arg(long, default_value_t = 512)]
     pub size: usize,
+    /// Also write every view's ground truth and each method's rendering as PNGs (DIR/views/...), to look at.
+    #[arg(long)]
+    pub save_views: bool,
 }
 
 /// `r2human eval`.
@@ -106,6 +109,7 @@ pub fn run_eval(args: &EvalArgs) -> Result<()> {
         out: args.out.clone(),
         scans: args.scan.clone(),
         size: args.size,
+        save_views: args.save_views,
         ..Default::default()
     };
     let report = crate::eval::runner::run_eval(&opts)?;

@@ -13,11 +13,27 @@ use crate::compose::Mode;
 #[derive(Args, Debug)]
 pub struct ViewArgs {
     /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless --mask is given.
-    #[arg(long)]
-    pub image: PathBuf,
+    #[arg(long, required_unless_present_any = ["video", "camera"], conflicts_with_all = ["video", "camera"])]
+    pub image: Option<PathBuf>,
     /// Person mask (white = person), same size as the image.
     #[arg(long)]
     pub mask: Option<PathBuf>,
+    /// Live input from a video file or a folder of frames (played at --fps); the window shows the latest
+    /// processed frame.
+    #[arg(long, conflicts_with = "camera")]
+    pub video: Option<PathBuf>,
+    /// Live input from camera N (`r2human devices` lists them).
+    #[arg(long)]
+    pub camera: Option<u32>,
+    /// Person segmentation of live frames: alpha, plate (the first frames show the empty scene), onnx or auto.
+    #[arg(long, default_value = "auto")]
+    pub segment: String,
+    /// Frame rate of an image folder given to --video.
+    #[arg(long, default_value_t = 25.0)]
+    pub fps: f32,
+    /// Do not draw the text overlay (frame time, backend, live statistics) into the window.
+    #[arg(long)]
+    pub no_overlay: bool,
     /// Panorama behind the person in VR.
     #[arg(long)]
     pub env: Option<PathBuf>,
@@ -86,9 +102,17 @@ pub struct XrArgs {
 
 /// `r2human view`.
 pub fn run_view(args: &ViewArgs) -> Result<()> {
+    let Some(segment) = crate::capture::SegmentMethod::parse(&args.segment) else {
+        anyhow::bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
+    };
     mirror::run_view(mirror::ViewOptions {
-        image: args.image.clone(),
+        image: args.image.clone().unwrap_or_default(),
         mask: args.mask.clone(),
+        video: args.video.clone(),
+        camera: args.camera.map(|index| crate::capture::CameraRequest { index, ..Default::default() }),
+        segment,
+        fps: args.fps,
+        overlay: !args.no_overlay,
         env: args.env.clone(),
         mode: args.mode,
         backend: args.backend,

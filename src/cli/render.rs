@@ -6,6 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::app::mirror::{orbit_cameras, render_on_backend, Backend};
 use crate::buffer::GrayImage;
 use crate::compose::Mode;
 use crate::geometry::Camera;
@@ -87,6 +88,9 @@ pub struct RenderArgs {
     /// Output PNG file (one view) or folder (--orbit).
     #[arg(long)]
     pub out: PathBuf,
+    /// Engine for --image views: the CPU reference or the Vulkan passes (no Vulkan device: a message and the CPU).
+    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    pub backend: Backend,
     /// Rendering options.
     #[command(flatten)]
     pub view: ViewOptions,
@@ -150,6 +154,19 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     let (photo, mask) = image_io::load_person(image, args.mask.as_deref())?;
     let env = load_environment(&args.view)?;
     let prepared = prepare(&photo, &mask, &args.view)?;
+    let (n, fill) = (args.orbit.unwrap_or(1), args.view.fill.into());
+    let cams = orbit_cameras(n, args.yaw, args.view.pitch, args.view.size);
+    if (1..=720).contains(&n) {
+        if let Some(frames) = render_on_backend(args.backend, &prepared, &env, &cams, args.view.mode, fill, n > 1)? {
+            return match args.orbit {
+                None => {
+                    frames[0].save_png(&args.out).map(|_| println!("wrote {}", args.out.display())).map_err(Into::into)
+                }
+                Some(_) => write_orbit(&args.out, &frames),
+            }
+            .with_context(|| format!("writing {}", args.out.display()));
+        }
+    }
     match args.orbit {
         None => {
             let mut renderer = ViewRenderer::new(&prepared, args.view.fill.into(), false);

@@ -39,7 +39,7 @@ pub fn background_camera(camera: &Camera) -> Camera {
 /// VR composite: `person.rgb + (1 - person.a) * environment(ray)` per pixel, in linear RGB. The panorama is
 /// sampled only where the person does not fully cover the pixel.
 pub fn compose_vr(person: &RgbaImage, environment: &Environment, camera: &Camera) -> RgbImage {
-    let bg = background_camera(camera);
+    let rays = background_camera(camera).ray_grid();
     let (w, h) = (person.width, person.height);
     let mut out = Image::new(w, h, Vec3::ZERO);
     out.data.par_chunks_mut(w.max(1)).enumerate().for_each(|(row, out_row)| {
@@ -50,8 +50,9 @@ pub fn compose_vr(person: &RgbaImage, environment: &Environment, camera: &Camera
             *o = if a >= 1.0 {
                 fg
             } else {
-                let ray = bg.ray(col as f32 + 0.5, row as f32 + 0.5);
-                fg + environment.sample(ray.direction) * (1.0 - a)
+                // The lookup normalises the direction itself.
+                let direction = rays.direction_unnormalised(col as f32 + 0.5, row as f32 + 0.5);
+                fg + environment.sample(direction) * (1.0 - a)
             };
         }
     });

@@ -80,30 +80,30 @@ fn gaussian_kernel() -> [f32; 11] {
     k.map(|v| v / s)
 }
 
-/// Separable Gaussian blur with edge replication.
+/// Separable Gaussian blur with edge replication (rows in parallel; the clamped taps only near the borders).
 fn blur(src: &[f32], w: usize, h: usize, k: &[f32; 11]) -> Vec<f32> {
+    use rayon::prelude::*;
+    let tap = |i: i64, len: usize| i.clamp(0, len as i64 - 1) as usize;
     let mut tmp = vec![0.0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let xx = (x as i64 + j as i64 - 5).clamp(0, w as i64 - 1) as usize;
-                acc += kv * src[y * w + xx];
-            }
-            tmp[y * w + x] = acc;
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let line = &src[y * w..(y + 1) * w];
+        for (x, out) in row.iter_mut().enumerate() {
+            *out = if x >= 5 && x + 5 < w {
+                k.iter().zip(&line[x - 5..=x + 5]).map(|(kv, v)| kv * v).sum()
+            } else {
+                k.iter().enumerate().map(|(j, kv)| kv * line[tap(x as i64 + j as i64 - 5, w)]).sum()
+            };
         }
-    }
+    });
     let mut out = vec![0.0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut acc = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let yy = (y as i64 + j as i64 - 5).clamp(0, h as i64 - 1) as usize;
-                acc += kv * tmp[yy * w + x];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (j, kv) in k.iter().enumerate() {
+            let yy = tap(y as i64 + j as i64 - 5, h);
+            for (o, v) in row.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *o += kv * v;
             }
-            out[y * w + x] = acc;
         }
-    }
+    });
     out
 }
 
@@ -137,9 +137,35 @@ pub fn ssim_map(a: &SrgbImage, b: &SrgbImage) -> Vec<f32> {
     out
 }
 
-/// Mean SSIM over the region (1 for an empty region).
+/// Mean SSIM over the region (1 for an empty region). Only the region's bounding box grown by the window radius
+/// is filtered: the result is identical to averaging the whole-image [`ssim_map`] over the region.
 pub fn ssim(a: &SrgbImage, b: &SrgbImage, region: &[bool]) -> f32 {
-    let map = ssim_map(a, b);
+    let (w, h) = (a.width, a.height);
+    if w == 0 || region.len() != w * h {
+        return ssim_region_of_map(&ssim_map(a, b), region);
+    }
+    let (mut c0, mut c1, mut r0, mut r1) = (usize::MAX, 0, usize::MAX, 0);
+    for (r, row) in region.chunks(w).enumerate() {
+        if let (Some(x), Some(y)) = (row.iter().position(|&m| m), row.iter().rposition(|&m| m)) {
+            (c0, c1, r0, r1) = (c0.min(x), c1.max(y), r0.min(r), r1.max(r));
+        }
+    }
+    if c0 > c1 {
+        return 1.0;
+    }
+    // Blurred values inside the box need source pixels up to 5 away (the crop edge then replicates exactly where
+    // the image edge would).
+    let (x0, x1, y0, y1) = (c0.saturating_sub(5), (c1 + 5).min(w - 1), r0.saturating_sub(5), (r1 + 5).min(h - 1));
+    let crop = |img: &SrgbImage| SrgbImage {
+        width: x1 + 1 - x0,
+        height: y1 + 1 - y0,
+        data: (y0..=y1).flat_map(|y| img.data[y * w + x0..=y * w + x1].iter().copied()).collect(),
+    };
+    let sub_region: Vec<bool> = (y0..=y1).flat_map(|y| region[y * w + x0..=y * w + x1].iter().copied()).collect();
+    ssim_region_of_map(&ssim_map(&crop(a), &crop(b)), &sub_region)
+}
+
+fn ssim_region_of_map(map: &[f32], region: &[bool]) -> f32 {
     let (sum, n) =
         map.iter().zip(region).filter(|(_, &r)| r).fold((0.0f64, 0usize), |(s, n), (v, _)| (s + *v as f64, n + 1));
     if n == 0 {
@@ -225,6 +251,25 @@ mod tests {
         assert!(ssim(&tex, &inv, &all) < 0.0);
         assert!(ssim(&tex, &bright, &all) > 0.9);
         assert!(ssim_map(&tex, &tex).iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn ssim_over_a_region_equals_the_whole_map_averaged_there() {
+        let noise = |x: usize, y: usize, s: usize| ((x * 73 + y * 151 + s * 31) % 97) as f32 / 97.0;
+        let a = img(60, 40, |x, y| Vec3::new(noise(x, y, 0), noise(x, y, 1), noise(x, y, 2)));
+        let b = img(60, 40, |x, y| Vec3::new(noise(x + 1, y, 0), noise(x, y, 1) * 0.8, noise(x, y + 2, 2)));
+        let map = ssim_map(&a, &b);
+        // Interior blob, a blob touching two image edges, and scattered pixels.
+        for region_of in [
+            (|x: usize, y: usize| (20..35).contains(&x) && (10..22).contains(&y)) as fn(usize, usize) -> bool,
+            |x, y| x < 7 && y > 30,
+            |x, y| (x * y) % 11 == 3,
+        ] {
+            let region: Vec<bool> = (0..60 * 40).map(|i| region_of(i % 60, i / 60)).collect();
+            let expect = ssim_region_of_map(&map, &region);
+            assert!((ssim(&a, &b, &region) - expect).abs() < 1e-6, "{} vs {expect}", ssim(&a, &b, &region));
+        }
+        assert_eq!(ssim(&a, &b, &vec![false; 60 * 40]), 1.0);
     }
 
     #[test]

@@ -73,6 +73,43 @@ pub struct Camera {
     pub height: usize,
 }
 
+/// Every pixel's viewing ray of one camera, precomputed as affine functions of the pixel coordinates
+/// ([`Camera::ray_grid`]); [`RayGrid::ray`] equals [`Camera::ray`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayGrid {
+    /// Orthographic: the ray origin at pixel (0, 0); perspective: the eye.
+    origin: Vec3,
+    /// Unnormalised direction at pixel (0, 0).
+    direction: Vec3,
+    /// Change per unit of `u` (of the origin when orthographic, else of the direction).
+    per_u: Vec3,
+    /// Change per unit of `v`.
+    per_v: Vec3,
+    orthographic: bool,
+}
+
+impl RayGrid {
+    /// The ray through continuous pixel coordinates `(u, v)` (centres at +0.5).
+    #[inline]
+    pub fn ray(&self, u: f32, v: f32) -> Ray {
+        if self.orthographic {
+            Ray { origin: self.origin + u * self.per_u + v * self.per_v, direction: self.direction.normalize() }
+        } else {
+            Ray { origin: self.origin, direction: self.direction_unnormalised(u, v).normalize() }
+        }
+    }
+
+    /// The direction through `(u, v)` before normalisation (cheaper when only the direction's angle matters).
+    #[inline]
+    pub fn direction_unnormalised(&self, u: f32, v: f32) -> Vec3 {
+        if self.orthographic {
+            self.direction
+        } else {
+            self.direction + u * self.per_u + v * self.per_v
+        }
+    }
+}
+
 /// A ray in world space (`direction` is unit length).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
@@ -200,18 +237,35 @@ impl Camera {
     /// The world-space viewing ray through pixel `(u, v)`. Orthographic rays start on the plane view z = 0
     /// and point down view -z; perspective rays start at the eye.
     pub fn ray(&self, u: f32, v: f32) -> Ray {
+        self.ray_grid().ray(u, v)
+    }
+
+    /// The camera's rays with the per-camera work (matrix inverse, field-of-view tangents) done once: use it when
+    /// asking for the ray of every pixel.
+    pub fn ray_grid(&self) -> RayGrid {
         let world_from_view = self.view_from_world.inverse();
-        let ndc = self.pixel_to_ndc(u, v);
+        let (w, h) = (self.width.max(1) as f32, self.height.max(1) as f32);
         match self.projection {
-            Projection::Orthographic { half_width, half_height } => Ray {
-                origin: world_from_view.transform_point3(Vec3::new(ndc.x * half_width, ndc.y * half_height, 0.0)),
-                direction: world_from_view.transform_vector3(Vec3::NEG_Z).normalize(),
-            },
+            Projection::Orthographic { half_width, half_height } => {
+                // ndc.x = 2u/w - 1, ndc.y = 1 - 2v/h: the origin is affine in (u, v), the direction constant.
+                let origin = world_from_view.transform_point3(Vec3::new(-half_width, half_height, 0.0));
+                RayGrid {
+                    origin,
+                    direction: world_from_view.transform_vector3(Vec3::NEG_Z),
+                    per_u: world_from_view.transform_vector3(Vec3::new(2.0 * half_width / w, 0.0, 0.0)),
+                    per_v: world_from_view.transform_vector3(Vec3::new(0.0, -2.0 * half_height / h, 0.0)),
+                    orthographic: true,
+                }
+            }
             Projection::Perspective { fov, .. } => {
-                let (tx, ty) = ndc_to_tangent(&fov, ndc);
-                Ray {
+                // tan_x = tl + (u / w)(tr - tl), tan_y = tu - (v / h)(tu - td): the direction is affine in (u, v).
+                let (tl, tr, tu, td) = tangents(&fov);
+                RayGrid {
                     origin: world_from_view.translation.into(),
-                    direction: world_from_view.transform_vector3(Vec3::new(tx, ty, -1.0)).normalize(),
+                    direction: world_from_view.transform_vector3(Vec3::new(tl, tu, -1.0)),
+                    per_u: world_from_view.transform_vector3(Vec3::new((tr - tl) / w, 0.0, 0.0)),
+                    per_v: world_from_view.transform_vector3(Vec3::new(0.0, -(tu - td) / h, 0.0)),
+                    orthographic: false,
                 }
             }
         }
@@ -238,6 +292,33 @@ mod tests {
 
     fn close(a: Vec3, b: Vec3, eps: f32) -> bool {
         (a - b).abs().max_element() < eps
+    }
+
+    #[test]
+    fn ray_grid_rays_pass_through_the_unprojected_points() {
+        let fov = Fov { angle_left: -0.7, angle_right: 0.5, angle_up: 0.6, angle_down: -0.4 };
+        let eye = Camera::perspective(
+            Vec3::new(0.3, 1.6, 2.5),
+            Quat::from_rotation_y(0.4) * Quat::from_rotation_x(-0.2),
+            fov,
+            0.05,
+            320,
+            240,
+        );
+        let orbit = Camera::orbit(135.0, 30.0, 200, 100);
+        for cam in [eye, orbit] {
+            let grid = cam.ray_grid();
+            for &(u, v) in &[(0.5f32, 0.5f32), (160.0, 120.0), (319.5, 3.25), (12.0, 239.5)] {
+                let ray = grid.ray(u, v);
+                // Two points on the ray from the camera's own unprojection (independent of the grid).
+                let (near, far) = if cam.is_orthographic() { (0.0, -1.0) } else { (-1.0, -2.0) };
+                let (a, b) = (cam.unproject(u, v, near), cam.unproject(u, v, far));
+                assert!(close(ray.direction, (b - a).normalize(), 1e-5), "{u} {v}: {:?}", ray.direction);
+                let t = (a - ray.origin).dot(ray.direction);
+                assert!(close(ray.origin + t * ray.direction, a, 1e-4), "{u} {v}: origin {:?}", ray.origin);
+                assert!(close(grid.direction_unnormalised(u, v).normalize(), ray.direction, 1e-6));
+            }
+        }
     }
 
     #[test]

@@ -229,6 +229,14 @@ fn decode_range(coeffs: &[f32], table: &CosineTable, lo: usize, out: &mut [f32])
     }
 }
 
+/// Per-thread buffers of [`Extractor::slab`].
+struct SlabScratch {
+    top: RowData,
+    bottom: RowData,
+    /// Edge caches: x and z edges of the top row, x and z of the bottom row, y edges between them.
+    caches: [EdgeCache; 5],
+}
+
 struct SlabOutput {
     positions: Vec<Vec3>,
     triangles: Vec<[u32; 3]>,
@@ -341,31 +349,54 @@ impl Extractor<'_> {
         }
     }
 
-    /// Marching cubes over the cell rows `r0..r1` (column rows `r0..=r1`).
-    fn slab(&self, r0: usize, r1: usize) -> SlabOutput {
+    /// Buffers for [`Extractor::slab`], allocated once per worker thread (they are megabytes: allocating them per
+    /// slab cost more in page faults than the marching itself).
+    fn scratch(&self) -> SlabScratch {
         let Grid { w, d, .. } = self.grid;
-        let words = self.words;
-        let spans = self.spans;
         let new_row = || RowData {
             values: vec![0.0; w * d],
-            bits: vec![0; w * words],
+            bits: vec![0; w * self.words],
             has_inside: vec![false; w],
-            spans: vec![SPAN_OUTSIDE; w * spans],
+            spans: vec![SPAN_OUTSIDE; w * self.spans],
         };
-        let (mut top, mut bottom) = (new_row(), new_row());
         let len = w * d;
+        SlabScratch {
+            top: new_row(),
+            bottom: new_row(),
+            caches: [
+                EdgeCache::new(len),
+                EdgeCache::new(len),
+                EdgeCache::new(len),
+                EdgeCache::new(len),
+                EdgeCache::new(len),
+            ],
+        }
+    }
+
+    /// Marching cubes over the cell rows `r0..r1` (column rows `r0..=r1`). `scratch` may come from an earlier
+    /// slab: rows are fully rewritten for every needed column ([`Extractor::decode_row`]) and stale span states of
+    /// other columns are never read (no active cell has a corner there), edge caches are cleared here.
+    fn slab(&self, scratch: &mut SlabScratch, r0: usize, r1: usize) -> SlabOutput {
+        let Grid { w, d, .. } = self.grid;
+        let words = self.words;
+        let SlabScratch { top, bottom, caches } = scratch;
+        for cache in caches.iter_mut() {
+            cache.clear();
+        }
+        // The bindings are references that get swapped from row to row.
+        let (mut top, mut bottom) = (top, bottom);
         // x and z edge caches of the top and bottom column rows, y edges between them.
-        let (mut x_top, mut z_top, mut x_bot, mut z_bot, mut y_mid) =
-            (EdgeCache::new(len), EdgeCache::new(len), EdgeCache::new(len), EdgeCache::new(len), EdgeCache::new(len));
+        let [x_top, z_top, x_bot, z_bot, y_mid] = caches;
+        let (mut x_top, mut z_top, mut x_bot, mut z_bot, mut y_mid) = (x_top, z_top, x_bot, z_bot, y_mid);
         let table = case_table();
         let edges = cube_edges();
         let mut out =
             SlabOutput { positions: Vec::new(), triangles: Vec::new(), first_row: Vec::new(), last_row: Vec::new() };
         let valid_last = d - 1; // cells d in 0..d-1
-        self.decode_row(r0, &mut top);
+        self.decode_row(r0, top);
         let mut active = vec![0u64; words];
         for r in r0..r1 {
-            self.decode_row(r + 1, &mut bottom);
+            self.decode_row(r + 1, bottom);
             for c in 0..w - 1 {
                 let cols = [c, c + 1];
                 if !(top.has_inside[c] || top.has_inside[c + 1] || bottom.has_inside[c] || bottom.has_inside[c + 1]) {
@@ -375,8 +406,7 @@ impl Extractor<'_> {
                 let b = |row: &RowData, col: usize, i: usize| row.bits[col * words + i];
                 for (i, a) in active.iter_mut().enumerate() {
                     let get = |i: usize| {
-                        let v =
-                            [b(&top, cols[0], i), b(&top, cols[1], i), b(&bottom, cols[0], i), b(&bottom, cols[1], i)];
+                        let v = [b(top, cols[0], i), b(top, cols[1], i), b(bottom, cols[0], i), b(bottom, cols[1], i)];
                         (v[0] | v[1] | v[2] | v[3], v[0] & v[1] & v[2] & v[3])
                     };
                     let (or0, and0) = get(i);
@@ -394,8 +424,8 @@ impl Extractor<'_> {
                             break;
                         }
                         for col in cols {
-                            self.ensure_decoded(&mut top, r, col, dd);
-                            self.ensure_decoded(&mut bottom, r + 1, col, dd);
+                            self.ensure_decoded(top, r, col, dd);
+                            self.ensure_decoded(bottom, r + 1, col, dd);
                         }
                         let value = |n: usize| {
                             let [ci, cj, ck] = corner(n);
@@ -510,7 +540,8 @@ pub fn extract_mesh(fof: &Fof, depth_samples: usize) -> TriMesh {
         .map(|r0| (r0, (r0 + SLAB_ROWS).min(h - 1)))
         .filter(|&(r0, r1)| ex.needed[r0 * w..(r1 + 1) * w].iter().any(|&b| b))
         .collect();
-    let outputs: Vec<SlabOutput> = slabs.par_iter().map(|&(r0, r1)| ex.slab(r0, r1)).collect();
+    let outputs: Vec<SlabOutput> =
+        slabs.par_iter().map_init(|| ex.scratch(), |scratch, &(r0, r1)| ex.slab(scratch, r0, r1)).collect();
     merge_slabs(&slabs, outputs)
 }
 

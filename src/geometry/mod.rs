@@ -9,5 +9,5 @@ pub mod mesh;
 pub mod raster;
 pub mod zmap;
 
-pub use camera::{Camera, Fov, Projection, Ray, SOURCE_RESOLUTION};
+pub use camera::{Camera, Fov, Projection, Ray, RayGrid, SOURCE_RESOLUTION};
 pub use mesh::TriMesh;

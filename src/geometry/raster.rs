@@ -588,7 +588,14 @@ struct BandTarget<'a> {
 
 #[inline]
 fn snap(x: f32) -> i64 {
-    (x * SUBPIXEL).round() as i64
+    // `(x * SUBPIXEL).round() as i64` without baseline x86-64's libm call: in f64 the scaled value plus one half
+    // is exact, and truncation then rounds half away from zero like `f32::round` (NaN -> 0, infinities saturate).
+    let y = (x * SUBPIXEL) as f64;
+    if y >= 0.0 {
+        (y + 0.5) as i64
+    } else {
+        -((0.5 - y) as i64)
+    }
 }
 
 /// Smallest integer `k` with `k * 256 + 128 >= x` (first pixel whose centre is at or right of `x`).
@@ -698,6 +705,18 @@ fn raster_triangle(t: &mut BandTarget, v: &[ScreenVertex; 3], entry: u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn snap_rounds_like_f32_round() {
+        let mut x = -3000.0f32;
+        while x < 3000.0 {
+            for v in [x, x + 0.5 / SUBPIXEL, x - 0.5 / SUBPIXEL, -x] {
+                assert_eq!(snap(v), (v * SUBPIXEL).round() as i64, "{v}");
+            }
+            x += 0.37;
+        }
+        assert_eq!(snap(f32::NAN), 0);
+    }
     use crate::geometry::Fov;
     use glam::Quat;
 

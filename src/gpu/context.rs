@@ -205,7 +205,11 @@ impl Context {
         if validation {
             info = info.push_next(&mut messenger_info);
         }
-        let instance = unsafe { entry.create_instance(&info, None) }.map_err(GpuError::vk("create the instance"))?;
+        let instance = unsafe { entry.create_instance(&info, None) }.map_err(|e| match e {
+            // The loader found no driver (ICD) at all.
+            vk::Result::ERROR_INCOMPATIBLE_DRIVER => GpuError::NoDevice("no Vulkan driver (ICD) is installed".into()),
+            e => GpuError::vk("create the instance")(e),
+        })?;
         // From here on, failures must destroy what was created: build a partial context step by step.
         let debug = if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);

@@ -11,12 +11,15 @@
 //! validation layer; its errors and warnings are counted in [`Context::validation`].
 
 pub mod context;
+pub mod offline;
+pub mod overlay;
 pub mod renderer;
 pub mod resources;
 pub mod shaders;
 
 pub use context::{Context, ContextOptions, ValidationLog, VALIDATION_ENV};
-pub use renderer::{PresentTarget, Renderer};
+pub use overlay::OverlayMask;
+pub use renderer::{PresentTarget, Renderer, RendererCounters};
 
 use ash::vk;
 

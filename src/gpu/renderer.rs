@@ -12,10 +12,12 @@
 //! - person layers: premultiplied `vec4` RGBA; output: `vec4` (VR: RGB and 1, AR: premultiplied RGBA).
 
 use std::sync::Arc;
+use std::time::Duration;
 
 use ash::vk;
 use glam::{Mat4, Vec2, Vec3, Vec4};
 
+use super::overlay::OverlayMask;
 use super::resources::{shader_module, subresource, Buffer, Image2d};
 use super::{shaders, Context, GpuError};
 use crate::buffer::{Image, RgbImage, RgbaImage};
@@ -49,7 +51,8 @@ mod binding {
     pub const ENCODED: u32 = 13;
     pub const CURRENT: u32 = 14;
     pub const PYRAMID: u32 = 15;
-    pub const COUNT: u32 = 16;
+    pub const OVERLAY: u32 = 16;
+    pub const COUNT: u32 = 17;
 }
 
 /// One camera as the shaders see it (std140 layout, see `shaders/common.glsl`).
@@ -196,6 +199,69 @@ pub struct PresentTarget {
     pub bgra: bool,
 }
 
+/// Timestamp queries per submission (one before the first step, one after each step).
+const TIMESTAMPS: u32 = 10;
+
+/// GPU timestamps around each recorded step (when the queue supports timestamps).
+struct StageTimer {
+    pool: vk::QueryPool,
+    period_ns: f32,
+    mask: u64,
+    steps: [(&'static str, Duration); TIMESTAMPS as usize],
+    count: usize,
+}
+
+impl StageTimer {
+    fn new(ctx: &Context) -> Result<Option<Self>, GpuError> {
+        let instance = ctx.instance();
+        let pd = ctx.physical_device();
+        let period_ns = unsafe { instance.get_physical_device_properties(pd) }.limits.timestamp_period;
+        let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+        let bits = families.get(ctx.queue_family() as usize).map_or(0, |f| f.timestamp_valid_bits);
+        if bits == 0 || period_ns.is_nan() || period_ns <= 0.0 {
+            return Ok(None);
+        }
+        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(TIMESTAMPS);
+        let pool =
+            unsafe { ctx.device().create_query_pool(&info, None) }.map_err(GpuError::vk("create a query pool"))?;
+        let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
+        Ok(Some(Self { pool, period_ns, mask, steps: [("", Duration::ZERO); TIMESTAMPS as usize], count: 0 }))
+    }
+}
+
+fn step_name(step: Step) -> &'static str {
+    match step {
+        Step::Raster => "raster",
+        Step::Compute(Pass::Flow) => "flow + Z-map",
+        Step::Compute(Pass::Warp) => "warp",
+        Step::HoleFill => "hole fill",
+        Step::Compute(Pass::Fusion) => "fusion",
+        Step::SavePrevious => "keep previous",
+        Step::CopyPreviousToPerson => "reuse previous",
+        Step::Compute(Pass::Panorama) => "compose VR",
+        Step::Compute(Pass::Ar) => "compose AR",
+        Step::Compute(Pass::Features) => "feature warp",
+        Step::Compute(Pass::Encode) => "encode",
+        Step::Compute(Pass::Pull | Pass::Push | Pass::Resolve) => "hole fill",
+    }
+}
+
+/// What a renderer has created and uploaded since it was made: the evidence that frames allocate nothing,
+/// create no pipeline and upload no mesh (compare two snapshots around a run of frames).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RendererCounters {
+    /// Buffers and images created (at creation, and when an input outgrows its buffer).
+    pub resources_created: u64,
+    /// Pipelines created (all at creation).
+    pub pipelines_created: u64,
+    /// Mesh uploads ([`Renderer::set_mesh`]).
+    pub mesh_uploads: u64,
+    /// Source-view uploads ([`Renderer::set_source`]).
+    pub source_uploads: u64,
+    /// Frames rendered ([`Renderer::render_frame`], [`Renderer::render_person`]).
+    pub frames: u64,
+}
+
 /// The Vulkan per-view renderer for one output size. See the module docs.
 pub struct Renderer {
     ctx: Arc<Context>,
@@ -232,6 +298,8 @@ pub struct Renderer {
     encoded: Buffer,
     current: Buffer,
     pyramid: Buffer,
+    /// Text overlay coverage (one byte per pixel of the overlay rectangle), blended by the encode pass.
+    overlay: Buffer,
     levels: Vec<(u32, u32, u32)>,
     // Inputs.
     mesh: Option<GpuMesh>,
@@ -252,6 +320,9 @@ pub struct Renderer {
     command_pool: vk::CommandPool,
     command_buffer: vk::CommandBuffer,
     fence: vk::Fence,
+    // Instrumentation.
+    timer: Option<StageTimer>,
+    counters: RendererCounters,
 }
 
 impl std::fmt::Debug for Renderer {
@@ -415,6 +486,7 @@ impl Renderer {
             encoded: storage(&ctx, px * 4)?,
             current: storage(&ctx, v4)?,
             pyramid: storage(&ctx, u64::from(pyramid_texels) * 16)?,
+            overlay: storage(&ctx, px.div_ceil(4) * 4)?,
             levels,
             mesh: None,
             env_size: (0, 0),
@@ -430,8 +502,15 @@ impl Renderer {
             command_pool,
             command_buffer,
             fence,
+            timer: None,
+            counters: RendererCounters {
+                resources_created: 20,
+                pipelines_created: PASS_SHADERS.len() as u64 + 1,
+                ..Default::default()
+            },
             ctx,
         };
+        renderer.timer = StageTimer::new(&renderer.ctx)?;
         renderer.write_all_descriptors();
         Ok(renderer)
     }
@@ -444,6 +523,52 @@ impl Renderer {
     /// The device this renderer runs on.
     pub fn context(&self) -> &Arc<Context> {
         &self.ctx
+    }
+
+    /// What was created and uploaded so far (see [`RendererCounters`]).
+    pub fn counters(&self) -> RendererCounters {
+        self.counters
+    }
+
+    /// GPU time of each step of the last submission, in order (e.g. `raster`, `flow + Z-map`, `warp`,
+    /// `hole fill`, `fusion`, `keep previous`, `compose VR`), measured with timestamp queries. Empty when the
+    /// device has no timestamps.
+    pub fn stage_times(&self) -> &[(&'static str, Duration)] {
+        self.timer.as_ref().map_or(&[], |t| &t.steps[..t.count])
+    }
+
+    /// Sets the text overlay blended into presented images (`None` removes it). Upload only when the text
+    /// changes: the mask is copied into a buffer made at creation (no allocation). The overlay is cut to the
+    /// renderer's size and never appears in [`Renderer::read_output`].
+    pub fn set_overlay(&mut self, mask: Option<&OverlayMask>) {
+        let Some(m) = mask.filter(|m| !m.is_empty()) else {
+            self.uniforms.output_format[2] = 0;
+            self.uniforms.output_format[3] = 0;
+            return;
+        };
+        let (w, h) = (m.width.min(self.width as usize), m.height.min(self.height as usize));
+        if w == m.width {
+            self.overlay.write(&m.data[..w * h]);
+        } else {
+            let mut packed = Vec::with_capacity(w * h);
+            for row in m.data.chunks(m.width).take(h) {
+                packed.extend_from_slice(&row[..w]);
+            }
+            self.overlay.write(&packed);
+        }
+        self.uniforms.output_format[2] = w as u32;
+        self.uniforms.output_format[3] = h as u32;
+    }
+
+    /// The 8-bit sRGB image of the last presented frame, overlay included (what the window shows), as RGB.
+    pub fn read_presented(&self) -> image::RgbImage {
+        let mut words = vec![0u32; (self.width * self.height) as usize];
+        self.encoded.read(&mut words);
+        let bgra = self.uniforms.output_format[0] != 0;
+        image::RgbImage::from_fn(self.width, self.height, |x, y| {
+            let [a, b, c, _] = words[(y * self.width + x) as usize].to_le_bytes();
+            image::Rgb(if bgra { [c, b, a] } else { [a, b, c] })
+        })
     }
 
     /// The output buffer (`vec4` per pixel, row-major, linear; VR: RGB and 1, AR: premultiplied RGBA) of the last
@@ -471,6 +596,7 @@ impl Renderer {
             (binding::ENCODED, &self.encoded),
             (binding::CURRENT, &self.current),
             (binding::PYRAMID, &self.pyramid),
+            (binding::OVERLAY, &self.overlay),
         ];
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
@@ -527,6 +653,7 @@ impl Renderer {
                 bounds: (Vec3::ZERO, Vec3::ZERO),
                 has_colors: false,
             });
+            self.counters.resources_created += 4;
         }
         let m = self.mesh.as_mut().expect("the mesh buffers were just ensured");
         m.positions.write(&positions);
@@ -536,6 +663,7 @@ impl Renderer {
         m.index_count = indices.len() as u32;
         m.bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ZERO));
         m.has_colors = has_colors;
+        self.counters.mesh_uploads += 1;
         self.dirty = true;
         self.previous = None;
         Ok(())
@@ -550,6 +678,7 @@ impl Renderer {
         let bytes = (img.width * img.height * 8) as u64;
         if self.env.size < bytes {
             self.env = storage(&self.ctx, bytes)?;
+            self.counters.resources_created += 1;
             self.write_all_descriptors();
         }
         let packed: Vec<[u32; 2]> = img
@@ -580,11 +709,13 @@ impl Renderer {
         if self.source_color.size < bytes || self.source_geometry.size < bytes {
             self.source_color = storage(&self.ctx, bytes)?;
             self.source_geometry = storage(&self.ctx, bytes)?;
+            self.counters.resources_created += 2;
             self.write_all_descriptors();
         }
         self.source_color.write(&color.data);
         self.source_geometry.write(&pack_geometry(gbuffer));
         self.source_size = (w as u32, h as u32);
+        self.counters.source_uploads += 1;
         self.uniforms.source = gpu_camera(camera, None);
         self.uniforms.sizes[2] = w as u32;
         self.uniforms.sizes[3] = h as u32;
@@ -644,6 +775,7 @@ impl Renderer {
         if self.source_features.size < (n * 4) as u64 || self.warped_features.size < out_bytes {
             self.source_features = storage(&self.ctx, (n * 4) as u64)?;
             self.warped_features = storage(&self.ctx, out_bytes)?;
+            self.counters.resources_created += 2;
             self.write_all_descriptors();
         }
         self.source_features.write(features);
@@ -753,29 +885,42 @@ impl Renderer {
         self.uniforms.output_format[1] = u32::from(mode == Some(Mode::Ar));
         self.set_previous_uniform();
         let unchanged = !self.dirty && self.previous == Some(*camera);
-        let mut steps: Vec<Step> = Vec::with_capacity(8);
+        // A fixed-size step list: a frame allocates nothing on the host either.
+        let mut steps = [Step::Raster; 7];
+        let mut n = 0;
         if unchanged {
             // Same view, same inputs: the person layer of the last frame stands (fusion would return it too).
-            steps.push(Step::CopyPreviousToPerson);
+            steps[0] = Step::CopyPreviousToPerson;
+            n = 1;
         } else {
             let fuse = self.fusion && self.previous.is_some();
             self.uniforms.flags[0] = u32::from(fuse);
             self.uniforms.params[1] = if fuse { previous_weight(camera.angle_from_source()) } else { 0.0 };
-            steps.extend([
+            for step in [
                 Step::Raster,
                 Step::Compute(Pass::Flow),
                 Step::Compute(Pass::Warp),
                 Step::HoleFill,
                 Step::Compute(Pass::Fusion),
                 Step::SavePrevious,
-            ]);
+            ] {
+                steps[n] = step;
+                n += 1;
+            }
         }
         match mode {
-            Some(Mode::Vr) => steps.push(Step::Compute(Pass::Panorama)),
-            Some(Mode::Ar) => steps.push(Step::Compute(Pass::Ar)),
+            Some(Mode::Vr) => {
+                steps[n] = Step::Compute(Pass::Panorama);
+                n += 1;
+            }
+            Some(Mode::Ar) => {
+                steps[n] = Step::Compute(Pass::Ar);
+                n += 1;
+            }
             None => {}
         }
-        self.run(&steps, present)?;
+        self.run(&steps[..n], present)?;
+        self.counters.frames += 1;
         self.previous = Some(*camera);
         self.dirty = false;
         Ok(())
@@ -958,6 +1103,10 @@ impl Renderer {
                     &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
                 )
                 .map_err(GpuError::vk("begin the command buffer"))?;
+            if let Some(t) = &self.timer {
+                device.cmd_reset_query_pool(cb, t.pool, 0, TIMESTAMPS);
+                device.cmd_write_timestamp(cb, vk::PipelineStageFlags::TOP_OF_PIPE, t.pool, 0);
+            }
             device.cmd_bind_descriptor_sets(
                 cb,
                 vk::PipelineBindPoint::COMPUTE,
@@ -990,6 +1139,9 @@ impl Renderer {
                         device.cmd_copy_buffer(cb, self.geometry.buffer, self.prev_geometry.buffer, &region);
                     }
                 }
+                if let Some(t) = self.timer.as_ref().filter(|_| i + 1 < TIMESTAMPS as usize) {
+                    device.cmd_write_timestamp(cb, vk::PipelineStageFlags::BOTTOM_OF_PIPE, t.pool, i as u32 + 1);
+                }
             }
             if let Some(p) = present {
                 if !steps.is_empty() {
@@ -1001,14 +1153,15 @@ impl Renderer {
             }
             device.end_command_buffer(cb).map_err(GpuError::vk("end the command buffer"))?;
             let cbs = [cb];
-            let waits: Vec<vk::Semaphore> = present.iter().map(|p| p.wait).collect();
-            let signals: Vec<vk::Semaphore> = present.iter().map(|p| p.signal).collect();
-            let stages = vec![vk::PipelineStageFlags::TRANSFER; waits.len()];
+            let waits = present.map(|p| [p.wait]);
+            let signals = present.map(|p| [p.signal]);
+            let stages = [vk::PipelineStageFlags::TRANSFER];
+            let count = usize::from(present.is_some());
             let submit = vk::SubmitInfo::default()
                 .command_buffers(&cbs)
-                .wait_semaphores(&waits)
-                .wait_dst_stage_mask(&stages)
-                .signal_semaphores(&signals);
+                .wait_semaphores(waits.as_ref().map_or(&[], |w| &w[..]))
+                .wait_dst_stage_mask(&stages[..count])
+                .signal_semaphores(signals.as_ref().map_or(&[], |s| &s[..]));
             {
                 let _queue = self.ctx.lock_queue();
                 device.queue_submit(self.ctx.queue(), &[submit], self.fence).map_err(GpuError::vk("submit a frame"))?;
@@ -1016,11 +1169,34 @@ impl Renderer {
             let waited = device.wait_for_fences(&[self.fence], true, 10_000_000_000);
             device.reset_fences(&[self.fence]).map_err(GpuError::vk("reset the frame fence"))?;
             match waited {
-                Ok(()) => Ok(()),
-                Err(vk::Result::TIMEOUT) => Err(GpuError::DeviceLost),
-                Err(e) => Err(GpuError::vk("wait for a frame")(e)),
+                Ok(()) => {}
+                Err(vk::Result::TIMEOUT) => return Err(GpuError::DeviceLost),
+                Err(e) => return Err(GpuError::vk("wait for a frame")(e)),
             }
         }
+        self.read_timestamps(steps);
+        Ok(())
+    }
+
+    /// Reads this submission's timestamps into the per-step durations (no allocation: fixed arrays).
+    fn read_timestamps(&mut self, steps: &[Step]) {
+        let Some(t) = self.timer.as_mut() else { return };
+        let n = (steps.len() + 1).min(TIMESTAMPS as usize);
+        let mut ticks = [0u64; TIMESTAMPS as usize];
+        // SAFETY: the fence was waited for, so every written query is available; only written ones are read.
+        let ok = unsafe {
+            self.ctx.device().get_query_pool_results(t.pool, 0, &mut ticks[..n], vk::QueryResultFlags::TYPE_64)
+        };
+        t.count = 0;
+        if ok.is_err() {
+            return;
+        }
+        for i in 1..n {
+            let dt = ticks[i].wrapping_sub(ticks[i - 1]) & t.mask;
+            let ns = (dt as f64 * f64::from(t.period_ns)).max(0.0);
+            t.steps[i - 1] = (step_name(steps[i - 1]), Duration::from_nanos(ns as u64));
+        }
+        t.count = n - 1;
     }
 
     /// A full memory barrier between passes (compute/transfer/attachment writes before any later read/write).
@@ -1282,6 +1458,9 @@ impl Drop for Renderer {
             }
             device.destroy_fence(self.fence, None);
             device.destroy_command_pool(self.command_pool, None);
+            if let Some(t) = self.timer.take() {
+                device.destroy_query_pool(t.pool, None);
+            }
             for &p in &self.pipelines {
                 device.destroy_pipeline(p, None);
             }

@@ -3,6 +3,7 @@
 //! source resolution and premultiplied by the mask (`img * mask`, as the reference feeds its networks).
 
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 
 use crate::buffer::{sample_bilinear, GrayImage, Image, RgbImage};
 
@@ -120,7 +121,8 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
     let taps = ((1.0 / scale).ceil() as usize).clamp(1, 8);
     let mut out_rgb = Image::new(resolution, resolution, Vec3::ZERO);
     let mut out_mask = Image::new(resolution, resolution, 0.0f32);
-    for row in 0..resolution {
+    let rows = out_rgb.data.par_chunks_mut(resolution).zip(out_mask.data.par_chunks_mut(resolution));
+    rows.enumerate().for_each(|(row, (rgb_row, mask_row))| {
         for col in 0..resolution {
             let mut acc_rgb = Vec3::ZERO;
             let mut acc_m = 0.0;
@@ -136,10 +138,10 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
                 }
             }
             let n = (taps * taps) as f32;
-            out_rgb.set(col, row, acc_rgb / n);
-            out_mask.set(col, row, (acc_m / n).clamp(0.0, 1.0));
+            rgb_row[col] = acc_rgb / n;
+            mask_row[col] = (acc_m / n).clamp(0.0, 1.0);
         }
-    }
+    });
     Ok(NormalisedInput { rgb: out_rgb, mask: out_mask, transform })
 }
 

@@ -37,7 +37,7 @@
 use glam::{Vec2, Vec3, Vec4};
 use rayon::prelude::*;
 
-use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
+use crate::buffer::{floor_fast, GrayImage, Image, RgbImage, RgbaImage};
 use crate::geometry::raster::GBuffer;
 use crate::geometry::zmap::{flow_and_zmap, visibility, FlowZ, VISIBILITY_LAMBDA};
 use crate::geometry::Camera;
@@ -150,8 +150,8 @@ fn sample_masked(rgb: &RgbImage, mask: &GrayImage, p: Vec2) -> Option<Vec3> {
     }
     let fx = p.x - 0.5;
     let fy = p.y - 0.5;
-    let x0 = fx.floor();
-    let y0 = fy.floor();
+    let x0 = floor_fast(fx);
+    let y0 = floor_fast(fy);
     let (tx, ty) = (fx - x0, fy - y0);
     let (c0, r0) = (x0 as i64, y0 as i64);
     let (w, h) = (rgb.width as i64, rgb.height as i64);
@@ -252,7 +252,8 @@ fn push_pull(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usi
 fn bilinear4(img: &[Vec4], w: usize, h: usize, x: f32, y: f32) -> Vec4 {
     let fx = (x - 0.5).clamp(0.0, (w - 1) as f32);
     let fy = (y - 0.5).clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+    // Clamped to be non-negative, so truncation is the floor.
+    let (x0, y0) = (fx as usize, fy as usize);
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
     let top = img[y0 * w + x0] * (1.0 - tx) + img[y0 * w + x1] * tx;
@@ -303,7 +304,7 @@ pub fn warp_features(
             if !(x.is_finite() && y.is_finite()) || x <= -1.0 || y <= -1.0 || x >= fw as f32 || y >= fh as f32 {
                 continue;
             }
-            let (x0, y0) = (x.floor(), y.floor());
+            let (x0, y0) = (floor_fast(x), floor_fast(y));
             let (tx, ty) = (x - x0, y - y0);
             let (xi, yi) = (x0 as i64, y0 as i64);
             let mut taps = [(0usize, 0.0f32); 4];

@@ -1,0 +1,67 @@
+//! Offline rendering on the GPU (`r2human render --backend vulkan`): one headless device, one [`Renderer`], the
+//! input uploaded once, then one frame per camera read back from host-visible memory. Same contract as
+//! `pipeline::ViewRenderer::render_frame` (VR: the person over the panorama; AR: premultiplied RGBA).
+
+use std::sync::Arc;
+
+use super::{Context, GpuError, Renderer};
+use crate::compose::Mode;
+use crate::geometry::Camera;
+use crate::io::environment::Environment;
+use crate::io::sequence::Frame;
+use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::PreparedInput;
+
+/// Uploads a prepared input into `renderer`: mesh, source view (colour, mask, G-buffer, camera), panorama
+/// (VR only; AR needs none), fill and fusion. Call once per input (and again on a new renderer).
+pub fn upload_input(
+    renderer: &mut Renderer,
+    input: &PreparedInput,
+    env: Option<&Environment>,
+    fill: OcclusionFill,
+    fusion: bool,
+) -> Result<(), GpuError> {
+    renderer.set_mesh(&input.mesh)?;
+    renderer.set_source_parts(
+        &input.normalised.rgb,
+        &input.normalised.mask,
+        &input.source_gbuffer,
+        &input.source_camera,
+    )?;
+    if let Some(env) = env {
+        renderer.set_environment(env)?;
+    }
+    renderer.set_fill(fill);
+    renderer.set_fusion(fusion);
+    Ok(())
+}
+
+/// Renders one frame per camera on a new headless Vulkan device. All cameras must have one size. With `fusion`,
+/// consecutive views are fused (paper Eq. 8) as in an orbit; without, each view stands alone.
+pub fn render_views(
+    input: &PreparedInput,
+    env: &Environment,
+    cameras: &[Camera],
+    mode: Mode,
+    fill: OcclusionFill,
+    fusion: bool,
+) -> Result<Vec<Frame>, GpuError> {
+    let Some(first) = cameras.first() else { return Ok(Vec::new()) };
+    let (w, h) = (first.width, first.height);
+    if let Some(c) = cameras.iter().find(|c| (c.width, c.height) != (w, h)) {
+        return Err(GpuError::Invalid(format!(
+            "views of {}x{} and {w}x{h} cannot share a renderer",
+            c.width, c.height
+        )));
+    }
+    let ctx = Arc::new(Context::headless()?);
+    tracing::info!("rendering {} view(s) on {}", cameras.len(), ctx.device_name());
+    let mut renderer = Renderer::new(ctx, w, h)?;
+    upload_input(&mut renderer, input, (mode == Mode::Vr).then_some(env), fill, fusion)?;
+    let mut frames = Vec::with_capacity(cameras.len());
+    for cam in cameras {
+        renderer.render_frame(cam, mode, None)?;
+        frames.push(renderer.read_output(mode));
+    }
+    Ok(frames)
+}
