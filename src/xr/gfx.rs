@@ -473,6 +473,20 @@ impl EyeSwapchain {
     }
 }
 
+/// Records one image barrier between two pipeline stages.
+///
+/// # Safety
+/// `cmd` is in the recording state and `barrier` names a valid image of `device`.
+unsafe fn image_barrier(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    (src, dst): (vk::PipelineStageFlags, vk::PipelineStageFlags),
+    barrier: vk::ImageMemoryBarrier<'_>,
+) {
+    // SAFETY: as the caller guarantees.
+    unsafe { device.cmd_pipeline_barrier(cmd, src, dst, vk::DependencyFlags::empty(), &[], &[], &[barrier]) };
+}
+
 /// Fills the eye swapchains from the renderer's result buffers with one GPU submission per frame: buffer -> float
 /// image copy, blit into the acquired swapchain image (format conversion), optional readback. Runs on the display
 /// thread; it waits only for its own previous submission, which has long finished by the time a new frame exists.
@@ -602,20 +616,17 @@ impl EyeUploader {
                     vk::ImageLayout::TRANSFER_DST_OPTIMAL,
                     &[copy],
                 );
-                device.cmd_pipeline_barrier(
+                image_barrier(
+                    device,
                     self.cmd,
-                    vk::PipelineStageFlags::TRANSFER,
-                    vk::PipelineStageFlags::TRANSFER,
-                    vk::DependencyFlags::empty(),
-                    &[],
-                    &[],
-                    &[barrier(
+                    (vk::PipelineStageFlags::TRANSFER, vk::PipelineStageFlags::TRANSFER),
+                    barrier(
                         linear,
                         vk::ImageLayout::TRANSFER_DST_OPTIMAL,
                         vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
                         vk::AccessFlags::TRANSFER_WRITE,
                         vk::AccessFlags::TRANSFER_READ,
-                    )],
+                    ),
                 );
                 let corner = vk::Offset3D { x: eye.width as i32, y: eye.height as i32, z: 1 };
                 let blit = vk::ImageBlit {
@@ -635,20 +646,17 @@ impl EyeUploader {
                 );
                 let mut last_layout = vk::ImageLayout::TRANSFER_DST_OPTIMAL;
                 if let (true, Some(rb)) = (capture, &eye.readback) {
-                    device.cmd_pipeline_barrier(
+                    image_barrier(
+                        device,
                         self.cmd,
-                        vk::PipelineStageFlags::TRANSFER,
-                        vk::PipelineStageFlags::TRANSFER,
-                        vk::DependencyFlags::empty(),
-                        &[],
-                        &[],
-                        &[barrier(
+                        (vk::PipelineStageFlags::TRANSFER, vk::PipelineStageFlags::TRANSFER),
+                        barrier(
                             target,
                             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
                             vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
                             vk::AccessFlags::TRANSFER_WRITE,
                             vk::AccessFlags::TRANSFER_READ,
-                        )],
+                        ),
                     );
                     device.cmd_copy_image_to_buffer(
                         self.cmd,
@@ -677,20 +685,17 @@ impl EyeUploader {
                     last_layout = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
                 }
                 // XR_KHR_vulkan_enable: a released colour image must be in COLOR_ATTACHMENT_OPTIMAL.
-                device.cmd_pipeline_barrier(
+                image_barrier(
+                    device,
                     self.cmd,
-                    vk::PipelineStageFlags::TRANSFER,
-                    vk::PipelineStageFlags::ALL_COMMANDS,
-                    vk::DependencyFlags::empty(),
-                    &[],
-                    &[],
-                    &[barrier(
+                    (vk::PipelineStageFlags::TRANSFER, vk::PipelineStageFlags::ALL_COMMANDS),
+                    barrier(
                         target,
                         last_layout,
                         vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
                         vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::TRANSFER_READ,
                         vk::AccessFlags::COLOR_ATTACHMENT_READ | vk::AccessFlags::SHADER_READ,
-                    )],
+                    ),
                 );
             }
             device.end_command_buffer(self.cmd).vk("vkEndCommandBuffer")?;
