@@ -67,7 +67,7 @@ pub struct ViewOptions {
     /// Which renderer draws the person: geometric (the photo warped through the geometry), neural (encoder +
     /// residual decoder through ONNX Runtime; an error without models) or auto (neural when its models load, else
     /// geometric with one warning).
-    #[arg(long, value_enum, default_value_t = RendererChoice::Geometric)]
+    #[arg(long, value_enum, default_value_t = RendererChoice::Auto)]
     pub renderer: RendererChoice,
     /// Execution provider of the neural renderer: auto tries TensorRT, then CUDA, then the CPU.
     #[arg(long, value_enum, default_value_t = ExecutionProvider::Auto)]
@@ -222,7 +222,7 @@ fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
     use crate::app::live::{render_video_views, LiveOptions};
     match args.view.renderer {
         RendererChoice::Geometric => {}
-        RendererChoice::Auto => eprintln!("warning: --video renders with the geometric renderer (--renderer auto)"),
+        RendererChoice::Auto => tracing::info!("--video renders with the geometric renderer (no neural live path yet)"),
         RendererChoice::Neural => {
             bail!("--renderer neural does not support --video yet: use --image, or --renderer geometric")
         }

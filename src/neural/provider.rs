@@ -181,6 +181,11 @@ pub(crate) fn create_session(
                 tracing::info!("{what} `{}` runs on {provider}", path.display());
                 return Ok((session, provider));
             }
+            // With `--ep auto` a missing GPU provider is the expected case on CPU machines: say so at info level;
+            // a provider the user asked for by name that cannot register is a warning.
+            Err(Attempt::Provider(reason)) if options.ep == ExecutionProvider::Auto => {
+                tracing::info!("{provider} execution provider is not available for {what} ({reason}); trying {next}");
+            }
             Err(Attempt::Provider(reason)) => {
                 tracing::warn!(
                     "{provider} execution provider could not be registered for {what} ({reason}); falling back to \
