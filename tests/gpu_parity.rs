@@ -553,7 +553,8 @@ fn cli_render_backend_vulkan_matches_cpu_and_falls_back_without_a_device() {
     let dir = tempfile::tempdir().unwrap();
     let img = dir.path().join("person.png");
     common::write_figure(&img, 120, 160);
-    let common_args = ["--size", "96", "--yaw", "40", "--pitch", "10"];
+    // Geometric on both sides: the Vulkan backend has no neural path (the CPU default would pick the neural one).
+    let common_args = ["--size", "96", "--yaw", "40", "--pitch", "10", "--renderer", "geometric"];
     let cpu = dir.path().join("cpu.png");
     let gpu = dir.path().join("gpu.png");
     run_render(&[&common_args[..], &["--backend", "cpu"]].concat(), &img, &cpu, &[]);
@@ -575,7 +576,7 @@ fn cli_render_backend_vulkan_matches_cpu_and_falls_back_without_a_device() {
     // An AR orbit (spatial fusion across the views) on both backends.
     let cpu_dir = dir.path().join("cpu_orbit");
     let gpu_dir = dir.path().join("gpu_orbit");
-    let orbit = ["--size", "64", "--mode", "ar", "--orbit", "3", "--yaw", "20"];
+    let orbit = ["--size", "64", "--mode", "ar", "--orbit", "3", "--yaw", "20", "--renderer", "geometric"];
     run_render(&[&orbit[..], &["--backend", "cpu"]].concat(), &img, &cpu_dir, &[]);
     run_render(&[&orbit[..], &["--backend", "vulkan"]].concat(), &img, &gpu_dir, &[]);
     for i in 0..3 {

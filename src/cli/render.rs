@@ -182,7 +182,18 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     let image = args.image.as_deref().context("--image or --video is required")?;
     let (photo, mask) = image_io::load_person(image, args.mask.as_deref())?;
     let env = load_environment(&args.view)?;
-    let neural = neural_for(&args.view)?;
+    // The Vulkan backend has no neural decoder path yet: it renders geometrically.
+    let neural = match (args.backend, args.view.renderer) {
+        (Backend::Vulkan, RendererChoice::Neural) => bail!(
+            "--backend vulkan has no neural decoder yet: use --backend cpu with --renderer neural, or \
+             --renderer geometric with the Vulkan backend"
+        ),
+        (Backend::Vulkan, RendererChoice::Auto) => {
+            tracing::info!("--backend vulkan renders with the geometric renderer (no neural path on the GPU yet)");
+            None
+        }
+        _ => neural_for(&args.view)?,
+    };
     let prepared = prepare(&photo, &mask, &args.view)?;
     let (n, fill) = (args.orbit.unwrap_or(1), args.view.fill.into());
     let cams = orbit_cameras(n, args.yaw, args.view.pitch, args.view.size);
