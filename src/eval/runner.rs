@@ -174,9 +174,10 @@ fn billboard(rgb: &RgbImage, mask: &GrayImage, cam: &Camera) -> Prediction {
     let mut rgba = RgbaImage::new(w, h, Vec4::ZERO);
     let mut m = vec![false; w * h];
     let mut depth = vec![-1.0; w * h];
+    let rays = cam.ray_grid();
     for row in 0..h {
         for col in 0..w {
-            let ray = cam.ray(col as f32 + 0.5, row as f32 + 0.5);
+            let ray = rays.ray(col as f32 + 0.5, row as f32 + 0.5);
             if ray.direction.z.abs() < 1e-6 {
                 continue;
             }
@@ -322,6 +323,15 @@ fn eval_subject(
         }
     }
 
+    // Saved views (`--save-views`): one folder per subject, made once.
+    let views_dir = match opts.save_views {
+        true => {
+            let dir = opts.out.join("views").join(name);
+            std::fs::create_dir_all(&dir).map_err(|e| EvalError::io(&dir, e))?;
+            Some(dir)
+        }
+        false => None,
+    };
     for &yaw in &opts.yaws {
         let cam = Camera::orbit(yaw, 0.0, r, r);
         let angle = cam.angle_from_source().to_degrees();
@@ -333,10 +343,8 @@ fn eval_subject(
             continue;
         };
         let gt = render_ground_truth(mesh, &cam);
-        let views_dir = opts.save_views.then(|| opts.out.join("views").join(name));
         let save = |label: &str, img: &RgbaImage| -> Result<(), EvalError> {
             let Some(dir) = &views_dir else { return Ok(()) };
-            std::fs::create_dir_all(dir).map_err(|e| EvalError::io(dir, e))?;
             let path = dir.join(format!("yaw{:03}_{}.png", yaw.round() as i32, label.replace('+', "_")));
             let over_black = crate::io::image_io::over_background(img, Vec3::ZERO);
             crate::io::image_io::save_rgb_png(&path, &over_black)
