@@ -160,14 +160,29 @@ struct Scratch {
     screen: Vec<ScreenVertex>,
     /// Outcodes (bit per clip plane) per vertex.
     outcode: Vec<u8>,
-    /// Triangles produced by clipping, three screen vertices and their barycentrics in the original triangle.
+    /// Triangles produced by clipping (all chunks, in chunk order): three screen vertices and their barycentrics
+    /// in the original triangle.
     clipped: Vec<ClippedTriangle>,
-    /// Triangle entries per band: `t < n_triangles` is an original triangle, otherwise `clipped[t - n]`.
-    bins: Vec<Vec<u32>>,
+    /// Where each chunk's clipped triangles start in `clipped`.
+    clip_offset: Vec<u32>,
+    /// Binning state per contiguous chunk of triangles (binned in parallel).
+    chunks: Vec<BinChunk>,
     /// Visibility buffer: entry index per pixel.
     tri: Vec<u32>,
     /// Visibility buffer: perspective-correct barycentrics (of vertices 1 and 2) per pixel.
     bary: Vec<[f32; 2]>,
+}
+
+/// The bins of one contiguous chunk of triangles.
+#[derive(Default)]
+struct BinChunk {
+    /// Triangle entries per band: `t < n_triangles` is an original triangle, otherwise this chunk's
+    /// `clipped[t - n]`.
+    bins: Vec<Vec<u32>>,
+    /// This chunk's clipped triangles.
+    clipped: Vec<ClippedTriangle>,
+    /// Clipping scratch.
+    poly: Vec<PolyVertex>,
 }
 
 /// Camera constants for fast projection: `u = ku * X + cu`, `v = kv * Y + cv` with `X = x / w`, `Y = y / w`,
@@ -420,57 +435,58 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             }
         });
 
-    // 2. Binning into row bands (clipping the few triangles that need it).
+    // 2. Binning into row bands, in parallel over contiguous triangle chunks. Bands later walk the chunks in
+    //    order, so every band still sees its triangles in mesh order (ties at equal depth resolve as before).
     let n_bands = h.div_ceil(BAND_ROWS);
-    if s.bins.len() < n_bands {
-        s.bins.resize_with(n_bands, Vec::new);
-    }
-    for bin in &mut s.bins {
-        bin.clear();
-    }
-    s.clipped.clear();
     let n_tris = mesh.triangles.len();
-    let mut poly: Vec<PolyVertex> = Vec::new();
-    let bin_rows = |bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32| {
-        let vmin = vs[0].v.min(vs[1].v).min(vs[2].v);
-        let vmax = vs[0].v.max(vs[1].v).max(vs[2].v);
-        let umin = vs[0].u.min(vs[1].u).min(vs[2].u);
-        let umax = vs[0].u.max(vs[1].u).max(vs[2].u);
-        // Rows whose centre may lie inside (one row of slack; the fill rule decides exactly).
-        if vmax < -1.0 || umax < -1.0 || vmin > h as f32 + 1.0 || umin > w as f32 + 1.0 {
-            return;
+    let n_chunks = rayon::current_num_threads().clamp(1, 64);
+    let chunk_len = n_tris.div_ceil(n_chunks).max(1);
+    s.chunks.resize_with(n_chunks, BinChunk::default);
+    let (clip, screen, outcode) = (&s.clip, &s.screen, &s.outcode);
+    s.chunks.par_iter_mut().enumerate().for_each(|(k, chunk)| {
+        if chunk.bins.len() < n_bands {
+            chunk.bins.resize_with(n_bands, Vec::new);
         }
-        let r0 = ((vmin - 1.0).max(0.0) as usize).min(h - 1);
-        let r1 = ((vmax + 1.0).max(0.0) as usize).min(h - 1);
-        for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
-            bin.push(entry);
+        for bin in &mut chunk.bins {
+            bin.clear();
         }
-    };
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        if tri.iter().any(|&i| i as usize >= nv) {
-            continue;
-        }
-        let [i0, i1, i2] = tri.map(|i| i as usize);
-        let (o0, o1, o2) = (s.outcode[i0], s.outcode[i1], s.outcode[i2]);
-        if (o0 | o1 | o2) & OUT_INVALID != 0 || (o0 & o1 & o2) != 0 {
-            continue; // non-finite vertex, or entirely outside one plane
-        }
-        if (o0 | o1 | o2) == 0 {
-            bin_rows(&mut s.bins, [&s.screen[i0], &s.screen[i1], &s.screen[i2]], t as u32);
-            continue;
-        }
-        poly.clear();
-        clip_polygon(fc, [s.clip[i0], s.clip[i1], s.clip[i2]], guard, &mut poly);
-        for k in 1..poly.len().saturating_sub(1) {
-            let fan = [poly[0], poly[k], poly[k + 1]];
-            let v = fan.map(|p| fc.screen_of(&p.c));
-            if v.iter().any(|v| !(v.u.is_finite() && v.v.is_finite() && v.iw.is_finite() && v.iw > 0.0)) {
+        chunk.clipped.clear();
+        let first = (k * chunk_len).min(n_tris);
+        let last = ((k + 1) * chunk_len).min(n_tris);
+        for (t, tri) in mesh.triangles[first..last].iter().enumerate().map(|(j, tri)| (first + j, tri)) {
+            if tri.iter().any(|&i| i as usize >= nv) {
                 continue;
             }
-            let entry = (n_tris + s.clipped.len()) as u32;
-            s.clipped.push(ClippedTriangle { original: t as u32, v, b: fan.map(|p| p.b) });
-            bin_rows(&mut s.bins, [&v[0], &v[1], &v[2]], entry);
+            let [i0, i1, i2] = tri.map(|i| i as usize);
+            let (o0, o1, o2) = (outcode[i0], outcode[i1], outcode[i2]);
+            if (o0 | o1 | o2) & OUT_INVALID != 0 || (o0 & o1 & o2) != 0 {
+                continue; // non-finite vertex, or entirely outside one plane
+            }
+            if (o0 | o1 | o2) == 0 {
+                bin_rows(&mut chunk.bins, [&screen[i0], &screen[i1], &screen[i2]], t as u32, w, h);
+                continue;
+            }
+            chunk.poly.clear();
+            clip_polygon(fc, [clip[i0], clip[i1], clip[i2]], guard, &mut chunk.poly);
+            for j in 1..chunk.poly.len().saturating_sub(1) {
+                let fan = [chunk.poly[0], chunk.poly[j], chunk.poly[j + 1]];
+                let v = fan.map(|p| fc.screen_of(&p.c));
+                if v.iter().any(|v| !(v.u.is_finite() && v.v.is_finite() && v.iw.is_finite() && v.iw > 0.0)) {
+                    continue;
+                }
+                // Local entry; made global (offset by the earlier chunks' clipped triangles) when rasterised.
+                let entry = (n_tris + chunk.clipped.len()) as u32;
+                chunk.clipped.push(ClippedTriangle { original: t as u32, v, b: fan.map(|p| p.b) });
+                bin_rows(&mut chunk.bins, [&v[0], &v[1], &v[2]], entry, w, h);
+            }
         }
+    });
+    // All clipped triangles in one list (chunk order), and each chunk's offset into it.
+    s.clipped.clear();
+    s.clip_offset.clear();
+    for chunk in &s.chunks {
+        s.clip_offset.push(s.clipped.len() as u32);
+        s.clipped.extend_from_slice(&chunk.clipped);
     }
 
     // 3. Rasterise bands in parallel into the visibility buffer.
@@ -479,7 +495,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     s.tri.resize(n, NO_TRIANGLE);
     s.bary.resize(n, [0.0; 2]);
     let band_len = BAND_ROWS * w;
-    let (screen, clipped, bins) = (&s.screen, &s.clipped, &s.bins);
+    let (screen, clipped, chunks, clip_offset) = (&s.screen, &s.clipped, &s.chunks, &s.clip_offset);
     out.depth
         .par_chunks_mut(band_len)
         .zip(s.tri.par_chunks_mut(band_len))
@@ -489,14 +505,16 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             let row0 = band * BAND_ROWS;
             let rows = depth.len() / w;
             let mut target = BandTarget { depth, tri, bary, width: w, row0, rows };
-            for &e in &bins[band] {
-                let v = if (e as usize) < n_tris {
-                    let t = mesh.triangles[e as usize];
-                    t.map(|i| screen[i as usize])
-                } else {
-                    clipped[e as usize - n_tris].v
-                };
-                raster_triangle(&mut target, &v, e);
+            for (chunk, &offset) in chunks.iter().zip(clip_offset) {
+                for &e in &chunk.bins[band] {
+                    if (e as usize) < n_tris {
+                        let t = mesh.triangles[e as usize];
+                        raster_triangle(&mut target, &t.map(|i| screen[i as usize]), e);
+                    } else {
+                        let e = e + offset;
+                        raster_triangle(&mut target, &clipped[e as usize - n_tris].v, e);
+                    }
+                }
             }
         });
 
@@ -573,6 +591,23 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
                 }
             }
         });
+    }
+}
+
+/// Appends `entry` to the bins of every band whose rows a screen triangle with vertices `vs` may cover (one row of
+/// slack; the fill rule decides exactly). Triangles entirely off a `w x h` screen are dropped.
+fn bin_rows(bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32, w: usize, h: usize) {
+    let vmin = vs[0].v.min(vs[1].v).min(vs[2].v);
+    let vmax = vs[0].v.max(vs[1].v).max(vs[2].v);
+    let umin = vs[0].u.min(vs[1].u).min(vs[2].u);
+    let umax = vs[0].u.max(vs[1].u).max(vs[2].u);
+    if vmax < -1.0 || umax < -1.0 || vmin > h as f32 + 1.0 || umin > w as f32 + 1.0 {
+        return;
+    }
+    let r0 = ((vmin - 1.0).max(0.0) as usize).min(h - 1);
+    let r1 = ((vmax + 1.0).max(0.0) as usize).min(h - 1);
+    for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
+        bin.push(entry);
     }
 }
 
