@@ -29,7 +29,7 @@ use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::{Camera, Projection, TriMesh};
-use crate::buffer::{GrayImage, Image};
+use crate::buffer::{floor_fast, GrayImage, Image};
 
 /// Depth written where no surface covers the pixel: far behind anything (depth is larger-is-nearer). It is
 /// finite so arithmetic on it never produces NaN; use [`GBuffer::mask`] to test coverage, never the depth.
@@ -37,6 +37,9 @@ pub const BACKGROUND_DEPTH: f32 = -1.0e30;
 
 /// Rows per band: the unit of parallel work and of triangle binning.
 pub const BAND_ROWS: usize = 8;
+
+/// Pixels by which binning widens a triangle's box (far more than the 1/256-pixel vertex snapping moves it).
+const BIN_SLACK: f32 = 1.0 / 32.0;
 
 /// Sub-pixel precision of the snapped vertex positions (bits).
 const SUBPIXEL_BITS: u32 = 8;
@@ -594,19 +597,29 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     }
 }
 
-/// Appends `entry` to the bins of every band whose rows a screen triangle with vertices `vs` may cover (one row of
-/// slack; the fill rule decides exactly). Triangles entirely off a `w x h` screen are dropped.
+/// Appends `entry` to the bins of every band whose pixel centres a screen triangle with vertices `vs` may cover.
+/// A triangle whose bounding box holds no pixel centre of the `w x h` screen is dropped here: the exact fill rule
+/// would cover nothing (most triangles of a fine mesh are smaller than a pixel). The box is widened by
+/// [`BIN_SLACK`] pixels so vertex snapping can never turn a dropped triangle into a covering one.
 fn bin_rows(bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32, w: usize, h: usize) {
-    let vmin = vs[0].v.min(vs[1].v).min(vs[2].v);
-    let vmax = vs[0].v.max(vs[1].v).max(vs[2].v);
-    let umin = vs[0].u.min(vs[1].u).min(vs[2].u);
-    let umax = vs[0].u.max(vs[1].u).max(vs[2].u);
-    if vmax < -1.0 || umax < -1.0 || vmin > h as f32 + 1.0 || umin > w as f32 + 1.0 {
+    let vmin = vs[0].v.min(vs[1].v).min(vs[2].v) - BIN_SLACK;
+    let vmax = vs[0].v.max(vs[1].v).max(vs[2].v) + BIN_SLACK;
+    let umin = vs[0].u.min(vs[1].u).min(vs[2].u) - BIN_SLACK;
+    let umax = vs[0].u.max(vs[1].u).max(vs[2].u) + BIN_SLACK;
+    if !(vmax >= 0.0 && umax >= 0.0 && vmin <= h as f32 && umin <= w as f32) {
+        return; // off screen (or NaN)
+    }
+    // First and last pixel centre (k + 0.5) inside [min, max], clamped to the screen.
+    let first = |lo: f32| (-floor_fast(0.5 - lo)).max(0.0);
+    let last = |hi: f32, n: usize| floor_fast(hi - 0.5).min(n as f32 - 1.0);
+    if first(umin) > last(umax, w) {
         return;
     }
-    let r0 = ((vmin - 1.0).max(0.0) as usize).min(h - 1);
-    let r1 = ((vmax + 1.0).max(0.0) as usize).min(h - 1);
-    for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
+    let (r0, r1) = (first(vmin), last(vmax, h));
+    if r0 > r1 {
+        return;
+    }
+    for bin in &mut bins[r0 as usize / BAND_ROWS..=r1 as usize / BAND_ROWS] {
         bin.push(entry);
     }
 }
@@ -815,6 +828,42 @@ mod tests {
         // The top-left rule: the top (row 2) and left (col 2) edges are in, the right/bottom edges are out.
         assert!(both.mask[2 * 16 + 5] && both.mask[5 * 16 + 2]);
         assert!(!both.mask[12 * 16 + 5] && !both.mask[5 * 16 + 12]);
+    }
+
+    #[test]
+    fn sub_pixel_triangles_cover_exactly_what_one_big_quad_covers() {
+        // A quad tiled by triangles far smaller than a pixel (most hold no pixel centre and are dropped while
+        // binning) must cover exactly the pixels of the same quad drawn as two triangles, with the same depth.
+        // The quad is tilted in depth, perspective and orthographic, and its edges avoid pixel centres.
+        for cam in [
+            Camera::source(64),
+            Camera::perspective(Vec3::new(0.1, 0.05, 3.0), glam::Quat::IDENTITY, Fov::symmetric(0.9, 1.0), 0.1, 64, 64),
+        ] {
+            let corner = |x: f32, y: f32| Vec3::new(-0.71 + 1.37 * x, -0.53 + 1.29 * y, 0.2 * x - 0.3 * y);
+            let n = 160; // cells per side: ~0.3 pixels each
+            let mut pos = Vec::new();
+            for j in 0..=n {
+                for i in 0..=n {
+                    pos.push(corner(i as f32 / n as f32, j as f32 / n as f32));
+                }
+            }
+            let mut tris = Vec::new();
+            let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+            for j in 0..n {
+                for i in 0..n {
+                    tris.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                    tris.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+                }
+            }
+            let fine = rasterize(&TriMesh::new(pos, tris), &cam);
+            let quad = vec![corner(0.0, 0.0), corner(1.0, 0.0), corner(1.0, 1.0), corner(0.0, 1.0)];
+            let coarse = rasterize(&TriMesh::new(quad, vec![[0, 1, 2], [0, 2, 3]]), &cam);
+            assert!(coarse.coverage() > 500, "{}", coarse.coverage());
+            assert_eq!(fine.mask, coarse.mask);
+            for (a, b) in fine.depth.iter().zip(&coarse.depth) {
+                assert!((a - b).abs() < 1e-4, "{a} vs {b}");
+            }
+        }
     }
 
     #[test]
