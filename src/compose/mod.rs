@@ -42,6 +42,7 @@ pub fn compose_vr(person: &RgbaImage, environment: &Environment, camera: &Camera
     let rays = background_camera(camera).ray_grid();
     let (w, h) = (person.width, person.height);
     let mut out = Image::new(w, h, Vec3::ZERO);
+    let panorama = environment.lookup();
     out.data.par_chunks_mut(w.max(1)).enumerate().for_each(|(row, out_row)| {
         for (col, o) in out_row.iter_mut().enumerate() {
             let p: Vec4 = person.data[row * w + col];
@@ -52,7 +53,7 @@ pub fn compose_vr(person: &RgbaImage, environment: &Environment, camera: &Camera
             } else {
                 // The lookup normalises the direction itself.
                 let direction = rays.direction_unnormalised(col as f32 + 0.5, row as f32 + 0.5);
-                fg + environment.sample(direction) * (1.0 - a)
+                fg + panorama.sample(direction) * (1.0 - a)
             };
         }
     });
