@@ -140,7 +140,24 @@ impl PanoramaLookup<'_> {
     /// Linear colour seen along world direction `d` (need not be normalised); equal to [`Environment::sample`].
     #[inline]
     pub fn sample(&self, d: Vec3) -> Vec3 {
-        let (u, v) = uv_rotated(d, self.sin_yaw, self.cos_yaw);
+        let (u, v) = self.uv(d);
+        self.sample_uv(u, v)
+    }
+
+    /// Panorama coordinates of world direction `d` (need not be normalised); equal to [`direction_to_uv`].
+    #[inline]
+    pub fn uv(&self, d: Vec3) -> (f32, f32) {
+        uv_rotated(d, self.sin_yaw, self.cos_yaw)
+    }
+
+    /// The panorama's size in texels, `(width, height)`.
+    pub fn size(&self) -> (f32, f32) {
+        (self.width, self.height)
+    }
+
+    /// Bilinear lookup at panorama coordinates; equal to [`Environment::sample_uv`].
+    #[inline]
+    pub fn sample_uv(&self, u: f32, v: f32) -> Vec3 {
         let x = u * self.width - 0.5;
         let y = v * self.height - 0.5;
         // Interior (almost every lookup): truncation is the floor for non-negative values; no wrap, no pole.
