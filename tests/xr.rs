@@ -631,7 +631,8 @@ fn neural_eyes_show_the_person_where_the_eye_pose_says() {
 
 /// `xr --video DIR`: a live image-sequence source (the synthetic figure walking to the side, one corrupt file among
 /// the frames) feeds the session through the live pipeline. New frames are uploaded as they complete, the corrupt
-/// frame and the end of the source are reported, and the session goes on showing the last person.
+/// frame and the end of the source are reported, and the session goes on showing the last person. The command line
+/// runs the same source with `--renderer neural`: encoder per new frame on the worker, decoder for the eyes.
 #[test]
 #[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
 fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
@@ -696,6 +697,10 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
             "--eye-size",
             "128",
             "--no-mirror",
+            "--renderer",
+            "neural",
+            "--ep",
+            "cpu",
         ])
         .stdin(Stdio::null())
         .output()
@@ -704,4 +709,7 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
     println!("{text}");
     assert!(out.status.success(), "r2human xr --video failed");
     assert!(text.contains("session ended: frame budget reached"), "{text}");
+    // With `--renderer neural` the worker encodes each new frame and the eyes are drawn by the decoder.
+    let line = text.lines().find(|l| l.starts_with("person renderer:")).expect("the report names the renderer");
+    assert!(line.starts_with("person renderer: neural") && line.contains(" 0 geometric fallbacks"), "{line}");
 }
