@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use crate::buffer::{Image, RgbImage};
+use crate::buffer::{floor_fast, Image, RgbImage};
 use crate::io::image_io::{self, IoError};
 
 /// The panorama embedded in the binary, used when no `--env` is given (CC0, see environments/CREDITS.md).
@@ -78,7 +78,7 @@ impl Environment {
         if !(x.is_finite() && y.is_finite()) {
             return Vec3::ZERO;
         }
-        let (x0, y0) = (x.floor(), y.floor());
+        let (x0, y0) = (floor_fast(x), floor_fast(y));
         let (tx, ty) = (x - x0, y - y0);
         let fetch = |cx: i64, cy: i64| -> Vec3 {
             // Across a pole the row reflects and the column moves half a turn.
@@ -111,15 +111,23 @@ impl Environment {
 
 /// Panorama coordinates for a world direction with the panorama rotated by `yaw` radians about +y.
 pub fn direction_to_uv(d: Vec3, yaw: f32) -> (f32, f32) {
-    let d = d.try_normalize().unwrap_or(Vec3::NEG_Z);
+    // Both angles are ratios of components, so `d` needs no normalisation (one square root instead of three);
+    // only a zero or non-finite direction is replaced (by the panorama centre, -z).
+    let big = d.abs().max_element();
+    let d = if !(d.is_finite() && big > 0.0) {
+        Vec3::NEG_Z
+    } else if (1e-12..=1e12).contains(&big) {
+        d
+    } else {
+        d / big // rescaled so the squares below neither underflow nor overflow
+    };
     let (s, c) = if yaw == 0.0 { (0.0, 1.0) } else { yaw.sin_cos() };
     // Rotate the direction by -yaw so a positive yaw turns the panorama to the left.
     let dx = c * d.x + s * d.z;
     let dz = -s * d.x + c * d.z;
     let u = 0.5 + atan2_fast(dx, -dz) / std::f32::consts::TAU;
-    let y = d.y.clamp(-1.0, 1.0);
-    // acos(y) = atan2(sqrt(1 - y^2), y), in [0, pi].
-    let v = atan2_fast((1.0 - y * y).max(0.0).sqrt(), y) / std::f32::consts::PI;
+    // Polar angle from +y: acos(y / |d|) = atan2(|d_xz|, y), in [0, pi].
+    let v = atan2_fast((dx * dx + dz * dz).sqrt(), d.y) / std::f32::consts::PI;
     (u, v)
 }
 
@@ -247,6 +255,14 @@ mod tests {
         assert!(direction_to_uv(Vec3::ZERO, 0.0).0.is_finite());
         for &(u, v) in &[(0.1f32, 0.2f32), (0.9, 0.7), (0.5, 0.5)] {
             assert!(close(direction_to_uv(uv_to_direction(u, v), 0.0), (u, v)));
+            // Unnormalised directions (tiny and huge lengths) map to the same place.
+            for scale in [1e-20f32, 1e-3, 7.5, 1e20] {
+                assert!(close(direction_to_uv(uv_to_direction(u, v) * scale, 0.0), (u, v)), "{u},{v} x{scale}");
+            }
+        }
+        // Zero and non-finite directions fall back to the panorama centre.
+        for d in [Vec3::ZERO, Vec3::new(f32::NAN, 0.0, -1.0), Vec3::new(0.0, f32::INFINITY, 0.0)] {
+            assert!(close(direction_to_uv(d, 0.0), (0.5, 0.5)), "{d}");
         }
         // A yaw of +90 degrees turns the panorama: +x now shows what -z showed.
         let (u, _) = direction_to_uv(Vec3::X, std::f32::consts::FRAC_PI_2);
