@@ -156,13 +156,14 @@ fn bench_xr(c: &mut Criterion) {
     }
     println!("\nload average at the start of the sessions: {}", load_average());
     let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
-    let report = run_session(&config(200), feed, Some(env.clone())).expect("XR session");
-    println!("\nXR session with the simulated HMD (200 person frames, geometric renderer):\n{report}\n");
+    // 600 person frames (about 11 s at the XCB compositor's rate): a few dozen eye renders per renderer.
+    let report = run_session(&config(600), feed, Some(env.clone())).expect("XR session");
+    println!("\nXR session with the simulated HMD (600 person frames, geometric renderer):\n{report}\n");
     if let Some((shared, encoded)) = &neural {
         let eye = EyeNeural { renderer: Arc::clone(shared), encoded: encoded.clone() };
         let feed = Box::new(StaticScene::new(scene_from_prepared(&input, Some(eye))));
-        let report = run_session(&config(200), feed, Some(env.clone())).expect("XR session");
-        println!("\nXR session with the simulated HMD (200 person frames, neural renderer):\n{report}\n");
+        let report = run_session(&config(600), feed, Some(env.clone())).expect("XR session");
+        println!("\nXR session with the simulated HMD (600 person frames, neural renderer):\n{report}\n");
     }
     desktop_view_runs();
     println!("load average at the end: {}", load_average());
