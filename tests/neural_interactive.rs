@@ -330,3 +330,45 @@ fn render_video_writes_neural_frames() {
         assert!(d > 1.0, "neural and geometric frames are identical");
     }
 }
+
+/// `render --backend vulkan --renderer neural` (the decoder through the host-memory seam on a headless device)
+/// against `--backend cpu` through the binary, VR over the panorama: the same 8-bit image up to the rasterisers'
+/// edge pixels (>= 40 dB), and not the geometric renderer's image.
+#[test]
+fn render_backend_vulkan_draws_neural_views() {
+    if renderer(16).is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let photo = dir.path().join("person.png");
+    common::write_figure(&photo, 150, 200);
+    let render = |backend: &str, renderer: &str| {
+        let out = dir.path().join(format!("{backend}-{renderer}.png"));
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_r2human"))
+            .args(["render", "--yaw", "120", "--size", "96", "--ep", "cpu", "--backend", backend, "--renderer"])
+            .arg(renderer)
+            .arg("--models")
+            .arg(fixture())
+            .arg("--image")
+            .arg(&photo)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+        assert!(o.status.success(), "render --backend {backend} --renderer {renderer}: {text}");
+        assert!(!text.contains("failed on"), "no view may fall back: {text}");
+        let img = image::open(&out).unwrap().to_rgb8();
+        Frame::Vr(r2human::buffer::RgbImage::from_fn(96, 96, |c, r| {
+            let p = img.get_pixel(c as u32, r as u32).0;
+            glam::Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0
+        }))
+    };
+    let vulkan = render("vulkan", "neural");
+    let cpu = render("cpu", "neural");
+    let geometric = render("vulkan", "geometric");
+    let p = psnr(&vulkan, &cpu);
+    eprintln!("render: Vulkan neural vs CPU neural {p:.1} dB");
+    assert!(p >= 40.0, "Vulkan neural vs CPU neural: {p:.1} dB");
+    assert!(mean_abs_diff(&vulkan, &geometric) > 1e-2, "the Vulkan neural view is the geometric one");
+}
