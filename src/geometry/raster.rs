@@ -29,7 +29,7 @@ use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::{Camera, Projection, TriMesh};
-use crate::buffer::{floor_fast, GrayImage, Image};
+use crate::buffer::{GrayImage, Image};
 
 /// Depth written where no surface covers the pixel: far behind anything (depth is larger-is-nearer). It is
 /// finite so arithmetic on it never produces NaN; use [`GBuffer::mask`] to test coverage, never the depth.
@@ -602,20 +602,45 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
 /// would cover nothing (most triangles of a fine mesh are smaller than a pixel). The box is widened by
 /// [`BIN_SLACK`] pixels so vertex snapping can never turn a dropped triangle into a covering one.
 fn bin_rows(bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32, w: usize, h: usize) {
-    let vmin = vs[0].v.min(vs[1].v).min(vs[2].v) - BIN_SLACK;
-    let vmax = vs[0].v.max(vs[1].v).max(vs[2].v) + BIN_SLACK;
-    let umin = vs[0].u.min(vs[1].u).min(vs[2].u) - BIN_SLACK;
-    let umax = vs[0].u.max(vs[1].u).max(vs[2].u) + BIN_SLACK;
-    if !(vmax >= 0.0 && umax >= 0.0 && vmin <= h as f32 && umin <= w as f32) {
+    // Plain comparisons (screen vertices are finite here), not the NaN-aware `f32::min`: this runs for every
+    // triangle of every view and most triangles stop at the pixel-centre test below.
+    let min3 = |a: f32, b: f32, c: f32| {
+        let m = if a < b { a } else { b };
+        if m < c {
+            m
+        } else {
+            c
+        }
+    };
+    let max3 = |a: f32, b: f32, c: f32| {
+        let m = if a > b { a } else { b };
+        if m > c {
+            m
+        } else {
+            c
+        }
+    };
+    let vmin = min3(vs[0].v, vs[1].v, vs[2].v) - BIN_SLACK;
+    let vmax = max3(vs[0].v, vs[1].v, vs[2].v) + BIN_SLACK;
+    let umin = min3(vs[0].u, vs[1].u, vs[2].u) - BIN_SLACK;
+    let umax = max3(vs[0].u, vs[1].u, vs[2].u) + BIN_SLACK;
+    let (wf, hf) = (w as f32, h as f32);
+    if !(vmax >= 0.0 && umax >= 0.0 && vmin <= hf && umin <= wf) {
         return; // off screen (or NaN)
     }
-    // First and last pixel centre (k + 0.5) inside [min, max], clamped to the screen.
-    let first = |lo: f32| (-floor_fast(0.5 - lo)).max(0.0);
-    let last = |hi: f32, n: usize| floor_fast(hi - 0.5).min(n as f32 - 1.0);
-    if first(umin) > last(umax, w) {
+    // First and last pixel centre (k + 0.5) inside [min, max], clamped to the screen. Clamping first keeps the
+    // values small, so truncation toward zero plus one comparison is an exact floor.
+    let floor_small = |x: f32| {
+        let t = x as i32;
+        t - (x < t as f32) as i32
+    };
+    let first = |lo: f32| -floor_small(0.5 - lo.max(-1.0));
+    let last = |hi: f32, n: f32| floor_small(hi.min(n + 1.0) - 0.5);
+    let (c0, c1) = (first(umin).max(0), last(umax, wf).min(w as i32 - 1));
+    if c0 > c1 {
         return;
     }
-    let (r0, r1) = (first(vmin), last(vmax, h));
+    let (r0, r1) = (first(vmin).max(0), last(vmax, hf).min(h as i32 - 1));
     if r0 > r1 {
         return;
     }
