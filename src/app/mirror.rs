@@ -867,7 +867,10 @@ impl<'a> Engine<'a> {
             ));
         }
         let PersonInput::Live(live) = &mut self.input else { return };
-        if live.stats_at.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
+        // Refreshed four times a second, and on every frame until the first frame completes or once the source
+        // has ended (so neither a short run nor the final overlay shows a stale, stage-less snapshot).
+        let stale = live.stats.completed == 0 || live.pipeline.is_finished();
+        if stale || live.stats_at.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
             live.stats = live.pipeline.stats();
             live.stats_at = Some(Instant::now());
         }
