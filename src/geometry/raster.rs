@@ -163,6 +163,8 @@ struct Scratch {
     screen: Vec<ScreenVertex>,
     /// Outcodes (bit per clip plane) per vertex.
     outcode: Vec<u8>,
+    /// Pixel-centre span per vertex (valid when the outcode is 0), see [`CentreSpan`].
+    spans: Vec<CentreSpan>,
     /// Triangles produced by clipping (all chunks, in chunk order): three screen vertices and their barycentrics
     /// in the original triangle.
     clipped: Vec<ClippedTriangle>,
@@ -425,16 +427,19 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     s.clip.resize(nv, ClipVertex::default());
     s.screen.resize(nv, ScreenVertex::default());
     s.outcode.resize(nv, 0);
+    s.spans.resize(nv, CentreSpan::default());
     s.clip
         .par_iter_mut()
         .zip(s.screen.par_iter_mut())
         .zip(s.outcode.par_iter_mut())
+        .zip(s.spans.par_iter_mut())
         .zip(mesh.positions.par_iter())
-        .for_each(|(((c, sv), oc), &p)| {
+        .for_each(|((((c, sv), oc), span), &p)| {
             *c = fc.clip_vertex(p);
             *oc = fc.outcode(c, guard);
             if *oc == 0 {
                 *sv = fc.screen_of(c);
+                *span = CentreSpan::of(sv);
             }
         });
 
@@ -445,7 +450,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     let n_chunks = rayon::current_num_threads().clamp(1, 64);
     let chunk_len = n_tris.div_ceil(n_chunks).max(1);
     s.chunks.resize_with(n_chunks, BinChunk::default);
-    let (clip, screen, outcode) = (&s.clip, &s.screen, &s.outcode);
+    let (clip, outcode, spans) = (&s.clip, &s.outcode, &s.spans);
     s.chunks.par_iter_mut().enumerate().for_each(|(k, chunk)| {
         if chunk.bins.len() < n_bands {
             chunk.bins.resize_with(n_bands, Vec::new);
@@ -466,7 +471,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
                 continue; // non-finite vertex, or entirely outside one plane
             }
             if (o0 | o1 | o2) == 0 {
-                bin_rows(&mut chunk.bins, [&screen[i0], &screen[i1], &screen[i2]], t as u32, w, h);
+                bin_spans(&mut chunk.bins, [spans[i0], spans[i1], spans[i2]], t as u32, w, h);
                 continue;
             }
             chunk.poly.clear();
@@ -597,55 +602,52 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     }
 }
 
-/// Appends `entry` to the bins of every band whose pixel centres a screen triangle with vertices `vs` may cover.
-/// A triangle whose bounding box holds no pixel centre of the `w x h` screen is dropped here: the exact fill rule
-/// would cover nothing (most triangles of a fine mesh are smaller than a pixel). The box is widened by
-/// [`BIN_SLACK`] pixels so vertex snapping can never turn a dropped triangle into a covering one.
+/// The pixel centres (`k + 0.5`) a screen vertex could share with a triangle: the first and last column and row
+/// whose centre lies within [`BIN_SLACK`] pixels of it (first > last when none does). A triangle can cover a
+/// pixel centre only if its box holds one, and its box's first/last centres are the minimum/maximum of its
+/// vertices' (both are monotone in the coordinate), so binning needs only integer min/max per triangle. The slack
+/// is far more than the 1/256-pixel vertex snapping of the rasteriser moves a vertex, so a triangle dropped here
+/// never covers a pixel.
+#[derive(Clone, Copy, Debug, Default)]
+struct CentreSpan {
+    col_first: i32,
+    col_last: i32,
+    row_first: i32,
+    row_last: i32,
+}
+
+impl CentreSpan {
+    fn of(v: &ScreenVertex) -> Self {
+        // Clamped far outside any screen first (guard-band coordinates are large), so truncation toward zero plus
+        // one comparison is an exact floor.
+        const LIMIT: f32 = 1_048_576.0;
+        let floor_small = |x: f32| {
+            let t = x as i32;
+            t - (x < t as f32) as i32
+        };
+        let first = |x: f32| -floor_small(0.5 - (x - BIN_SLACK).clamp(-LIMIT, LIMIT));
+        let last = |x: f32| floor_small((x + BIN_SLACK).clamp(-LIMIT, LIMIT) - 0.5);
+        Self { col_first: first(v.u), col_last: last(v.u), row_first: first(v.v), row_last: last(v.v) }
+    }
+}
+
+/// [`bin_spans`] for a triangle made by clipping (its vertices have no precomputed spans).
 fn bin_rows(bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32, w: usize, h: usize) {
-    // Plain comparisons (screen vertices are finite here), not the NaN-aware `f32::min`: this runs for every
-    // triangle of every view and most triangles stop at the pixel-centre test below.
-    let min3 = |a: f32, b: f32, c: f32| {
-        let m = if a < b { a } else { b };
-        if m < c {
-            m
-        } else {
-            c
+    bin_spans(bins, vs.map(CentreSpan::of), entry, w, h);
+}
+
+/// Appends `entry` to the bins of every band a triangle with these vertex spans may cover: the triangle's span is
+/// the union of its vertices' (see [`CentreSpan`]); none when it holds no pixel centre of the `w x h` screen.
+#[inline]
+fn bin_spans(bins: &mut [Vec<u32>], [a, b, c]: [CentreSpan; 3], entry: u32, w: usize, h: usize) {
+    let col_first = a.col_first.min(b.col_first).min(c.col_first).max(0);
+    let col_last = a.col_last.max(b.col_last).max(c.col_last).min(w as i32 - 1);
+    let row_first = a.row_first.min(b.row_first).min(c.row_first).max(0);
+    let row_last = a.row_last.max(b.row_last).max(c.row_last).min(h as i32 - 1);
+    if col_first <= col_last && row_first <= row_last {
+        for bin in &mut bins[row_first as usize / BAND_ROWS..=row_last as usize / BAND_ROWS] {
+            bin.push(entry);
         }
-    };
-    let max3 = |a: f32, b: f32, c: f32| {
-        let m = if a > b { a } else { b };
-        if m > c {
-            m
-        } else {
-            c
-        }
-    };
-    let vmin = min3(vs[0].v, vs[1].v, vs[2].v) - BIN_SLACK;
-    let vmax = max3(vs[0].v, vs[1].v, vs[2].v) + BIN_SLACK;
-    let umin = min3(vs[0].u, vs[1].u, vs[2].u) - BIN_SLACK;
-    let umax = max3(vs[0].u, vs[1].u, vs[2].u) + BIN_SLACK;
-    let (wf, hf) = (w as f32, h as f32);
-    if !(vmax >= 0.0 && umax >= 0.0 && vmin <= hf && umin <= wf) {
-        return; // off screen (or NaN)
-    }
-    // First and last pixel centre (k + 0.5) inside [min, max], clamped to the screen. Clamping first keeps the
-    // values small, so truncation toward zero plus one comparison is an exact floor.
-    let floor_small = |x: f32| {
-        let t = x as i32;
-        t - (x < t as f32) as i32
-    };
-    let first = |lo: f32| -floor_small(0.5 - lo.max(-1.0));
-    let last = |hi: f32, n: f32| floor_small(hi.min(n + 1.0) - 0.5);
-    let (c0, c1) = (first(umin).max(0), last(umax, wf).min(w as i32 - 1));
-    if c0 > c1 {
-        return;
-    }
-    let (r0, r1) = (first(vmin).max(0), last(vmax, hf).min(h as i32 - 1));
-    if r0 > r1 {
-        return;
-    }
-    for bin in &mut bins[r0 as usize / BAND_ROWS..=r1 as usize / BAND_ROWS] {
-        bin.push(entry);
     }
 }
 
