@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{Vec3, Vec4};
 use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
+use rayon::prelude::*;
 
 use super::model::{check_no_extra_inputs, check_tensor, Dim, ModelInfo, ModelKind};
 use super::provider::{create_session, ActiveProvider, RuntimeOptions};
@@ -14,6 +15,7 @@ use super::tensor::{
 };
 use super::NeuralError;
 use crate::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
+use crate::geometry::fof::Fof;
 use crate::geometry::raster::GBuffer;
 use crate::geometry::zmap::FlowZ;
 
@@ -183,6 +185,100 @@ impl FofNet {
             }
         }
         Ok(FofPrediction { width: r, height: r, n, data })
+    }
+}
+
+impl std::fmt::Debug for FofNet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FofNet")
+            .field("path", &self.net.path)
+            .field("info", &self.net.info)
+            .field("has_prior", &self.has_prior)
+            .field("provider", &self.net.provider)
+            .finish()
+    }
+}
+
+impl FofNet {
+    /// Whether the model takes the inflation prior as its `prior` input (the residual FOF net of
+    /// `train/nets.py`: `fof = prior + UNet(image, prior)`).
+    pub fn has_prior(&self) -> bool {
+        self.has_prior
+    }
+
+    /// The FOF at the prior's full resolution: runs the network at its resolution `R` on the photo and the
+    /// box-averaged `prior`, then applies its correction `delta = prediction - prior_R` to the full-resolution
+    /// prior: `fof(p) = prior(p) + delta_up(p)`, where `delta_up` is the bilinear upsampling of `delta` that only
+    /// reads model pixels inside the (resampled) mask, renormalising the weights (so the silhouette edge is not
+    /// pulled towards zero by background taps). Pixels whose four taps are all outside keep the prior, and pixels
+    /// where the prior is empty (outside the cleaned mask) stay empty.
+    ///
+    /// A network trained as a residual on the prior returns the prior unchanged while untrained; a network without a
+    /// `prior` input predicts absolute coefficients, which this applies the same way (its prediction minus the
+    /// prior). `rgb` (linear, premultiplied), `mask` and `prior` must have the same square size and `prior` the
+    /// model's `N`.
+    pub fn refine(&mut self, rgb: &RgbImage, mask: &GrayImage, prior: &Fof) -> Result<Fof, NeuralError> {
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        let model = "FOF net";
+        let (w, h) = (prior.width, prior.height);
+        check_sizes(model, "prior", w, h, rgb.width, rgb.height)?;
+        if prior.n != n || prior.coeffs.len() != w * h * n {
+            return Err(NeuralError::BadInput {
+                model,
+                problem: format!("prior has {} coefficients per pixel, the model takes {n}", prior.n),
+            });
+        }
+        let view = Coefficients { width: w, height: h, n, data: &prior.coeffs };
+        let predicted = self.run(rgb, mask, Some(view))?;
+        let prior_small = coefficients_tensor(&view, r);
+        let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
+        let plane = r * r;
+        // Correction per model pixel (pixel-major), and which model pixels carry one.
+        let mut delta = vec![0.0f32; plane * n];
+        let valid: Vec<bool> = small_mask.iter().map(|m| *m >= 0.5).collect();
+        for i in (0..plane).filter(|&i| valid[i]) {
+            for k in 0..n {
+                delta[i * n + k] = predicted.data[i * n + k] - prior_small[k * plane + i];
+            }
+        }
+        let mut coeffs = prior.coeffs.clone();
+        let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
+        coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
+            let y = (row as f32 + 0.5) * sy - 0.5;
+            let (y0, ty) = (y.floor(), y - y.floor());
+            let mut acc = vec![0.0f32; n];
+            for (col, out) in line.chunks_exact_mut(n).enumerate() {
+                if out.iter().all(|v| *v == 0.0) {
+                    continue;
+                }
+                let x = (col as f32 + 0.5) * sx - 0.5;
+                let (x0, tx) = (x.floor(), x - x.floor());
+                acc.fill(0.0);
+                let mut wsum = 0.0f32;
+                for (dx, dy, wt) in
+                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+                {
+                    let (c, rr) = (x0 as i64 + dx, y0 as i64 + dy);
+                    if wt <= 0.0 || c < 0 || rr < 0 || c >= r as i64 || rr >= r as i64 {
+                        continue;
+                    }
+                    let i = rr as usize * r + c as usize;
+                    if !valid[i] {
+                        continue;
+                    }
+                    wsum += wt;
+                    for (a, d) in acc.iter_mut().zip(&delta[i * n..(i + 1) * n]) {
+                        *a += wt * d;
+                    }
+                }
+                if wsum > 1e-6 {
+                    for (o, a) in out.iter_mut().zip(&acc) {
+                        *o += a / wsum;
+                    }
+                }
+            }
+        });
+        Fof::new(n, w, h, coeffs).map_err(|e| NeuralError::BadInput { model, problem: e.to_string() })
     }
 }
 
