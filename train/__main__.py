@@ -43,6 +43,8 @@ def main(argv=None):
     p.add_argument("--resume", default=None, help="continue from a fof.pt")
     p.add_argument("--lambda-occupancy", type=float, default=2.0,
                    help="weight of the decoded-occupancy L1 next to the coefficient L1 (weight 1)")
+    p.add_argument("--lambda-silhouette", type=float, default=4.0,
+                   help="weight of the silhouette term (every column of the person must hold some body)")
     p.add_argument("--no-prior", action="store_true",
                    help="train the plain image -> FOF net instead of the residual one on the inflation prior")
 

@@ -276,9 +276,9 @@ def evaluate_fof(model, data, resolution, device):
     model.eval()
     ds = R2Dataset(data, "test", resolution=resolution, cache=False, with_views=False)
     out = {"subjects": len(ds)}
-    rows = {"net": ([], [])}
+    rows = {"net": ([], [], [])}
     if ds.has_prior:
-        rows["prior"] = ([], [])
+        rows["prior"] = ([], [], [])
     for i in range(len(ds)):
         b = to_device({k: t[None] for k, t in ds[i].items()}, device)
         mask, gt = b["src_mask"], b["src_fof"]
@@ -288,23 +288,42 @@ def evaluate_fof(model, data, resolution, device):
         for k, pred in preds.items():
             rows[k][0].append(float(losses.masked_l1(pred, gt, mask)))
             rows[k][1].append(occupancy_iou(pred, gt, mask))
+            # Silhouette kept: the share of the person's columns that hold some body (0.5 level).
+            kept = ((decode_occupancy(pred, 64).max(1, keepdim=True).values > 0.5) & (mask > 0.5)).sum()
+            rows[k][2].append(float(kept) / max(float((mask > 0.5).sum()), 1.0))
     model.train()
-    out["coefficient_l1"] = float(np.mean(rows["net"][0]))
-    out["occupancy_iou"] = float(np.mean(rows["net"][1]))
-    if "prior" in rows:
-        out["prior_coefficient_l1"] = float(np.mean(rows["prior"][0]))
-        out["prior_occupancy_iou"] = float(np.mean(rows["prior"][1]))
+    for k, prefix in (("net", ""), ("prior", "prior_")):
+        if k in rows:
+            out[prefix + "coefficient_l1"] = float(np.mean(rows[k][0]))
+            out[prefix + "occupancy_iou"] = float(np.mean(rows[k][1]))
+            out[prefix + "silhouette_kept"] = float(np.mean(rows[k][2]))
     return out
 
 
-def fof_loss(net, model, b, lambda_occupancy, samples=32):
-    """Masked L1 on the coefficients plus `lambda_occupancy` x masked L1 on the decoded occupancy (what the mesh is
-    extracted from). `net` runs the model (it may be its DDP wrapper)."""
+# A column inside the silhouette must reach this occupancy somewhere (the mesh is the 0.5 level: the margin keeps
+# the silhouette after the Rust side's upsampling).
+SILHOUETTE_LEVEL = 0.6
+
+
+def silhouette_loss(occ, mask):
+    """Mean over the person's pixels of relu(SILHOUETTE_LEVEL - max over depth of the occupancy): every column the
+    photo shows must hold some body. Without it the L1 terms teach the net to erase thin parts (an arm a few percent
+    of the ray long costs less L1 when predicted empty than when predicted at a slightly wrong depth)."""
+    peak = occ.max(1, keepdim=True).values
+    return (torch.relu(SILHOUETTE_LEVEL - peak) * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+def fof_loss(net, model, b, lambda_occupancy, lambda_silhouette=0.0, samples=32):
+    """Masked L1 on the coefficients + `lambda_occupancy` x masked L1 on the decoded occupancy (what the mesh is
+    extracted from) + `lambda_silhouette` x [`silhouette_loss`]. `net` runs the model (it may be its DDP wrapper)."""
     pred = net(*fof_inputs(model, b))
     gt, mask = b["src_fof"], b["src_mask"]
     coef = losses.masked_l1(pred, gt, mask)
-    occ = losses.masked_l1(decode_occupancy(pred, samples), decode_occupancy(gt, samples), mask)
-    return coef + lambda_occupancy * occ, {"coef_l1": coef.item(), "occ_l1": occ.item()}
+    occ_pred = decode_occupancy(pred, samples)
+    occ = losses.masked_l1(occ_pred, decode_occupancy(gt, samples), mask)
+    sil = silhouette_loss(occ_pred, mask)
+    loss = coef + lambda_occupancy * occ + lambda_silhouette * sil
+    return loss, {"coef_l1": coef.item(), "occ_l1": occ.item(), "silhouette": sil.item()}
 
 
 def flip_batch(b, gen):
@@ -325,7 +344,8 @@ def flip_batch(b, gen):
 
 def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
     rec = recipe(args, args.tier, ds.meta, step, elapsed, world)
-    rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": args.lambda_occupancy, "occupancy_samples": 32}
+    rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": args.lambda_occupancy, "occupancy_samples": 32,
+                     "silhouette": args.lambda_silhouette, "silhouette_level": SILHOUETTE_LEVEL}
     rec["fof_net"] = ("residual on the inflation prior: fof = prior + UNet(image, prior), last convolution "
                       "zero-initialised") if model.prior else "plain: image -> fof"
     rec["augmentation"] = "left-right flip (p = 0.5)"
@@ -366,7 +386,8 @@ def fit_fof(args):
         if world > 1 else model
     log(f"FOF net tier {args.tier}: {count_parameters(model) / 1e6:.3f} M params, "
         f"{'residual on the inflation prior' if use_prior else 'no prior'}, {len(ds)} train subjects at "
-        f"{args.resolution} px, fof_n {ds.fof_n}, lambda_occupancy {args.lambda_occupancy}, "
+        f"{args.resolution} px, fof_n {ds.fof_n}, lambda_occupancy {args.lambda_occupancy}, lambda_silhouette "
+        f"{args.lambda_silhouette}, resumed from step {start_step}, "
         f"threads {torch.get_num_threads()}")
     if rank == 0 and start_step == 0 and not args.no_eval:
         log("held-out FOF evaluation at step 0 (= the inflation prior): " +
@@ -378,7 +399,7 @@ def fit_fof(args):
             sampler.set_epoch(epoch)
         for b in loader:
             b = to_device(flip_batch(b, gen), device)
-            loss, parts = fof_loss(net, model, b, args.lambda_occupancy)
+            loss, parts = fof_loss(net, model, b, args.lambda_occupancy, args.lambda_silhouette)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

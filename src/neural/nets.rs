@@ -15,7 +15,8 @@ use super::tensor::{
 };
 use super::NeuralError;
 use crate::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
-use crate::geometry::fof::Fof;
+use crate::geometry::fof::{CosineTable, Fof};
+use crate::geometry::marching::ISO_LEVEL;
 use crate::geometry::raster::GBuffer;
 use crate::geometry::zmap::FlowZ;
 
@@ -211,7 +212,10 @@ impl FofNet {
     /// prior: `fof(p) = prior(p) + delta_up(p)`, where `delta_up` is the bilinear upsampling of `delta` that only
     /// reads model pixels inside the (resampled) mask, renormalising the weights (so the silhouette edge is not
     /// pulled towards zero by background taps). Pixels whose four taps are all outside keep the prior, and pixels
-    /// where the prior is empty (outside the cleaned mask) stay empty.
+    /// where the prior is empty (outside the cleaned mask) stay empty. A column inside the silhouette holds body by
+    /// definition, so a column the network leaves empty (its occupancy, decoded at 64 depths, never reaches the
+    /// mesh's 0.5 level) is treated as outside (no correction from it), and a corrected full-resolution column that
+    /// ends up empty keeps the prior: the FOF net can reshape the body in depth but never erases the silhouette.
     ///
     /// A network trained as a residual on the prior returns the prior unchanged while untrained; a network without a
     /// `prior` input predicts absolute coefficients, which this applies the same way (its prediction minus the
@@ -235,7 +239,12 @@ impl FofNet {
         let plane = r * r;
         // Correction per model pixel (pixel-major), and which model pixels carry one.
         let mut delta = vec![0.0f32; plane * n];
-        let valid: Vec<bool> = small_mask.iter().map(|m| *m >= 0.5).collect();
+        // A column inside the silhouette holds some body by definition: a prediction that leaves it empty (no
+        // depth reaches the 0.5 level) is wrong there and carries no correction.
+        let table = CosineTable::new(n, SILHOUETTE_SAMPLES);
+        let valid: Vec<bool> = (0..plane)
+            .map(|i| small_mask[i] >= 0.5 && column_peak(&table, &predicted.data[i * n..(i + 1) * n]) >= ISO_LEVEL)
+            .collect();
         for i in (0..plane).filter(|&i| valid[i]) {
             for k in 0..n {
                 delta[i * n + k] = predicted.data[i * n + k] - prior_small[k * plane + i];
@@ -246,7 +255,7 @@ impl FofNet {
         coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
             let y = (row as f32 + 0.5) * sy - 0.5;
             let (y0, ty) = (y.floor(), y - y.floor());
-            let mut acc = vec![0.0f32; n];
+            let (mut acc, mut before) = (vec![0.0f32; n], vec![0.0f32; n]);
             for (col, out) in line.chunks_exact_mut(n).enumerate() {
                 if out.iter().all(|v| *v == 0.0) {
                     continue;
@@ -272,14 +281,33 @@ impl FofNet {
                     }
                 }
                 if wsum > 1e-6 {
+                    before.copy_from_slice(out);
                     for (o, a) in out.iter_mut().zip(&acc) {
                         *o += a / wsum;
+                    }
+                    // The same rule at full resolution: a corrected column must still hold body, else the prior's.
+                    if column_peak(&table, out) < ISO_LEVEL {
+                        out.copy_from_slice(&before);
                     }
                 }
             }
         });
         Fof::new(n, w, h, coeffs).map_err(|e| NeuralError::BadInput { model, problem: e.to_string() })
     }
+}
+
+/// Depth samples of the "does this column hold body" test of [`FofNet::refine`].
+const SILHOUETTE_SAMPLES: usize = 64;
+
+/// The largest occupancy of one column of coefficients over the table's depth samples.
+fn column_peak(table: &CosineTable, coeffs: &[f32]) -> f32 {
+    let mut peak = f32::MIN;
+    for d in 0..table.samples {
+        let v: f32 =
+            coeffs.iter().enumerate().take(table.n).map(|(k, c)| c * table.values[k * table.samples + d]).sum();
+        peak = peak.max(v);
+    }
+    peak
 }
 
 /// What the encoder reads: the source photo, its FOF and its normals, all at the same square size.
