@@ -243,7 +243,7 @@ impl FofNet {
         // depth reaches the 0.5 level) is wrong there and carries no correction.
         let table = CosineTable::new(n, SILHOUETTE_SAMPLES);
         let valid: Vec<bool> = (0..plane)
-            .map(|i| small_mask[i] >= 0.5 && column_peak(&table, &predicted.data[i * n..(i + 1) * n]) >= ISO_LEVEL)
+            .map(|i| small_mask[i] >= 0.5 && column_holds_body(&table, &predicted.data[i * n..(i + 1) * n], ISO_LEVEL))
             .collect();
         for i in (0..plane).filter(|&i| valid[i]) {
             for k in 0..n {
@@ -286,7 +286,7 @@ impl FofNet {
                         *o += a / wsum;
                     }
                     // The same rule at full resolution: a corrected column must still hold body, else the prior's.
-                    if column_peak(&table, out) < ISO_LEVEL {
+                    if !column_holds_body(&table, out, ISO_LEVEL) {
                         out.copy_from_slice(&before);
                     }
                 }
@@ -299,15 +299,15 @@ impl FofNet {
 /// Depth samples of the "does this column hold body" test of [`FofNet::refine`].
 const SILHOUETTE_SAMPLES: usize = 64;
 
-/// The largest occupancy of one column of coefficients over the table's depth samples.
-fn column_peak(table: &CosineTable, coeffs: &[f32]) -> f32 {
-    let mut peak = f32::MIN;
-    for d in 0..table.samples {
-        let v: f32 =
-            coeffs.iter().enumerate().take(table.n).map(|(k, c)| c * table.values[k * table.samples + d]).sum();
-        peak = peak.max(v);
-    }
-    peak
+/// Whether one column of coefficients reaches the occupancy `level` at one of the table's depth samples (the
+/// samples are visited from the middle of the ray outwards, where the body usually is, and the scan stops at the
+/// first hit).
+fn column_holds_body(table: &CosineTable, coeffs: &[f32], level: f32) -> bool {
+    let m = table.samples;
+    (0..m).map(|i| if i % 2 == 0 { m / 2 + i / 2 } else { m / 2 - 1 - i / 2 }).any(|d| {
+        let v: f32 = coeffs.iter().take(table.n).enumerate().map(|(k, c)| c * table.values[k * m + d]).sum();
+        v >= level
+    })
 }
 
 /// What the encoder reads: the source photo, its FOF and its normals, all at the same square size.
