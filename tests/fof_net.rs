@@ -211,11 +211,13 @@ fn subject_source(seed: u64, size: usize) -> (RgbImage, GrayImage, Fof) {
     (rgb, mask, fof)
 }
 
-/// The shipped FOF net loads, predicts finite coefficients on a synthetic subject, and its geometry beats or ties
-/// the inflation prior (volumetric IoU of the decoded occupancy against the ground-truth FOF) on held-out subjects
-/// of the training data's seed (index % 10 == 9: the writer's test split) and on an evaluation subject (seed 0).
+/// The shipped FOF net loads, predicts finite coefficients on synthetic subjects, keeps their silhouette, and its
+/// geometry beats the inflation prior (volumetric IoU of the decoded occupancy against the ground-truth FOF) on the
+/// held-out subjects of the renderer's dataset (seed 7, index % 10 == 9: the writer's test
+/// split, never trained on): by at least 0.05 on the mean, and on most subjects. Not on every one: where the
+/// prior happens to fit well the net can be worse (printed; see models/tiny/README.md).
 #[test]
-fn shipped_fof_net_beats_or_ties_inflation_on_held_out_subjects() {
+fn shipped_fof_net_beats_inflation_on_held_out_subjects() {
     let dir = shipped_dir();
     let net = load_fof_net(GeometryMode::FofNet, Some(&dir), 32, &cpu()).unwrap_or_else(|e| panic!("{e}")).unwrap();
     {
@@ -232,9 +234,9 @@ fn shipped_fof_net_beats_or_ties_inflation_on_held_out_subjects() {
         fof_net: Some(net),
         ..Default::default()
     };
-    let (mut sum_net, mut sum_prior) = (0.0, 0.0);
-    let subjects = [subject_seed(7, 9), subject_seed(7, 19), subject_seed(0, 0)];
-    for seed in subjects {
+    let (mut sum_net, mut sum_prior, mut wins) = (0.0, 0.0, 0);
+    let subjects: Vec<u64> = (0..5).map(|k| subject_seed(7, 10 * k + 9)).collect();
+    for &seed in &subjects {
         let (rgb, mask, gt) = subject_source(seed, size);
         let norm = r2human::pipeline::input::NormalisedInput {
             rgb,
@@ -247,21 +249,29 @@ fn shipped_fof_net_beats_or_ties_inflation_on_held_out_subjects() {
         assert!(fof.coeffs.iter().all(|v| v.is_finite()));
         let prior = inflate_to_fof(&norm.mask, 32, &InflateParams::default()).unwrap();
         assert_ne!(fof, prior, "the trained net changes the prior");
-        // Outside the silhouette stays empty.
-        for (i, m) in norm.mask.data.iter().enumerate() {
-            if *m < 0.5 {
-                assert!(fof.coeffs[i * 32..(i + 1) * 32].iter().all(|v| *v == 0.0), "pixel {i}");
+        for row in 0..size {
+            for col in 0..size {
+                // Outside the prior's (cleaned) silhouette stays empty; inside, no column is erased.
+                if prior.column(col, row).iter().all(|v| *v == 0.0) {
+                    assert!(fof.column(col, row).iter().all(|v| *v == 0.0), "({col},{row})");
+                } else if !prior.is_empty_column(col, row) {
+                    assert!(!fof.is_empty_column(col, row), "({col},{row}) erased");
+                }
             }
         }
         let (iou_net, iou_prior) = (fof_occupancy_iou(&fof, &gt, 64), fof_occupancy_iou(&prior, &gt, 64));
-        eprintln!("subject seed {seed}: volumetric IoU FOF net {iou_net:.4}, inflation {iou_prior:.4}");
-        assert!(iou_net >= iou_prior - 0.01, "seed {seed}: FOF net {iou_net} worse than inflation {iou_prior}");
+        eprintln!("held-out subject seed {seed}: volumetric IoU FOF net {iou_net:.4}, inflation {iou_prior:.4}");
         sum_net += iou_net;
         sum_prior += iou_prior;
+        wins += (iou_net > iou_prior) as usize;
         let prepared = PreparedInput::from_fof(norm, fof, &opts, timings).unwrap();
         assert!(prepared.mesh.triangle_count() > 1000);
     }
-    assert!(sum_net >= sum_prior, "mean IoU: FOF net {} vs inflation {}", sum_net / 3.0, sum_prior / 3.0);
+    let n = subjects.len() as f32;
+    let (mean_net, mean_prior) = (sum_net / n, sum_prior / n);
+    eprintln!("mean volumetric IoU: FOF net {mean_net:.4}, inflation {mean_prior:.4}; the net wins on {wins} of {n}");
+    assert!(mean_net >= mean_prior + 0.05, "mean IoU: FOF net {mean_net} vs inflation {mean_prior}");
+    assert!(wins * 2 > subjects.len(), "the FOF net wins on only {wins} of {n} held-out subjects");
 }
 
 /// `r2human eval` scores the FOF-net methods next to the others: with an identity net (an untrained residual net)
