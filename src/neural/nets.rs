@@ -155,7 +155,6 @@ impl FofNet {
             });
         }
         check_sizes(model, "mask", mask.width, mask.height, rgb.width, rgb.height)?;
-        let image = image_tensor(rgb, mask, r);
         let prior_tensor = match (&prior, self.has_prior) {
             (Some(p), true) => {
                 check_sizes(model, "prior", p.width, p.height, rgb.width, rgb.height)?;
@@ -170,11 +169,26 @@ impl FofNet {
             (None, true) => Some(vec![0.0; n * r * r]),
             _ => None,
         };
+        self.predict(rgb, mask, prior_tensor.as_deref())
+    }
+
+    /// The network on a checked square photo and, when the model takes one, its planar `prior` tensor at the model's
+    /// resolution; zero where the resampled mask is below 0.5.
+    fn predict(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        prior_tensor: Option<&[f32]>,
+    ) -> Result<FofPrediction, NeuralError> {
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        let image = image_tensor(rgb, mask, r);
         let mut inputs: Vec<(&str, [usize; 4], &[f32])> = vec![("image", [1, 3, r, r], &image)];
-        if let Some(p) = &prior_tensor {
+        if let Some(p) = prior_tensor {
             inputs.push(("prior", [1, n, r, r], p));
         }
+        let start = std::time::Instant::now();
         let (shape, planes) = self.net.run(&inputs, "fof")?;
+        tracing::debug!("FOF net: session run {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
         self.net.expect_output_shape(&shape, [1, n, r, r])?;
         let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
         let mut data = vec![0.0; r * r * n];
@@ -232,9 +246,18 @@ impl FofNet {
                 problem: format!("prior has {} coefficients per pixel, the model takes {n}", prior.n),
             });
         }
+        if rgb.width != rgb.height || rgb.width == 0 {
+            return Err(NeuralError::BadInput {
+                model,
+                problem: format!("photo is {}x{}, not square", rgb.width, rgb.height),
+            });
+        }
+        check_sizes(model, "mask", mask.width, mask.height, w, h)?;
         let view = Coefficients { width: w, height: h, n, data: &prior.coeffs };
-        let predicted = self.run(rgb, mask, Some(view))?;
+        let start = std::time::Instant::now();
         let prior_small = coefficients_tensor(&view, r);
+        let predicted = self.predict(rgb, mask, self.has_prior.then_some(&prior_small[..]))?;
+        let ran = start.elapsed();
         let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
         let plane = r * r;
         // Correction per model pixel (pixel-major), and which model pixels carry one.
@@ -292,6 +315,11 @@ impl FofNet {
                 }
             }
         });
+        tracing::debug!(
+            "FOF net: inputs + network + outputs {:.1} ms, correction to {w}x{h} {:.1} ms",
+            ran.as_secs_f64() * 1e3,
+            (start.elapsed() - ran).as_secs_f64() * 1e3
+        );
         Fof::new(n, w, h, coeffs).map_err(|e| NeuralError::BadInput { model, problem: e.to_string() })
     }
 }
