@@ -1,19 +1,21 @@
 //! Live-input stages: clean-plate segmentation, mask cleanup and smoothing at webcam size (640x480), frame
-//! decoding from an image sequence, the ONNX segmentation model (when installed) and the whole live loop, whose
-//! per-stage medians are written to `target/capture_stages.json`.
+//! decoding from an image sequence, the ONNX segmentation model (when installed) and the whole live loop (without
+//! and with the neural encoder), whose per-stage medians are written to `target/capture_stages.json`.
 //!
 //! `cargo bench --bench capture`
 
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use r2human::app::live::{LiveOptions, LivePipeline, PrepareProcessor};
+use r2human::app::live::{EncodeProcessor, LiveOptions, LivePipeline};
 use r2human::capture::morph::{close, fill_holes, largest_component, open, threshold};
 use r2human::capture::segment::{CleanPlate, PlateParams};
 use r2human::capture::smooth::MaskSmoother;
 use r2human::capture::synthetic::{composite, empty_scene, walker, WalkerParams, WalkerSource};
 use r2human::capture::{open_video_path, Frame, FrameSource, SegmentMethod, SourceEvent};
-use r2human::pipeline::PrepareOptions;
+use r2human::neural::{ExecutionProvider, RuntimeOptions};
+use r2human::pipeline::{NeuralRenderer, PrepareOptions};
 
 fn vga() -> WalkerParams {
     WalkerParams { width: 640, height: 480, frames: 16, fps: 30.0, noise: 0.01 }
@@ -89,37 +91,63 @@ fn bench_onnx(c: &mut Criterion) {
 }
 
 /// Runs the live loop over a 640x480 walker delivered at 30 fps with clean-plate segmentation and the core
-/// pipeline (normalise, inflation FOF, mesh, source raster at 512^2) and writes the per-stage medians (the
-/// numbers the window shows) to target/capture_stages.json.
+/// pipeline (normalise, inflation FOF, mesh, source raster at 512^2), once without and once with the neural
+/// encoder (`models/tiny` on the CPU provider, when it loads), and writes the per-stage medians (the numbers the
+/// window shows, "encoder" included) to target/capture_stages.json.
 fn live_loop_stages(_c: &mut Criterion) {
-    let p = WalkerParams { frames: 90, ..vga() };
-    let opts =
-        LiveOptions { segment: SegmentMethod::CleanPlate { plate: None, plate_frames: 5 }, ..LiveOptions::default() };
-    let pp = p.clone();
-    let live = LivePipeline::start(
-        Box::new(move || Ok(Box::new(WalkerSource::new(pp, 5, false)) as Box<dyn FrameSource>)),
-        PrepareProcessor::new(PrepareOptions::default()),
-        opts,
-    )
-    .expect("start");
-    live.wait(Duration::from_secs(120));
-    let stats = live.stop();
-    let stages: Vec<serde_json::Value> = stats
-        .stages
-        .iter()
-        .map(|s| serde_json::json!({"stage": s.name, "median_ms": s.median_ms(), "samples": s.total}))
-        .collect();
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny");
+    let options = RuntimeOptions { ep: ExecutionProvider::Cpu, ..Default::default() };
+    let neural = match NeuralRenderer::load(&models, &options) {
+        Ok(n) => Some(Arc::new(Mutex::new(n))),
+        Err(e) => {
+            eprintln!("the live loop runs without the encoder: {e}");
+            None
+        }
+    };
+    let mut runs = serde_json::Map::new();
+    for (name, encoder) in [("geometric", None), ("neural", neural)] {
+        if name == "neural" && encoder.is_none() {
+            continue;
+        }
+        let p = WalkerParams { frames: 90, ..vga() };
+        let opts = LiveOptions {
+            segment: SegmentMethod::CleanPlate { plate: None, plate_frames: 5 },
+            ..LiveOptions::default()
+        };
+        let pp = p.clone();
+        let live = LivePipeline::start(
+            Box::new(move || Ok(Box::new(WalkerSource::new(pp, 5, false)) as Box<dyn FrameSource>)),
+            EncodeProcessor::new(PrepareOptions::default(), encoder),
+            opts,
+        )
+        .expect("start");
+        live.wait(Duration::from_secs(180));
+        let stats = live.stop();
+        let stages: Vec<serde_json::Value> = stats
+            .stages
+            .iter()
+            .map(|s| serde_json::json!({"stage": s.name, "median_ms": s.median_ms(), "samples": s.total}))
+            .collect();
+        runs.insert(
+            name.to_string(),
+            serde_json::json!({
+                "read": stats.read, "dropped": stats.dropped, "completed": stats.completed,
+                "throughput_fps": stats.throughput_fps, "source_fps": stats.source_fps, "stages": stages,
+            }),
+        );
+        println!("live loop ({name}): {}", stats.overlay_line());
+    }
     let json = serde_json::json!({
-        "source": "synthetic walker 640x480 at 30 fps, clean-plate segmentation, core pipeline at 512^2",
-        "read": stats.read, "dropped": stats.dropped, "completed": stats.completed,
-        "throughput_fps": stats.throughput_fps, "source_fps": stats.source_fps, "stages": stages,
+        "source": "synthetic walker 640x480 at 30 fps, clean-plate segmentation, core pipeline at 512^2; \
+                   neural: + models/tiny encoder on the ONNX Runtime CPU provider, once per completed frame",
+        "runs": runs,
     });
     let out = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/capture_stages.json");
     let text = serde_json::to_string_pretty(&json).expect("json");
     if let Err(e) = std::fs::write(&out, &text) {
         eprintln!("cannot write {}: {e}", out.display());
     }
-    println!("live loop: {}\n{text}", stats.overlay_line());
+    println!("{text}");
 }
 
 criterion_group!(benches, bench_segmentation, bench_decode, bench_onnx, live_loop_stages);

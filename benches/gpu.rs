@@ -9,12 +9,15 @@
 //! frame costs besides time: host heap allocations (a counting global allocator) and resources, pipelines and
 //! uploads ([`Renderer::counters`]) over the measured frames; it prints both and fails if either is not zero.
 //!
+//! A second group times the neural renderer per view (`models/tiny`, when it loads): the CPU per-view path against
+//! the Vulkan path through the host-memory seam the window and the XR eyes use.
+//!
 //! `cargo bench --bench gpu` (criterion prints medians). On this machine the Vulkan device is lavapipe, a CPU
 //! rasteriser sharing the cores with everything else: the comparison is then CPU code against CPU code.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -23,10 +26,12 @@ use r2human::buffer::Image;
 use r2human::compose::{self, Mode};
 use r2human::geometry::raster::{rasterize, rasterize_into, GBuffer};
 use r2human::geometry::Camera;
+use r2human::gpu::neural::{gpu_neural_person, SourceView};
 use r2human::gpu::{offline, Context, Renderer};
 use r2human::io::environment::Environment;
+use r2human::neural::{ExecutionProvider, RuntimeOptions};
 use r2human::pipeline::warp::{render_geometric, OcclusionFill};
-use r2human::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
+use r2human::pipeline::{NeuralRenderer, PrepareOptions, PreparedInput, ViewRenderer};
 
 const SIZE: usize = 512;
 
@@ -212,6 +217,64 @@ fn bench(c: &mut Criterion) {
             );
         }
         Err(e) => eprintln!("SKIPPED the Vulkan benchmarks: {e}"),
+    }
+    group.finish();
+    bench_neural(c, &input, &env, &cams);
+}
+
+/// The neural renderer per view at 512x512 (`models/tiny`, ONNX Runtime CPU provider), in the same run: the CPU
+/// per-view path (`ViewRenderer::with_neural`) against the window's and the XR eyes' Vulkan path through the
+/// host-memory seam (GPU raster + flow read back, lookup + decoder on the host, fusion + compose on the GPU).
+/// The camera moves every iteration, so the decoder runs every time.
+fn bench_neural(c: &mut Criterion, input: &PreparedInput, env: &Environment, cams: &[Camera]) {
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny");
+    let options = RuntimeOptions { ep: ExecutionProvider::Cpu, ..Default::default() };
+    let shared = match NeuralRenderer::load(&models, &options) {
+        Ok(n) => Arc::new(Mutex::new(n)),
+        Err(e) => {
+            eprintln!("SKIPPED the neural benchmarks: {e}");
+            return;
+        }
+    };
+    let encoded = shared.lock().expect("lock").encode(input).expect("encoder");
+    eprintln!("encoder (once per input): {:.1} ms", encoded.encode_time.as_secs_f64() * 1e3);
+    let mut group = c.benchmark_group("per_view_512_neural");
+    group.sample_size(10);
+    group.measurement_time(Duration::from_secs(10));
+    let mut k = 0usize;
+    let mut cpu =
+        ViewRenderer::with_neural(input, OcclusionFill::default(), true, Arc::clone(&shared), encoded.clone());
+    group.bench_function("cpu/neural_total_vr", |b| {
+        b.iter(|| {
+            k += 1;
+            cpu.render_frame(&cams[k % cams.len()], Mode::Vr, env).expect("CPU neural frame")
+        })
+    });
+    assert_eq!(cpu.neural_fallbacks, 0, "the decoder failed on the CPU path");
+    match Context::headless() {
+        Ok(ctx) => {
+            let mut gpu = Renderer::new(Arc::new(ctx), SIZE, SIZE).expect("renderer");
+            offline::upload_input(&mut gpu, input, Some(env), OcclusionFill::default(), true).expect("upload");
+            let source = SourceView::of(input);
+            let (mut gpu_inputs, mut decoder) = (Vec::new(), Vec::new());
+            group.bench_function("vulkan/neural_seam_total_vr", |b| {
+                b.iter(|| {
+                    k += 1;
+                    let cam = &cams[k % cams.len()];
+                    let (person, times) =
+                        gpu_neural_person(&mut gpu, &shared, source, &encoded, cam).expect("neural view");
+                    gpu.render_frame_from_person(Some(&person), cam, Mode::Vr, None).expect("compose");
+                    gpu_inputs.push(times.gpu_inputs);
+                    decoder.push(times.decoder);
+                })
+            });
+            eprintln!(
+                "vulkan neural seam medians (ms): GPU raster + flow incl. read-back {:.2}, lookup + decoder {:.2}",
+                median(gpu_inputs).as_secs_f64() * 1e3,
+                median(decoder).as_secs_f64() * 1e3
+            );
+        }
+        Err(e) => eprintln!("SKIPPED the Vulkan neural benchmark: {e}"),
     }
     group.finish();
 }

@@ -6,25 +6,34 @@
 //! - `desktop/gpu_eye_render`: one eye image (person + panorama) on the Vulkan renderer, headless, no XR at all;
 //! - `desktop/cpu_eye_render`: the same eye through the CPU reference pipeline;
 //! - `xr_simulated_hmd/frame_interval`: time per submitted XR frame while the GPU renders the person per eye;
-//! - after the benchmarks, one session's report: per-eye GPU render time inside the session, fresh-render share,
-//!   motion-to-photon latency of the person layer, and the frame loop's waits for the shared Vulkan queue.
+//! - `desktop/{gpu,cpu}_eye_render_neural`: the same eye with the neural renderer (`models/tiny`, ONNX Runtime CPU
+//!   provider): through the host-memory seam on the Vulkan renderer, and on the CPU per-view path;
+//! - after the benchmarks, one session's report per renderer (geometric, neural): per-eye render time inside the
+//!   session, fresh-render share, motion-to-photon latency of the person layer, and the frame loop's waits for the
+//!   shared Vulkan queue; then the desktop window (`r2human view --frames 60 --spin 3`, Xvfb) with each renderer,
+//!   and the load average before and after.
 
 #[path = "../tests/xr_support/mod.rs"]
 mod xr_support;
 
 use std::process::{Command, Stdio};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use criterion::{criterion_group, Criterion};
 use glam::{Quat, Vec3};
 use r2human::app::xr_session::scene_from_prepared;
+use r2human::buffer::RgbaImage;
 use r2human::compose::{self, Mode};
 use r2human::geometry::camera::Fov;
+use r2human::gpu::neural::{gpu_neural_person, SourceView};
+use r2human::gpu::offline;
 use r2human::gpu::{Context, Renderer};
 use r2human::io::environment::Environment;
-use r2human::pipeline::{PrepareOptions, PreparedInput};
-use r2human::xr::{run_session, Placement, SessionConfig, StaticScene, XrMode};
+use r2human::neural::{ExecutionProvider, RuntimeOptions};
+use r2human::pipeline::warp::OcclusionFill;
+use r2human::pipeline::{NeuralInput, NeuralRenderer, PrepareOptions, PreparedInput, SharedNeural};
+use r2human::xr::{run_session, EyeNeural, Placement, SessionConfig, StaticScene, XrMode};
 
 /// Eye image size cap used in all paths (the CLI default).
 const EYE_SIDE: u32 = 384;
@@ -65,7 +74,7 @@ fn bench_xr(c: &mut Criterion) {
         Ok(ctx) => {
             let ctx = Arc::new(ctx);
             let mut renderer = Renderer::new(ctx, w, h).expect("renderer");
-            let scene = scene_from_prepared(&input);
+            let scene = scene_from_prepared(&input, None);
             renderer.set_mesh(&scene.mesh).expect("mesh");
             renderer
                 .set_source_parts(&scene.source_rgb, &scene.source_mask, &scene.source_gbuffer, &scene.source_camera)
@@ -92,6 +101,39 @@ fn bench_xr(c: &mut Criterion) {
             compose::compose_vr(&person, &env, &stage)
         })
     });
+    // The neural renderer for the same eyes: the Vulkan path through host memory (what the XR render thread
+    // runs) and the CPU per-view path.
+    let neural = load_neural();
+    if let Some((shared, encoded)) = &neural {
+        if let Ok(ctx) = Context::headless() {
+            let mut renderer = Renderer::new(Arc::new(ctx), w, h).expect("renderer");
+            offline::upload_input(&mut renderer, &input, Some(&env), OcclusionFill::default(), true).expect("upload");
+            let source = SourceView::of(&input);
+            group.bench_function("gpu_eye_render_neural", |b| {
+                b.iter(|| {
+                    k += 1;
+                    let body = eye_camera(k).0;
+                    let (person, _) = gpu_neural_person(&mut renderer, shared, source, encoded, &body).expect("neural");
+                    renderer.render_frame_from_person(Some(&person), &body, Mode::Vr, None).expect("compose")
+                })
+            });
+        }
+        let mut view = r2human::pipeline::ViewRenderer::with_neural(
+            &input,
+            Default::default(),
+            true,
+            Arc::clone(shared),
+            encoded.clone(),
+        );
+        group.bench_function("cpu_eye_render_neural", |b| {
+            b.iter(|| {
+                k += 1;
+                let (body, stage) = eye_camera(k);
+                let person = view.render_person(&body).expect("render");
+                compose::compose_vr(&person, &env, &stage)
+            })
+        });
+    }
     group.finish();
 
     // XR: time per submitted frame with the simulated HMD while the GPU renders the person per eye.
@@ -100,7 +142,7 @@ fn bench_xr(c: &mut Criterion) {
     group.measurement_time(Duration::from_secs(20));
     group.bench_function("frame_interval", |b| {
         b.iter_custom(|iters| {
-            let feed = Box::new(StaticScene::new(scene_from_prepared(&input)));
+            let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
             let report = run_session(&config(iters), feed, Some(env.clone())).expect("XR session");
             let interval = if report.display_fps > 0.0 { 1.0 / report.display_fps } else { 1.0 };
             Duration::from_secs_f64(interval * iters as f64)
@@ -112,9 +154,76 @@ fn bench_xr(c: &mut Criterion) {
     if !std::env::args().any(|a| a == "--bench") {
         return;
     }
-    let feed = Box::new(StaticScene::new(scene_from_prepared(&input)));
-    let report = run_session(&config(200), feed, Some(env.clone())).expect("XR session");
-    println!("\nXR session with the simulated HMD (200 person frames):\n{report}\n");
+    println!("\nload average at the start of the sessions: {}", load_average());
+    let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
+    // 600 person frames (about 11 s at the XCB compositor's rate): a few dozen eye renders per renderer.
+    let report = run_session(&config(600), feed, Some(env.clone())).expect("XR session");
+    println!("\nXR session with the simulated HMD (600 person frames, geometric renderer):\n{report}\n");
+    if let Some((shared, encoded)) = &neural {
+        let eye = EyeNeural { renderer: Arc::clone(shared), encoded: encoded.clone() };
+        let feed = Box::new(StaticScene::new(scene_from_prepared(&input, Some(eye))));
+        let report = run_session(&config(600), feed, Some(env.clone())).expect("XR session");
+        println!("\nXR session with the simulated HMD (600 person frames, neural renderer):\n{report}\n");
+    }
+    desktop_view_runs();
+    println!("load average at the end: {}", load_average());
+}
+
+/// The shipped `models/tiny` on the ONNX Runtime CPU provider and the encoder's output for the bench input, or
+/// `None` (printed) when they cannot be loaded.
+fn load_neural() -> Option<(SharedNeural, NeuralInput)> {
+    let models = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny");
+    let options = RuntimeOptions { ep: ExecutionProvider::Cpu, ..Default::default() };
+    match NeuralRenderer::load(&models, &options) {
+        Ok(n) => {
+            let shared = Arc::new(Mutex::new(n));
+            let encoded = shared.lock().expect("lock").encode(&prepared()).expect("encoder");
+            Some((shared, encoded))
+        }
+        Err(e) => {
+            println!("neural benchmarks skipped: {e}");
+            None
+        }
+    }
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg").map(|s| s.trim().to_string()).unwrap_or_else(|_| "unknown".into())
+}
+
+/// The desktop window in the same run (Xvfb inside the root): `r2human view --frames 60 --spin 3` with each
+/// renderer, at the eye size, turning so every frame is a new view.
+fn desktop_view_runs() {
+    let Ok(display) = std::env::var("DISPLAY") else {
+        println!("desktop view runs skipped: no DISPLAY (run the bench through run-in-root.sh --xvfb)");
+        return;
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let person = dir.path().join("person.png");
+    let (rgb, mask) = xr_support::figure(512);
+    let rgba = RgbaImage::from_fn(512, 512, |c, r| (*rgb.get(c, r) * *mask.get(c, r)).extend(*mask.get(c, r)));
+    r2human::io::image_io::save_rgba_png(&person, &rgba).expect("write the person");
+    for renderer in ["geometric", "neural"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_r2human"))
+            .args(["view", "--frames", "60", "--spin", "3", "--size", &EYE_SIDE.to_string(), "--ep", "cpu"])
+            .args(["--renderer", renderer, "--image"])
+            .arg(&person)
+            .env("DISPLAY", &display)
+            .stdin(Stdio::null())
+            .output();
+        match out {
+            Ok(o) => println!(
+                "desktop view ({renderer}): {}{}",
+                String::from_utf8_lossy(&o.stdout).trim(),
+                if o.status.success() {
+                    String::new()
+                } else {
+                    format!(" FAILED: {}", String::from_utf8_lossy(&o.stderr))
+                }
+            ),
+            Err(e) => println!("desktop view ({renderer}) could not start: {e}"),
+        }
+    }
 }
 
 criterion_group!(benches, bench_xr);

@@ -524,9 +524,14 @@ fn render_video_views_runs_the_core_pipeline_per_frame() {
             &small_prepare(),
             &Camera::orbit(yaw, 0.0, 128, 128),
             OcclusionFill::default(),
+            None,
             &out.path().join(format!("yaw{yaw}")),
             |m| panic!("unexpected message: {m}"),
         )
+        .map(|(report, fallbacks)| {
+            assert_eq!(fallbacks, 0);
+            report
+        })
     };
     let front = run(&mut src, 0.0).unwrap();
     // The source is used up: nothing to render is an error, not an empty success.

@@ -11,10 +11,13 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use r2human::app::mirror::{run_view_with_stats, Backend, ScriptAction, ScriptStep, ViewOptions, ViewStats};
+use r2human::app::mirror::{run_view_with_stats, Backend, Drawn, ScriptAction, ScriptStep, ViewOptions, ViewStats};
+use r2human::app::neural::NeuralSetup;
 use r2human::capture::synthetic::{walker, WalkerParams};
 use r2human::capture::SegmentMethod;
 use r2human::compose::Mode;
+use r2human::neural::{ExecutionProvider, RuntimeOptions};
+use r2human::pipeline::RendererChoice;
 
 const CHILD_ENV: &str = "R2HUMAN_WINDOW_CHILD";
 
@@ -324,6 +327,134 @@ fn resize_recreates_the_swapchain_on_the_cpu_backend() {
         let img = image::open(&shot).unwrap().to_rgba8();
         assert_eq!(img.dimensions(), (144, 80));
         assert!(img.pixels().filter(|p| p[3] > 200).count() > 144 * 80 / 30);
+    });
+}
+
+fn neural_setup(choice: RendererChoice, models: Option<PathBuf>) -> NeuralSetup {
+    let options = RuntimeOptions { ep: ExecutionProvider::Cpu, intra_threads: Some(1), ..Default::default() };
+    NeuralSetup { choice, models, options }
+}
+
+/// `view --renderer neural --frames N` on the Vulkan backend: the frames are drawn by the decoder through the
+/// host-memory seam, G and N switch the renderer (the decoder runs again after N, and not for an unmoved view
+/// of an unchanged input), the overlay names the renderer that drew the frame, and the screenshot shows the person.
+#[test]
+fn neural_view_renders_the_person_and_g_n_switch() {
+    in_window_child("neural_view_renders_the_person_and_g_n_switch", || {
+        let dir = tempfile::tempdir().unwrap();
+        let person = dir.path().join("person.png");
+        write_person(&person);
+        let shot = dir.path().join("neural.png");
+        let presented = dir.path().join("presented.png");
+        let stats = run(ViewOptions {
+            image: person,
+            mode: Mode::Vr,
+            backend: Backend::Vulkan,
+            frames: Some(6),
+            size: 128,
+            screenshot_on_exit: Some(shot.clone()),
+            presented_on_exit: Some(presented.clone()),
+            script: vec![
+                ScriptStep { at_frame: 2, action: ScriptAction::Key('g') },
+                ScriptStep { at_frame: 4, action: ScriptAction::Key('n') },
+            ],
+            resolution: 128,
+            neural: neural_setup(RendererChoice::Neural, None),
+            ..ViewOptions::default()
+        });
+        keep("neural", &[&shot, &presented]);
+        eprintln!("neural: {:?}", stats.neural);
+        assert_eq!(stats.frames, 6);
+        assert_eq!(stats.renderer, Drawn::Neural);
+        // Frames 0, 1 (reused), 4 and 5 (reused) neural; 2 and 3 geometric. One encoder run for the photo.
+        assert_eq!(stats.neural.frames, 4);
+        assert_eq!(stats.neural.decoder_runs, 2);
+        assert_eq!(stats.neural.encodes, 1);
+        assert_eq!(stats.neural.fallbacks, 0);
+        assert!(stats.overlay[0].contains("VULKAN") && stats.overlay[0].ends_with("| NEURAL"), "{:?}", stats.overlay);
+        assert!(stats.overlay.iter().any(|l| l.starts_with("NEURAL MS:")), "{:?}", stats.overlay);
+        let img = image::open(&shot).unwrap().to_rgb8();
+        let magenta = |p: &image::Rgb<u8>| p[0] > 130 && p[2] > 110 && p[1] < 110;
+        let count = img.pixels().filter(|p| magenta(p)).count();
+        assert!(count > 128 * 128 / 20, "only {count} person pixels in the neural screenshot");
+        for (x, y) in [(2, 2), (125, 2), (2, 125)] {
+            assert!(!magenta(img.get_pixel(x, y)));
+        }
+        let shown = image::open(&presented).unwrap().to_rgb8();
+        assert!(white_in_corner(&shown, 128, 30) > 60, "the overlay is in the presented image");
+    });
+}
+
+/// N without models: the window keeps the geometric renderer, shows one overlay line saying why and how to
+/// enable the neural one, and nothing fails.
+#[test]
+fn n_without_models_shows_why_in_the_overlay() {
+    in_window_child("n_without_models_shows_why_in_the_overlay", || {
+        let dir = tempfile::tempdir().unwrap();
+        let person = dir.path().join("person.png");
+        write_person(&person);
+        let empty = dir.path().join("no-models");
+        std::fs::create_dir_all(&empty).unwrap();
+        let stats = run(ViewOptions {
+            image: person,
+            backend: Backend::Vulkan,
+            frames: Some(4),
+            size: 128,
+            script: vec![ScriptStep { at_frame: 1, action: ScriptAction::Key('n') }],
+            resolution: 96,
+            neural: neural_setup(RendererChoice::Auto, Some(empty)),
+            ..ViewOptions::default()
+        });
+        assert_eq!(stats.frames, 4);
+        assert_eq!(stats.renderer, Drawn::Geometric);
+        assert_eq!(stats.neural.frames, 0);
+        let why = stats.neural_message.clone().expect("N was refused with a reason");
+        assert!(why.starts_with("NEURAL RENDERER OFF:"), "{why}");
+        assert!(stats.overlay.contains(&why), "the reason is on screen: {:?}", stats.overlay);
+        assert!(stats.overlay[0].ends_with("| GEOMETRIC"), "{:?}", stats.overlay);
+    });
+}
+
+/// Live input with the neural renderer: the worker thread encodes each new frame once; the window draws the
+/// latest completed frame with the decoder and shows the encoder's stage time.
+#[test]
+fn live_folder_with_the_neural_renderer_encodes_once_per_frame() {
+    in_window_child("live_folder_with_the_neural_renderer_encodes_once_per_frame", || {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = dir.path().join("frames");
+        std::fs::create_dir_all(&frames).unwrap();
+        write_walker_folder(&frames, 4, usize::MAX);
+        let shot = dir.path().join("live-neural.png");
+        let stats = run(ViewOptions {
+            video: Some(frames),
+            segment: SegmentMethod::Alpha,
+            fps: 30.0,
+            mode: Mode::Ar,
+            backend: Backend::Vulkan,
+            frames: Some(3),
+            size: 96,
+            screenshot_on_exit: Some(shot.clone()),
+            resolution: 96,
+            neural: neural_setup(RendererChoice::Neural, None),
+            ..ViewOptions::default()
+        });
+        keep("live-neural", &[&shot]);
+        let live = stats.live.clone().expect("live statistics");
+        eprintln!(
+            "live: {live:?}
+neural: {:?}",
+            stats.neural
+        );
+        assert!(stats.source_finished);
+        assert_eq!(live.read, 4);
+        assert_eq!(stats.neural.encodes, live.completed, "one encoder run per completed frame");
+        assert_eq!(live.completed + live.dropped, live.read);
+        assert_eq!(stats.renderer, Drawn::Neural);
+        assert!(stats.neural.decoder_runs >= 1 && stats.neural.fallbacks == 0);
+        assert!(stats.overlay.iter().any(|l| l.starts_with("STAGES MS:") && l.contains("ENC")), "{:?}", stats.overlay);
+        let img = image::open(&shot).unwrap().to_rgba8();
+        let opaque = img.pixels().filter(|p| p[3] > 200).count();
+        assert!(opaque > 96 * 96 / 30, "{opaque} person pixels");
     });
 }
 

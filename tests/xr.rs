@@ -145,7 +145,7 @@ fn box_scene() -> EyeScene {
     let (w, h) = (gbuffer.width, gbuffer.height);
     let mask = GrayImage::from_fn(w, h, |c, r| if gbuffer.mask[r * w + c] { 1.0 } else { 0.0 });
     let rgb = RgbImage::from_fn(w, h, |c, r| if gbuffer.mask[r * w + c] { FRONT } else { Vec3::ZERO });
-    EyeScene { mesh, source_rgb: rgb, source_mask: mask, source_gbuffer: gbuffer, source_camera }
+    EyeScene { mesh, source_rgb: rgb, source_mask: mask, source_gbuffer: gbuffer, source_camera, neural: None }
 }
 
 fn box_feed() -> Box<dyn SceneFeed> {
@@ -559,7 +559,7 @@ fn pipeline_person_appears_where_the_eye_pose_says() {
     use r2human::pipeline::{PrepareOptions, PreparedInput};
     let (rgb, mask) = xr_support::figure(512);
     let input = PreparedInput::prepare(&rgb, &mask, &PrepareOptions::default()).expect("prepare");
-    let feed = Box::new(StaticScene::new(scene_from_prepared(&input)));
+    let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
     let report = run_session(&config(XrMode::Ar, 10), feed, None).expect("session runs");
     assert_clean_session(&report, 10);
     for cap in &report.captures {
@@ -581,9 +581,58 @@ fn pipeline_person_appears_where_the_eye_pose_says() {
     }
 }
 
+/// `xr --renderer neural`: the eyes drawn by the shipped `tiny` decoder through host memory (GPU raster and flow
+/// read back, decoder on ONNX Runtime on the render thread, the result uploaded for compositing). The session
+/// reaches FOCUSED and ends cleanly, every eye image that shows the person was drawn by the decoder (no geometric
+/// fallback), and the person is where the eye pose says in both eyes' read-back images.
+#[test]
+#[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
+fn neural_eyes_show_the_person_where_the_eye_pose_says() {
+    use r2human::app::xr_session::scene_from_prepared;
+    use r2human::neural::{ExecutionProvider, RuntimeOptions};
+    use r2human::pipeline::{NeuralRenderer, PrepareOptions, PreparedInput};
+    use r2human::xr::EyeNeural;
+    use std::sync::{Arc, Mutex};
+    assert_validation_layers_present();
+    let (rgb, mask) = xr_support::figure(512);
+    let input = PreparedInput::prepare(&rgb, &mask, &PrepareOptions::default()).expect("prepare");
+    let options = RuntimeOptions { ep: ExecutionProvider::Cpu, ..Default::default() };
+    let models = checkout().join("models/tiny");
+    let neural = NeuralRenderer::load(&models, &options).unwrap_or_else(|e| panic!("models/tiny: {e}"));
+    let renderer = Arc::new(Mutex::new(neural));
+    let encoded = renderer.lock().unwrap().encode(&input).expect("encoder");
+    let scene = scene_from_prepared(&input, Some(EyeNeural { renderer, encoded }));
+    let report = run_session(&config(XrMode::Ar, 6), Box::new(StaticScene::new(scene)), None).expect("session runs");
+    assert_clean_session(&report, 6);
+    println!("neural eyes: {:?}", report.neural);
+    assert!(report.person_renderer.starts_with("neural"), "{}", report.person_renderer);
+    assert_eq!(report.neural.fallbacks, 0, "the decoder failed on some eyes");
+    assert!(report.neural.decoder_runs >= 2, "both eyes decoded at least once: {:?}", report.neural);
+    assert_eq!(report.neural.eyes as usize, report.eye_renders, "every eye render was neural");
+    for cap in &report.captures {
+        let (w, h) = (cap.image.width, cap.image.height);
+        let cam = cap.placement.eye_camera(cap.view.position, cap.view.orientation, cap.view.fov, w, h);
+        for p in [Vec3::ZERO, Vec3::new(0.0, 0.2, 0.0)] {
+            let c = cam.project(p).unwrap();
+            let px = *cap.image.get(c.x as usize, c.y as usize);
+            assert!(px.w > 0.9, "eye {}: alpha {} at the projected body point {p}", cap.eye, px.w);
+            // The decoder draws the figure's colours, not a black or white hole.
+            assert!(px.truncate().max_element() > 0.02 && px.truncate().min_element() < 0.98, "eye {}: {px}", cap.eye);
+        }
+        let coverage = cap.image.data.iter().filter(|p| p.w > 0.5).count() as f32 / (w * h) as f32;
+        assert!(coverage > 0.02 && coverage < 0.6, "eye {}: coverage {coverage}", cap.eye);
+        for (x, y) in [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)] {
+            assert_eq!(cap.image.get(x, y).w, 0.0, "eye {}: corner ({x}, {y}) not transparent", cap.eye);
+        }
+        assert!(cap.image.data.iter().all(|p| p.is_finite() && p.w <= 1.0 && p.max_element() <= p.w + 1e-6));
+        save_capture(&format!("neural_ar_eye{}", cap.eye), &cap.image);
+    }
+}
+
 /// `xr --video DIR`: a live image-sequence source (the synthetic figure walking to the side, one corrupt file among
 /// the frames) feeds the session through the live pipeline. New frames are uploaded as they complete, the corrupt
-/// frame and the end of the source are reported, and the session goes on showing the last person.
+/// frame and the end of the source are reported, and the session goes on showing the last person. The command line
+/// runs the same source with `--renderer neural`: encoder per new frame on the worker, decoder for the eyes.
 #[test]
 #[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
 fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
@@ -609,8 +658,10 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
         r2human::io::image_io::save_rgba_png(&path, &frame).expect("write frame");
     }
     std::fs::write(dir.path().join("frame_003.png"), b"this is not a PNG").unwrap();
-    let feed = LiveFeed::start(video_source(dir.path(), 8.0), SegmentMethod::Alpha, PrepareOptions::default())
-        .expect("live source starts");
+    let geometric = r2human::app::neural::NeuralAvailability::none("geometric test");
+    let feed =
+        LiveFeed::start(video_source(dir.path(), 8.0), SegmentMethod::Alpha, PrepareOptions::default(), &geometric)
+            .expect("live source starts");
     let cfg =
         SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(8)), ..config(XrMode::Ar, 0) };
     let report = run_session(&cfg, Box::new(feed), None).expect("session runs");
@@ -646,6 +697,10 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
             "--eye-size",
             "128",
             "--no-mirror",
+            "--renderer",
+            "neural",
+            "--ep",
+            "cpu",
         ])
         .stdin(Stdio::null())
         .output()
@@ -654,4 +709,7 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
     println!("{text}");
     assert!(out.status.success(), "r2human xr --video failed");
     assert!(text.contains("session ended: frame budget reached"), "{text}");
+    // With `--renderer neural` the worker encodes each new frame and the eyes are drawn by the decoder.
+    let line = text.lines().find(|l| l.starts_with("person renderer:")).expect("the report names the renderer");
+    assert!(line.starts_with("person renderer: neural") && line.contains(" 0 geometric fallbacks"), "{line}");
 }

@@ -28,7 +28,9 @@ use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter,
 use crate::geometry::Camera;
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{compute_geometry, PrepareOptions, PreparedInput, StageTimings, ViewRenderer};
+use crate::pipeline::{
+    compute_geometry, NeuralInput, PrepareOptions, PreparedInput, SharedNeural, StageTimings, ViewRenderer,
+};
 
 /// Errors of the live loop and offline video rendering.
 #[derive(Debug, thiserror::Error)]
@@ -117,6 +119,58 @@ impl FrameProcessor for PrepareProcessor {
             stats.record(name, *d);
         }
         Ok(prepared)
+    }
+}
+
+/// One completed live frame for the views: the prepared input and, with the neural renderer, the encoder's
+/// features of it (computed once, on the worker thread).
+#[derive(Clone, Debug)]
+pub struct LiveFrame {
+    /// Normalised input, geometry, mesh and source view.
+    pub input: PreparedInput,
+    /// The encoder's output for `input` (`None`: geometric renderer, or the encoder failed on this frame).
+    pub neural: Option<NeuralInput>,
+}
+
+/// [`PrepareProcessor`] followed by the neural encoder (stage "encoder"), once per new frame on the worker thread.
+/// Without a neural renderer it only prepares. An encoder failure is a message and the frame is still shown, drawn
+/// by the geometric renderer.
+pub struct EncodeProcessor {
+    prepare: PrepareProcessor,
+    neural: Option<SharedNeural>,
+    encodes: Arc<AtomicU64>,
+}
+
+impl EncodeProcessor {
+    /// A processor preparing with `options` and encoding with `neural` (give the worker its own instance, see
+    /// [`crate::app::neural::NeuralAvailability::second_instance`], so the display's decoder never waits for it).
+    pub fn new(options: PrepareOptions, neural: Option<SharedNeural>) -> Self {
+        Self { prepare: PrepareProcessor::new(options), neural, encodes: Arc::new(AtomicU64::new(0)) }
+    }
+
+    /// A counter of encoder runs (shared: read it while the worker runs).
+    pub fn encode_counter(&self) -> Arc<AtomicU64> {
+        Arc::clone(&self.encodes)
+    }
+}
+
+impl FrameProcessor for EncodeProcessor {
+    type Output = LiveFrame;
+
+    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<LiveFrame, String> {
+        let input = self.prepare.process(frame, mask, stats)?;
+        let Some(shared) = &self.neural else { return Ok(LiveFrame { input, neural: None }) };
+        let t = Instant::now();
+        let encoded = shared.lock().unwrap_or_else(|p| p.into_inner()).encode(&input);
+        stats.record("encoder", t.elapsed());
+        self.encodes.fetch_add(1, Ordering::Relaxed);
+        match encoded {
+            Ok(n) => Ok(LiveFrame { input, neural: Some(n) }),
+            Err(e) => {
+                tracing::warn!("frame {}: the neural encoder failed, drawing it geometrically: {e}", frame.index);
+                Ok(LiveFrame { input, neural: None })
+            }
+        }
     }
 }
 
@@ -617,9 +671,11 @@ pub fn render_video<P: FrameProcessor>(
     Ok(report)
 }
 
-/// `r2human render --video PATH ... --out OUTDIR`: every frame through the core pipeline
-/// ([`PrepareProcessor`]) and rendered for `camera` ([`ViewRenderer::render_person`], premultiplied RGBA, no
-/// fusion between frames), one PNG per input frame in `out_dir`. See [`render_video`].
+/// `r2human render --video PATH ... --out OUTDIR`: every frame through the core pipeline and, with `neural`, the
+/// encoder once per frame ([`EncodeProcessor`]), rendered for `camera` ([`ViewRenderer::render_person`] with the
+/// neural decoder or the geometric renderer; premultiplied RGBA, no fusion between frames), one PNG per input frame
+/// in `out_dir`. See [`render_video`]. Returns the report and the number of views the neural decoder failed on
+/// (drawn by the geometric renderer instead).
 #[allow(clippy::too_many_arguments)]
 pub fn render_video_views(
     source: &mut dyn FrameSource,
@@ -628,14 +684,26 @@ pub fn render_video_views(
     prepare: &PrepareOptions,
     camera: &Camera,
     fill: OcclusionFill,
+    neural: Option<&SharedNeural>,
     out_dir: &Path,
     on_message: impl FnMut(&str),
-) -> Result<RenderReport, LiveError> {
-    let mut processor = PrepareProcessor::new(prepare.clone());
-    let render = |done: &Completed<PreparedInput>| {
-        ViewRenderer::new(&done.output, fill, false).render_person(camera).map_err(|e| e.to_string())
+) -> Result<(RenderReport, usize), LiveError> {
+    let mut processor = EncodeProcessor::new(prepare.clone(), neural.cloned());
+    let mut fallbacks = 0;
+    let render = |done: &Completed<LiveFrame>| {
+        let frame = &done.output;
+        let mut view = match (neural, &frame.neural) {
+            (Some(shared), Some(encoded)) => {
+                ViewRenderer::with_neural(&frame.input, fill, false, Arc::clone(shared), encoded.clone())
+            }
+            _ => ViewRenderer::new(&frame.input, fill, false),
+        };
+        let person = view.render_person(camera).map_err(|e| e.to_string());
+        fallbacks += view.neural_fallbacks;
+        person
     };
-    render_video(source, method, options, &mut processor, render, out_dir, on_message)
+    let report = render_video(source, method, options, &mut processor, render, out_dir, on_message)?;
+    Ok((report, fallbacks))
 }
 
 /// The normalised source view as an RGBA image (premultiplied): the renderer `render_video` uses when no view

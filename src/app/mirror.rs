@@ -1,11 +1,17 @@
 //! The desktop mirror: `r2human view`. A winit window shows the person from an orbit camera, rendered by the
-//! Vulkan per-view passes or by the CPU reference (then only presented through Vulkan).
+//! Vulkan per-view passes or by the CPU reference (then only presented through Vulkan), with the geometric or the
+//! neural renderer.
 //!
 //! Controls: drag with the left button to orbit, wheel to zoom, `V`/`A` switch VR/AR, `G`/`N` geometric/neural
-//! (neural only when a decoder is available), `S` writes a screenshot (atomic PNG, the view without overlay).
-//! A text overlay drawn into the presented image shows the frame time (median of the last 30 frames), the
-//! backend, VR/AR, geometric/neural, the GPU time per pass and, with live input, the pipeline's throughput,
-//! latency, per-stage medians and latest message. `--frames N` renders N frames and exits.
+//! (without a neural renderer `N` keeps the geometric one and the overlay says why and how to enable it), `S`
+//! writes a screenshot (atomic PNG, the view without overlay). A text overlay drawn into the presented image shows
+//! the frame time (median of the last 30 frames), the backend, VR/AR, the renderer that drew the frame, the GPU
+//! time per pass, the neural seam's times and, with live input, the pipeline's throughput, latency, per-stage
+//! medians (the encoder included) and latest message. `--frames N` renders N frames and exits.
+//!
+//! Neural frames on the Vulkan backend pass through host memory (see [`Engine`]); on the CPU backend the CPU
+//! per-view path draws them. The encoder runs once per input: once for a photo, once per completed live frame on
+//! the live pipeline's worker thread (with its own instance of the models, so the display's decoder never waits).
 //!
 //! Input: a photo (prepared once), or live frames (`--video` file or folder, `--camera N`) through
 //! [`crate::app::live::LivePipeline`]: the display loop renders from the latest completed frame without ever
@@ -16,6 +22,7 @@
 //! device or surface ends the loop with an error that says so ([`describe_fault`]).
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -29,17 +36,21 @@ use winit::keyboard::{Key, NamedKey};
 use winit::raw_window_handle::{HasDisplayHandle, HasWindowHandle};
 use winit::window::{Window, WindowId};
 
-use crate::app::live::{self, Completed, LatestReader, LiveOptions, LivePipeline, LiveStats, PrepareProcessor};
+use crate::app::live::{
+    self, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline, LiveStats,
+};
+use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
 use crate::buffer::Image;
 use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
 use crate::geometry::Camera;
+use crate::gpu::neural::{gpu_neural_person, NeuralViewTimes, SourceView};
 use crate::gpu::{offline, Context, GpuError, OverlayMask, PresentTarget, Renderer};
 use crate::io::environment::Environment;
 use crate::io::image_io;
 use crate::io::sequence::Frame;
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
+use crate::pipeline::{NeuralInput, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
 use crate::window::{Acquired, Swapchain};
 
 /// Which engine computes the person.
@@ -52,13 +63,13 @@ pub enum Backend {
     Vulkan,
 }
 
-/// Geometric warp or neural decoder.
+/// Which renderer the user asked for (`G`/`N`): the geometric warp or the neural decoder.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Shading {
     /// The geometric warp of the photo (no model needed).
     #[default]
     Geometric,
-    /// The neural decoder (only when a model is available).
+    /// The neural decoder (only when a neural renderer is loaded).
     Neural,
 }
 
@@ -127,6 +138,11 @@ pub struct ViewOptions {
     pub script: Vec<ScriptStep>,
     /// Source (FOF grid) resolution of the prepared input; 512 like the reference.
     pub resolution: usize,
+    /// `--renderer`, `--models`, `--ep`: the neural renderer (the default loads none: geometric).
+    pub neural: NeuralSetup,
+    /// Turntable: degrees the orbit turns before every frame (0 = still; demos and benchmarks, where an unmoved
+    /// view would reuse the last person layer).
+    pub spin: f32,
 }
 
 impl Default for ViewOptions {
@@ -149,6 +165,8 @@ impl Default for ViewOptions {
             overlay: true,
             script: Vec::new(),
             resolution: crate::geometry::SOURCE_RESOLUTION,
+            neural: NeuralSetup::default(),
+            spin: 0.0,
         }
     }
 }
@@ -186,6 +204,12 @@ pub struct ViewStats {
     pub source_finished: bool,
     /// Live input: frames presented after the source ended (the last person stays on screen).
     pub frames_after_source_end: u64,
+    /// Which renderer drew the last frame.
+    pub renderer: Drawn,
+    /// Neural frames, decoder and encoder runs, fallbacks.
+    pub neural: NeuralCounters,
+    /// The last refused switch to the neural renderer: why, and how to enable it.
+    pub neural_message: Option<String>,
 }
 
 /// Orbit camera state driven by the mouse.
@@ -231,9 +255,11 @@ impl Orbit {
     }
 }
 
-/// `render --backend`: renders one frame per camera on the chosen backend. `Ok(None)` means "use the CPU
-/// path": the CPU was asked for, or Vulkan was asked for but no device is usable (the reason is printed once
-/// on stderr, with the fallback). Other GPU failures are errors.
+/// `render --backend`: renders one frame per camera on the chosen backend, with the neural renderer when `neural`
+/// is given (through the host-memory seam; views the decoder fails on are drawn geometrically, with a warning).
+/// `Ok(None)` means "use the CPU path": the CPU was asked for, or Vulkan was asked for but no device is usable (the
+/// reason is printed once on stderr, with the fallback). Other GPU failures are errors.
+#[allow(clippy::too_many_arguments)]
 pub fn render_on_backend(
     backend: Backend,
     input: &PreparedInput,
@@ -242,11 +268,33 @@ pub fn render_on_backend(
     mode: Mode,
     fill: OcclusionFill,
     fusion: bool,
+    neural: Option<&SharedNeural>,
 ) -> anyhow::Result<Option<Vec<Frame>>> {
     if backend == Backend::Cpu {
         return Ok(None);
     }
-    match offline::render_views(input, env, cameras, mode, fill, fusion) {
+    let encoded = match neural {
+        Some(shared) => match shared.lock().unwrap_or_else(|p| p.into_inner()).encode(input) {
+            Ok(e) => Some((shared, e)),
+            Err(e) => {
+                eprintln!("warning: the neural encoder failed on this input ({e}); rendering geometrically");
+                None
+            }
+        },
+        None => None,
+    };
+    let result = match &encoded {
+        Some((shared, encoded)) => {
+            offline::render_views_neural(input, env, cameras, mode, fill, fusion, (shared, encoded)).map(|(f, n)| {
+                if n > 0 {
+                    eprintln!("warning: the neural decoder failed on {n} view(s); the geometric renderer drew them");
+                }
+                f
+            })
+        }
+        None => offline::render_views(input, env, cameras, mode, fill, fusion),
+    };
+    match result {
         Ok(frames) => Ok(Some(frames)),
         Err(e @ (GpuError::NoVulkan(_) | GpuError::NoDevice(_))) => {
             eprintln!("warning: {e}\nwarning: rendering on the CPU instead (--backend cpu)");
@@ -295,6 +343,9 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
     if sources.iter().filter(|&&b| b).count() != 1 {
         bail!("give exactly one input: --image PATH, --video PATH (a video file or an image folder) or --camera N");
     }
+    if !(opts.spin.is_finite() && opts.spin.abs() <= 180.0) {
+        bail!("--spin {} is out of range: use -180 to 180 degrees per frame", opts.spin);
+    }
     if !(opts.fps.is_finite() && opts.fps > 0.0 && opts.fps <= 1000.0) {
         bail!("--fps {} is out of range: use a rate above 0 and up to 1000", opts.fps);
     }
@@ -304,6 +355,7 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
     };
     let prepare =
         PrepareOptions { resolution: opts.resolution, depth_samples: opts.resolution, ..PrepareOptions::default() };
+    let neural = load_interactive(&opts.neural)?;
     let factory = match (&opts.video, &opts.camera) {
         (Some(path), _) => Some(live::video_source(path, opts.fps)),
         (None, Some(request)) => Some(live::camera_source(request.clone())),
@@ -312,16 +364,20 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
     let still;
     let input = if let Some(factory) = factory {
         let live_opts = LiveOptions { segment: opts.segment.clone(), ..LiveOptions::default() };
-        let pipeline = LivePipeline::start(factory, PrepareProcessor::new(prepare), live_opts)?;
+        // The worker encodes with its own instance of the models: the display's decoder never waits for it.
+        let worker_neural = neural.second_instance().context("loading the neural models for the live worker")?;
+        let processor = EncodeProcessor::new(prepare, worker_neural);
+        let encodes = processor.encode_counter();
+        let pipeline = LivePipeline::start(factory, processor, live_opts)?;
         tracing::info!("live input: {}", pipeline.describe());
-        PersonInput::Live(Box::new(LiveInput::new(pipeline, opts.camera.is_some())))
+        PersonInput::Live(Box::new(LiveInput::new(pipeline, opts.camera.is_some(), encodes)))
     } else {
         let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
         tracing::info!("preparing the input (segmentation mask, geometry, mesh)");
         still = PreparedInput::prepare(&photo.rgb, &mask, &prepare)?;
         PersonInput::Still(&still)
     };
-    let mut engine = Engine::new(input, &env, opts.backend);
+    let mut engine = Engine::new(input, &env, opts.backend, neural);
     let stats = run_window(&mut engine, &opts)?;
     tracing::info!("view: {} frames, median {:.2} ms", stats.frames, stats.median_frame.as_secs_f64() * 1e3);
     Ok(stats)
@@ -346,7 +402,6 @@ fn run_window(engine: &mut Engine<'_>, opts: &ViewOptions) -> anyhow::Result<Vie
         engine,
         opts,
         mode: opts.mode,
-        shading: Shading::Geometric,
         orbit: Orbit::default(),
         gfx: None,
         window: None,
@@ -387,18 +442,20 @@ enum PersonInput<'a> {
 
 /// The display side of the live pipeline: the latest completed frame, never waited for.
 struct LiveInput {
-    pipeline: LivePipeline<PreparedInput>,
-    reader: LatestReader<Completed<PreparedInput>>,
-    current: Option<Arc<Completed<PreparedInput>>>,
+    pipeline: LivePipeline<LiveFrame>,
+    reader: LatestReader<Completed<LiveFrame>>,
+    current: Option<Arc<Completed<LiveFrame>>>,
     camera: bool,
     stats: LiveStats,
     stats_at: Option<Instant>,
     finished: bool,
     frames_after_end: u64,
+    /// Encoder runs on the worker thread (once per completed frame).
+    encodes: Arc<AtomicU64>,
 }
 
 impl LiveInput {
-    fn new(pipeline: LivePipeline<PreparedInput>, camera: bool) -> Self {
+    fn new(pipeline: LivePipeline<LiveFrame>, camera: bool, encodes: Arc<AtomicU64>) -> Self {
         let reader = pipeline.reader();
         Self {
             pipeline,
@@ -409,49 +466,198 @@ impl LiveInput {
             stats_at: None,
             finished: false,
             frames_after_end: 0,
+            encodes,
         }
     }
 }
 
+/// Which renderer drew a frame (shown in the overlay and the title).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Drawn {
+    /// No frame yet, or no person yet (a live source before its first frame).
+    #[default]
+    Nothing,
+    /// The geometric warp.
+    Geometric,
+    /// The neural decoder.
+    Neural,
+    /// The geometric warp because the neural renderer failed on this frame (decoder error, or no encoder output).
+    GeometricFallback,
+}
+
+impl Drawn {
+    /// The overlay's label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Drawn::Nothing => "NO PERSON YET",
+            Drawn::Geometric => "GEOMETRIC",
+            Drawn::Neural => "NEURAL",
+            Drawn::GeometricFallback => "GEOMETRIC (NEURAL FAILED)",
+        }
+    }
+}
+
+/// Counters of the neural renderer in a window session.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NeuralCounters {
+    /// Frames drawn by the neural decoder (including reused layers).
+    pub frames: u64,
+    /// Decoder runs (a frame whose camera and input did not change reuses the last layer on the GPU path).
+    pub decoder_runs: u64,
+    /// Frames the neural renderer failed on (drawn geometrically instead).
+    pub fallbacks: u64,
+    /// Encoder runs: once for a photo, once per completed live frame (on the worker thread).
+    pub encodes: u64,
+}
+
 /// Renders the person for the window: the Vulkan passes or the CPU reference (then only presented through
-/// Vulkan), from a photo or from the live pipeline's latest completed frame.
-struct Engine<'a> {
+/// Vulkan), from a photo or from the live pipeline's latest completed frame, with the geometric or the neural
+/// renderer ([`Engine::set_shading`], the `G`/`N` keys).
+///
+/// The neural renderer on the Vulkan backend goes through host memory ([`crate::gpu::neural::gpu_neural_person`]):
+/// GPU raster and flow/Z-map, read back; colour lookup, feature sampling and the decoder on ONNX Runtime; the
+/// person layer uploaded for fusion, compositing and presentation on the GPU. An unmoved camera on an unchanged
+/// input reuses the last layer without running the decoder. On the CPU backend the CPU per-view path runs it.
+pub struct Engine<'a> {
     backend: Backend,
     env: &'a Environment,
     fill: OcclusionFill,
     input: PersonInput<'a>,
-    /// CPU reference for a photo (keeps spatial fusion between frames).
-    cpu_still: Option<ViewRenderer<'a>>,
+    /// CPU reference for a photo (keeps spatial fusion between frames), for the shading it was made for.
+    cpu_still: Option<(Shading, ViewRenderer<'a>)>,
     /// Completion sequence of the live frame that is on the GPU (re-uploaded only when it changes).
     uploaded: Option<u64>,
     uploads: u64,
     /// Shown until a live source has completed its first frame.
     blank: Option<Frame>,
+    neural: NeuralAvailability,
+    /// The encoder's output for a photo (once).
+    still_encoded: Option<NeuralInput>,
+    shading: Shading,
+    drawn: Drawn,
+    /// A one-line message for the overlay (why `N` did nothing), with when it was set.
+    message: Option<(String, Instant)>,
+    /// Camera and input sequence of the neural layer on the GPU (reused while both stay).
+    neural_layer: Option<(Camera, u64)>,
+    counters: NeuralCounters,
+    /// Host times of the last decoder run: GPU inputs incl. read-back, decoder.
+    neural_times: NeuralViewTimes,
 }
 
 impl<'a> Engine<'a> {
-    fn new(input: PersonInput<'a>, env: &'a Environment, backend: Backend) -> Self {
-        let fill = OcclusionFill::default();
-        let cpu_still = match (&input, backend) {
-            (PersonInput::Still(p), Backend::Cpu) => Some(ViewRenderer::new(p, fill, true)),
-            _ => None,
+    fn new(input: PersonInput<'a>, env: &'a Environment, backend: Backend, neural: NeuralAvailability) -> Self {
+        let mut engine = Self {
+            backend,
+            env,
+            fill: OcclusionFill::default(),
+            input,
+            cpu_still: None,
+            uploaded: None,
+            uploads: 0,
+            blank: None,
+            neural,
+            still_encoded: None,
+            shading: Shading::Geometric,
+            drawn: Drawn::Nothing,
+            message: None,
+            neural_layer: None,
+            counters: NeuralCounters::default(),
+            neural_times: NeuralViewTimes::default(),
         };
-        Self { backend, env, fill, input, cpu_still, uploaded: None, uploads: 0, blank: None }
+        if let (PersonInput::Still(p), Some(shared)) = (&engine.input, &engine.neural.renderer) {
+            let encoded = shared.lock().unwrap_or_else(|e| e.into_inner()).encode(p);
+            match encoded {
+                Ok(e) => {
+                    engine.still_encoded = Some(e);
+                    engine.counters.encodes += 1;
+                }
+                Err(e) => {
+                    tracing::warn!("the neural encoder failed on this photo; using the geometric renderer: {e}");
+                    engine.neural =
+                        NeuralAvailability::none("NEURAL RENDERER OFF: THE ENCODER FAILED ON THIS PHOTO (SEE THE LOG)");
+                }
+            }
+        }
+        if engine.neural.renderer.is_some() {
+            engine.shading = Shading::Neural;
+        }
+        engine
+    }
+
+    /// An engine for a prepared photo on `backend`, with the neural renderer of `neural` when it has one (then
+    /// it starts neural and the encoder runs here, once). Attach it to a renderer ([`Engine::attach`]) before
+    /// drawing frames.
+    pub fn still(input: &'a PreparedInput, env: &'a Environment, backend: Backend, neural: NeuralAvailability) -> Self {
+        Self::new(PersonInput::Still(input), env, backend, neural)
+    }
+
+    /// The renderer the user asked for (`G`/`N`).
+    pub fn shading(&self) -> Shading {
+        self.shading
+    }
+
+    /// Which renderer drew the last frame.
+    pub fn drawn(&self) -> Drawn {
+        self.drawn
+    }
+
+    /// The engine that renders the person.
+    pub fn backend(&self) -> Backend {
+        self.backend
+    }
+
+    /// Neural counters so far (frames, decoder runs, fallbacks, encoder runs).
+    pub fn neural_counters(&self) -> NeuralCounters {
+        let mut c = self.counters;
+        if let PersonInput::Live(live) = &self.input {
+            c.encodes = live.encodes.load(Ordering::Relaxed);
+        }
+        c
+    }
+
+    /// The one-line overlay message of the last refused switch (why the neural renderer is unavailable), if any.
+    pub fn message(&self) -> Option<&str> {
+        self.message.as_ref().map(|(m, _)| m.as_str())
+    }
+
+    /// Switches between the geometric and the neural renderer. Switching to neural without a neural renderer
+    /// keeps the geometric one and returns (and shows in the overlay) one line saying why and how to enable it.
+    pub fn set_shading(&mut self, shading: Shading) -> Result<(), String> {
+        if shading == Shading::Neural && self.neural.renderer.is_none() {
+            let why = self.neural.unavailable.clone().unwrap_or_else(|| "NEURAL RENDERER OFF".to_string());
+            tracing::warn!("{why}");
+            self.message = Some((why.clone(), Instant::now()));
+            return Err(why);
+        }
+        if shading != self.shading {
+            self.shading = shading;
+            self.message = None;
+            self.neural_layer = None;
+            tracing::info!("renderer: {shading:?}");
+        }
+        Ok(())
+    }
+
+    /// Switches to the other renderer (see [`Engine::set_shading`]).
+    pub fn toggle_shading(&mut self) -> Result<(), String> {
+        self.set_shading(match self.shading {
+            Shading::Geometric => Shading::Neural,
+            Shading::Neural => Shading::Geometric,
+        })
     }
 
     /// Switches to the CPU reference (no usable Vulkan renderer for the person).
     fn fall_back_to_cpu(&mut self) {
         self.backend = Backend::Cpu;
-        if let PersonInput::Still(p) = self.input {
-            self.cpu_still = Some(ViewRenderer::new(p, self.fill, true));
-        }
+        self.cpu_still = None;
     }
 
     /// A new renderer (first frame, resize): everything on the GPU must be uploaded again.
-    fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
+    pub fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
         let (w, h) = renderer.size();
         self.blank = Some(Frame::Vr(Image::new(w, h, Vec3::splat(0.05))));
         self.uploaded = None;
+        self.neural_layer = None;
         if self.backend == Backend::Vulkan {
             renderer.set_environment(self.env)?;
             if let PersonInput::Still(p) = self.input {
@@ -471,11 +677,10 @@ impl<'a> Engine<'a> {
             }
         }
         let Some(current) = live.current.as_ref() else { return Ok(()) };
-        if self.backend == Backend::Vulkan && self.uploaded != Some(current.sequence) {
-            offline::upload_input(renderer, &current.output, None, self.fill, true)?;
-            self.uploaded = Some(current.sequence);
-            self.uploads += 1;
-        } else if self.backend == Backend::Cpu && self.uploaded != Some(current.sequence) {
+        if self.uploaded != Some(current.sequence) {
+            if self.backend == Backend::Vulkan {
+                offline::upload_input(renderer, &current.output.input, None, self.fill, true)?;
+            }
             self.uploaded = Some(current.sequence);
             self.uploads += 1;
         }
@@ -518,12 +723,14 @@ impl<'a> Engine<'a> {
         Some(format!("no frame of {} could be processed; {last}", live.pipeline.describe()))
     }
 
-    fn frame(
+    /// Draws one frame for `camera` with the current renderer; with `target`, also presents it into that
+    /// swapchain image. Returns the frame (linear, without overlay) when `want_frame`.
+    pub fn frame(
         &mut self,
         renderer: &mut Renderer,
         camera: &Camera,
         mode: Mode,
-        target: PresentTarget,
+        target: Option<PresentTarget>,
         want_frame: bool,
     ) -> anyhow::Result<Option<Frame>> {
         if let PersonInput::Live(live) = &mut self.input {
@@ -531,34 +738,134 @@ impl<'a> Engine<'a> {
                 live.frames_after_end += 1;
             }
         }
-        let current = match &self.input {
-            PersonInput::Still(p) => Some(*p),
-            PersonInput::Live(live) => live.current.as_ref().map(|c| &c.output),
+        let (input, encoded, sequence) = match &self.input {
+            PersonInput::Still(p) => (Some(*p), self.still_encoded.as_ref(), 0),
+            PersonInput::Live(live) => match live.current.as_ref() {
+                Some(c) => (Some(&c.output.input), c.output.neural.as_ref(), c.sequence),
+                None => (None, None, 0),
+            },
         };
-        let Some(input) = current else {
+        let Some(input) = input else {
             let blank = self.blank.as_ref().context("the engine was not attached to a renderer")?;
-            renderer.present_frame(blank, target)?;
+            if let Some(target) = target {
+                renderer.present_frame(blank, target)?;
+            }
+            self.drawn = Drawn::Nothing;
             return Ok(want_frame.then(|| blank.clone()));
         };
+        let neural = match (&self.neural.renderer, self.shading) {
+            (Some(shared), Shading::Neural) => match encoded {
+                Some(encoded) => Some((Arc::clone(shared), encoded.clone())),
+                None => {
+                    // The encoder failed on this live frame: drawn geometrically, and said so.
+                    self.counters.fallbacks += 1;
+                    None
+                }
+            },
+            _ => None,
+        };
+        let wants_neural = self.shading == Shading::Neural && self.neural.renderer.is_some();
         match self.backend {
             Backend::Vulkan => {
-                renderer.render_frame(camera, mode, Some(target))?;
+                if let Some((shared, encoded)) = neural {
+                    if self.neural_layer == Some((*camera, sequence)) {
+                        renderer.render_frame_from_person(None, camera, mode, target)?;
+                        self.counters.frames += 1;
+                        self.drawn = Drawn::Neural;
+                        return Ok(want_frame.then(|| renderer.read_output(mode)));
+                    }
+                    let source = SourceView::of(input);
+                    match gpu_neural_person(renderer, &shared, source, &encoded, camera) {
+                        Ok((person, times)) => {
+                            renderer.render_frame_from_person(Some(&person), camera, mode, target)?;
+                            self.neural_layer = Some((*camera, sequence));
+                            self.neural_times = times;
+                            self.counters.frames += 1;
+                            self.counters.decoder_runs += 1;
+                            self.drawn = Drawn::Neural;
+                            return Ok(want_frame.then(|| renderer.read_output(mode)));
+                        }
+                        Err(e) => {
+                            if self.counters.fallbacks == 0 {
+                                tracing::warn!("neural renderer failed on a frame, drawing it geometrically: {e}");
+                            }
+                            self.counters.fallbacks += 1;
+                        }
+                    }
+                }
+                self.neural_layer = None;
+                renderer.render_frame(camera, mode, target)?;
+                self.drawn = if wants_neural { Drawn::GeometricFallback } else { Drawn::Geometric };
                 Ok(want_frame.then(|| renderer.read_output(mode)))
             }
             Backend::Cpu => {
-                let frame = match self.cpu_still.as_mut() {
-                    Some(view) => view.render_frame(camera, mode, self.env)?,
-                    // Live frames change under the view: a fresh reference renderer (no fusion) per frame.
-                    None => ViewRenderer::new(input, self.fill, false).render_frame(camera, mode, self.env)?,
+                let use_neural = neural.is_some();
+                let (frame, failed) = match (&self.input, neural) {
+                    (&PersonInput::Still(p), neural) => {
+                        let shading = if use_neural { Shading::Neural } else { Shading::Geometric };
+                        if self.cpu_still.as_ref().is_none_or(|(s, _)| *s != shading) {
+                            let view = match neural {
+                                Some((shared, encoded)) => {
+                                    ViewRenderer::with_neural(p, self.fill, true, shared, encoded)
+                                }
+                                None => ViewRenderer::new(p, self.fill, true),
+                            };
+                            self.cpu_still = Some((shading, view));
+                        }
+                        let (_, view) = self.cpu_still.as_mut().context("the CPU renderer was just made")?;
+                        let before = view.neural_fallbacks;
+                        let frame = view.render_frame(camera, mode, self.env)?;
+                        (frame, view.neural_fallbacks > before)
+                    }
+                    // Live frames change under the view: a fresh reference renderer (no fusion) per frame; the
+                    // encoder's output comes with the frame, so nothing is encoded here.
+                    (PersonInput::Live(_), neural) => {
+                        let mut view = match neural {
+                            Some((shared, encoded)) => {
+                                ViewRenderer::with_neural(input, self.fill, false, shared, encoded)
+                            }
+                            None => ViewRenderer::new(input, self.fill, false),
+                        };
+                        let frame = view.render_frame(camera, mode, self.env)?;
+                        (frame, view.neural_fallbacks > 0)
+                    }
                 };
-                renderer.present_frame(&frame, target)?;
+                if use_neural && !failed {
+                    self.counters.frames += 1;
+                    self.counters.decoder_runs += 1;
+                    self.drawn = Drawn::Neural;
+                } else if wants_neural {
+                    if failed {
+                        self.counters.fallbacks += 1;
+                    }
+                    self.drawn = Drawn::GeometricFallback;
+                } else {
+                    self.drawn = Drawn::Geometric;
+                }
+                if let Some(target) = target {
+                    renderer.present_frame(&frame, target)?;
+                }
                 Ok(want_frame.then_some(frame))
             }
         }
     }
 
-    /// Overlay lines about the input (live statistics, the latest message); refreshed at most 4 times a second.
+    /// Overlay lines about the renderer and the input (live statistics, the latest message); the live
+    /// statistics are refreshed at most 4 times a second.
     fn status_lines(&mut self, lines: &mut Vec<String>) {
+        if let Some((m, at)) = &self.message {
+            if at.elapsed() < MESSAGE_TIME {
+                lines.push(m.clone());
+            }
+        }
+        if self.drawn == Drawn::Neural && self.backend == Backend::Vulkan {
+            let t = self.neural_times;
+            lines.push(format!(
+                "NEURAL MS: GPU RASTER+FLOW+READBACK {:.1} LOOKUP+DECODER {:.1} (HOST MEMORY SEAM)",
+                t.gpu_inputs.as_secs_f64() * 1e3,
+                t.decoder.as_secs_f64() * 1e3
+            ));
+        }
         let PersonInput::Live(live) = &mut self.input else { return };
         if live.stats_at.is_none_or(|t| t.elapsed() >= Duration::from_millis(250)) {
             live.stats = live.pipeline.stats();
@@ -592,6 +899,9 @@ impl<'a> Engine<'a> {
 
     fn report(&mut self, stats: &mut ViewStats) {
         stats.live_uploads = self.uploads;
+        stats.renderer = self.drawn;
+        stats.neural = self.neural_counters();
+        stats.neural_message = self.message.as_ref().map(|(m, _)| m.clone());
         if let PersonInput::Live(live) = &self.input {
             stats.live = Some(live.pipeline.stats());
             stats.messages = live.pipeline.messages();
@@ -600,6 +910,9 @@ impl<'a> Engine<'a> {
         }
     }
 }
+
+/// How long a refused switch's message stays in the overlay.
+const MESSAGE_TIME: Duration = Duration::from_secs(6);
 
 /// Short stage names for the overlay.
 fn short_stage(name: &str) -> &str {
@@ -611,6 +924,7 @@ fn short_stage(name: &str) -> &str {
         "smooth geometry" => "SMOOTH",
         "mesh (FOF -> marching cubes)" => "MESH",
         "source raster" => "SRC",
+        "encoder" => "ENC",
         other => other,
     }
 }
@@ -625,7 +939,6 @@ struct App<'a, 'e> {
     engine: &'a mut Engine<'e>,
     opts: &'a ViewOptions,
     mode: Mode,
-    shading: Shading,
     orbit: Orbit,
     // Declared before `window`: the swapchain's surface must go before the window.
     gfx: Option<Graphics>,
@@ -741,13 +1054,16 @@ impl App<'_, '_> {
             return Ok(());
         };
         let (w, h) = gfx.renderer.size();
+        if self.opts.spin != 0.0 {
+            self.orbit.drag(-self.opts.spin / Orbit::DEGREES_PER_PIXEL, 0.0);
+        }
         let camera = self.orbit.camera(w, h);
         let last = is_last_frame(self.opts, self.engine, self.presented, self.stats.person_frames);
         self.finished = last;
         let want = self.screenshot_requested || (last && self.opts.screenshot_on_exit.is_some());
         let target = PresentTarget { image, wait: ready, signal: rendered, bgra: gfx.swapchain.is_bgra() };
         let has_person = self.engine.has_person();
-        let frame = self.engine.frame(&mut gfx.renderer, &camera, self.mode, target, want)?;
+        let frame = self.engine.frame(&mut gfx.renderer, &camera, self.mode, Some(target), want)?;
         if gfx.swapchain.present(index)? {
             self.resized = true;
         }
@@ -797,10 +1113,8 @@ impl App<'_, '_> {
             Mode::Vr => "VR",
             Mode::Ar => "AR",
         };
-        let shading = match self.shading {
-            Shading::Geometric => "geometric",
-            Shading::Neural => "neural",
-        };
+        // Which renderer drew the frame (a failed neural frame says so).
+        let shading = self.engine.drawn().label();
         let backend = match self.engine.backend {
             Backend::Cpu => "CPU",
             Backend::Vulkan => "VULKAN",
@@ -842,8 +1156,13 @@ impl App<'_, '_> {
         match c.to_lowercase().as_str() {
             "v" => self.mode = Mode::Vr,
             "a" => self.mode = Mode::Ar,
-            "g" => self.shading = Shading::Geometric,
-            "n" => tracing::warn!("no neural decoder is available: staying with the geometric warp"),
+            "g" => {
+                let _ = self.engine.set_shading(Shading::Geometric);
+            }
+            // Refused without a neural renderer: the engine shows why in the overlay.
+            "n" => {
+                let _ = self.engine.set_shading(Shading::Neural);
+            }
             "s" => self.screenshot_requested = true,
             _ => {}
         }

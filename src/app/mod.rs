@@ -2,4 +2,5 @@
 
 pub mod live;
 pub mod mirror;
+pub mod neural;
 pub mod xr_session;

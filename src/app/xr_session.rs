@@ -13,14 +13,15 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 
 use crate::app::live::{
-    camera_source, video_source, Completed, LatestReader, LiveOptions, LivePipeline, PrepareProcessor,
+    camera_source, video_source, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline,
 };
+use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
 use crate::capture::{CameraRequest, SegmentMethod, SourceFactory};
 use crate::compose::Mode;
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::pipeline::{PrepareOptions, PreparedInput};
-use crate::xr::{EyeScene, SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
+use crate::pipeline::{PrepareOptions, PreparedInput, SharedNeural};
+use crate::xr::{EyeNeural, EyeScene, SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
 
 /// Where the person comes from.
 #[derive(Clone, Debug)]
@@ -67,6 +68,8 @@ pub struct XrOptions {
     pub duration: Option<Duration>,
     /// Show the eye images in a desktop window while the session runs.
     pub mirror: bool,
+    /// `--renderer`, `--models`, `--ep` (the default loads none: geometric).
+    pub neural: NeuralSetup,
 }
 
 impl Default for XrOptions {
@@ -79,39 +82,59 @@ impl Default for XrOptions {
             eye_size: 384,
             duration: None,
             mirror: true,
+            neural: NeuralSetup::default(),
         }
     }
 }
 
-/// The renderer's view of a prepared input: mesh, source colour and mask, source G-buffer and camera.
-pub fn scene_from_prepared(input: &PreparedInput) -> EyeScene {
+/// The renderer's view of a prepared input: mesh, source colour and mask, source G-buffer and camera, and the
+/// neural renderer with the encoder's output for the input when the eyes are drawn by it.
+pub fn scene_from_prepared(input: &PreparedInput, neural: Option<EyeNeural>) -> EyeScene {
     EyeScene {
         mesh: input.mesh.clone(),
         source_rgb: input.normalised.rgb.clone(),
         source_mask: input.normalised.mask.clone(),
         source_gbuffer: input.source_gbuffer.clone(),
         source_camera: input.source_camera,
+        neural,
     }
 }
 
 /// A live source as a scene feed: the newest completed frame of a [`LivePipeline`] (read without blocking), its
 /// messages passed on, and one message when the source ends (the session keeps showing the last person).
 pub struct LiveFeed {
-    pipeline: LivePipeline<PreparedInput>,
-    reader: LatestReader<Completed<PreparedInput>>,
+    pipeline: LivePipeline<LiveFrame>,
+    reader: LatestReader<Completed<LiveFrame>>,
+    /// The decoder the eyes use (the worker encodes with its own instance).
+    decoder: Option<SharedNeural>,
     last_sequence: u64,
     errors_seen: u64,
     ended_reported: bool,
 }
 
 impl LiveFeed {
-    /// Starts the live pipeline (capture and worker threads) on `factory`'s source with `segment`.
-    pub fn start(factory: SourceFactory, segment: SegmentMethod, prepare: PrepareOptions) -> Result<Self> {
+    /// Starts the live pipeline (capture and worker threads) on `factory`'s source with `segment`; with a neural
+    /// renderer in `neural`, the worker also runs the encoder once per new frame (on a second instance of the
+    /// models) and the eyes are drawn by the decoder.
+    pub fn start(
+        factory: SourceFactory,
+        segment: SegmentMethod,
+        prepare: PrepareOptions,
+        neural: &NeuralAvailability,
+    ) -> Result<Self> {
         let options = LiveOptions { segment, ..Default::default() };
-        let pipeline = LivePipeline::start(factory, PrepareProcessor::new(prepare), options)?;
+        let worker = neural.second_instance().context("loading the neural models for the live worker")?;
+        let pipeline = LivePipeline::start(factory, EncodeProcessor::new(prepare, worker), options)?;
         tracing::info!("live input: {}", pipeline.describe());
         let reader = pipeline.reader();
-        Ok(Self { pipeline, reader, last_sequence: 0, errors_seen: 0, ended_reported: false })
+        Ok(Self {
+            pipeline,
+            reader,
+            decoder: neural.renderer.clone(),
+            last_sequence: 0,
+            errors_seen: 0,
+            ended_reported: false,
+        })
     }
 }
 
@@ -122,7 +145,13 @@ impl SceneFeed for LiveFeed {
             return None;
         }
         self.last_sequence = done.sequence;
-        Some(Arc::new(scene_from_prepared(&done.output)))
+        let neural = match (&self.decoder, &done.output.neural) {
+            (Some(renderer), Some(encoded)) => {
+                Some(EyeNeural { renderer: Arc::clone(renderer), encoded: encoded.clone() })
+            }
+            _ => None,
+        };
+        Some(Arc::new(scene_from_prepared(&done.output.input, neural)))
     }
 
     fn take_messages(&mut self) -> Vec<String> {
@@ -154,24 +183,39 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if opts.frames == Some(0) {
         bail!("--frames 0 shows nothing: give at least 1, or leave it out to run until the headset session ends");
     }
+    let neural = load_interactive(&opts.neural)?;
     let feed: Box<dyn SceneFeed> = match &opts.input {
         XrInput::Image { path, mask } => {
             let (photo, mask) = image_io::load_person(path, mask.as_deref())?;
             let prepared = PreparedInput::prepare(&photo.rgb, &mask, &PrepareOptions::default())
                 .with_context(|| format!("preparing {}", path.display()))?;
-            Box::new(StaticScene::new(scene_from_prepared(&prepared)))
+            // The encoder runs once for a photo; the eyes run only the decoder.
+            let eye_neural = match &neural.renderer {
+                Some(shared) => {
+                    let encoded = shared.lock().unwrap_or_else(|p| p.into_inner()).encode(&prepared);
+                    match encoded {
+                        Ok(encoded) => Some(EyeNeural { renderer: Arc::clone(shared), encoded }),
+                        Err(e) => {
+                            tracing::warn!("the neural encoder failed on this photo; the eyes are geometric: {e}");
+                            None
+                        }
+                    }
+                }
+                None => None,
+            };
+            Box::new(StaticScene::new(scene_from_prepared(&prepared, eye_neural)))
         }
         XrInput::Video { path, fps, segment } => {
             if !(*fps > 0.0 && fps.is_finite()) {
                 bail!("--fps {fps} must be a positive number of frames per second");
             }
             Box::new(
-                LiveFeed::start(video_source(path, *fps), segment.clone(), PrepareOptions::default())
+                LiveFeed::start(video_source(path, *fps), segment.clone(), PrepareOptions::default(), &neural)
                     .with_context(|| format!("opening {}", path.display()))?,
             )
         }
         XrInput::Camera { request, segment } => Box::new(
-            LiveFeed::start(camera_source(request.clone()), segment.clone(), PrepareOptions::default())
+            LiveFeed::start(camera_source(request.clone()), segment.clone(), PrepareOptions::default(), &neural)
                 .with_context(|| format!("opening camera {}", request.index))?,
         ),
     };

@@ -89,6 +89,8 @@ pub struct VideoFileSource {
     child: Child,
     stdout: Option<ChildStdout>,
     stderr: Arc<Mutex<String>>,
+    /// The thread draining ffmpeg's stderr; joined once ffmpeg has exited, so its messages are complete.
+    stderr_reader: Option<std::thread::JoinHandle<()>>,
     buf: Vec<u8>,
     next: u64,
 }
@@ -115,7 +117,7 @@ impl VideoFileSource {
                 _ => CaptureError::Open { path: path.into(), reason: e.to_string() },
             })?;
         let stderr = Arc::new(Mutex::new(String::new()));
-        if let Some(mut err) = child.stderr.take() {
+        let stderr_reader = child.stderr.take().map(|mut err| {
             let sink = Arc::clone(&stderr);
             // Drains ffmpeg's messages so the pipe never fills up; read when the stream fails.
             std::thread::spawn(move || {
@@ -124,11 +126,11 @@ impl VideoFileSource {
                 if let Ok(mut g) = sink.lock() {
                     g.push_str(&s);
                 }
-            });
-        }
+            })
+        });
         let stdout = child.stdout.take();
         let buf = vec![0u8; info.width * info.height * channels];
-        Ok(Self { path: path.into(), info, channels, child, stdout, stderr, buf, next: 0 })
+        Ok(Self { path: path.into(), info, channels, child, stdout, stderr, stderr_reader, buf, next: 0 })
     }
 
     /// The probed stream description.
@@ -136,8 +138,18 @@ impl VideoFileSource {
         &self.info
     }
 
-    fn decoder_message(&mut self) -> String {
+    /// Waits for ffmpeg to exit and for its stderr to be read to the end (the pipe closes when it exits), so
+    /// what it printed is known before deciding whether the stream ended cleanly.
+    fn wait_for_decoder(&mut self) -> Option<std::process::ExitStatus> {
         let status = self.child.wait().ok();
+        if let Some(reader) = self.stderr_reader.take() {
+            let _ = reader.join();
+        }
+        status
+    }
+
+    fn decoder_message(&mut self) -> String {
+        let status = self.wait_for_decoder();
         let msg = self.stderr.lock().map(|s| s.trim().to_string()).unwrap_or_default();
         match (msg.is_empty(), status) {
             (false, _) => msg,
@@ -172,7 +184,7 @@ impl FrameSource for VideoFileSource {
         }
         if filled < self.buf.len() {
             self.stdout = None;
-            let clean_exit = self.child.wait().is_ok_and(|s| s.success());
+            let clean_exit = self.wait_for_decoder().is_some_and(|s| s.success());
             let printed = self.stderr.lock().map(|s| !s.trim().is_empty()).unwrap_or(false);
             // A clean end: ffmpeg exited successfully, said nothing, and no partial frame is pending.
             if filled == 0 && clean_exit && !printed && self.next > 0 {

@@ -7,6 +7,7 @@ use clap::Args;
 
 use crate::app::mirror::{self, Backend};
 use crate::app::xr_session::{self, XrInput, XrOptions};
+use crate::cli::render::NeuralArgs;
 use crate::compose::Mode;
 
 /// Arguments of `view`.
@@ -55,6 +56,13 @@ pub struct ViewArgs {
     /// Write the last frame to this PNG when the window closes.
     #[arg(long)]
     pub screenshot_on_exit: Option<PathBuf>,
+    /// Turntable: turn the orbit by this many degrees every frame (demos; benchmarks with --frames, where an
+    /// unmoved view would reuse the last person layer).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub spin: f32,
+    /// Which renderer draws the person (G/N switch while running).
+    #[command(flatten)]
+    pub neural: NeuralArgs,
 }
 
 /// Arguments of `xr`.
@@ -98,6 +106,9 @@ pub struct XrArgs {
     /// Do not show the eye images in a desktop window.
     #[arg(long)]
     pub no_mirror: bool,
+    /// Which renderer draws the person.
+    #[command(flatten)]
+    pub neural: NeuralArgs,
 }
 
 /// `r2human view`.
@@ -105,7 +116,8 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
     let Some(segment) = crate::capture::SegmentMethod::parse(&args.segment) else {
         anyhow::bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
     };
-    mirror::run_view(mirror::ViewOptions {
+    let frames = args.frames;
+    let stats = mirror::run_view_with_stats(mirror::ViewOptions {
         image: args.image.clone().unwrap_or_default(),
         mask: args.mask.clone(),
         video: args.video.clone(),
@@ -120,8 +132,28 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         size: args.size,
         screenshot_dir: args.screenshot_dir.clone(),
         screenshot_on_exit: args.screenshot_on_exit.clone(),
+        neural: args.neural.setup(),
+        spin: args.spin,
         ..Default::default()
-    })
+    })?;
+    if frames.is_some() {
+        // A scripted run (tests, benchmarks) says what it measured.
+        let n = stats.neural;
+        println!(
+            "view: {} frames on {} ({:?}), median {:.2} ms/frame, last frame drawn by {}; neural frames {}, decoder \
+             runs {}, encoder runs {}, fallbacks {}",
+            stats.frames,
+            stats.device,
+            stats.backend,
+            stats.median_frame.as_secs_f64() * 1e3,
+            stats.renderer.label(),
+            n.frames,
+            n.decoder_runs,
+            n.encodes,
+            n.fallbacks
+        );
+    }
+    Ok(())
 }
 
 /// `r2human xr`.
@@ -149,6 +181,7 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         frames: args.frames,
         eye_size: args.eye_size,
         mirror: !args.no_mirror,
+        neural: args.neural.setup(),
         ..Default::default()
     })
 }

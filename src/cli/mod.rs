@@ -57,10 +57,26 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_sentence(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes joined with ": ", skipping a cause whose text the message already holds (many error
+/// types print their source inside their own message; `{:#}` would repeat it).
+pub fn error_sentence(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let part = cause.to_string();
+        if text.is_empty() {
+            text = part;
+        } else if !text.contains(&part) {
+            text.push_str(": ");
+            text.push_str(&part);
+        }
+    }
+    text
 }
 
 fn init_logging() {
@@ -68,4 +84,21 @@ fn init_logging() {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,ort=warn"));
     let _ =
         tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).try_init();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn error_sentence_names_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file or directory (os error 2)");
+        let inner = crate::io::image_io::IoError::Read { path: "a.png".into(), source: io };
+        let e = anyhow::Error::new(inner).context("loading the input photo");
+        let text = error_sentence(&e);
+        assert_eq!(text, "loading the input photo: cannot read a.png: No such file or directory (os error 2)");
+        // A cause that adds information is kept.
+        let e = anyhow::anyhow!("disk full").context("writing out.png");
+        assert_eq!(error_sentence(&e), "writing out.png: disk full");
+    }
 }

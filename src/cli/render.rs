@@ -68,6 +68,14 @@ pub struct ViewOptions {
     /// Camera pitch in degrees (positive looks down on the person).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub pitch: f32,
+    /// Which renderer draws the person.
+    #[command(flatten)]
+    pub neural: NeuralArgs,
+}
+
+/// `--renderer`, `--ep`, `--models`: shared by everything that renders (render, demo, view, xr).
+#[derive(Args, Debug, Clone)]
+pub struct NeuralArgs {
     /// Which renderer draws the person: geometric (the photo warped through the geometry), neural (encoder +
     /// residual decoder through ONNX Runtime; an error without models) or auto (neural when its models load, else
     /// geometric with one warning).
@@ -82,10 +90,21 @@ pub struct ViewOptions {
     pub models: Option<PathBuf>,
 }
 
+impl NeuralArgs {
+    /// The options as the interactive paths take them.
+    pub fn setup(&self) -> crate::app::neural::NeuralSetup {
+        crate::app::neural::NeuralSetup {
+            choice: self.renderer,
+            models: self.models.clone(),
+            options: RuntimeOptions { ep: self.ep, ..Default::default() },
+        }
+    }
+}
+
 /// Loads the neural renderer the options ask for (`None`: geometric).
 fn neural_for(view: &ViewOptions) -> Result<Option<SharedNeural>> {
-    let options = RuntimeOptions { ep: view.ep, ..Default::default() };
-    Ok(load_renderer(view.renderer, view.models.as_deref(), &options)?)
+    let setup = view.neural.setup();
+    Ok(load_renderer(setup.choice, setup.models.as_deref(), &setup.options)?)
 }
 
 fn report_fallbacks(renderer: &ViewRenderer<'_>) {
@@ -122,7 +141,8 @@ pub struct RenderArgs {
     /// Output PNG file (one view) or folder (--orbit).
     #[arg(long)]
     pub out: PathBuf,
-    /// Engine for --image views: the CPU reference or the Vulkan passes (no Vulkan device: a message and the CPU).
+    /// Engine for --image views: the CPU reference or the Vulkan passes (no Vulkan device: a message and the CPU);
+    /// the neural renderer on Vulkan runs its decoder through host memory.
     #[arg(long, value_enum, default_value_t = Backend::Cpu)]
     pub backend: Backend,
     /// Rendering options.
@@ -169,8 +189,8 @@ fn load_environment(view: &ViewOptions) -> Result<Environment> {
 /// The per-input options of `--geometry`, `--fof-order`, `--models` and `--ep` (loads the FOF network when the
 /// geometry mode asks for it).
 fn prepare_options(view: &ViewOptions) -> Result<PrepareOptions> {
-    let options = RuntimeOptions { ep: view.ep, ..Default::default() };
-    let fof_net = load_fof_net(view.geometry, view.models.as_deref(), view.fof_order, &options)?;
+    let options = RuntimeOptions { ep: view.neural.ep, ..Default::default() };
+    let fof_net = load_fof_net(view.geometry, view.neural.models.as_deref(), view.fof_order, &options)?;
     Ok(PrepareOptions { fof_order: view.fof_order, geometry: view.geometry, fof_net, ..Default::default() })
 }
 
@@ -195,23 +215,15 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
     let image = args.image.as_deref().context("--image or --video is required")?;
     let (photo, mask) = image_io::load_person(image, args.mask.as_deref())?;
     let env = load_environment(&args.view)?;
-    // The Vulkan backend has no neural decoder path yet: it renders geometrically.
-    let neural = match (args.backend, args.view.renderer) {
-        (Backend::Vulkan, RendererChoice::Neural) => bail!(
-            "--backend vulkan has no neural decoder yet: use --backend cpu with --renderer neural, or \
-             --renderer geometric with the Vulkan backend"
-        ),
-        (Backend::Vulkan, RendererChoice::Auto) => {
-            tracing::info!("--backend vulkan renders with the geometric renderer (no neural path on the GPU yet)");
-            None
-        }
-        _ => neural_for(&args.view)?,
-    };
+    let neural = neural_for(&args.view)?;
     let prepared = prepare(&photo, &mask, &args.view)?;
     let (n, fill) = (args.orbit.unwrap_or(1), args.view.fill.into());
     let cams = orbit_cameras(n, args.yaw, args.view.pitch, args.view.size);
     if (1..=720).contains(&n) {
-        if let Some(frames) = render_on_backend(args.backend, &prepared, &env, &cams, args.view.mode, fill, n > 1)? {
+        let mode = args.view.mode;
+        if let Some(frames) =
+            render_on_backend(args.backend, &prepared, &env, &cams, mode, fill, n > 1, neural.as_ref())?
+        {
             return match args.orbit {
                 None => {
                     frames[0].save_png(&args.out).map(|_| println!("wrote {}", args.out.display())).map_err(Into::into)
@@ -244,26 +256,30 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
 /// `render --video`: one PNG per input frame (frames that cannot be used are skipped with a message).
 fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
     use crate::app::live::{render_video_views, LiveOptions};
-    match args.view.renderer {
-        RendererChoice::Geometric => {}
-        RendererChoice::Auto => tracing::info!("--video renders with the geometric renderer (no neural live path yet)"),
-        RendererChoice::Neural => {
-            bail!("--renderer neural does not support --video yet: use --image, or --renderer geometric")
-        }
-    }
     use crate::capture::{open_video_path, SegmentMethod};
     let Some(segment) = SegmentMethod::parse(&args.segment) else {
         bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
     };
     let mut source = open_video_path(video, 25.0)?;
+    let neural = neural_for(&args.view)?;
     let live = LiveOptions { segment: segment.clone(), ..Default::default() };
     let prepare = prepare_options(&args.view)?;
     let cam = Camera::orbit(args.yaw, args.view.pitch, args.view.size, args.view.size);
-    let report =
-        render_video_views(source.as_mut(), &segment, &live, &prepare, &cam, args.view.fill.into(), &args.out, |m| {
+    let fill = args.view.fill.into();
+    let (report, fallbacks) =
+        render_video_views(source.as_mut(), &segment, &live, &prepare, &cam, fill, neural.as_ref(), &args.out, |m| {
             eprintln!("warning: {m}")
         })?;
-    println!("wrote {} frames to {} ({} skipped)", report.written.len(), args.out.display(), report.skipped.len());
+    let renderer = if neural.is_some() { "neural" } else { "geometric" };
+    println!(
+        "wrote {} frames to {} with the {renderer} renderer ({} skipped)",
+        report.written.len(),
+        args.out.display(),
+        report.skipped.len()
+    );
+    if fallbacks > 0 {
+        eprintln!("warning: the neural decoder failed on {fallbacks} frame(s); the geometric renderer drew them");
+    }
     if report.written.is_empty() {
         bail!("no frame could be rendered");
     }

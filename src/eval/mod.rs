@@ -3,6 +3,7 @@
 
 pub mod dataset;
 pub mod ground_truth;
+pub mod memory;
 pub mod metrics;
 pub mod runner;
 

@@ -38,6 +38,9 @@ pub const BACKGROUND_DEPTH: f32 = -1.0e30;
 /// Rows per band: the unit of parallel work and of triangle binning.
 pub const BAND_ROWS: usize = 8;
 
+/// Pixels by which binning widens a triangle's box (far more than the 1/256-pixel vertex snapping moves it).
+const BIN_SLACK: f32 = 1.0 / 32.0;
+
 /// Sub-pixel precision of the snapped vertex positions (bits).
 const SUBPIXEL_BITS: u32 = 8;
 const SUBPIXEL: f32 = (1u32 << SUBPIXEL_BITS) as f32;
@@ -160,14 +163,29 @@ struct Scratch {
     screen: Vec<ScreenVertex>,
     /// Outcodes (bit per clip plane) per vertex.
     outcode: Vec<u8>,
-    /// Triangles produced by clipping, three screen vertices and their barycentrics in the original triangle.
+    /// Triangles produced by clipping (all chunks, in chunk order): three screen vertices and their barycentrics
+    /// in the original triangle.
     clipped: Vec<ClippedTriangle>,
-    /// Triangle entries per band: `t < n_triangles` is an original triangle, otherwise `clipped[t - n]`.
-    bins: Vec<Vec<u32>>,
+    /// Where each chunk's clipped triangles start in `clipped`.
+    clip_offset: Vec<u32>,
+    /// Binning state per contiguous chunk of triangles (binned in parallel).
+    chunks: Vec<BinChunk>,
     /// Visibility buffer: entry index per pixel.
     tri: Vec<u32>,
     /// Visibility buffer: perspective-correct barycentrics (of vertices 1 and 2) per pixel.
     bary: Vec<[f32; 2]>,
+}
+
+/// The bins of one contiguous chunk of triangles.
+#[derive(Default)]
+struct BinChunk {
+    /// Triangle entries per band: `t < n_triangles` is an original triangle, otherwise this chunk's
+    /// `clipped[t - n]`.
+    bins: Vec<Vec<u32>>,
+    /// This chunk's clipped triangles.
+    clipped: Vec<ClippedTriangle>,
+    /// Clipping scratch.
+    poly: Vec<PolyVertex>,
 }
 
 /// Camera constants for fast projection: `u = ku * X + cu`, `v = kv * Y + cv` with `X = x / w`, `Y = y / w`,
@@ -420,57 +438,58 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             }
         });
 
-    // 2. Binning into row bands (clipping the few triangles that need it).
+    // 2. Binning into row bands, in parallel over contiguous triangle chunks. Bands later walk the chunks in
+    //    order, so every band still sees its triangles in mesh order (ties at equal depth resolve as before).
     let n_bands = h.div_ceil(BAND_ROWS);
-    if s.bins.len() < n_bands {
-        s.bins.resize_with(n_bands, Vec::new);
-    }
-    for bin in &mut s.bins {
-        bin.clear();
-    }
-    s.clipped.clear();
     let n_tris = mesh.triangles.len();
-    let mut poly: Vec<PolyVertex> = Vec::new();
-    let bin_rows = |bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32| {
-        let vmin = vs[0].v.min(vs[1].v).min(vs[2].v);
-        let vmax = vs[0].v.max(vs[1].v).max(vs[2].v);
-        let umin = vs[0].u.min(vs[1].u).min(vs[2].u);
-        let umax = vs[0].u.max(vs[1].u).max(vs[2].u);
-        // Rows whose centre may lie inside (one row of slack; the fill rule decides exactly).
-        if vmax < -1.0 || umax < -1.0 || vmin > h as f32 + 1.0 || umin > w as f32 + 1.0 {
-            return;
+    let n_chunks = rayon::current_num_threads().clamp(1, 64);
+    let chunk_len = n_tris.div_ceil(n_chunks).max(1);
+    s.chunks.resize_with(n_chunks, BinChunk::default);
+    let (clip, screen, outcode) = (&s.clip, &s.screen, &s.outcode);
+    s.chunks.par_iter_mut().enumerate().for_each(|(k, chunk)| {
+        if chunk.bins.len() < n_bands {
+            chunk.bins.resize_with(n_bands, Vec::new);
         }
-        let r0 = ((vmin - 1.0).max(0.0) as usize).min(h - 1);
-        let r1 = ((vmax + 1.0).max(0.0) as usize).min(h - 1);
-        for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
-            bin.push(entry);
+        for bin in &mut chunk.bins {
+            bin.clear();
         }
-    };
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        if tri.iter().any(|&i| i as usize >= nv) {
-            continue;
-        }
-        let [i0, i1, i2] = tri.map(|i| i as usize);
-        let (o0, o1, o2) = (s.outcode[i0], s.outcode[i1], s.outcode[i2]);
-        if (o0 | o1 | o2) & OUT_INVALID != 0 || (o0 & o1 & o2) != 0 {
-            continue; // non-finite vertex, or entirely outside one plane
-        }
-        if (o0 | o1 | o2) == 0 {
-            bin_rows(&mut s.bins, [&s.screen[i0], &s.screen[i1], &s.screen[i2]], t as u32);
-            continue;
-        }
-        poly.clear();
-        clip_polygon(fc, [s.clip[i0], s.clip[i1], s.clip[i2]], guard, &mut poly);
-        for k in 1..poly.len().saturating_sub(1) {
-            let fan = [poly[0], poly[k], poly[k + 1]];
-            let v = fan.map(|p| fc.screen_of(&p.c));
-            if v.iter().any(|v| !(v.u.is_finite() && v.v.is_finite() && v.iw.is_finite() && v.iw > 0.0)) {
+        chunk.clipped.clear();
+        let first = (k * chunk_len).min(n_tris);
+        let last = ((k + 1) * chunk_len).min(n_tris);
+        for (t, tri) in mesh.triangles[first..last].iter().enumerate().map(|(j, tri)| (first + j, tri)) {
+            if tri.iter().any(|&i| i as usize >= nv) {
                 continue;
             }
-            let entry = (n_tris + s.clipped.len()) as u32;
-            s.clipped.push(ClippedTriangle { original: t as u32, v, b: fan.map(|p| p.b) });
-            bin_rows(&mut s.bins, [&v[0], &v[1], &v[2]], entry);
+            let [i0, i1, i2] = tri.map(|i| i as usize);
+            let (o0, o1, o2) = (outcode[i0], outcode[i1], outcode[i2]);
+            if (o0 | o1 | o2) & OUT_INVALID != 0 || (o0 & o1 & o2) != 0 {
+                continue; // non-finite vertex, or entirely outside one plane
+            }
+            if (o0 | o1 | o2) == 0 {
+                bin_rows(&mut chunk.bins, [&screen[i0], &screen[i1], &screen[i2]], t as u32, w, h);
+                continue;
+            }
+            chunk.poly.clear();
+            clip_polygon(fc, [clip[i0], clip[i1], clip[i2]], guard, &mut chunk.poly);
+            for j in 1..chunk.poly.len().saturating_sub(1) {
+                let fan = [chunk.poly[0], chunk.poly[j], chunk.poly[j + 1]];
+                let v = fan.map(|p| fc.screen_of(&p.c));
+                if v.iter().any(|v| !(v.u.is_finite() && v.v.is_finite() && v.iw.is_finite() && v.iw > 0.0)) {
+                    continue;
+                }
+                // Local entry; made global (offset by the earlier chunks' clipped triangles) when rasterised.
+                let entry = (n_tris + chunk.clipped.len()) as u32;
+                chunk.clipped.push(ClippedTriangle { original: t as u32, v, b: fan.map(|p| p.b) });
+                bin_rows(&mut chunk.bins, [&v[0], &v[1], &v[2]], entry, w, h);
+            }
         }
+    });
+    // All clipped triangles in one list (chunk order), and each chunk's offset into it.
+    s.clipped.clear();
+    s.clip_offset.clear();
+    for chunk in &s.chunks {
+        s.clip_offset.push(s.clipped.len() as u32);
+        s.clipped.extend_from_slice(&chunk.clipped);
     }
 
     // 3. Rasterise bands in parallel into the visibility buffer.
@@ -479,7 +498,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     s.tri.resize(n, NO_TRIANGLE);
     s.bary.resize(n, [0.0; 2]);
     let band_len = BAND_ROWS * w;
-    let (screen, clipped, bins) = (&s.screen, &s.clipped, &s.bins);
+    let (screen, clipped, chunks, clip_offset) = (&s.screen, &s.clipped, &s.chunks, &s.clip_offset);
     out.depth
         .par_chunks_mut(band_len)
         .zip(s.tri.par_chunks_mut(band_len))
@@ -489,14 +508,16 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
             let row0 = band * BAND_ROWS;
             let rows = depth.len() / w;
             let mut target = BandTarget { depth, tri, bary, width: w, row0, rows };
-            for &e in &bins[band] {
-                let v = if (e as usize) < n_tris {
-                    let t = mesh.triangles[e as usize];
-                    t.map(|i| screen[i as usize])
-                } else {
-                    clipped[e as usize - n_tris].v
-                };
-                raster_triangle(&mut target, &v, e);
+            for (chunk, &offset) in chunks.iter().zip(clip_offset) {
+                for &e in &chunk.bins[band] {
+                    if (e as usize) < n_tris {
+                        let t = mesh.triangles[e as usize];
+                        raster_triangle(&mut target, &t.map(|i| screen[i as usize]), e);
+                    } else {
+                        let e = e + offset;
+                        raster_triangle(&mut target, &clipped[e as usize - n_tris].v, e);
+                    }
+                }
             }
         });
 
@@ -573,6 +594,58 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
                 }
             }
         });
+    }
+}
+
+/// Appends `entry` to the bins of every band whose pixel centres a screen triangle with vertices `vs` may cover.
+/// A triangle whose bounding box holds no pixel centre of the `w x h` screen is dropped here: the exact fill rule
+/// would cover nothing (most triangles of a fine mesh are smaller than a pixel). The box is widened by
+/// [`BIN_SLACK`] pixels so vertex snapping can never turn a dropped triangle into a covering one.
+fn bin_rows(bins: &mut [Vec<u32>], vs: [&ScreenVertex; 3], entry: u32, w: usize, h: usize) {
+    // Plain comparisons (screen vertices are finite here), not the NaN-aware `f32::min`: this runs for every
+    // triangle of every view and most triangles stop at the pixel-centre test below.
+    let min3 = |a: f32, b: f32, c: f32| {
+        let m = if a < b { a } else { b };
+        if m < c {
+            m
+        } else {
+            c
+        }
+    };
+    let max3 = |a: f32, b: f32, c: f32| {
+        let m = if a > b { a } else { b };
+        if m > c {
+            m
+        } else {
+            c
+        }
+    };
+    let vmin = min3(vs[0].v, vs[1].v, vs[2].v) - BIN_SLACK;
+    let vmax = max3(vs[0].v, vs[1].v, vs[2].v) + BIN_SLACK;
+    let umin = min3(vs[0].u, vs[1].u, vs[2].u) - BIN_SLACK;
+    let umax = max3(vs[0].u, vs[1].u, vs[2].u) + BIN_SLACK;
+    let (wf, hf) = (w as f32, h as f32);
+    if !(vmax >= 0.0 && umax >= 0.0 && vmin <= hf && umin <= wf) {
+        return; // off screen (or NaN)
+    }
+    // First and last pixel centre (k + 0.5) inside [min, max], clamped to the screen. Clamping first keeps the
+    // values small, so truncation toward zero plus one comparison is an exact floor.
+    let floor_small = |x: f32| {
+        let t = x as i32;
+        t - (x < t as f32) as i32
+    };
+    let first = |lo: f32| -floor_small(0.5 - lo.max(-1.0));
+    let last = |hi: f32, n: f32| floor_small(hi.min(n + 1.0) - 0.5);
+    let (c0, c1) = (first(umin).max(0), last(umax, wf).min(w as i32 - 1));
+    if c0 > c1 {
+        return;
+    }
+    let (r0, r1) = (first(vmin).max(0), last(vmax, hf).min(h as i32 - 1));
+    if r0 > r1 {
+        return;
+    }
+    for bin in &mut bins[r0 as usize / BAND_ROWS..=r1 as usize / BAND_ROWS] {
+        bin.push(entry);
     }
 }
 
@@ -780,6 +853,42 @@ mod tests {
         // The top-left rule: the top (row 2) and left (col 2) edges are in, the right/bottom edges are out.
         assert!(both.mask[2 * 16 + 5] && both.mask[5 * 16 + 2]);
         assert!(!both.mask[12 * 16 + 5] && !both.mask[5 * 16 + 12]);
+    }
+
+    #[test]
+    fn sub_pixel_triangles_cover_exactly_what_one_big_quad_covers() {
+        // A quad tiled by triangles far smaller than a pixel (most hold no pixel centre and are dropped while
+        // binning) must cover exactly the pixels of the same quad drawn as two triangles, with the same depth.
+        // The quad is tilted in depth, perspective and orthographic, and its edges avoid pixel centres.
+        for cam in [
+            Camera::source(64),
+            Camera::perspective(Vec3::new(0.1, 0.05, 3.0), glam::Quat::IDENTITY, Fov::symmetric(0.9, 1.0), 0.1, 64, 64),
+        ] {
+            let corner = |x: f32, y: f32| Vec3::new(-0.71 + 1.37 * x, -0.53 + 1.29 * y, 0.2 * x - 0.3 * y);
+            let n = 160; // cells per side: ~0.3 pixels each
+            let mut pos = Vec::new();
+            for j in 0..=n {
+                for i in 0..=n {
+                    pos.push(corner(i as f32 / n as f32, j as f32 / n as f32));
+                }
+            }
+            let mut tris = Vec::new();
+            let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+            for j in 0..n {
+                for i in 0..n {
+                    tris.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                    tris.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+                }
+            }
+            let fine = rasterize(&TriMesh::new(pos, tris), &cam);
+            let quad = vec![corner(0.0, 0.0), corner(1.0, 0.0), corner(1.0, 1.0), corner(0.0, 1.0)];
+            let coarse = rasterize(&TriMesh::new(quad, vec![[0, 1, 2], [0, 2, 3]]), &cam);
+            assert!(coarse.coverage() > 500, "{}", coarse.coverage());
+            assert_eq!(fine.mask, coarse.mask);
+            for (a, b) in fine.depth.iter().zip(&coarse.depth) {
+                assert!((a - b).abs() < 1e-4, "{a} vs {b}");
+            }
+        }
     }
 
     #[test]

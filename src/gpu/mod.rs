@@ -11,6 +11,7 @@
 //! validation layer; its errors and warnings are counted in [`Context::validation`].
 
 pub mod context;
+pub mod neural;
 pub mod offline;
 pub mod overlay;
 pub mod renderer;

@@ -875,6 +875,64 @@ impl Renderer {
         self.render(camera, Some(mode), present)
     }
 
+    /// The neural decoder's seam, first half: rasterises the uploaded mesh for `camera` and computes flow, Z-map
+    /// and visibility on the GPU in one submission, then reads the target G-buffer and the flow back into host
+    /// memory, where the decoder (ONNX Runtime) takes them. Follow it with [`Renderer::render_frame_from_person`]
+    /// for the same camera: the target geometry stays on the GPU for spatial fusion.
+    pub fn neural_inputs(&mut self, camera: &Camera) -> Result<(GBuffer, FlowZ), GpuError> {
+        self.check_camera(camera)?;
+        self.require_source()?;
+        self.set_target(camera);
+        self.run(&[Step::Raster, Step::Compute(Pass::Flow)], None)?;
+        // The person layer on the GPU no longer matches its camera until the host result comes back.
+        self.dirty = true;
+        Ok((self.read_gbuffer(), self.read_flow().0))
+    }
+
+    /// The neural decoder's seam, second half: takes a person layer computed on the host for `camera`
+    /// (premultiplied linear RGBA of the renderer's size, e.g. the decoder's output) and finishes the frame on the
+    /// GPU as [`Renderer::render_frame`] does: spatial fusion with the previous frame (when on; it needs the target
+    /// geometry of [`Renderer::neural_inputs`] for the same camera), the panorama composite (VR) or the alpha
+    /// layer (AR), and with `present` the encode and the copy into the swapchain image. `None` reuses the last
+    /// person layer (same camera and input: no decoder run needed). Read the frame with [`Renderer::read_output`].
+    pub fn render_frame_from_person(
+        &mut self,
+        person: Option<&RgbaImage>,
+        camera: &Camera,
+        mode: Mode,
+        present: Option<PresentTarget>,
+    ) -> Result<(), GpuError> {
+        self.check_camera(camera)?;
+        if mode == Mode::Vr && self.env_size.0 == 0 {
+            return Err(GpuError::Invalid("no panorama was uploaded (set_environment)".into()));
+        }
+        self.set_target(camera);
+        self.uniforms.output_format[1] = u32::from(mode == Mode::Ar);
+        self.set_previous_uniform();
+        let compose = Step::Compute(if mode == Mode::Vr { Pass::Panorama } else { Pass::Ar });
+        match person {
+            Some(person) => {
+                self.check_image(person.width, person.height)?;
+                self.current.write(&person.data);
+                let fuse = self.fusion && self.previous.is_some_and(|p| p != *camera);
+                self.uniforms.flags[0] = u32::from(fuse);
+                self.uniforms.params[1] = if fuse { previous_weight(camera.angle_from_source()) } else { 0.0 };
+                self.run(&[Step::Compute(Pass::Fusion), Step::SavePrevious, compose], present)?;
+                self.previous = Some(*camera);
+            }
+            None => {
+                if self.previous.is_none() {
+                    return Err(GpuError::Invalid("no person layer to reuse: give one first".into()));
+                }
+                self.run(&[Step::CopyPreviousToPerson, compose], present)?;
+            }
+        }
+        self.counters.frames += 1;
+        // The geometric path must not mistake this layer for its own cached one.
+        self.dirty = true;
+        Ok(())
+    }
+
     fn render(&mut self, camera: &Camera, mode: Option<Mode>, present: Option<PresentTarget>) -> Result<(), GpuError> {
         self.check_camera(camera)?;
         self.require_source()?;

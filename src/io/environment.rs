@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use crate::buffer::{Image, RgbImage};
+use crate::buffer::{floor_fast, Image, RgbImage};
 use crate::io::image_io::{self, IoError};
 
 /// The panorama embedded in the binary, used when no `--env` is given (CC0, see environments/CREDITS.md).
@@ -63,10 +63,24 @@ impl Environment {
         direction_to_uv(d, self.yaw)
     }
 
-    /// Linear colour seen along world direction `d` (bilinear, wrap-around, pole-aware).
+    /// Linear colour seen along world direction `d` (bilinear, wrap-around, pole-aware). For many lookups use
+    /// [`Environment::lookup`] (the same result without per-call setup).
     pub fn sample(&self, d: Vec3) -> Vec3 {
-        let (u, v) = self.direction_to_uv(d);
-        self.sample_uv(u, v)
+        self.lookup().sample(d)
+    }
+
+    /// A lookup with the per-panorama constants (yaw rotation, sizes) computed once, for per-pixel loops.
+    pub fn lookup(&self) -> PanoramaLookup<'_> {
+        let (sin_yaw, cos_yaw) = if self.yaw == 0.0 { (0.0, 1.0) } else { self.yaw.sin_cos() };
+        PanoramaLookup {
+            env: self,
+            sin_yaw,
+            cos_yaw,
+            width: self.image.width as f32,
+            height: self.image.height as f32,
+            interior_x: self.image.width as f32 - 1.0,
+            interior_y: self.image.height as f32 - 1.0,
+        }
     }
 
     /// Bilinear lookup at panorama coordinates (see the module docs for wrapping).
@@ -78,7 +92,7 @@ impl Environment {
         if !(x.is_finite() && y.is_finite()) {
             return Vec3::ZERO;
         }
-        let (x0, y0) = (x.floor(), y.floor());
+        let (x0, y0) = (floor_fast(x), floor_fast(y));
         let (tx, ty) = (x - x0, y - y0);
         let fetch = |cx: i64, cy: i64| -> Vec3 {
             // Across a pole the row reflects and the column moves half a turn.
@@ -109,17 +123,88 @@ impl Environment {
     }
 }
 
+/// [`Environment::sample`] with its constants precomputed: what the compositor calls once per background pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct PanoramaLookup<'a> {
+    env: &'a Environment,
+    sin_yaw: f32,
+    cos_yaw: f32,
+    width: f32,
+    height: f32,
+    /// Texel coordinates below these (and at least 0) need no wrapping or pole reflection.
+    interior_x: f32,
+    interior_y: f32,
+}
+
+impl PanoramaLookup<'_> {
+    /// Linear colour seen along world direction `d` (need not be normalised); equal to [`Environment::sample`].
+    #[inline]
+    pub fn sample(&self, d: Vec3) -> Vec3 {
+        let (u, v) = self.uv(d);
+        self.sample_uv(u, v)
+    }
+
+    /// Panorama coordinates of world direction `d` (need not be normalised); equal to [`direction_to_uv`].
+    #[inline]
+    pub fn uv(&self, d: Vec3) -> (f32, f32) {
+        uv_rotated(d, self.sin_yaw, self.cos_yaw)
+    }
+
+    /// The panorama's size in texels, `(width, height)`.
+    pub fn size(&self) -> (f32, f32) {
+        (self.width, self.height)
+    }
+
+    /// Bilinear lookup at panorama coordinates; equal to [`Environment::sample_uv`].
+    #[inline]
+    pub fn sample_uv(&self, u: f32, v: f32) -> Vec3 {
+        let x = u * self.width - 0.5;
+        let y = v * self.height - 0.5;
+        // Interior (almost every lookup): truncation is the floor for non-negative values; no wrap, no pole.
+        if x >= 0.0 && y >= 0.0 && x < self.interior_x && y < self.interior_y {
+            // Via i32: one conversion instruction (a float-to-usize cast is a long saturating sequence on x86-64).
+            let (x0, y0) = (x as i32 as usize, y as i32 as usize);
+            let (tx, ty) = (x - x0 as f32, y - y0 as f32);
+            let w = self.env.image.width;
+            let i = y0 * w + x0;
+            if let (Some(top), Some(bottom)) =
+                (self.env.image.data.get(i..i + 2), self.env.image.data.get(i + w..i + w + 2))
+            {
+                let top = top[0] * (1.0 - tx) + top[1] * tx;
+                let bottom = bottom[0] * (1.0 - tx) + bottom[1] * tx;
+                return top * (1.0 - ty) + bottom * ty;
+            }
+        }
+        self.env.sample_uv(u, v)
+    }
+}
+
 /// Panorama coordinates for a world direction with the panorama rotated by `yaw` radians about +y.
 pub fn direction_to_uv(d: Vec3, yaw: f32) -> (f32, f32) {
-    let d = d.try_normalize().unwrap_or(Vec3::NEG_Z);
     let (s, c) = if yaw == 0.0 { (0.0, 1.0) } else { yaw.sin_cos() };
+    uv_rotated(d, s, c)
+}
+
+/// [`direction_to_uv`] with the yaw given as its sine and cosine.
+#[inline]
+fn uv_rotated(d: Vec3, s: f32, c: f32) -> (f32, f32) {
+    // Both angles are ratios of components, so `d` needs no normalisation (one square root instead of three);
+    // only a zero or non-finite direction is replaced (by the panorama centre, -z).
+    let big = d.abs().max_element();
+    let d = if !(d.is_finite() && big > 0.0) {
+        Vec3::NEG_Z
+    } else if (1e-12..=1e12).contains(&big) {
+        d
+    } else {
+        d / big // rescaled so the squares below neither underflow nor overflow
+    };
     // Rotate the direction by -yaw so a positive yaw turns the panorama to the left.
     let dx = c * d.x + s * d.z;
     let dz = -s * d.x + c * d.z;
-    let u = 0.5 + atan2_fast(dx, -dz) / std::f32::consts::TAU;
-    let y = d.y.clamp(-1.0, 1.0);
-    // acos(y) = atan2(sqrt(1 - y^2), y), in [0, pi].
-    let v = atan2_fast((1.0 - y * y).max(0.0).sqrt(), y) / std::f32::consts::PI;
+    // Multiplications by the reciprocals: a float division by a constant stays a division.
+    let u = 0.5 + atan2_fast(dx, -dz) * (1.0 / std::f32::consts::TAU);
+    // Polar angle from +y: acos(y / |d|) = atan2(|d_xz|, y), in [0, pi].
+    let v = atan2_fast((dx * dx + dz * dz).sqrt(), d.y) * std::f32::consts::FRAC_1_PI;
     (u, v)
 }
 
@@ -129,11 +214,12 @@ pub fn direction_to_uv(d: Vec3, yaw: f32) -> (f32, f32) {
 #[inline]
 fn atan2_fast(y: f32, x: f32) -> f32 {
     let (ax, ay) = (x.abs(), y.abs());
-    let big = ax.max(ay);
-    if !(big > 1e-30 && x.is_finite() && y.is_finite()) {
+    // One test for "both finite and not both (nearly) zero": the sum is NaN or infinite otherwise.
+    let sum = ax + ay;
+    if !(sum > 1e-30 && sum < f32::INFINITY) {
         return y.atan2(x);
     }
-    let a = ax.min(ay) / big;
+    let a = ax.min(ay) / ax.max(ay);
     let s = a * a;
     let mut r = a * (0.999_866 + s * (-0.330_299_5 + s * (0.180_141 + s * (-0.085_133 + s * 0.020_835_1))));
     if ay > ax {
@@ -247,6 +333,14 @@ mod tests {
         assert!(direction_to_uv(Vec3::ZERO, 0.0).0.is_finite());
         for &(u, v) in &[(0.1f32, 0.2f32), (0.9, 0.7), (0.5, 0.5)] {
             assert!(close(direction_to_uv(uv_to_direction(u, v), 0.0), (u, v)));
+            // Unnormalised directions (tiny and huge lengths) map to the same place.
+            for scale in [1e-20f32, 1e-3, 7.5, 1e20] {
+                assert!(close(direction_to_uv(uv_to_direction(u, v) * scale, 0.0), (u, v)), "{u},{v} x{scale}");
+            }
+        }
+        // Zero and non-finite directions fall back to the panorama centre.
+        for d in [Vec3::ZERO, Vec3::new(f32::NAN, 0.0, -1.0), Vec3::new(0.0, f32::INFINITY, 0.0)] {
+            assert!(close(direction_to_uv(d, 0.0), (0.5, 0.5)), "{d}");
         }
         // A yaw of +90 degrees turns the panorama: +x now shows what -z showed.
         let (u, _) = direction_to_uv(Vec3::X, std::f32::consts::FRAC_PI_2);
@@ -270,6 +364,33 @@ mod tests {
         let q = env.sample(Vec3::new(-1e-4, 1.0, 0.0));
         assert!((p.y - q.y).abs() < 0.05);
         assert!(p.is_finite() && q.is_finite());
+    }
+
+    #[test]
+    fn the_per_pixel_lookup_equals_the_general_path() {
+        let (w, h) = (96, 48);
+        for yaw in [0.0f32, 0.7, -2.9] {
+            let env = Environment {
+                image: Image::from_fn(w, h, |c, r| Vec3::new(c as f32 / w as f32, r as f32 / h as f32, (c ^ r) as f32)),
+                yaw,
+            };
+            let lookup = env.lookup();
+            let mut seed = 12345u32;
+            let mut rnd = || {
+                seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                (seed >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0
+            };
+            let mut dirs: Vec<Vec3> = (0..4000).map(|_| Vec3::new(rnd(), rnd(), rnd()) * 3.0).collect();
+            // The wrap, the poles and the texel edges of the border rows and columns.
+            dirs.extend([Vec3::Z, Vec3::new(1e-6, 0.0, 1.0), Vec3::Y, Vec3::NEG_Y, Vec3::new(0.01, 1.0, 0.0)]);
+            dirs.extend([Vec3::new(0.0, -0.9999, 0.01), Vec3::ZERO, Vec3::splat(f32::NAN)]);
+            for d in dirs {
+                let (u, v) = direction_to_uv(d, yaw);
+                let want = env.sample_uv(u, v);
+                assert_eq!(lookup.sample(d), want, "yaw {yaw} d {d}");
+                assert_eq!(env.sample(d), want);
+            }
+        }
     }
 
     #[test]

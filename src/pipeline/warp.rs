@@ -194,44 +194,80 @@ fn mean_masked(rgb: &RgbImage, mask: &GrayImage) -> Option<Vec3> {
 /// progressively coarser levels, upsampled bilinearly (smooth, no block artefacts). Every pixel ends with a
 /// colour as soon as one pixel is known.
 /// `needed` limits the finest level to the pixels whose colour is used (the target mask).
+///
+/// Only the work that can change a needed pixel is done, with results identical to the whole-frame pyramid: a pull
+/// outside the box of known pixels is exactly zero (zero weights add nothing), so each level is pulled only over
+/// that box; and a push only touches the box that the next finer level's needed box reads (its footprint halved
+/// and grown by one bilinear tap). The finest level is never materialised: it is read from `color`/`known`.
 fn push_pull(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usize, h: usize) {
-    // Level 0: premultiplied colour and weight.
-    let mut levels: Vec<(usize, usize, Vec<Vec4>)> = Vec::new();
-    let base: Vec<Vec4> = color.iter().zip(known).map(|(c, &k)| if k { c.extend(1.0) } else { Vec4::ZERO }).collect();
-    levels.push((w, h, base));
-    // Pull: halve until 1x1, weights capped at 1 (a fully covered coarse pixel is as certain as a known one).
-    loop {
-        let (lw, lh, prev) = &levels[levels.len() - 1];
-        let (lw, lh) = (*lw, *lh);
-        if lw <= 1 && lh <= 1 {
-            break;
-        }
+    let Some(known_box) = PixelBox::of(known, w, h) else { return };
+    let needed_box = match needed {
+        Some(m) => match PixelBox::of(m, w, h) {
+            Some(b) => b,
+            None => return,
+        },
+        None => PixelBox { c0: 0, r0: 0, c1: w - 1, r1: h - 1 },
+    };
+    // Coarse levels 1.. as (width, height, premultiplied colour + weight, box that holds every non-zero weight,
+    // box the next finer level reads). Pixels outside the pulled box stay zero, as in the whole-frame pyramid.
+    let mut levels: Vec<(usize, usize, Vec<Vec4>, PixelBox, PixelBox)> = Vec::new();
+    let (mut lw, mut lh, mut pulled, mut read) = (w, h, known_box, needed_box);
+    while lw > 1 || lh > 1 {
         let (nw, nh) = (lw.div_ceil(2), lh.div_ceil(2));
+        let next_pulled = pulled.halved();
+        let next_read = read.halved().grown(1, nw, nh);
         let mut next = vec![Vec4::ZERO; nw * nh];
-        next.par_chunks_mut(nw).enumerate().for_each(|(r, row)| {
-            for (c, px) in row.iter_mut().enumerate() {
-                let mut s = Vec4::ZERO;
-                for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    let (cc, rr) = (2 * c + dc, 2 * r + dr);
-                    if cc < lw && rr < lh {
-                        s += prev[rr * lw + cc];
+        {
+            let fetch = |i: usize, prev: Option<&[Vec4]>| match prev {
+                Some(p) => p[i],
+                None if known[i] => color[i].extend(1.0),
+                None => Vec4::ZERO,
+            };
+            let prev = levels.last().map(|l| l.2.as_slice());
+            let rows = &mut next[next_pulled.r0 * nw..(next_pulled.r1 + 1) * nw];
+            rows.par_chunks_mut(nw).enumerate().for_each(|(dr, row)| {
+                let r = next_pulled.r0 + dr;
+                for (c, px) in row.iter_mut().enumerate().take(next_pulled.c1 + 1).skip(next_pulled.c0) {
+                    let mut s = Vec4::ZERO;
+                    for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (cc, rr) = (2 * c + dc, 2 * r + dr);
+                        if cc < lw && rr < lh {
+                            s += fetch(rr * lw + cc, prev);
+                        }
                     }
+                    *px = if s.w > 0.0 { (s.truncate() / s.w * s.w.min(1.0)).extend(s.w.min(1.0)) } else { Vec4::ZERO };
                 }
-                *px = if s.w > 0.0 { (s.truncate() / s.w * s.w.min(1.0)).extend(s.w.min(1.0)) } else { Vec4::ZERO };
-            }
-        });
-        levels.push((nw, nh, next));
+            });
+        }
+        levels.push((nw, nh, next, next_pulled, next_read));
+        (lw, lh, pulled, read) = (nw, nh, next_pulled, next_read);
     }
     // Push: from coarse to fine, holes (weight < 1) are completed by the upsampled coarser level.
-    for k in (0..levels.len() - 1).rev() {
-        let (finer, coarser) = levels.split_at_mut(k + 1);
-        let (cw, ch, coarse) = (&coarser[0].0, &coarser[0].1, &coarser[0].2);
-        let (cw, ch) = (*cw, *ch);
-        let (fw, fine) = (finer[k].0, &mut finer[k].2);
-        let finest = k == 0;
-        fine.par_chunks_mut(fw).enumerate().for_each(|(r, row)| {
-            for (c, px) in row.iter_mut().enumerate() {
-                if px.w >= 1.0 || (finest && needed.is_some_and(|m| !m[r * fw + c])) {
+    for k in (0..levels.len()).rev() {
+        let (finer, coarser) = levels.split_at_mut(k);
+        let (cw, ch, coarse) = (coarser[0].0, coarser[0].1, &coarser[0].2);
+        if k == 0 {
+            // The finest level: only needed holes, written straight into `color`.
+            let rows = &mut color[needed_box.r0 * w..(needed_box.r1 + 1) * w];
+            rows.par_chunks_mut(w).enumerate().for_each(|(dr, row)| {
+                let r = needed_box.r0 + dr;
+                for (c, px) in row.iter_mut().enumerate().take(needed_box.c1 + 1).skip(needed_box.c0) {
+                    let i = r * w + c;
+                    if known[i] || needed.is_some_and(|m| !m[i]) {
+                        continue;
+                    }
+                    let up = bilinear4(coarse, cw, ch, (c as f32 + 0.5) * 0.5, (r as f32 + 0.5) * 0.5);
+                    *px = if up.w > 0.0 { up.truncate() / up.w } else { Vec3::ZERO };
+                }
+            });
+            continue;
+        }
+        let (fw, fine, fine_read) = (finer[k - 1].0, &mut finer[k - 1].2, finer[k - 1].4);
+        let rows = &mut fine[fine_read.r0 * fw..(fine_read.r1 + 1) * fw];
+        rows.par_chunks_mut(fw).enumerate().for_each(|(dr, row)| {
+            let r = fine_read.r0 + dr;
+            for (c, px) in row.iter_mut().enumerate().take(fine_read.c1 + 1).skip(fine_read.c0) {
+                if px.w >= 1.0 {
                     continue;
                 }
                 // Fine pixel centre in coarse pixel coordinates.
@@ -242,9 +278,42 @@ fn push_pull(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usi
             }
         });
     }
-    for ((c, &k), l) in color.iter_mut().zip(known).zip(&levels[0].2) {
-        if !k {
-            *c = l.truncate();
+}
+
+/// An inclusive pixel rectangle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PixelBox {
+    c0: usize,
+    r0: usize,
+    c1: usize,
+    r1: usize,
+}
+
+impl PixelBox {
+    /// The bounding box of the set pixels of a `w x h` mask; `None` when none is set.
+    fn of(mask: &[bool], w: usize, h: usize) -> Option<Self> {
+        let rows: Vec<Option<(usize, usize)>> = mask[..w * h]
+            .par_chunks(w)
+            .map(|row| Some((row.iter().position(|&m| m)?, row.iter().rposition(|&m| m)?)))
+            .collect();
+        let r0 = rows.iter().position(Option::is_some)?;
+        let r1 = rows.iter().rposition(Option::is_some)?;
+        let (c0, c1) = rows.iter().flatten().fold((usize::MAX, 0), |(a, b), &(lo, hi)| (a.min(lo), b.max(hi)));
+        Some(Self { c0, r0, c1, r1 })
+    }
+
+    /// The box of the next coarser level's pixels that contain this box's pixels.
+    fn halved(self) -> Self {
+        Self { c0: self.c0 / 2, r0: self.r0 / 2, c1: self.c1 / 2, r1: self.r1 / 2 }
+    }
+
+    /// Grown by `n` pixels on every side, clamped to a `w x h` image.
+    fn grown(self, n: usize, w: usize, h: usize) -> Self {
+        Self {
+            c0: self.c0.saturating_sub(n),
+            r0: self.r0.saturating_sub(n),
+            c1: (self.c1 + n).min(w - 1),
+            r1: (self.r1 + n).min(h - 1),
         }
     }
 }
@@ -402,6 +471,114 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The whole-frame push-pull the cropped [`push_pull`] must match exactly.
+    /// Multi-scale push-pull hole filling: known pixels keep their colour, holes get the coverage-weighted average of
+    /// progressively coarser levels, upsampled bilinearly (smooth, no block artefacts). Every pixel ends with a
+    /// colour as soon as one pixel is known.
+    /// `needed` limits the finest level to the pixels whose colour is used (the target mask).
+    fn push_pull_reference(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usize, h: usize) {
+        // Level 0: premultiplied colour and weight.
+        let mut levels: Vec<(usize, usize, Vec<Vec4>)> = Vec::new();
+        let base: Vec<Vec4> =
+            color.iter().zip(known).map(|(c, &k)| if k { c.extend(1.0) } else { Vec4::ZERO }).collect();
+        levels.push((w, h, base));
+        // Pull: halve until 1x1, weights capped at 1 (a fully covered coarse pixel is as certain as a known one).
+        loop {
+            let (lw, lh, prev) = &levels[levels.len() - 1];
+            let (lw, lh) = (*lw, *lh);
+            if lw <= 1 && lh <= 1 {
+                break;
+            }
+            let (nw, nh) = (lw.div_ceil(2), lh.div_ceil(2));
+            let mut next = vec![Vec4::ZERO; nw * nh];
+            next.par_chunks_mut(nw).enumerate().for_each(|(r, row)| {
+                for (c, px) in row.iter_mut().enumerate() {
+                    let mut s = Vec4::ZERO;
+                    for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (cc, rr) = (2 * c + dc, 2 * r + dr);
+                        if cc < lw && rr < lh {
+                            s += prev[rr * lw + cc];
+                        }
+                    }
+                    *px = if s.w > 0.0 { (s.truncate() / s.w * s.w.min(1.0)).extend(s.w.min(1.0)) } else { Vec4::ZERO };
+                }
+            });
+            levels.push((nw, nh, next));
+        }
+        // Push: from coarse to fine, holes (weight < 1) are completed by the upsampled coarser level.
+        for k in (0..levels.len() - 1).rev() {
+            let (finer, coarser) = levels.split_at_mut(k + 1);
+            let (cw, ch, coarse) = (&coarser[0].0, &coarser[0].1, &coarser[0].2);
+            let (cw, ch) = (*cw, *ch);
+            let (fw, fine) = (finer[k].0, &mut finer[k].2);
+            let finest = k == 0;
+            fine.par_chunks_mut(fw).enumerate().for_each(|(r, row)| {
+                for (c, px) in row.iter_mut().enumerate() {
+                    if px.w >= 1.0 || (finest && needed.is_some_and(|m| !m[r * fw + c])) {
+                        continue;
+                    }
+                    // Fine pixel centre in coarse pixel coordinates.
+                    let up = bilinear4(coarse, cw, ch, (c as f32 + 0.5) * 0.5, (r as f32 + 0.5) * 0.5);
+                    let up_rgb = if up.w > 0.0 { up.truncate() / up.w } else { Vec3::ZERO };
+                    let own = px.truncate(); // premultiplied by px.w
+                    *px = (own + up_rgb * (1.0 - px.w)).extend(1.0);
+                }
+            });
+        }
+        for ((c, &k), l) in color.iter_mut().zip(known).zip(&levels[0].2) {
+            if !k {
+                *c = l.truncate();
+            }
+        }
+    }
+
+    #[test]
+    fn cropped_push_pull_equals_the_whole_frame_pyramid() {
+        // Irregular blobs of known pixels inside a mask that is not the whole frame, odd sizes, and the mask
+        // touching the border: every needed pixel must be bit-identical to the whole-frame pyramid.
+        for (w, h, seed) in [(37usize, 23usize, 1u32), (64, 64, 2), (101, 57, 3), (5, 1, 4), (1, 9, 5)] {
+            let mut rng = seed.wrapping_mul(2654435761);
+            let mut next = || {
+                rng ^= rng << 13;
+                rng ^= rng >> 17;
+                rng ^= rng << 5;
+                rng
+            };
+            let (mut color, mut known, mut mask) = (vec![Vec3::ZERO; w * h], vec![false; w * h], vec![false; w * h]);
+            let (cx, cy) = (w as f32 * 0.6, h as f32 * 0.4);
+            for r in 0..h {
+                for c in 0..w {
+                    let i = r * w + c;
+                    let d = ((c as f32 - cx) / w as f32).hypot((r as f32 - cy) / h as f32);
+                    mask[i] = d < 0.35 || c == w - 1;
+                    if mask[i] && next() % 3 == 0 {
+                        known[i] = true;
+                        color[i] =
+                            Vec3::new((next() % 256) as f32, (next() % 256) as f32, (next() % 256) as f32) / 255.0;
+                    }
+                }
+            }
+            if !known.iter().any(|&k| k) {
+                known[w * h - 1] = true;
+                color[w * h - 1] = Vec3::ONE;
+            }
+            let mut a = color.clone();
+            push_pull(&mut a, &known, Some(&mask), w, h);
+            let mut b = color.clone();
+            push_pull_reference(&mut b, &known, Some(&mask), w, h);
+            for i in 0..w * h {
+                if mask[i] {
+                    assert_eq!(a[i], b[i], "{w}x{h} pixel {i}");
+                }
+            }
+            let mut a = color.clone();
+            push_pull(&mut a, &known, None, w, h);
+            let mut b = color;
+            push_pull_reference(&mut b, &known, None, w, h);
+            assert_eq!(a, b, "{w}x{h} without a mask");
         }
     }
 

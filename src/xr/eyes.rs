@@ -25,10 +25,12 @@ use crate::buffer::{GrayImage, RgbImage};
 use crate::compose::Mode;
 use crate::geometry::raster::GBuffer;
 use crate::geometry::{Camera, TriMesh};
+use crate::gpu::neural::{gpu_neural_person, SourceView};
 use crate::gpu::{self, resources::Buffer, Renderer};
 use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
 use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::{NeuralInput, SharedNeural};
 
 /// What the eyes show of one input frame: the person's mesh in body-cube coordinates and the source view the
 /// renderer warps (premultiplied linear RGB, its mask, the source G-buffer and camera, all of one size).
@@ -44,6 +46,24 @@ pub struct EyeScene {
     pub source_gbuffer: GBuffer,
     /// The source camera.
     pub source_camera: Camera,
+    /// The neural renderer and the encoder's output for this input; `None` draws the eyes geometrically.
+    pub neural: Option<EyeNeural>,
+}
+
+/// The neural renderer of an [`EyeScene`]: the shared decoder and the encoder's features of the scene's input
+/// (computed once per input frame, never per eye).
+#[derive(Clone)]
+pub struct EyeNeural {
+    /// The decoder (run under its lock, one eye at a time, on the render thread).
+    pub renderer: SharedNeural,
+    /// The encoder's output for the scene's input.
+    pub encoded: NeuralInput,
+}
+
+impl std::fmt::Debug for EyeNeural {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EyeNeural").field("encoded", &self.encoded).finish_non_exhaustive()
+    }
 }
 
 /// Where new scenes come from: a still photo (one scene) or a live source (a new scene per completed frame).
@@ -73,6 +93,44 @@ impl SceneFeed for StaticScene {
     }
 }
 
+/// What the neural renderer did for the eyes of a session.
+#[derive(Clone, Debug, Default)]
+pub struct NeuralEyeStats {
+    /// Eye images drawn by the neural decoder (including reused layers).
+    pub eyes: u64,
+    /// Decoder runs.
+    pub decoder_runs: u64,
+    /// Eye images whose layer was reused (same pose, same input: no decoder run).
+    pub reused: u64,
+    /// Eye images the neural renderer failed on (drawn geometrically instead).
+    pub fallbacks: u64,
+    /// Per decoder run: GPU raster + flow/Z-map including the read-back into host memory.
+    pub gpu_inputs: Vec<Duration>,
+    /// Per decoder run: colour lookup, feature sampling and the decoder on ONNX Runtime.
+    pub decoder: Vec<Duration>,
+}
+
+impl NeuralEyeStats {
+    /// One line for the session report; `None` when no eye was meant to be neural.
+    pub fn summary(&self) -> Option<String> {
+        if self.eyes + self.fallbacks == 0 {
+            return None;
+        }
+        let ms = |v: &[Duration]| super::pacing::median_ms(v).unwrap_or(0.0);
+        Some(format!(
+            "neural (decoder on ONNX Runtime through host memory: GPU raster + flow read back, decoded on the host, \
+             uploaded for compositing): {} eye images, {} decoder runs (median GPU inputs {:.1} ms, lookup + \
+             decoder {:.1} ms), {} reused, {} geometric fallbacks",
+            self.eyes,
+            self.decoder_runs,
+            ms(&self.gpu_inputs),
+            ms(&self.decoder),
+            self.reused,
+            self.fallbacks
+        ))
+    }
+}
+
 /// How long the render thread waits for the display loop's copy out of its result buffers before giving up
 /// (the copy is a few hundred microseconds of GPU work; a stuck fence means a lost device).
 const COPY_TIMEOUT: Duration = Duration::from_secs(5);
@@ -85,7 +143,14 @@ pub struct GpuEyes {
     /// Per-eye staging buffers on the session's device when the renderers run on their own device.
     staging: Option<Vec<Buffer>>,
     feed: Box<dyn SceneFeed>,
-    has_scene: bool,
+    /// The scene on the GPU (kept for the neural decoder's colour lookup and features).
+    scene: Option<Arc<EyeScene>>,
+    /// Scenes uploaded so far (identifies the scene of a cached neural layer).
+    scene_count: u64,
+    /// Per eye: camera and scene of the neural layer on its renderer (reused while both stay).
+    neural_layers: Vec<Option<(Camera, u64)>>,
+    /// Neural eye renders, decoder runs, fallbacks and host times.
+    pub neural_stats: NeuralEyeStats,
     mode: Mode,
     environment: Option<Environment>,
     /// Yaw of the panorama as loaded (radians).
@@ -141,7 +206,10 @@ impl GpuEyes {
             renderers,
             staging,
             feed,
-            has_scene: false,
+            scene: None,
+            scene_count: 0,
+            neural_layers: vec![None; sizes.len()],
+            neural_stats: NeuralEyeStats::default(),
             mode,
             environment: if mode == Mode::Vr { environment } else { None },
             base_yaw,
@@ -171,7 +239,8 @@ impl EyeRenderer for GpuEyes {
         let mut uploaded = false;
         if let Some(scene) = self.feed.poll() {
             self.upload_scene(&scene).map_err(|e| format!("uploading the person to the GPU: {e}"))?;
-            self.has_scene = true;
+            self.scene = Some(scene);
+            self.scene_count += 1;
             uploaded = true;
         }
         if let Some(env) = &mut self.environment {
@@ -187,7 +256,7 @@ impl EyeRenderer for GpuEyes {
     }
 
     fn has_content(&self) -> bool {
-        self.has_scene
+        self.scene.is_some()
     }
 
     fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, String> {
@@ -203,7 +272,48 @@ impl EyeRenderer for GpuEyes {
                 eye.eye, eye.body_camera.width, eye.body_camera.height
             ));
         }
-        r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?;
+        let neural = self.scene.as_ref().and_then(|s| s.neural.as_ref().map(|n| (Arc::clone(s), n)));
+        let mut drawn_neural = false;
+        if let Some((scene, n)) = neural {
+            let layer = self.neural_layers.get_mut(eye.eye).ok_or_else(|| format!("eye {}: no layer slot", eye.eye))?;
+            let key = (eye.body_camera, self.scene_count);
+            if *layer == Some(key) {
+                // Same pose, same input: the layer on the GPU stands (as the geometric path reuses its own).
+                r.render_frame_from_person(None, &eye.body_camera, mode, None)
+                    .map_err(|e| format!("eye {}: {e}", eye.eye))?;
+                self.neural_stats.reused += 1;
+                drawn_neural = true;
+            } else {
+                let source =
+                    SourceView { rgb: &scene.source_rgb, mask: &scene.source_mask, camera: &scene.source_camera };
+                match gpu_neural_person(r, &n.renderer, source, &n.encoded, &eye.body_camera) {
+                    Ok((person, times)) => {
+                        r.render_frame_from_person(Some(&person), &eye.body_camera, mode, None)
+                            .map_err(|e| format!("eye {}: {e}", eye.eye))?;
+                        *layer = Some(key);
+                        self.neural_stats.decoder_runs += 1;
+                        self.neural_stats.gpu_inputs.push(times.gpu_inputs);
+                        self.neural_stats.decoder.push(times.decoder);
+                        drawn_neural = true;
+                    }
+                    Err(e) => {
+                        if self.neural_stats.fallbacks == 0 {
+                            tracing::warn!("eye {}: the neural renderer failed, drawing geometrically: {e}", eye.eye);
+                        }
+                        self.neural_stats.fallbacks += 1;
+                        *layer = None;
+                    }
+                }
+            }
+        }
+        if drawn_neural {
+            self.neural_stats.eyes += 1;
+        } else {
+            if let Some(layer) = self.neural_layers.get_mut(eye.eye) {
+                *layer = None;
+            }
+            r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?;
+        }
         match self.staging.as_mut().and_then(|s| s.get_mut(eye.eye)) {
             // Separate device: hand the result over through the session device's host-visible buffer. Safe to
             // rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
@@ -267,6 +377,7 @@ mod tests {
             source_mask: GrayImage::new(4, 4, 1.0),
             source_gbuffer: GBuffer::new(4, 4),
             source_camera: Camera::source(4),
+            neural: None,
         };
         let mut feed = StaticScene::new(scene);
         assert!(feed.poll().is_some());

@@ -18,7 +18,7 @@ pub mod placement;
 pub mod session;
 
 pub use check::{check_runtime, RuntimeReport};
-pub use eyes::{EyeScene, GpuEyes, SceneFeed, StaticScene};
+pub use eyes::{EyeNeural, EyeScene, GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
 pub use pacing::{EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
 pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport, XrMode};

@@ -19,7 +19,7 @@ use xr::sys::Handle as _;
 
 use super::check::{blend_mode_name, extension_names};
 use super::diag::{DiagnosticLog, XrMessenger};
-use super::eyes::{GpuEyes, SceneFeed};
+use super::eyes::{GpuEyes, NeuralEyeStats, SceneFeed};
 use super::gfx::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat, VulkanContext};
 use super::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 use super::pacing::{median_ms, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedFrame};
@@ -266,6 +266,11 @@ pub struct SessionReport {
     pub renderer_shares_queue: bool,
     /// Where the eyes were rendered and how they reached the swapchains.
     pub render_path: String,
+    /// Which renderer drew the person: "geometric (GPU)" or the neural renderer's summary (eye images, decoder
+    /// runs and times, reuses, fallbacks).
+    pub person_renderer: String,
+    /// What the neural renderer did for the eyes (all zero with the geometric renderer).
+    pub neural: NeuralEyeStats,
     /// Time the frame loop waited for the shared queue per frame (ms): median and maximum.
     pub queue_wait_ms: (Option<f64>, f64),
     /// Submitted frames per second while running.
@@ -329,6 +334,7 @@ impl fmt::Display for SessionReport {
             writeln!(f, "per-eye GPU render time (median of {}): {ms:.1} ms", self.eye_renders)?;
         }
         writeln!(f, "eyes rendered on {}", self.render_path)?;
+        writeln!(f, "person renderer: {}", self.person_renderer)?;
         if let Some(ms) = self.queue_wait_ms.0 {
             writeln!(
                 f,
@@ -687,6 +693,8 @@ pub fn run_session(
         let _ = vk.device.device_wait_idle();
     }
     uploader.destroy(&vk);
+    let neural = renderer.neural_stats.clone();
+    let person_renderer = neural.summary().unwrap_or_else(|| "geometric (GPU passes)".to_string());
     drop(renderer);
     drop(eyes);
     drop(passthrough);
@@ -742,6 +750,8 @@ pub fn run_session(
         vk_messages: vk.validation.messages().into_iter().chain(render_messages).collect(),
         vk_message_count: vk.validation.count() + render_message_count,
         render_path,
+        person_renderer,
+        neural,
         captures: loop_state.captures,
         placement: loop_state.placement,
         mirror_presented: loop_state.mirror_presented,
