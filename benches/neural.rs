@@ -2,7 +2,10 @@
 //! 512x512 over a person-shaped target mask, the encoder per input frame (512x512 source, resampled to the
 //! model's resolution), for every tier whose models are present, and the whole per-view path of the shipped
 //! `tiny` (target raster + flow/Z-map + colour lookup + decoder + panorama compose, `ViewRenderer::render_frame`)
-//! at 256x256 against the 40 ms target, next to the geometric renderer on the same input.
+//! at 256x256 against the 40 ms target, next to the geometric renderer on the same input. Per input, the FOF net
+//! (`FofNet::refine`: 512x512 photo + inflation prior in, the corrected 512x512 FOF out) alone, and the whole
+//! per-input preparation with `--geometry inflate` against `--geometry fofnet` (normalise, inflation, network,
+//! marching cubes, source raster).
 //!
 //! Models: `models/<tier>` of the project (the shipped `tiny`), or the tier folders inside `R2HUMAN_BENCH_MODELS`.
 //! Untrained `small`/`paper` models for speed measurements: `python -m train export-untrained --tier paper
@@ -16,13 +19,17 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use glam::Vec3;
 use r2human::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use r2human::compose::Mode;
+use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
 use r2human::geometry::Camera;
 use r2human::io::environment::Environment;
 use r2human::neural::{
-    default_model_dir, Coefficients, Decoder, Encoder, EncoderInput, ExecutionProvider, FeatureMap, RuntimeOptions,
+    default_model_dir, Coefficients, Decoder, Encoder, EncoderInput, ExecutionProvider, FeatureMap, FofNet,
+    RuntimeOptions, FOF_FILE,
 };
 use r2human::pipeline::warp::OcclusionFill;
-use r2human::pipeline::{load_renderer, PrepareOptions, PreparedInput, RendererChoice, ViewRenderer};
+use r2human::pipeline::{
+    load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice, ViewRenderer,
+};
 
 fn model_dir(tier: &str) -> Option<PathBuf> {
     if let Some(root) = std::env::var_os("R2HUMAN_BENCH_MODELS") {
@@ -155,5 +162,43 @@ fn bench_per_view(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_decoder, bench_encoder, bench_per_view);
+/// The FOF net per input for every tier with a `fof.onnx`, and the per-input preparation of the shipped `tiny`
+/// with the inflation prior against the FOF net.
+fn bench_fof_net(c: &mut Criterion) {
+    let size = 512;
+    let mask = person_mask(size);
+    let rgb = RgbImage::from_fn(size, size, |c, r| Vec3::new(0.6, 0.4, (c + r) as f32 / 1024.0) * *mask.get(c, r));
+    let mut group = c.benchmark_group("fof_net");
+    group.sample_size(10);
+    for tier in ["tiny", "small", "paper"] {
+        let Some(path) = model_dir(tier).map(|d| d.join(FOF_FILE)).filter(|p| p.is_file()) else { continue };
+        let mut net = match FofNet::load(&path, &options()) {
+            Ok(n) => n,
+            Err(e) => {
+                eprintln!("neural bench: {e}");
+                continue;
+            }
+        };
+        let prior = inflate_to_fof(&mask, net.info().fof_n, &InflateParams::default()).expect("inflation");
+        group.bench_function(format!("{tier}/512-input"), |b| {
+            b.iter(|| black_box(net.refine(&rgb, &mask, &prior).expect("FOF net run")))
+        });
+    }
+    if let Some(dir) = model_dir("tiny").filter(|d| d.join(FOF_FILE).is_file()) {
+        let inflate = PrepareOptions::default();
+        group.bench_function("prepare/inflate", |b| {
+            b.iter(|| black_box(PreparedInput::prepare(&rgb, &mask, &inflate).expect("prepare")))
+        });
+        let fof_net = load_fof_net(GeometryMode::FofNet, Some(&dir), inflate.fof_order, &options()).expect("fof.onnx");
+        let with_net = PrepareOptions { geometry: GeometryMode::FofNet, fof_net, ..PrepareOptions::default() };
+        group.bench_function("prepare/fofnet-tiny", |b| {
+            b.iter(|| black_box(PreparedInput::prepare(&rgb, &mask, &with_net).expect("prepare")))
+        });
+    } else {
+        eprintln!("neural bench: no models/tiny/fof.onnx, skipping the FOF-net preparation bench");
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_decoder, bench_encoder, bench_per_view, bench_fof_net);
 criterion_main!(benches);

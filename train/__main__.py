@@ -37,11 +37,19 @@ def main(argv=None):
     p.add_argument("--lpips", default=None,
                    help="TorchScript LPIPS module (x, y in [-1,1] -> distance); default: SSIM + gradient substitute")
 
-    p = sub.add_parser("fit-fof", help="train the FOF network (photo -> FOF-X coefficients)")
+    p = sub.add_parser("fit-fof", help="train the FOF network (photo + inflation prior -> FOF-X coefficients)")
     _train_args(p)
+    p.add_argument("--ckpt-every", type=int, default=200, help="checkpoint (and held-out evaluation) interval")
+    p.add_argument("--resume", default=None, help="continue from a fof.pt")
+    p.add_argument("--lambda-occupancy", type=float, default=2.0,
+                   help="weight of the decoded-occupancy L1 next to the coefficient L1 (weight 1)")
+    p.add_argument("--lambda-silhouette", type=float, default=4.0,
+                   help="weight of the silhouette term (every column of the person must hold some body)")
+    p.add_argument("--no-prior", action="store_true",
+                   help="train the plain image -> FOF net instead of the residual one on the inflation prior")
 
-    p = sub.add_parser("export", help="write encoder.onnx, decoder.onnx (+ fof.onnx) with metadata and check them")
-    p.add_argument("--renderer", required=True, help="renderer.pt from `fit`")
+    p = sub.add_parser("export", help="write encoder.onnx, decoder.onnx and/or fof.onnx with metadata and check them")
+    p.add_argument("--renderer", default=None, help="renderer.pt from `fit` (writes encoder.onnx, decoder.onnx)")
     p.add_argument("--fof", default=None, help="fof.pt from `fit-fof`")
     p.add_argument("--out", required=True, help="model folder, e.g. models/tiny")
     p.add_argument("--tolerance", type=float, default=1e-3, help="max allowed |ONNX Runtime - PyTorch|")
@@ -92,7 +100,7 @@ def main(argv=None):
         with tempfile.TemporaryDirectory() as tmp:
             common = {"tier": args.tier, "fof_n": args.fof_n, "resolution": res, "recipe": rec}
             torch.save({**common, "model": R2HumanNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/r.pt")
-            torch.save({**common, "model": FofNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/f.pt")
+            torch.save({**common, "prior": True, "model": FofNet(args.tier, args.fof_n).state_dict()}, f"{tmp}/f.pt")
             os.makedirs(args.out, exist_ok=True)
             report = export_renderer(f"{tmp}/r.pt", args.out)
             report.update(export_fof(f"{tmp}/f.pt", args.out))
@@ -111,7 +119,7 @@ def main(argv=None):
             out["renderer_zero_fof"] = evaluate_renderer(m, args.data, ck["resolution"], torch.device("cpu"), "zero")
         if args.fof:
             ck = torch.load(args.fof, map_location="cpu")
-            m = FofNet(ck["tier"], ck["fof_n"])
+            m = FofNet(ck["tier"], ck["fof_n"], prior=ck.get("prior", False))
             m.load_state_dict(ck["model"])
             out["fof"] = evaluate_fof(m, args.data, ck["resolution"], torch.device("cpu"))
         print(json.dumps(out, indent=1))

@@ -92,7 +92,7 @@ class R2Dataset(torch.utils.data.Dataset):
     `fixed_views=(a, b)` picks fixed ones (evaluation).
     """
 
-    def __init__(self, root, split="train", resolution=None, seed=0, fixed_views=None, cache=True):
+    def __init__(self, root, split="train", resolution=None, seed=0, fixed_views=None, cache=True, with_views=True):
         self.root = root
         self.meta = load_meta(root)
         self.subjects = list(self.meta["split"][split])
@@ -106,8 +106,13 @@ class R2Dataset(torch.utils.data.Dataset):
         self.k = self.data_res // self.res
         self.fof_n = int(self.meta["fof_n"])
         self.views = int(self.meta["views_per_subject"])
-        if self.views < 2:
-            raise ValueError("training needs at least 2 views per subject")
+        # The FOF net reads the source only (`with_views=False`): datasets written with `--views 0` serve it.
+        self.with_views = with_views
+        if with_views and self.views < 2:
+            raise ValueError("training the renderer needs at least 2 views per subject")
+        # `prior_fof.npy` (the inflation prior the residual FOF net corrects) exists in datasets written by this
+        # version of `r2human dataset`.
+        self.has_prior = all(os.path.exists(os.path.join(root, s, "prior_fof.npy")) for s in self.subjects)
         self.seed, self.epoch = seed, 0
         self.fixed_views = fixed_views
         self.cache = {} if cache else None
@@ -146,6 +151,11 @@ class R2Dataset(torch.utils.data.Dataset):
         if fof.shape[-1] != self.fof_n:
             raise ValueError(f"{d}/fof.npy has {fof.shape[-1]} coefficients, dataset.json says {self.fof_n}")
         rgba, depth, normal = downsample_view(rgba, depth, normal, self.k)
+        prior = None
+        if self.has_prior:
+            prior = _box(np.load(os.path.join(d, "prior_fof.npy")).astype(np.float32), self.k)
+            if prior.shape != fof.shape:
+                raise ValueError(f"{d}/prior_fof.npy has shape {prior.shape}, fof.npy {fof.shape}")
         src_cam = SOURCE_CAMERA
         cam_path = os.path.join(d, "source_camera.json")
         if os.path.exists(cam_path):
@@ -166,8 +176,10 @@ class R2Dataset(torch.utils.data.Dataset):
             "view_from_world": vfw,
             "half": half,
         }
+        if prior is not None:
+            src["prior"] = torch.from_numpy(prior).permute(2, 0, 1).float().contiguous()
         views = []
-        for v in range(self.views):
+        for v in range(self.views if self.with_views else 0):
             vd = os.path.join(d, "views", f"view_{v:02d}")
             with open(os.path.join(vd, "camera.json")) as f:
                 cam = json.load(f)
@@ -179,6 +191,8 @@ class R2Dataset(torch.utils.data.Dataset):
 
     def __getitem__(self, i):
         src, views = self._subject(self.subjects[i])
+        if not self.with_views:
+            return {f"src_{k}": v for k, v in src.items()}
         if self.fixed_views is not None:
             a, b = self.fixed_views
         else:

@@ -90,27 +90,44 @@ def export_renderer(ckpt_path, out_dir, seed=0):
 
 def export_fof(ckpt_path, out_dir, seed=0):
     ck = torch.load(ckpt_path, map_location="cpu")
-    tier, fof_n, res = ck["tier"], ck["fof_n"], ck["resolution"]
-    model = FofNet(tier, fof_n)
+    tier, fof_n, res, prior = ck["tier"], ck["fof_n"], ck["resolution"], ck.get("prior", False)
+    model = FofNet(tier, fof_n, prior=prior)
     model.load_state_dict(ck["model"])
     model.eval()
+    os.makedirs(out_dir, exist_ok=True)
     path = os.path.join(out_dir, "fof.onnx")
     g = torch.Generator().manual_seed(seed)
     feeds = {"image": torch.rand(1, 3, res, res, generator=g) * 2 - 1}
-    _export(model, tuple(feeds.values()), path, ["image"], ["fof"])
-    _metadata(path, {"r2human.format": FORMAT_VERSION, "r2human.kind": "fof", "r2human.tier": tier,
-                     "r2human.resolution": res, "r2human.fof_n": fof_n, "r2human.stride": model.stride,
-                     "r2human.recipe": json.dumps(ck["recipe"], sort_keys=True)})
+    if prior:
+        # Coefficients of plausible occupied columns: c0 (the occupied fraction of the ray, times 2) in [0, 1].
+        feeds["prior"] = torch.randn(1, fof_n, res, res, generator=g) * 0.2
+        feeds["prior"][:, :1] = torch.rand(1, 1, res, res, generator=g)
+    _export(model, tuple(feeds.values()), path, list(feeds), ["fof"])
+    meta = {"r2human.format": FORMAT_VERSION, "r2human.kind": "fof", "r2human.tier": tier, "r2human.resolution": res,
+            "r2human.fof_n": fof_n, "r2human.stride": model.stride,
+            "r2human.recipe": json.dumps(ck["recipe"], sort_keys=True)}
+    if prior:
+        meta["r2human.residual"] = "prior"
+    _metadata(path, meta)
     return {"fof": {"max_abs_diff": _compare(path, model, feeds)}}
 
 
 def export(args):
-    report = export_renderer(args.renderer, args.out)
+    if not args.renderer and not args.fof:
+        raise SystemExit("nothing to export: give --renderer RUN/renderer.pt and/or --fof RUN/fof.pt")
+    # Exporting one model keeps the other entries of an existing report (e.g. fof.onnx added to a shipped folder).
+    report_path = os.path.join(args.out, "export_report.json")
+    report = {}
+    if os.path.exists(report_path):
+        with open(report_path) as f:
+            report = json.load(f)
+    if args.renderer:
+        report.update(export_renderer(args.renderer, args.out))
     if args.fof:
         report.update(export_fof(args.fof, args.out))
     sizes = {f: os.path.getsize(os.path.join(args.out, f)) for f in os.listdir(args.out) if f.endswith(".onnx")}
     report["bytes"] = sizes
-    with open(os.path.join(args.out, "export_report.json"), "w") as f:
+    with open(report_path, "w") as f:
         json.dump(report, f, indent=1, sort_keys=True)
     print(json.dumps(report, indent=1, sort_keys=True))
     worst = max(v["max_abs_diff"] for k, v in _flatten(report))

@@ -252,21 +252,112 @@ def decode_occupancy(fof, samples=64):
     return 0.5 * fof[:, :1] + torch.einsum("sk,bkhw->bshw", basis, fof[:, 1:])
 
 
+def fof_inputs(model, b):
+    """The FOF net's inputs from a batch: the photo, plus the inflation prior when the net is residual on it."""
+    if getattr(model, "prior", False):
+        if "src_prior" not in b:
+            raise ValueError("this FOF net takes the inflation prior, but the dataset has no prior_fof.npy: rewrite it "
+                             "with this version's `r2human dataset`")
+        return b["src_image"], b["src_prior"]
+    return (b["src_image"],)
+
+
+def occupancy_iou(pred, gt, mask, samples=64):
+    """Volumetric IoU of the decoded 0.5 iso-surfaces over the mask's columns."""
+    m = mask > 0.5
+    po, go = (decode_occupancy(pred, samples) > 0.5) & m, (decode_occupancy(gt, samples) > 0.5) & m
+    return float((po & go).sum()) / max(float((po | go).sum()), 1.0)
+
+
 @torch.no_grad()
 def evaluate_fof(model, data, resolution, device):
-    """Held-out FOF accuracy: coefficient L1 over the person and volumetric IoU of the decoded 0.5 iso-surface."""
+    """Held-out FOF accuracy, the FOF net against the inflation prior it starts from (when the dataset has one):
+    coefficient L1 over the person and the volumetric IoU of the decoded 0.5 iso-surface against ground truth."""
     model.eval()
-    ds = R2Dataset(data, "test", resolution=resolution, cache=False, fixed_views=(0, 1))
-    l1s, ious = [], []
+    ds = R2Dataset(data, "test", resolution=resolution, cache=False, with_views=False)
+    out = {"subjects": len(ds)}
+    rows = {"net": ([], [], [])}
+    if ds.has_prior:
+        rows["prior"] = ([], [], [])
     for i in range(len(ds)):
         b = to_device({k: t[None] for k, t in ds[i].items()}, device)
-        pred = model(b["src_image"]) * b["src_mask"]
-        gt = b["src_fof"]
-        l1s.append(float(losses.masked_l1(pred, gt, b["src_mask"])))
-        po, go = decode_occupancy(pred) > 0.5, decode_occupancy(gt) > 0.5
-        ious.append(float((po & go).sum()) / max(float((po | go).sum()), 1.0))
+        mask, gt = b["src_mask"], b["src_fof"]
+        preds = {"net": model(*fof_inputs(model, b)) * mask}
+        if ds.has_prior:
+            preds["prior"] = b["src_prior"] * mask
+        for k, pred in preds.items():
+            rows[k][0].append(float(losses.masked_l1(pred, gt, mask)))
+            rows[k][1].append(occupancy_iou(pred, gt, mask))
+            # Silhouette kept: the share of the person's columns that hold some body (0.5 level).
+            kept = ((decode_occupancy(pred, 64).max(1, keepdim=True).values > 0.5) & (mask > 0.5)).sum()
+            rows[k][2].append(float(kept) / max(float((mask > 0.5).sum()), 1.0))
     model.train()
-    return {"subjects": len(ds), "coefficient_l1": float(np.mean(l1s)), "occupancy_iou": float(np.mean(ious))}
+    for k, prefix in (("net", ""), ("prior", "prior_")):
+        if k in rows:
+            out[prefix + "coefficient_l1"] = float(np.mean(rows[k][0]))
+            out[prefix + "occupancy_iou"] = float(np.mean(rows[k][1]))
+            out[prefix + "silhouette_kept"] = float(np.mean(rows[k][2]))
+    return out
+
+
+# A column inside the silhouette must reach this occupancy somewhere (the mesh is the 0.5 level: the margin keeps
+# the silhouette after the Rust side's upsampling).
+SILHOUETTE_LEVEL = 0.6
+
+
+def silhouette_loss(occ, mask):
+    """Mean over the person's pixels of relu(SILHOUETTE_LEVEL - max over depth of the occupancy): every column the
+    photo shows must hold some body. Without it the L1 terms teach the net to erase thin parts (an arm a few percent
+    of the ray long costs less L1 when predicted empty than when predicted at a slightly wrong depth)."""
+    peak = occ.max(1, keepdim=True).values
+    return (torch.relu(SILHOUETTE_LEVEL - peak) * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+def fof_loss(net, model, b, lambda_occupancy, lambda_silhouette=0.0, samples=32):
+    """Masked L1 on the coefficients + `lambda_occupancy` x masked L1 on the decoded occupancy (what the mesh is
+    extracted from) + `lambda_silhouette` x [`silhouette_loss`]. `net` runs the model (it may be its DDP wrapper)."""
+    pred = net(*fof_inputs(model, b))
+    gt, mask = b["src_fof"], b["src_mask"]
+    coef = losses.masked_l1(pred, gt, mask)
+    occ_pred = decode_occupancy(pred, samples)
+    occ = losses.masked_l1(occ_pred, decode_occupancy(gt, samples), mask)
+    sil = silhouette_loss(occ_pred, mask)
+    loss = coef + lambda_occupancy * occ + lambda_silhouette * sil
+    return loss, {"coef_l1": coef.item(), "occ_l1": occ.item(), "silhouette": sil.item()}
+
+
+def flip_batch(b, gen):
+    """Mirrors a random half of the batch left-right (image, mask, FOF, prior): a mirrored person is as plausible and
+    x does not enter FOF coefficients (they describe occupancy along z only)."""
+    keys = [k for k in ("src_image", "src_mask", "src_fof", "src_prior") if k in b]
+    n = b[keys[0]].shape[0]
+    flip = torch.rand(n, generator=gen) < 0.5
+    if not bool(flip.any()):
+        return b
+    out = dict(b)
+    for k in keys:
+        t = b[k].clone()
+        t[flip] = torch.flip(t[flip], dims=[-1])
+        out[k] = t
+    return out
+
+
+def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
+    rec = recipe(args, args.tier, ds.meta, step, elapsed, world)
+    rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": args.lambda_occupancy, "occupancy_samples": 32,
+                     "silhouette": args.lambda_silhouette, "silhouette_level": SILHOUETTE_LEVEL}
+    rec["fof_net"] = ("residual on the inflation prior: fof = prior + UNet(image, prior), last convolution "
+                      "zero-initialised") if model.prior else "plain: image -> fof"
+    rec["augmentation"] = "left-right flip (p = 0.5)"
+    rec.pop("decoder", None)
+    rec.pop("fof_dropout", None)
+    if evaluation is not None:
+        rec["held_out"] = evaluation
+    path = os.path.join(args.out, "fof.pt")
+    torch.save({"kind": "fof", "tier": args.tier, "fof_n": ds.fof_n, "resolution": args.resolution,
+                "prior": model.prior, "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                "recipe": rec}, path + ".tmp")
+    os.replace(path + ".tmp", path)
 
 
 def fit_fof(args):
@@ -274,48 +365,70 @@ def fit_fof(args):
     torch.manual_seed(args.seed + rank)
     args.resolution = args.resolution or TIERS[args.tier]["resolution"]
     log = Logger(args.out, rank)
-    ds = R2Dataset(args.data, "train", resolution=args.resolution, seed=args.seed)
+    ds = R2Dataset(args.data, "train", resolution=args.resolution, seed=args.seed, with_views=False)
+    use_prior = ds.has_prior and not args.no_prior
+    if not ds.has_prior and not args.no_prior:
+        raise SystemExit(f"{args.data} has no prior_fof.npy per subject: rewrite it with this version's "
+                         "`r2human dataset`, or pass --no-prior to train the plain image -> FOF net")
     sampler = DistributedSampler(ds, num_replicas=world, rank=rank, shuffle=True, seed=args.seed) if world > 1 else None
-    loader = DataLoader(ds, batch_size=args.batch, shuffle=sampler is None, sampler=sampler, num_workers=args.workers)
-    model = FofNet(args.tier, ds.fof_n).to(device)
+    loader = DataLoader(ds, batch_size=args.batch, shuffle=sampler is None, sampler=sampler, num_workers=args.workers,
+                        drop_last=len(ds) >= args.batch * world)
+    model = FofNet(args.tier, ds.fof_n, prior=use_prior).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    start_step = 0
+    if args.resume and os.path.exists(args.resume):
+        ck = torch.load(args.resume, map_location=device)
+        model.load_state_dict(ck["model"])
+        if "optimizer" in ck:
+            opt.load_state_dict(ck["optimizer"])
+        start_step = ck.get("step", 0)
     net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None) \
         if world > 1 else model
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    log(f"FOF net tier {args.tier}: {count_parameters(model) / 1e6:.3f} M params, {len(ds)} subjects at "
-        f"{args.resolution} px, fof_n {ds.fof_n}")
-    t0, step, epoch, stop, running = time.time(), 0, 0, False, []
+    log(f"FOF net tier {args.tier}: {count_parameters(model) / 1e6:.3f} M params, "
+        f"{'residual on the inflation prior' if use_prior else 'no prior'}, {len(ds)} train subjects at "
+        f"{args.resolution} px, fof_n {ds.fof_n}, lambda_occupancy {args.lambda_occupancy}, lambda_silhouette "
+        f"{args.lambda_silhouette}, resumed from step {start_step}, "
+        f"threads {torch.get_num_threads()}")
+    if rank == 0 and start_step == 0 and not args.no_eval:
+        log("held-out FOF evaluation at step 0 (= the inflation prior): " +
+            json.dumps(evaluate_fof(model, args.data, args.resolution, device)))
+    t0, step, epoch, stop, running = time.time(), start_step, 0, False, {}
+    gen = torch.Generator().manual_seed(args.seed * 31 + rank)
     while not stop:
         if sampler is not None:
             sampler.set_epoch(epoch)
         for b in loader:
-            b = to_device(b, device)
-            pred = net(b["src_image"])
-            # Coefficients over the person, plus the decoded occupancy (what the mesh is extracted from).
-            loss = losses.masked_l1(pred, b["src_fof"], b["src_mask"]) + \
-                losses.masked_l1(decode_occupancy(pred, 32), decode_occupancy(b["src_fof"], 32), b["src_mask"])
+            b = to_device(flip_batch(b, gen), device)
+            loss, parts = fof_loss(net, model, b, args.lambda_occupancy, args.lambda_silhouette)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
             step += 1
-            running.append(float(loss))
+            parts["loss"] = loss.item()
+            for k, v in parts.items():
+                running[k] = running.get(k, 0.0) + v
+            running["n"] = running.get("n", 0) + 1
             elapsed = time.time() - t0
             if step % args.log_every == 0:
-                log(f"fof step {step} {elapsed:.0f}s loss {np.mean(running):.4f}", step=step,
-                    seconds=round(elapsed, 1), fof_loss=float(np.mean(running)))
-                running = []
+                avg = {k: v / running["n"] for k, v in running.items() if k != "n"}
+                log(f"fof step {step} epoch {epoch} {elapsed:.0f}s " + " ".join(f"{k} {v:.4f}" for k, v in avg.items()),
+                    step=step, epoch=epoch, seconds=round(elapsed, 1), **{f"fof_{k}": v for k, v in avg.items()})
+                running = {}
+            if rank == 0 and step % args.ckpt_every == 0:
+                ev = None if args.no_eval else evaluate_fof(model, args.data, args.resolution, device)
+                if ev is not None:
+                    log(f"held-out FOF evaluation at step {step}: " + json.dumps(ev), step=step, fof_eval=ev)
+                save_fof(args, model, opt, step, ds, elapsed, world, ev)
             stop = stop_flag(step >= args.steps or (args.minutes and elapsed > args.minutes * 60), device, world)
             if stop:
                 break
         epoch += 1
     if rank == 0:
         elapsed = time.time() - t0
-        rec = recipe(args, args.tier, ds.meta, step, elapsed, world)
-        rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": 1.0}
-        torch.save({"kind": "fof", "tier": args.tier, "fof_n": ds.fof_n, "resolution": args.resolution,
-                    "model": model.state_dict(), "step": step, "recipe": rec}, os.path.join(args.out, "fof.pt"))
+        summary = None if args.no_eval else evaluate_fof(model, args.data, args.resolution, device)
+        save_fof(args, model, opt, step, ds, elapsed, world, summary)
         log(f"FOF net finished: {step} steps in {elapsed:.0f}s")
-        if not args.no_eval:
-            summary = evaluate_fof(model, args.data, args.resolution, device)
+        if summary is not None:
             log("held-out FOF evaluation: " + json.dumps(summary), fof_eval=summary)
     if world > 1:
         dist.destroy_process_group()

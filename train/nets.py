@@ -13,7 +13,9 @@ Contracts (identical for every tier; the Rust side checks names, shapes and meta
            This is a deliberate deviation from the paper (whose decoder sees C + 32 + 3 = 291 channels and no
            photo): the tiny tier sees encoder features at 1/4 resolution only, and the skip keeps the photo's
            full-resolution texture. The paper tier's first convolution sees 256 + 32 + 3 + 3 = 294 channels.
-  fof      image [B,3,R,R]                                       -> fof [B,N,R,R] (no activation)
+  fof      image [B,3,R,R], prior [B,N,R,R] (the inflation prior) -> fof [B,N,R,R] = prior + UNet(image, prior)
+           (no activation; last convolution zero-initialised, so the untrained net is the prior). Without a prior
+           (`FofNet(..., prior=False)`): image -> fof.
 """
 import math
 
@@ -204,13 +206,26 @@ class Decoder(nn.Module):
 
 
 class FofNet(nn.Module):
-    def __init__(self, tier, fof_n):
+    """Photo (+ the silhouette-inflation prior) -> N FOF-X coefficients.
+
+    With `prior=True` (the default, what ships) the net is RESIDUAL on the prior, like the decoder on the colour
+    lookup: fof = prior + UNet(image, prior) with the last convolution zero-initialised, so an untrained net returns
+    the inflation prior exactly and training only adds what the photo says (depth offsets, thickness, limbs in front
+    of the body). `prior=False` is the paper's plain image -> FOF regression."""
+
+    def __init__(self, tier, fof_n, prior=True):
         super().__init__()
-        self.net = UNet(3, fof_n, TIERS[tier]["fof_widths"], light=False)
+        self.prior = prior
+        self.net = UNet(3 + (fof_n if prior else 0), fof_n, TIERS[tier]["fof_widths"], light=False)
+        if prior:
+            nn.init.zeros_(self.net.out.weight)
+            nn.init.zeros_(self.net.out.bias)
         self.stride = self.net.stride
 
-    def forward(self, image):
-        return self.net(image)
+    def forward(self, image, prior=None):
+        if not self.prior:
+            return self.net(image)
+        return prior + self.net(torch.cat([image, prior], 1))
 
 
 def count_parameters(m):

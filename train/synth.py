@@ -139,6 +139,14 @@ def fof_from_intervals(intervals, n):
     return coeffs.astype(np.float32)
 
 
+def slab_prior(mask, n, half=0.15):
+    """A stand-in for the Rust writer's inflation prior (`prior_fof.npy`) in this test dataset: the slab
+    z in [-half, half] on every mask pixel (numpy has no Poisson inflation; the trainer only needs a plausible prior)."""
+    lo = np.full(mask.shape, -half)
+    hi = np.full(mask.shape, half)
+    return fof_from_intervals([(lo, hi, mask)], n)
+
+
 def write_dataset(root, subjects=6, views=4, res=64, fof_n=8, seed=0, test=2):
     """Writes `subjects` synthetic subjects with `views` orbit views each; the last `test` subjects are held out."""
     rng = np.random.default_rng(seed)
@@ -155,6 +163,7 @@ def write_dataset(root, subjects=6, views=4, res=64, fof_n=8, seed=0, test=2):
         np.save(os.path.join(d, "source_depth.npy"), depth)
         np.save(os.path.join(d, "source_normal.npy"), normal)
         np.save(os.path.join(d, "fof.npy"), fof_from_intervals(intervals, fof_n))
+        np.save(os.path.join(d, "prior_fof.npy"), slab_prior(rgba[..., 3] > 0.5, fof_n))
         for v in range(views):
             yaw = 360.0 * v / views + rng.uniform(-20, 20)
             pitch = rng.uniform(-15, 15)

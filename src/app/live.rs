@@ -25,11 +25,11 @@ use crate::buffer::{GrayImage, RgbaImage};
 use crate::capture::smooth::{MaskSmoother, VecSmoother};
 use crate::capture::stats::{StageStats, StageSummary};
 use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter, SourceEvent, SourceFactory};
-use crate::geometry::{inflate, Camera};
+use crate::geometry::Camera;
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    GeometryMode, NeuralInput, PrepareOptions, PreparedInput, SharedNeural, StageTimings, ViewRenderer,
+    compute_geometry, NeuralInput, PrepareOptions, PreparedInput, SharedNeural, StageTimings, ViewRenderer,
 };
 
 /// Errors of the live loop and offline video rendering.
@@ -111,13 +111,7 @@ impl FrameProcessor for PrepareProcessor {
         let mut timings = StageTimings::default();
         let normalised =
             timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution)).map_err(|e| e.to_string())?;
-        let mut fof = match opts.geometry {
-            GeometryMode::Inflate => timings
-                .time("geometry (inflate -> FOF)", || {
-                    inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
-                })
-                .map_err(|e| e.to_string())?,
-        };
+        let mut fof = compute_geometry(&normalised, opts, &mut timings).map_err(|e| e.to_string())?;
         let smoother = &mut self.fof_smoother;
         timings.time("smooth geometry", || smoother.update(&mut fof.coeffs));
         let prepared = PreparedInput::from_fof(normalised, fof, opts, timings).map_err(|e| e.to_string())?;

@@ -96,11 +96,12 @@ pub struct EvalArgs {
     /// Also write every view's ground truth and each method's rendering as PNGs (DIR/views/...), to look at.
     #[arg(long)]
     pub save_views: bool,
-    /// Model folder of the neural methods (neural+inflation, neural+gt-fof); default: the project's models/tiny.
-    /// Without loadable models those rows are left out with one warning.
+    /// Model folder of the neural methods (neural+inflation, neural+gt-fof) and of the FOF net (fof.onnx:
+    /// geometric+fofnet, neural+fofnet); default: the project's models/tiny. Without loadable models those rows are
+    /// left out with one warning (and a note in report.md).
     #[arg(long)]
     pub models: Option<PathBuf>,
-    /// Leave the neural methods out.
+    /// Leave the network methods out (the neural renderer and the FOF net).
     #[arg(long)]
     pub no_neural: bool,
     /// Execution provider of the neural methods: auto tries TensorRT, then CUDA, then the CPU.

@@ -4,6 +4,9 @@
 //! Each subject is written into a hidden temporary folder next to its destination and renamed into place when
 //! complete, so a failed or interrupted subject leaves no half-written files; `dataset.json` is written last
 //! (atomically) and lists only complete subjects. Subjects run in parallel (rayon).
+//!
+//! Next to the ground-truth `fof.npy`, each subject has `prior_fof.npy` ([`prior_fof`]): the silhouette-inflation
+//! prior exactly as the pipeline feeds it to the FOF net, the input the residual FOF net corrects.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -14,8 +17,11 @@ use serde_json::json;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
 use super::EvalError;
-use crate::geometry::camera::{Camera, Projection};
+use crate::buffer::GrayImage;
+use crate::geometry::camera::{Camera, Projection, SOURCE_RESOLUTION};
 use crate::geometry::fof::Fof;
+use crate::geometry::inflate::{inflate_to_fof, InflateParams};
+use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::{write_atomic, NpyArray, NpyData};
 use crate::synth::{self, Rng, SubjectParams, SynthAssets};
 
@@ -213,6 +219,8 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
     write_view(dir, "source_", &gt)?;
     let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::Fof(e.to_string()))?;
     write_npy(&dir.join("fof.npy"), vec![r, r, opts.fof_n], fof.coeffs)?;
+    let prior = prior_fof(&subject.mesh, r, opts.fof_n)?;
+    write_npy(&dir.join("prior_fof.npy"), vec![r, r, opts.fof_n], prior)?;
 
     if opts.views > 0 {
         let views_dir = dir.join("views");
@@ -241,6 +249,43 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
         EvalError::io(&dest, e)
     })?;
     Ok(())
+}
+
+/// The silhouette-inflation prior of a subject's source view as the FOF net sees it at inference
+/// (`prior_fof.npy`): the pipeline inflates the source mask at its FOF resolution
+/// ([`SOURCE_RESOLUTION`], 512) and the network reads the coefficients box-averaged to its own resolution. So the
+/// source mask is rendered at `k * size` with `k = max(1, 512 / size)`, inflated with the default
+/// [`InflateParams`] ([`inflate_to_fof`]) and box-averaged by `k` to `size x size` (pixel-major `HWN`).
+pub fn prior_fof(mesh: &TexturedMesh, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
+    let k = (SOURCE_RESOLUTION / size.max(1)).max(1);
+    let hi = size * k;
+    let gt = render_ground_truth(mesh, &Camera::source(hi));
+    let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
+    let fof = inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::Fof(e.to_string()))?;
+    Ok(box_downsample(&fof.coeffs, hi, n, k))
+}
+
+/// Box-averages pixel-major (`HWN`) coefficients of a `side x side` grid by an integer factor `k`.
+fn box_downsample(coeffs: &[f32], side: usize, n: usize, k: usize) -> Vec<f32> {
+    if k == 1 {
+        return coeffs.to_vec();
+    }
+    let small = side / k;
+    let mut out = vec![0.0f32; small * small * n];
+    let norm = 1.0 / (k * k) as f32;
+    for row in 0..small {
+        for col in 0..small {
+            let o = &mut out[(row * small + col) * n..(row * small + col + 1) * n];
+            for y in row * k..(row + 1) * k {
+                for x in col * k..(col + 1) * k {
+                    for (a, v) in o.iter_mut().zip(&coeffs[(y * side + x) * n..(y * side + x + 1) * n]) {
+                        *a += v * norm;
+                    }
+                }
+            }
+        }
+    }
+    out
 }
 
 /// The `camera.json` of an orbit view (SPEC: kind, angles, 4x4 row-major view-from-world, projection, size).
@@ -287,4 +332,22 @@ fn write_view(dir: &Path, prefix: &str, gt: &GroundTruthView) -> Result<(), Eval
     let normals: Vec<f32> = gt.normal.iter().flat_map(|n| n.to_array()).collect();
     write_npy(&dir.join(format!("{prefix}normal.npy")), vec![h, w, 3], normals)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::box_downsample;
+
+    #[test]
+    fn box_downsample_averages_blocks_per_coefficient() {
+        // 4x4 grid, 2 coefficients: c0 = col + 4*row, c1 = 1 -> 2x2 blocks average their c0, keep c1.
+        let coeffs: Vec<f32> = (0..16).flat_map(|i| [i as f32, 1.0]).collect();
+        let out = box_downsample(&coeffs, 4, 2, 2);
+        let want = [2.5f32, 1.0, 4.5, 1.0, 10.5, 1.0, 12.5, 1.0];
+        assert_eq!(out.len(), want.len());
+        for (a, b) in out.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{out:?}");
+        }
+        assert_eq!(box_downsample(&coeffs, 4, 2, 1), coeffs);
+    }
 }

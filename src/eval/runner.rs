@@ -13,13 +13,21 @@
 //!    the same inflation geometry as method 3 (per-input time = method 3's plus the encoder);
 //! 6. `neural+gt-fof`: the neural renderer on the oracle geometry of method 4.
 //!
+//! 7. `geometric+fofnet`: the geometric renderer on the FOF net's geometry (the network's correction of the
+//!    inflation prior, [`crate::pipeline::compute_geometry`] with [`GeometryMode::FofNet`]; per-input time includes
+//!    the prior and the network);
+//! 8. `neural+fofnet`: the neural renderer on that geometry.
+//!
 //! Methods 5 and 6 run when the neural models load ([`NeuralEvalOptions::models`], default `models/tiny`); otherwise
-//! one warning says why and their rows are absent.
+//! one warning says why and their rows are absent. Methods 7 and 8 run when the folder's `fof.onnx` loads (8 also
+//! needs the renderer's models); otherwise their rows are absent and `report.md` says why. The report also gives the
+//! geometry alone: the volumetric IoU of each per-input FOF's decoded occupancy against the ground-truth FOF.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::{Vec3, Vec4};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
@@ -36,7 +44,10 @@ use crate::io::npy::write_atomic;
 use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::input::{NormaliseTransform, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{load_renderer, PrepareOptions, PreparedInput, RendererChoice, SharedNeural, ViewRenderer};
+use crate::pipeline::{
+    compute_geometry, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
+    SharedFofNet, SharedNeural, StageTimings, ViewRenderer,
+};
 use crate::synth::{self, SubjectParams, SynthAssets};
 
 /// Options of [`run_eval`] (the CLI's `r2human eval` flags).
@@ -62,12 +73,12 @@ pub struct EvalOptions {
     pub save_views: bool,
 }
 
-/// How [`run_eval_with`] runs the neural methods 5 and 6.
+/// How [`run_eval_with`] runs the network methods (5, 6: the neural renderer; 7, 8: the FOF net).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct NeuralEvalOptions {
     /// Model folder; `None`: the project's `models/tiny` when found.
     pub models: Option<PathBuf>,
-    /// Leave the neural methods out.
+    /// Leave the network methods out (the neural renderer's and the FOF net's rows).
     pub skip: bool,
     /// Execution provider.
     pub ep: ExecutionProvider,
@@ -89,8 +100,23 @@ impl Default for EvalOptions {
 }
 
 /// The methods compared.
-pub const METHODS: [&str; 6] =
-    ["billboard", "2.5d", "geometric+inflation", "geometric+gt-fof", "neural+inflation", "neural+gt-fof"];
+pub const METHODS: [&str; 8] = [
+    "billboard",
+    "2.5d",
+    "geometric+inflation",
+    "geometric+gt-fof",
+    "neural+inflation",
+    "neural+gt-fof",
+    "geometric+fofnet",
+    "neural+fofnet",
+];
+
+/// The renderer-based methods (indices into [`METHODS`] from 2 on): which prepared geometry they draw (0 inflation,
+/// 1 ground-truth FOF, 2 FOF net) and whether with the neural renderer.
+const RENDERED: [(usize, bool); 6] = [(0, false), (1, false), (0, true), (1, true), (2, false), (2, true)];
+
+/// Depth samples per column for the volumetric geometry IoU of the report.
+const IOU_DEPTH_SAMPLES: usize = 128;
 
 /// One row of the report: a method on a view group.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -129,6 +155,11 @@ pub struct EvalReport {
     pub peak_memory_mib: f32,
     /// Views of the neural methods that the decoder failed on and the geometric renderer drew instead.
     pub neural_fallbacks: usize,
+    /// Mean volumetric IoU (decoded occupancy at the 0.5 level) of each per-input geometry against the
+    /// ground-truth FOF: `("inflation", iou)`, `("fofnet", iou)` when the FOF net ran, over the evaluated inputs.
+    pub geometry_iou: Vec<(String, f32)>,
+    /// Why rows are missing (methods skipped because a model did not load), for the report.
+    pub notes: Vec<String>,
 }
 
 #[derive(Default)]
@@ -253,13 +284,55 @@ fn raster_prediction(mesh: &TriMesh, cam: &Camera) -> Prediction {
     Prediction { rgba, mask: g.mask, depth }
 }
 
-/// Evaluates one subject; pushes into the accumulators `[method][group]` and counts neural fallbacks.
+/// Volumetric IoU of two FOFs of the same grid: occupancy decoded at `samples` depths per column, thresholded at
+/// the marching-cubes level; 1 when both are empty.
+pub fn fof_occupancy_iou(a: &Fof, b: &Fof, samples: usize) -> f32 {
+    if (a.width, a.height, a.n) != (b.width, b.height, b.n) || samples == 0 {
+        return 0.0;
+    }
+    let table = crate::geometry::fof::CosineTable::new(a.n, samples);
+    let level = crate::geometry::marching::ISO_LEVEL;
+    let (inter, union) = (0..a.height)
+        .into_par_iter()
+        .map(|row| {
+            let (mut inter, mut union) = (0u64, 0u64);
+            let (mut oa, mut ob) = (vec![0.0f32; samples], vec![0.0f32; samples]);
+            for col in 0..a.width {
+                if a.is_empty_column(col, row) && b.is_empty_column(col, row) {
+                    continue;
+                }
+                a.decode_column_with(&table, col, row, &mut oa);
+                b.decode_column_with(&table, col, row, &mut ob);
+                for (x, y) in oa.iter().zip(&ob) {
+                    let (x, y) = (*x >= level, *y >= level);
+                    inter += (x && y) as u64;
+                    union += (x || y) as u64;
+                }
+            }
+            (inter, union)
+        })
+        .reduce(|| (0, 0), |p, q| (p.0 + q.0, p.1 + q.1));
+    if union == 0 {
+        1.0
+    } else {
+        inter as f32 / union as f32
+    }
+}
+
+/// The accumulators of every method and group.
+type MethodAcc = [[Acc; 2]; METHODS.len()];
+
+/// Evaluates one subject; pushes into the accumulators `[method][group]`, the geometry IoUs (inflation, FOF net)
+/// and counts neural fallbacks.
+#[allow(clippy::too_many_arguments)]
 fn eval_subject(
     name: &str,
     mesh: &TexturedMesh,
     opts: &EvalOptions,
     neural: Option<&SharedNeural>,
-    acc: &mut [[Acc; 2]; 6],
+    fof_net: Option<&SharedFofNet>,
+    acc: &mut MethodAcc,
+    geometry_iou: &mut [Vec<f32>; 2],
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
@@ -290,12 +363,38 @@ fn eval_subject(
     let gt_fof = Fof::from_mesh(&mesh.mesh, r, popts.fof_order).map_err(|e| EvalError::Fof(e.to_string()))?;
     let oracle = PreparedInput::from_fof(normalised(), gt_fof, &popts, Default::default()).map_err(perr)?;
     let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
-    // Methods 3..6: geometric and neural renderers on the inflation and the oracle geometry. A neural renderer
-    // exists only when its encoder ran (no geometric stand-in is ever scored as neural).
-    let prepared = [&inflated, &oracle];
-    let mut renderers: Vec<Option<ViewRenderer<'_>>> =
-        prepared.iter().map(|p| Some(ViewRenderer::new(p, OcclusionFill::default(), false))).collect();
-    for p in prepared {
+    // The FOF net's geometry (explicit mode: a network failure on this input is an error of this subject's FOF
+    // rows, reported in the log, never silently replaced by the prior).
+    let t = Instant::now();
+    let with_net = fof_net.and_then(|net| {
+        let o = PrepareOptions {
+            geometry: GeometryMode::FofNet,
+            fof_net: Some(std::sync::Arc::clone(net)),
+            ..popts.clone()
+        };
+        let mut timings = StageTimings::default();
+        let built = compute_geometry(&normalised(), &o, &mut timings)
+            .and_then(|fof| PreparedInput::from_fof(normalised(), fof, &o, timings));
+        built.map_err(|e| tracing::warn!("{name}: the FOF net rows skip this subject: {e}")).ok()
+    });
+    let ms_fofnet = t.elapsed().as_secs_f32() * 1e3;
+    geometry_iou[0].push(fof_occupancy_iou(&inflated.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
+    if let Some(p) = &with_net {
+        geometry_iou[1].push(fof_occupancy_iou(&p.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
+    }
+    // Methods 3..8: geometric and neural renderers on the inflation, oracle and FOF-net geometry. A neural
+    // renderer exists only when its encoder ran (no geometric stand-in is ever scored as neural).
+    let prepared: [Option<&PreparedInput>; 3] = [Some(&inflated), Some(&oracle), with_net.as_ref()];
+    let mut renderers: Vec<Option<ViewRenderer<'_>>> = Vec::with_capacity(RENDERED.len());
+    for &(k, is_neural) in &RENDERED {
+        let Some(p) = prepared[k] else {
+            renderers.push(None);
+            continue;
+        };
+        if !is_neural {
+            renderers.push(Some(ViewRenderer::new(p, OcclusionFill::default(), false)));
+            continue;
+        }
         let encoded = neural.map(|n| (n, n.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).encode(p)));
         renderers.push(match encoded {
             Some((n, Ok(e))) => {
@@ -309,6 +408,7 @@ fn eval_subject(
         });
     }
     let encode_ms = |k: usize| renderers[k].as_ref().and_then(|r| r.encode_time()).map(|d| d.as_secs_f32() * 1e3);
+    let fofnet_ms = with_net.as_ref().map(|_| ms_fofnet);
     let per_input = [
         Some(0.0),
         Some(ms_25d),
@@ -316,6 +416,8 @@ fn eval_subject(
         Some(ms_oracle),
         encode_ms(2).map(|e| ms_inflate + e),
         encode_ms(3).map(|e| ms_oracle + e),
+        fofnet_ms,
+        encode_ms(5).and_then(|e| fofnet_ms.map(|f| f + e)),
     ];
     for (a, ms) in acc.iter_mut().zip(per_input) {
         for g in a.iter_mut() {
@@ -359,12 +461,13 @@ fn eval_subject(
                 _ => {
                     let k = m - 2;
                     let Some(renderer) = renderers[k].as_mut() else { continue };
+                    let Some(geometry) = prepared[RENDERED[k].0] else { continue };
                     let before = renderer.neural_fallbacks;
                     let person = renderer.render_person(&cam).map_err(perr)?;
                     let ms = t.elapsed().as_secs_f32() * 1e3;
                     *fallbacks += renderer.neural_fallbacks - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
-                    let gb = rasterize(&prepared[k % 2].mesh, &cam);
+                    let gb = rasterize(&geometry.mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
                     let depth = gb.depth.iter().zip(&gb.mask).map(|(&d, &c)| if c { d } else { -1.0 }).collect();
                     save(METHODS[m], &person)?;
@@ -418,16 +521,36 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
     }
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
-    let mut acc: [[Acc; 2]; 6] = Default::default();
+    let mut acc: MethodAcc = Default::default();
+    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
     let mut failed = Vec::new();
+    let mut notes = Vec::new();
     let mut fallbacks = 0;
-    // Methods 5 and 6: `auto` semantics (one warning and no neural rows when the models do not load).
+    // Methods 5, 6 and 8: `auto` semantics (one warning and no neural rows when the models do not load).
+    let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
     let neural = if nopts.skip {
         None
     } else {
-        let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
         load_renderer(RendererChoice::Auto, nopts.models.as_deref(), &options).unwrap_or(None)
     };
+    // Methods 7 and 8: the folder's fof.onnx (explicit mode, so the reason it does not load can be reported).
+    let fof_net = if nopts.skip {
+        notes.push("Network methods left out (--no-neural): no neural or FOF-net rows.".to_string());
+        None
+    } else {
+        match load_fof_net(GeometryMode::FofNet, nopts.models.as_deref(), PrepareOptions::default().fof_order, &options)
+        {
+            Ok(net) => net,
+            Err(e) => {
+                tracing::warn!("the FOF-net rows (geometric+fofnet, neural+fofnet) are skipped: {e}");
+                notes.push(format!("The FOF-net rows (geometric+fofnet, neural+fofnet) are skipped: {e}"));
+                None
+            }
+        }
+    };
+    if !nopts.skip && neural.is_none() {
+        notes.push("The neural renderer's models did not load: no neural rows (see the log).".to_string());
+    }
     if opts.subjects > 0 {
         let assets = SynthAssets::shared()?;
         for i in 0..opts.subjects {
@@ -435,7 +558,10 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             let seed = super::dataset::subject_seed(opts.seed, i);
             let r = synth::generate(assets, &SubjectParams::sample(seed), opts.texture_size)
                 .map_err(EvalError::from)
-                .and_then(|s| eval_subject(&name, &s.mesh, opts, neural.as_ref(), &mut acc, &mut fallbacks));
+                .and_then(|s| {
+                    let nets = (neural.as_ref(), fof_net.as_ref());
+                    eval_subject(&name, &s.mesh, opts, nets.0, nets.1, &mut acc, &mut geometry_iou, &mut fallbacks)
+                });
             if let Err(e) = r {
                 failed.push((name, e.to_string()));
             }
@@ -443,9 +569,18 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     }
     for scan in &opts.scans {
         let name = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
-        let r = synth::scan::load_scan(scan)
-            .map_err(EvalError::from)
-            .and_then(|s| eval_subject(&name, &s.mesh, opts, neural.as_ref(), &mut acc, &mut fallbacks));
+        let r = synth::scan::load_scan(scan).map_err(EvalError::from).and_then(|s| {
+            eval_subject(
+                &name,
+                &s.mesh,
+                opts,
+                neural.as_ref(),
+                fof_net.as_ref(),
+                &mut acc,
+                &mut geometry_iou,
+                &mut fallbacks,
+            )
+        });
         if let Err(e) = r {
             failed.push((scan.display().to_string(), e.to_string()));
         }
@@ -475,7 +610,20 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         let first = failed.first().map(|f| format!("{}: {}", f.0, f.1)).unwrap_or_else(|| "no view in a group".into());
         return Err(EvalError::AllFailed(first));
     }
-    let report = EvalReport { rows, failed, peak_memory_mib: peak_memory_mib(), neural_fallbacks: fallbacks };
+    let geometry_iou = ["inflation", "fofnet"]
+        .iter()
+        .zip(&geometry_iou)
+        .filter(|(_, v)| !v.is_empty())
+        .map(|(name, v)| (name.to_string(), mean(v)))
+        .collect();
+    let report = EvalReport {
+        rows,
+        failed,
+        peak_memory_mib: peak_memory_mib(),
+        neural_fallbacks: fallbacks,
+        geometry_iou,
+        notes,
+    };
     write_reports(&opts.out, opts, &report)?;
     Ok(report)
 }
@@ -533,6 +681,22 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             r.views
         ));
     }
+    if !rep.geometry_iou.is_empty() {
+        md.push_str(&format!(
+            "\nGeometry alone: volumetric IoU of the per-input FOF's decoded occupancy (level {}, {} depth samples per \
+             column, {}x{} grid) against the ground-truth FOF, mean over the inputs:\n\n| geometry | volumetric IoU |\n|---|---|\n",
+            crate::geometry::marching::ISO_LEVEL,
+            IOU_DEPTH_SAMPLES,
+            opts.size,
+            opts.size
+        ));
+        for (name, iou) in &rep.geometry_iou {
+            md.push_str(&format!("| {name} | {iou:.4} |\n"));
+        }
+    }
+    for note in &rep.notes {
+        md.push_str(&format!("\n{note}\n"));
+    }
     if rep.neural_fallbacks > 0 {
         md.push_str(&format!(
             "\nThe neural decoder failed on {} view(s); the geometric renderer drew them (scored in the neural rows).\n",
@@ -570,7 +734,7 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
             .build_cartesian_2d(0f32..xmax, ymin..ymax)
             .map_err(|e| perr(e.to_string()))?;
         chart.configure_mesh().x_desc("ms per view").y_desc("PSNR (dB)").draw().map_err(|e| perr(e.to_string()))?;
-        let colors = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
+        let colors = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK, RGBColor(230, 140, 0), RGBColor(120, 60, 160)];
         for r in pts {
             let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % colors.len()];
             let marker = if r.group == "close" { 0 } else { 1 };

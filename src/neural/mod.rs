@@ -25,6 +25,10 @@
 //!   full-resolution texture. A decoder of the earlier three-input contract is rejected at load, naming the
 //!   missing `warped_rgb`. (It is not called `rgb` because ONNX value names are unique and `rgb` is the output.)
 //! - `rgb` is sRGB in `[-1, 1]`; [`Decoder`] turns it into linear premultiplied RGBA with the target mask as alpha.
+//! - `prior` (FOF net) is the silhouette-inflation FOF box-averaged to `R`; the shipped FOF net is residual on it
+//!   (`fof = prior + UNet(image, prior)`, zero-initialised last convolution, metadata `r2human.residual = prior`),
+//!   and [`FofNet::refine`] applies its correction to the full-resolution prior (the pipeline's
+//!   `--geometry fofnet|auto`).
 //!
 //! Every model carries metadata (`r2human.kind`, `r2human.tier`, `r2human.resolution`, `r2human.fof_n`,
 //! `r2human.recipe`, …, see [`ModelInfo`]) that is checked at load, together with the input and output names and

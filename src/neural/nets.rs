@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{Vec3, Vec4};
 use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
+use rayon::prelude::*;
 
 use super::model::{check_no_extra_inputs, check_tensor, Dim, ModelInfo, ModelKind};
 use super::provider::{create_session, ActiveProvider, RuntimeOptions};
@@ -14,6 +15,8 @@ use super::tensor::{
 };
 use super::NeuralError;
 use crate::buffer::{linear_to_srgb, srgb_to_linear, GrayImage, Image, RgbImage, RgbaImage};
+use crate::geometry::fof::{CosineTable, Fof};
+use crate::geometry::marching::ISO_LEVEL;
 use crate::geometry::raster::GBuffer;
 use crate::geometry::zmap::FlowZ;
 
@@ -152,7 +155,6 @@ impl FofNet {
             });
         }
         check_sizes(model, "mask", mask.width, mask.height, rgb.width, rgb.height)?;
-        let image = image_tensor(rgb, mask, r);
         let prior_tensor = match (&prior, self.has_prior) {
             (Some(p), true) => {
                 check_sizes(model, "prior", p.width, p.height, rgb.width, rgb.height)?;
@@ -167,11 +169,26 @@ impl FofNet {
             (None, true) => Some(vec![0.0; n * r * r]),
             _ => None,
         };
+        self.predict(rgb, mask, prior_tensor.as_deref())
+    }
+
+    /// The network on a checked square photo and, when the model takes one, its planar `prior` tensor at the model's
+    /// resolution; zero where the resampled mask is below 0.5.
+    fn predict(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        prior_tensor: Option<&[f32]>,
+    ) -> Result<FofPrediction, NeuralError> {
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        let image = image_tensor(rgb, mask, r);
         let mut inputs: Vec<(&str, [usize; 4], &[f32])> = vec![("image", [1, 3, r, r], &image)];
-        if let Some(p) = &prior_tensor {
+        if let Some(p) = prior_tensor {
             inputs.push(("prior", [1, n, r, r], p));
         }
+        let start = std::time::Instant::now();
         let (shape, planes) = self.net.run(&inputs, "fof")?;
+        tracing::debug!("FOF net: session run {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
         self.net.expect_output_shape(&shape, [1, n, r, r])?;
         let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
         let mut data = vec![0.0; r * r * n];
@@ -184,6 +201,141 @@ impl FofNet {
         }
         Ok(FofPrediction { width: r, height: r, n, data })
     }
+}
+
+impl std::fmt::Debug for FofNet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FofNet")
+            .field("path", &self.net.path)
+            .field("info", &self.net.info)
+            .field("has_prior", &self.has_prior)
+            .field("provider", &self.net.provider)
+            .finish()
+    }
+}
+
+impl FofNet {
+    /// Whether the model takes the inflation prior as its `prior` input (the residual FOF net of
+    /// `train/nets.py`: `fof = prior + UNet(image, prior)`).
+    pub fn has_prior(&self) -> bool {
+        self.has_prior
+    }
+
+    /// The FOF at the prior's full resolution: runs the network at its resolution `R` on the photo and the
+    /// box-averaged `prior`, then applies its correction `delta = prediction - prior_R` to the full-resolution
+    /// prior: `fof(p) = prior(p) + delta_up(p)`, where `delta_up` is the bilinear upsampling of `delta` that only
+    /// reads model pixels inside the (resampled) mask, renormalising the weights (so the silhouette edge is not
+    /// pulled towards zero by background taps). Pixels whose four taps are all outside keep the prior, and pixels
+    /// where the prior is empty (outside the cleaned mask) stay empty. A column inside the silhouette holds body by
+    /// definition, so a column the network leaves empty (its occupancy, decoded at 64 depths, never reaches the
+    /// mesh's 0.5 level) is treated as outside (no correction from it), and a corrected full-resolution column that
+    /// ends up empty keeps the prior: the FOF net can reshape the body in depth but never erases the silhouette.
+    ///
+    /// A network trained as a residual on the prior returns the prior unchanged while untrained; a network without a
+    /// `prior` input predicts absolute coefficients, which this applies the same way (its prediction minus the
+    /// prior). `rgb` (linear, premultiplied), `mask` and `prior` must have the same square size and `prior` the
+    /// model's `N`.
+    pub fn refine(&mut self, rgb: &RgbImage, mask: &GrayImage, prior: &Fof) -> Result<Fof, NeuralError> {
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        let model = "FOF net";
+        let (w, h) = (prior.width, prior.height);
+        check_sizes(model, "prior", w, h, rgb.width, rgb.height)?;
+        if prior.n != n || prior.coeffs.len() != w * h * n {
+            return Err(NeuralError::BadInput {
+                model,
+                problem: format!("prior has {} coefficients per pixel, the model takes {n}", prior.n),
+            });
+        }
+        if rgb.width != rgb.height || rgb.width == 0 {
+            return Err(NeuralError::BadInput {
+                model,
+                problem: format!("photo is {}x{}, not square", rgb.width, rgb.height),
+            });
+        }
+        check_sizes(model, "mask", mask.width, mask.height, w, h)?;
+        let view = Coefficients { width: w, height: h, n, data: &prior.coeffs };
+        let start = std::time::Instant::now();
+        let prior_small = coefficients_tensor(&view, r);
+        let predicted = self.predict(rgb, mask, self.has_prior.then_some(&prior_small[..]))?;
+        let ran = start.elapsed();
+        let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
+        let plane = r * r;
+        // Correction per model pixel (pixel-major), and which model pixels carry one.
+        let mut delta = vec![0.0f32; plane * n];
+        // A column inside the silhouette holds some body by definition: a prediction that leaves it empty (no
+        // depth reaches the 0.5 level) is wrong there and carries no correction.
+        let table = CosineTable::new(n, SILHOUETTE_SAMPLES);
+        let valid: Vec<bool> = (0..plane)
+            .map(|i| small_mask[i] >= 0.5 && column_holds_body(&table, &predicted.data[i * n..(i + 1) * n], ISO_LEVEL))
+            .collect();
+        for i in (0..plane).filter(|&i| valid[i]) {
+            for k in 0..n {
+                delta[i * n + k] = predicted.data[i * n + k] - prior_small[k * plane + i];
+            }
+        }
+        let mut coeffs = prior.coeffs.clone();
+        let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
+        coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
+            let y = (row as f32 + 0.5) * sy - 0.5;
+            let (y0, ty) = (y.floor(), y - y.floor());
+            let (mut acc, mut before) = (vec![0.0f32; n], vec![0.0f32; n]);
+            for (col, out) in line.chunks_exact_mut(n).enumerate() {
+                if out.iter().all(|v| *v == 0.0) {
+                    continue;
+                }
+                let x = (col as f32 + 0.5) * sx - 0.5;
+                let (x0, tx) = (x.floor(), x - x.floor());
+                acc.fill(0.0);
+                let mut wsum = 0.0f32;
+                for (dx, dy, wt) in
+                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+                {
+                    let (c, rr) = (x0 as i64 + dx, y0 as i64 + dy);
+                    if wt <= 0.0 || c < 0 || rr < 0 || c >= r as i64 || rr >= r as i64 {
+                        continue;
+                    }
+                    let i = rr as usize * r + c as usize;
+                    if !valid[i] {
+                        continue;
+                    }
+                    wsum += wt;
+                    for (a, d) in acc.iter_mut().zip(&delta[i * n..(i + 1) * n]) {
+                        *a += wt * d;
+                    }
+                }
+                if wsum > 1e-6 {
+                    before.copy_from_slice(out);
+                    for (o, a) in out.iter_mut().zip(&acc) {
+                        *o += a / wsum;
+                    }
+                    // The same rule at full resolution: a corrected column must still hold body, else the prior's.
+                    if !column_holds_body(&table, out, ISO_LEVEL) {
+                        out.copy_from_slice(&before);
+                    }
+                }
+            }
+        });
+        tracing::debug!(
+            "FOF net: inputs + network + outputs {:.1} ms, correction to {w}x{h} {:.1} ms",
+            ran.as_secs_f64() * 1e3,
+            (start.elapsed() - ran).as_secs_f64() * 1e3
+        );
+        Fof::new(n, w, h, coeffs).map_err(|e| NeuralError::BadInput { model, problem: e.to_string() })
+    }
+}
+
+/// Depth samples of the "does this column hold body" test of [`FofNet::refine`].
+const SILHOUETTE_SAMPLES: usize = 64;
+
+/// Whether one column of coefficients reaches the occupancy `level` at one of the table's depth samples (the
+/// samples are visited from the middle of the ray outwards, where the body usually is, and the scan stops at the
+/// first hit).
+fn column_holds_body(table: &CosineTable, coeffs: &[f32], level: f32) -> bool {
+    let m = table.samples;
+    (0..m).map(|i| if i % 2 == 0 { m / 2 + i / 2 } else { m / 2 - 1 - i / 2 }).any(|d| {
+        let v: f32 = coeffs.iter().take(table.n).enumerate().map(|(k, c)| c * table.values[k * m + d]).sum();
+        v >= level
+    })
 }
 
 /// What the encoder reads: the source photo, its FOF and its normals, all at the same square size.

@@ -216,6 +216,32 @@ pub(crate) fn normals_tensor(normals: &Image<Vec3>, r: usize) -> Vec<f32> {
 /// The `fof` tensor (planar `[n, r, r]`) from pixel-major coefficients (non-finite values become zero).
 pub(crate) fn coefficients_tensor(c: &Coefficients<'_>, r: usize) -> Vec<f32> {
     let (w, h, n) = (c.width, c.height, c.n);
+    if r > 0 && w % r == 0 && h % r == 0 {
+        // The usual 512 -> 128 box average straight from the pixel-major layout: one pass over contiguous
+        // columns instead of a full-resolution planar copy (the same values as the general path below).
+        let (kx, ky) = (w / r, h / r);
+        let norm = 1.0 / (kx * ky) as f32;
+        let plane = r * r;
+        let mut out = vec![0.0f32; n * plane];
+        let mut acc = vec![0.0f32; n];
+        for row in 0..r {
+            for col in 0..r {
+                acc.fill(0.0);
+                for y in row * ky..(row + 1) * ky {
+                    let line = &c.data[(y * w + col * kx) * n..(y * w + (col + 1) * kx) * n];
+                    for px in line.chunks_exact(n) {
+                        for (a, &v) in acc.iter_mut().zip(px) {
+                            *a += if v.is_finite() { v } else { 0.0 };
+                        }
+                    }
+                }
+                for (k, a) in acc.iter().enumerate() {
+                    out[k * plane + row * r + col] = a * norm;
+                }
+            }
+        }
+        return out;
+    }
     let mut planes = vec![0.0f32; n * w * h];
     for (i, px) in c.data.chunks_exact(n).enumerate() {
         for (k, &v) in px.iter().enumerate() {
@@ -228,6 +254,26 @@ pub(crate) fn coefficients_tensor(c: &Coefficients<'_>, r: usize) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn coefficients_tensor_box_path_matches_the_planar_path() {
+        // A 6x4 grid of 3 coefficients with one NaN, box-averaged to 2x2 (factors 3 and 2, the fast path), against
+        // the planar reference: NaN zeroed, one plane per coefficient, `resample_plane`.
+        let data: Vec<f32> = (0..6 * 4 * 3).map(|i| if i == 7 { f32::NAN } else { (i as f32 * 0.37).sin() }).collect();
+        let fast = coefficients_tensor(&Coefficients { width: 6, height: 4, n: 3, data: &data }, 2);
+        assert_eq!(fast.len(), 3 * 4);
+        for k in 0..3 {
+            let plane: Vec<f32> =
+                (0..24).map(|i| data[i * 3 + k]).map(|v| if v.is_finite() { v } else { 0.0 }).collect();
+            let want = resample_plane(&plane, 6, 4, 2, 2);
+            for (a, b) in fast[k * 4..(k + 1) * 4].iter().zip(&want) {
+                assert!((a - b).abs() < 1e-6, "k{k}: {a} vs {b}");
+            }
+        }
+        // Pixel (0,0) of coefficient 0 by hand: the mean of the 3x2 block's first coefficients.
+        let block: f32 = [0usize, 1, 2, 6, 7, 8].iter().map(|&p| data[p * 3]).sum::<f32>() / 6.0;
+        assert!((fast[0] - block).abs() < 1e-6);
+    }
 
     #[test]
     fn sample_cube_hits_centres_and_reads_zero_outside() {

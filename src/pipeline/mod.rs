@@ -32,7 +32,7 @@ use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
-use crate::neural::{Coefficients, EncoderInput, FeatureMap, NeuralError, NeuralRuntime, RuntimeOptions};
+use crate::neural::{Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError, NeuralRuntime, RuntimeOptions};
 
 use fusion::SpatialFusion;
 use input::{InputError, NormalisedInput};
@@ -65,15 +65,36 @@ pub enum PipelineError {
          directory, the executable and the source tree). Pass --models DIR, or use --renderer geometric"
     )]
     NoModels(String),
+    /// The FOF network was requested (`--geometry fofnet`) but cannot be used.
+    #[error(
+        "FOF network: {0}. Pass --models DIR with a fof.onnx (train it with `python -m train fit-fof`, see \
+         train/README.md), or use --geometry inflate"
+    )]
+    NoFofNet(String),
+    /// The FOF network (`--geometry fofnet`) failed on this input (a run error or non-finite coefficients).
+    #[error(
+        "FOF network failed on this input: {0}. Use --geometry auto (falls back to the inflation prior) or inflate"
+    )]
+    FofNetFailed(NeuralError),
 }
 
-/// Where the per-input geometry comes from.
+/// Where the per-input geometry comes from (`--geometry`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum GeometryMode {
     /// Silhouette-inflation prior from the mask (no network needed).
     #[default]
     Inflate,
+    /// The FOF network (`models/<tier>/fof.onnx`) correcting the inflation prior; an error when the model or the
+    /// ONNX Runtime library cannot be loaded, or when the network fails on an input.
+    #[value(name = "fofnet")]
+    FofNet,
+    /// The FOF network when `fof.onnx` loads, else the inflation prior with one warning; an input the network
+    /// fails on (error, NaN) falls back to the inflation prior with a warning.
+    Auto,
 }
+
+/// A loaded FOF network shared by the inputs that use it (it runs under the lock).
+pub type SharedFofNet = Arc<Mutex<FofNet>>;
 
 /// Settings for [`PreparedInput::prepare`].
 #[derive(Clone, Debug)]
@@ -88,6 +109,9 @@ pub struct PrepareOptions {
     pub geometry: GeometryMode,
     /// Parameters of the inflation prior.
     pub inflate: InflateParams,
+    /// The FOF network for [`GeometryMode::FofNet`] and [`GeometryMode::Auto`] ([`load_fof_net`]); `None` with
+    /// `FofNet` is an error, with `Auto` the inflation prior.
+    pub fof_net: Option<SharedFofNet>,
 }
 
 impl Default for PrepareOptions {
@@ -98,7 +122,112 @@ impl Default for PrepareOptions {
             depth_samples: SOURCE_RESOLUTION,
             geometry: GeometryMode::Inflate,
             inflate: InflateParams::default(),
+            fof_net: None,
         }
+    }
+}
+
+/// `--models`, or the project's [`DEFAULT_MODEL_TIER`] folder when found.
+fn model_folder(models: Option<&Path>) -> Option<PathBuf> {
+    models.map(Path::to_path_buf).or_else(|| crate::neural::default_model_dir(DEFAULT_MODEL_TIER))
+}
+
+/// Resolves `--geometry` and `--models` into the FOF network to use: `Ok(None)` for [`GeometryMode::Inflate`];
+/// for [`GeometryMode::FofNet`] the loaded `fof.onnx` of the model folder or an error saying how to get one; for
+/// [`GeometryMode::Auto`] the network when it loads, else one warning (how to enable it) and `None`. `models`
+/// defaults to [`crate::neural::default_model_dir`] of [`DEFAULT_MODEL_TIER`]. Its `N` must be `fof_order`.
+pub fn load_fof_net(
+    mode: GeometryMode,
+    models: Option<&Path>,
+    fof_order: usize,
+    options: &RuntimeOptions,
+) -> Result<Option<SharedFofNet>, PipelineError> {
+    if mode == GeometryMode::Inflate {
+        return Ok(None);
+    }
+    let dir = model_folder(models);
+    let loaded = match dir {
+        None => Err(PipelineError::NoFofNet(format!(
+            "no model folder found (looked for models/{DEFAULT_MODEL_TIER}/ next to the working directory, the \
+             executable and the source tree)"
+        ))),
+        Some(dir) => {
+            let path = dir.join(crate::neural::FOF_FILE);
+            if !path.is_file() {
+                Err(PipelineError::NoFofNet(format!("`{}` does not exist", path.display())))
+            } else {
+                FofNet::load(&path, options).map_err(|e| PipelineError::NoFofNet(e.to_string())).and_then(|net| {
+                    if net.info().fof_n == fof_order {
+                        Ok(net)
+                    } else {
+                        Err(PipelineError::NoFofNet(format!(
+                            "`{}` predicts {} FOF coefficients but --fof-order is {fof_order}",
+                            path.display(),
+                            net.info().fof_n
+                        )))
+                    }
+                })
+            }
+        }
+    };
+    match (loaded, mode) {
+        (Ok(net), _) => {
+            tracing::info!(
+                "geometry: FOF net `{}` ({}, {} px) on {}",
+                net.path().display(),
+                net.info().tier,
+                net.info().resolution,
+                net.provider()
+            );
+            Ok(Some(Arc::new(Mutex::new(net))))
+        }
+        (Err(e), GeometryMode::Auto) => {
+            tracing::warn!(
+                "geometry: using the silhouette-inflation prior ({e}). To use the FOF network, install ONNX \
+                 Runtime with `bash scripts/setup.d/neural.sh` and pass --models DIR holding fof.onnx (see \
+                 train/README.md), or pass --geometry inflate to silence this"
+            );
+            Ok(None)
+        }
+        (Err(e), _) => Err(e),
+    }
+}
+
+/// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
+/// into `timings`: the inflation prior, then (FOF net modes) the network's correction at the prior's resolution
+/// ([`FofNet::refine`]).
+pub fn compute_geometry(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    timings: &mut StageTimings,
+) -> Result<Fof, PipelineError> {
+    let prior = timings.time("geometry (inflate -> FOF)", || {
+        inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+    })?;
+    let net = match (opts.geometry, &opts.fof_net) {
+        (GeometryMode::Inflate, _) => return Ok(prior),
+        (GeometryMode::FofNet, None) => {
+            return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
+        }
+        (GeometryMode::Auto, None) => return Ok(prior),
+        (_, Some(net)) => net,
+    };
+    let refined = timings.time("geometry (FOF net)", || {
+        net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).refine(&normalised.rgb, &normalised.mask, &prior)
+    });
+    match (refined, opts.geometry) {
+        (Ok(fof), _) => Ok(fof),
+        (Err(e), GeometryMode::Auto) => {
+            // Once per process at warning level (a video would repeat it every frame), then at debug level.
+            static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+            if !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                tracing::warn!("the FOF net failed on this input, using the inflation prior: {e}");
+            } else {
+                tracing::debug!("the FOF net failed again, using the inflation prior: {e}");
+            }
+            Ok(prior)
+        }
+        (Err(e), _) => Err(PipelineError::FofNetFailed(e)),
     }
 }
 
@@ -153,8 +282,7 @@ pub fn load_renderer(
     if choice == RendererChoice::Geometric {
         return Ok(None);
     }
-    let dir: Option<PathBuf> =
-        models.map(Path::to_path_buf).or_else(|| crate::neural::default_model_dir(DEFAULT_MODEL_TIER));
+    let dir = model_folder(models);
     let loaded = match dir {
         Some(dir) => NeuralRenderer::load(&dir, options).map_err(PipelineError::from),
         None => Err(PipelineError::NoModels(DEFAULT_MODEL_TIER.to_string())),
@@ -294,11 +422,7 @@ impl PreparedInput {
     pub fn prepare(rgb: &RgbImage, mask: &GrayImage, opts: &PrepareOptions) -> Result<Self, PipelineError> {
         let mut timings = StageTimings::default();
         let normalised = timings.time("normalise", || input::normalise(rgb, mask, opts.resolution))?;
-        let fof = match opts.geometry {
-            GeometryMode::Inflate => timings.time("geometry (inflate -> FOF)", || {
-                inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
-            })?,
-        };
+        let fof = compute_geometry(&normalised, opts, &mut timings)?;
         Self::from_fof(normalised, fof, opts, timings)
     }
 

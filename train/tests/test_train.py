@@ -229,7 +229,29 @@ class NetsTest(unittest.TestCase):
                 out = d(torch.zeros(1, c, 3 * s, 5 * s), torch.zeros(1, 1, 3 * s, 5 * s), torch.zeros(1, 3, 3 * s, 5 * s),
                         torch.zeros(1, 3, 3 * s, 5 * s))
                 self.assertEqual(tuple(out.shape), (1, 3, 3 * s, 5 * s))
-                self.assertEqual(tuple(f(torch.zeros(1, 3, 64, 64)).shape), (1, 8, 64, 64))
+                self.assertEqual(tuple(f(torch.zeros(1, 3, 64, 64), torch.zeros(1, 8, 64, 64)).shape), (1, 8, 64, 64))
+                plain = FofNet(tier, 8, prior=False)
+                self.assertEqual(tuple(plain(torch.zeros(1, 3, 64, 64)).shape), (1, 8, 64, 64))
+
+    def test_untrained_fof_net_is_the_prior_and_training_moves_it(self):
+        f = FofNet("tiny", 8)
+        g = torch.Generator().manual_seed(5)
+        image, prior = torch.rand(2, 3, 32, 32, generator=g) * 2 - 1, torch.randn(2, 8, 32, 32, generator=g)
+        with torch.no_grad():
+            self.assertTrue(torch.equal(f(image, prior), prior))
+        (f(image, prior) - 0.3).abs().mean().backward()
+        self.assertGreater(float(f.net.out.weight.grad.abs().sum()), 0.0)
+
+    def test_flip_batch_mirrors_every_source_tensor_of_the_same_items(self):
+        from train.fit import flip_batch
+        b = {k: torch.arange(2 * 2 * 3 * 4, dtype=torch.float32).view(2, 2, 3, 4) + i
+             for i, k in enumerate(["src_image", "src_mask", "src_fof", "src_prior"])}
+        out = flip_batch(b, torch.Generator().manual_seed(0))
+        flipped = [bool(torch.equal(out["src_image"][j], torch.flip(b["src_image"][j], dims=[-1]))) for j in range(2)]
+        for k in b:
+            for j in range(2):
+                want = torch.flip(b[k][j], dims=[-1]) if flipped[j] else b[k][j]
+                self.assertTrue(torch.equal(out[k][j], want), (k, j))
 
     def test_paper_decoder_sees_291_channels_plus_the_warped_photo(self):
         d = Decoder("paper")
@@ -272,6 +294,7 @@ class TrainExportTest(unittest.TestCase):
         log = open(os.path.join(out, "train.log")).read()
         self.assertIn("held-out evaluation", log)
         self.assertIn("held-out FOF evaluation", log)
+        self.assertIn("prior_occupancy_iou", log)
         models = os.path.join(out, "models")
         r = subprocess.run(base + ["export", "--renderer", os.path.join(out, "renderer.pt"), "--fof",
                                    os.path.join(out, "fof.pt"), "--out", models], check=True, env=env,
@@ -287,6 +310,10 @@ class TrainExportTest(unittest.TestCase):
                           meta["r2human.fof_n"], meta["r2human.stride"]), ("decoder", "tiny", "32", "8", "4"))
         self.assertEqual(json.loads(meta["r2human.recipe"])["steps"], 3)
         self.assertEqual([i.name for i in m.graph.input], ["features", "zmap", "normals", "warped_rgb"])
+        self.assertLess(report["fof"]["max_abs_diff"], 1e-3)
+        f = onnx.load(os.path.join(models, "fof.onnx"))
+        self.assertEqual([i.name for i in f.graph.input], ["image", "prior"])
+        self.assertEqual({p.key: p.value for p in f.metadata_props}["r2human.residual"], "prior")
 
     def test_torchrun_two_processes(self):
         out = tempfile.mkdtemp(prefix="r2h_ddp_")

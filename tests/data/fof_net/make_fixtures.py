@@ -1,0 +1,54 @@
+"""Writes the tiny residual FOF nets that tests/fof_net.rs loads (run: .venv/bin/python tests/data/fof_net/make_fixtures.py).
+
+Each has the shipped FOF net's contract (inputs `image` [1,3,R,R], `prior` [1,N,R,R]; output `fof` [1,N,R,R];
+r2human metadata with kind `fof`, R = 16, N = 4) and a closed-form output:
+  fof_identity.onnx  fof = prior + 0 * image            (an untrained residual net: must give the prior back)
+  fof_offset.onnx    fof = prior + [0.25, 0, 0, 0]      (thicker everywhere: c0 is twice the occupied ray fraction)
+  fof_nan.onnx       fof = prior + NaN                  (a broken model: must be an error or a fallback, never a mesh)
+  fof_zero.onnx      fof = 0                            (erases every column: must not erase the silhouette)
+  fof_identity32.onnx  the identity with N = 32 (the pipeline's default order: `r2human eval` with it must score the
+                     FOF-net geometry exactly like the inflation prior)
+Needs only `onnx` and `numpy`.
+"""
+import os
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+R, N = 16, 4
+
+
+def save(name, offset, n=N, keep_prior=1.0):
+    zero = numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero")
+    off = numpy_helper.from_array(np.asarray(offset, np.float32).reshape(1, n, 1, 1), "offset")
+    keep = numpy_helper.from_array(np.array(keep_prior, np.float32), "keep")
+    nodes = [
+        helper.make_node("Mul", ["prior", "keep"], ["p0"]),
+        # 0 * mean(image) keeps `image` a used input, as in a real net.
+        helper.make_node("ReduceMean", ["image"], ["m"], keepdims=1),
+        helper.make_node("Mul", ["m", "zero"], ["m0"]),
+        helper.make_node("Add", ["p0", "offset"], ["p1"]),
+        helper.make_node("Add", ["p1", "m0"], ["fof"]),
+    ]
+    graph = helper.make_graph(
+        nodes, name,
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, R, R]),
+         helper.make_tensor_value_info("prior", TensorProto.FLOAT, [1, n, R, R])],
+        [helper.make_tensor_value_info("fof", TensorProto.FLOAT, [1, n, R, R])], [zero, off, keep])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="r2human-fixtures")
+    model.ir_version = 8
+    meta = {"r2human.format": "1", "r2human.kind": "fof", "r2human.tier": "test", "r2human.resolution": str(R),
+            "r2human.fof_n": str(n), "r2human.residual": "prior", "r2human.recipe": "tests/data/fof_net/make_fixtures.py"}
+    for k, v in meta.items():
+        model.metadata_props.append(onnx.StringStringEntryProto(key=k, value=v))
+    onnx.checker.check_model(model)
+    onnx.save(model, os.path.join(HERE, name))
+
+
+save("fof_identity.onnx", [0, 0, 0, 0])
+save("fof_offset.onnx", [0.25, 0, 0, 0])
+save("fof_nan.onnx", [float("nan"), 0, 0, 0])
+save("fof_identity32.onnx", [0] * 32, n=32)
+save("fof_zero.onnx", [0, 0, 0, 0], keep_prior=0.0)

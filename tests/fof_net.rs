@@ -1,0 +1,354 @@
+//! The FOF network as geometry (`--geometry fofnet|auto`): closed-form fixtures for the full-resolution
+//! correction of the inflation prior (tests/data/fof_net/make_fixtures.py), the shipped `models/tiny/fof.onnx` on
+//! held-out synthetic subjects against the inflation prior, and broken or missing models. Needs the ONNX Runtime
+//! library (`bash scripts/setup.d/neural.sh` or ORT_DYLIB_PATH).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::{Arc, Mutex};
+
+use glam::Vec3;
+use r2human::buffer::{GrayImage, Image, RgbImage};
+use r2human::eval::dataset::subject_seed;
+use r2human::eval::ground_truth::render_ground_truth;
+use r2human::eval::runner::fof_occupancy_iou;
+use r2human::geometry::fof::Fof;
+use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
+use r2human::geometry::Camera;
+use r2human::neural::{ExecutionProvider, FofNet, NeuralError, RuntimeOptions};
+use r2human::pipeline::{
+    compute_geometry, load_fof_net, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
+};
+use r2human::synth::{self, SubjectParams, SynthAssets};
+
+/// The fixtures' order and resolution.
+const N: usize = 4;
+const R: usize = 16;
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fof_net").join(name)
+}
+
+fn shipped_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny")
+}
+
+fn cpu() -> RuntimeOptions {
+    RuntimeOptions { ep: ExecutionProvider::Cpu, intra_threads: Some(1), ..Default::default() }
+}
+
+/// A `size x size` source with a person-like mask (torso block, head, legs) and a flat colour.
+fn blocky_person(size: usize) -> (RgbImage, GrayImage) {
+    let s = size as f32;
+    let mask = GrayImage::from_fn(size, size, |c, r| {
+        let (x, y) = ((c as f32 + 0.5) / s, (r as f32 + 0.5) / s);
+        let torso = (0.35..0.65).contains(&x) && (0.25..0.6).contains(&y);
+        let head = (x - 0.5).powi(2) + (y - 0.15).powi(2) < 0.08f32.powi(2);
+        let legs = ((0.37..0.47).contains(&x) || (0.53..0.63).contains(&x)) && (0.6..0.95).contains(&y);
+        if torso || head || legs {
+            1.0
+        } else {
+            0.0
+        }
+    });
+    let rgb = RgbImage::from_fn(size, size, |c, r| Vec3::new(0.5, 0.3, 0.2) * *mask.get(c, r));
+    (rgb, mask)
+}
+
+fn shared(path: &Path) -> Arc<Mutex<FofNet>> {
+    Arc::new(Mutex::new(FofNet::load(path, &cpu()).unwrap_or_else(|e| panic!("{e}"))))
+}
+
+/// The correction is applied at full resolution on top of the full-resolution prior: a net that adds 0.25 to c0
+/// everywhere gives exactly prior + 0.25 on c0 at every pixel the prior covers (the mask-aware upsampling of a
+/// constant correction is that constant, also at the silhouette edge), leaves the other coefficients alone and
+/// the background empty; the identity net (an untrained residual net) gives the prior back exactly, and a net that
+/// empties every column gives the prior back too (it may reshape the body in depth, never erase the silhouette).
+#[test]
+fn refine_applies_the_correction_at_full_resolution_inside_the_prior_only() {
+    let size = 4 * R;
+    let (rgb, mask) = blocky_person(size);
+    // Thick enough that N = 4 coefficients reach the 0.5 level in (almost) every column (the silhouette rule of
+    // `refine` skips columns that hold no body).
+    let thick = InflateParams { thickness: 3.0, ..Default::default() };
+    let prior = inflate_to_fof(&mask, N, &thick).unwrap();
+    let mut identity = FofNet::load(&fixture("fof_identity.onnx"), &cpu()).unwrap();
+    assert!(identity.has_prior());
+    assert_eq!(identity.refine(&rgb, &mask, &prior).unwrap(), prior);
+
+    // A net that predicts empty columns everywhere cannot erase the silhouette: every column keeps the prior.
+    let mut eraser = FofNet::load(&fixture("fof_zero.onnx"), &cpu()).unwrap();
+    assert_eq!(eraser.refine(&rgb, &mask, &prior).unwrap(), prior);
+
+    let mut offset = FofNet::load(&fixture("fof_offset.onnx"), &cpu()).unwrap();
+    let fof = offset.refine(&rgb, &mask, &prior).unwrap();
+    let (mut inside, mut corrected) = (0, 0);
+    for row in 0..size {
+        for col in 0..size {
+            let (p, f) = (prior.column(col, row), fof.column(col, row));
+            if p.iter().all(|v| *v == 0.0) {
+                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the prior: {f:?}");
+                continue;
+            }
+            inside += 1;
+            assert_eq!(&f[1..], &p[1..], "({col},{row})");
+            let d = f[0] - p[0];
+            // Pixels whose four model taps are all outside the (resampled) mask keep the prior.
+            assert!((d - 0.25).abs() < 1e-5 || d == 0.0, "({col},{row}): c0 {} -> {}", p[0], f[0]);
+            corrected += (d != 0.0) as usize;
+        }
+    }
+    assert!(inside > 500 && corrected as f32 > 0.95 * inside as f32, "{corrected} of {inside}");
+    // The corrected field holds more body (occupied depth samples) than the prior, and still makes a valid mesh.
+    let occupied = |f: &Fof| {
+        let mut col = vec![0.0; 64];
+        let mut count = 0;
+        for row in 0..size {
+            for c in 0..size {
+                f.decode_column(c, row, 64, &mut col);
+                count += col.iter().filter(|v| **v >= 0.5).count();
+            }
+        }
+        count
+    };
+    assert!(occupied(&fof) as f32 > 1.05 * occupied(&prior) as f32, "{} vs {}", occupied(&fof), occupied(&prior));
+    let opts = PrepareOptions { resolution: size, depth_samples: size, fof_order: N, ..Default::default() };
+    let norm = r2human::pipeline::input::normalise(&rgb, &mask, size).unwrap();
+    let thick = PreparedInput::from_fof(norm, fof, &opts, StageTimings::default()).unwrap();
+    assert!(thick.mesh.triangle_count() > 100);
+}
+
+/// `--geometry fofnet` with a model that outputs NaN is an error naming the FOF net; `--geometry auto` warns and
+/// uses the inflation prior (the same geometry as `--geometry inflate`), never a broken mesh.
+#[test]
+fn nan_fof_net_is_an_error_when_explicit_and_the_prior_in_auto() {
+    let size = 4 * R;
+    let (rgb, mask) = blocky_person(size);
+    let base = PrepareOptions { resolution: size, depth_samples: size, fof_order: N, ..Default::default() };
+    let inflated = PreparedInput::prepare(&rgb, &mask, &base).unwrap();
+    let net = shared(&fixture("fof_nan.onnx"));
+    let explicit = PrepareOptions { geometry: GeometryMode::FofNet, fof_net: Some(Arc::clone(&net)), ..base.clone() };
+    match PreparedInput::prepare(&rgb, &mask, &explicit) {
+        Err(e @ PipelineError::FofNetFailed(NeuralError::NonFinite { .. })) => {
+            let text = e.to_string();
+            assert!(text.contains("FOF net") && text.contains("--geometry"), "{text}");
+        }
+        other => panic!("expected a non-finite FOF-net error, got {:?}", other.map(|p| p.mesh.triangle_count())),
+    }
+    let auto = PrepareOptions { geometry: GeometryMode::Auto, fof_net: Some(net), ..base.clone() };
+    let fallback = PreparedInput::prepare(&rgb, &mask, &auto).unwrap();
+    assert_eq!(fallback.fof, inflated.fof);
+    assert_eq!(fallback.mesh.triangle_count(), inflated.mesh.triangle_count());
+    // Auto without a network is the prior too; explicit without one is an error.
+    let none = PrepareOptions { geometry: GeometryMode::Auto, ..base.clone() };
+    assert_eq!(PreparedInput::prepare(&rgb, &mask, &none).unwrap().fof, inflated.fof);
+    let missing = PrepareOptions { geometry: GeometryMode::FofNet, ..base };
+    assert!(matches!(PreparedInput::prepare(&rgb, &mask, &missing), Err(PipelineError::NoFofNet(_))));
+}
+
+/// Resolving `--geometry`: fofnet without a model (or with the wrong N, or a corrupt file) is an error that says
+/// how to get one; auto returns no network (one warning); inflate never looks.
+#[test]
+fn fofnet_without_a_usable_model_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let e = load_fof_net(GeometryMode::FofNet, Some(tmp.path()), 32, &cpu()).expect_err("no fof.onnx");
+    let text = e.to_string();
+    assert!(text.contains("fof.onnx") && text.contains("--geometry inflate") && text.contains("--models"), "{text}");
+    assert!(load_fof_net(GeometryMode::Auto, Some(tmp.path()), 32, &cpu()).unwrap().is_none());
+    assert!(load_fof_net(GeometryMode::Inflate, Some(tmp.path()), 32, &cpu()).unwrap().is_none());
+    std::fs::copy(fixture("fof_offset.onnx"), tmp.path().join("fof.onnx")).unwrap();
+    assert!(load_fof_net(GeometryMode::FofNet, Some(tmp.path()), N, &cpu()).unwrap().is_some());
+    let e = load_fof_net(GeometryMode::FofNet, Some(tmp.path()), 32, &cpu()).expect_err("N mismatch");
+    assert!(e.to_string().contains("4 FOF coefficients") && e.to_string().contains("32"), "{e}");
+    assert!(load_fof_net(GeometryMode::Auto, Some(tmp.path()), 32, &cpu()).unwrap().is_none());
+    std::fs::write(tmp.path().join("fof.onnx"), b"not an onnx file").unwrap();
+    let e = load_fof_net(GeometryMode::FofNet, Some(tmp.path()), N, &cpu()).expect_err("corrupt");
+    assert!(matches!(e, PipelineError::NoFofNet(_)) && e.to_string().contains("corrupt"), "{e}");
+}
+
+/// The same through the binary: `render --geometry fofnet` with a model folder lacking fof.onnx fails with that
+/// sentence and writes nothing; `--geometry auto` renders with the prior.
+#[test]
+fn cli_geometry_fofnet_without_a_model_fails_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = dir.path().join("person.png");
+    common::write_figure(&img, 150, 200);
+    let empty = dir.path().join("models");
+    std::fs::create_dir_all(&empty).unwrap();
+    let run = |geometry: &str, out: &Path| {
+        let o = Command::new(env!("CARGO_BIN_EXE_r2human"))
+            .env("R2HUMAN_LOG", "warn")
+            .args(["render", "--renderer", "geometric", "--size", "48", "--geometry", geometry, "--models"])
+            .arg(&empty)
+            .arg("--image")
+            .arg(&img)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        (o.status.success(), format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)))
+    };
+    let out = dir.path().join("fofnet.png");
+    let (ok, text) = run("fofnet", &out);
+    assert!(!ok && text.contains("fof.onnx") && text.contains("--geometry inflate"), "{text}");
+    assert!(!out.exists());
+    let out = dir.path().join("auto.png");
+    let (ok, text) = run("auto", &out);
+    assert!(ok && out.exists(), "{text}");
+    assert!(text.contains("inflation prior"), "auto must say it fell back: {text}");
+}
+
+/// A synthetic subject's source view at `size`: linear premultiplied RGB, mask, and the ground-truth FOF.
+fn subject_source(seed: u64, size: usize) -> (RgbImage, GrayImage, Fof) {
+    let assets = SynthAssets::shared().unwrap();
+    let subject = synth::generate(assets, &SubjectParams::sample(seed), 128).unwrap();
+    let gt = render_ground_truth(&subject.mesh, &Camera::source(size));
+    let rgb = gt.to_linear_rgba().map(|p| p.truncate());
+    let mask = Image { width: size, height: size, data: gt.mask.iter().map(|&m| m as u8 as f32).collect() };
+    let fof = Fof::from_mesh(&subject.mesh.mesh, size, 32).unwrap();
+    (rgb, mask, fof)
+}
+
+/// The shipped FOF net loads, predicts finite coefficients on synthetic subjects, keeps their silhouette, and its
+/// geometry beats the inflation prior (volumetric IoU of the decoded occupancy against the ground-truth FOF) on the
+/// held-out subjects of the renderer's dataset (seed 7, index % 10 == 9: the writer's test
+/// split, never trained on): by at least 0.05 on the mean, and on most subjects. Not on every one: where the
+/// prior happens to fit well the net can be worse (printed; see models/tiny/README.md).
+#[test]
+fn shipped_fof_net_beats_inflation_on_held_out_subjects() {
+    let dir = shipped_dir();
+    let net = load_fof_net(GeometryMode::FofNet, Some(&dir), 32, &cpu()).unwrap_or_else(|e| panic!("{e}")).unwrap();
+    {
+        let n = net.lock().unwrap();
+        assert_eq!((n.info().tier.as_str(), n.info().fof_n), ("tiny", 32));
+        assert!(n.has_prior(), "the shipped FOF net is residual on the inflation prior");
+        assert!(n.info().recipe.contains("\"steps\""), "{}", n.info().recipe);
+    }
+    let size = 256;
+    let opts = PrepareOptions {
+        resolution: size,
+        depth_samples: size,
+        geometry: GeometryMode::FofNet,
+        fof_net: Some(net),
+        ..Default::default()
+    };
+    let (mut sum_net, mut sum_prior, mut wins) = (0.0, 0.0, 0);
+    let subjects: Vec<u64> = (0..5).map(|k| subject_seed(7, 10 * k + 9)).collect();
+    for &seed in &subjects {
+        let (rgb, mask, gt) = subject_source(seed, size);
+        let norm = r2human::pipeline::input::NormalisedInput {
+            rgb,
+            mask,
+            transform: r2human::pipeline::input::NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
+        };
+        let mut timings = StageTimings::default();
+        let fof = compute_geometry(&norm, &opts, &mut timings).unwrap_or_else(|e| panic!("{e}"));
+        assert!(timings.0.iter().any(|(name, _)| *name == "geometry (FOF net)"), "{:?}", timings.0);
+        assert!(fof.coeffs.iter().all(|v| v.is_finite()));
+        let prior = inflate_to_fof(&norm.mask, 32, &InflateParams::default()).unwrap();
+        assert_ne!(fof, prior, "the trained net changes the prior");
+        for row in 0..size {
+            for col in 0..size {
+                // Outside the prior's (cleaned) silhouette stays empty; inside, no column is erased.
+                if prior.column(col, row).iter().all(|v| *v == 0.0) {
+                    assert!(fof.column(col, row).iter().all(|v| *v == 0.0), "({col},{row})");
+                } else if !prior.is_empty_column(col, row) {
+                    assert!(!fof.is_empty_column(col, row), "({col},{row}) erased");
+                }
+            }
+        }
+        let (iou_net, iou_prior) = (fof_occupancy_iou(&fof, &gt, 64), fof_occupancy_iou(&prior, &gt, 64));
+        eprintln!("held-out subject seed {seed}: volumetric IoU FOF net {iou_net:.4}, inflation {iou_prior:.4}");
+        sum_net += iou_net;
+        sum_prior += iou_prior;
+        wins += (iou_net > iou_prior) as usize;
+        let prepared = PreparedInput::from_fof(norm, fof, &opts, timings).unwrap();
+        assert!(prepared.mesh.triangle_count() > 1000);
+    }
+    let n = subjects.len() as f32;
+    let (mean_net, mean_prior) = (sum_net / n, sum_prior / n);
+    eprintln!("mean volumetric IoU: FOF net {mean_net:.4}, inflation {mean_prior:.4}; the net wins on {wins} of {n}");
+    assert!(mean_net >= mean_prior + 0.05, "mean IoU: FOF net {mean_net} vs inflation {mean_prior}");
+    assert!(wins * 2 > subjects.len(), "the FOF net wins on only {wins} of {n} held-out subjects");
+}
+
+/// `r2human eval` scores the FOF-net methods next to the others: with an identity net (an untrained residual net)
+/// their geometry is exactly the inflation prior's, so geometric+fofnet scores exactly like geometric+inflation
+/// while costing the network's time per input; without fof.onnx the rows are absent and the report says why.
+#[test]
+fn eval_scores_the_fof_net_rows_and_notes_when_they_are_skipped() {
+    use r2human::eval::runner::{run_eval_with, EvalOptions, NeuralEvalOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let models = dir.path().join("models");
+    std::fs::create_dir_all(&models).unwrap();
+    let untrained = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/neural/untrained_tiny");
+    for f in ["encoder.onnx", "decoder.onnx"] {
+        std::fs::copy(untrained.join(f), models.join(f)).unwrap();
+    }
+    std::fs::copy(fixture("fof_identity32.onnx"), models.join("fof.onnx")).unwrap();
+    let opts = EvalOptions {
+        subjects: 1,
+        seed: 3,
+        out: dir.path().join("eval"),
+        scans: Vec::new(),
+        size: 48,
+        yaws: vec![20.0, 180.0],
+        texture_size: 64,
+        save_views: false,
+    };
+    let nopts = NeuralEvalOptions { models: Some(models.clone()), skip: false, ep: ExecutionProvider::Cpu };
+    let rep = run_eval_with(&opts, &nopts).unwrap();
+    let get = |m: &str, g: &str| rep.rows.iter().find(|r| r.method == m && r.group == g).cloned();
+    for g in ["close", "divergent"] {
+        let net = get("geometric+fofnet", g).unwrap_or_else(|| panic!("no geometric+fofnet {g} row: {:?}", rep.rows));
+        let prior = get("geometric+inflation", g).unwrap();
+        assert_eq!(
+            (net.mask_iou, net.depth_l1, net.psnr, net.ssim),
+            (prior.mask_iou, prior.depth_l1, prior.psnr, prior.ssim)
+        );
+        assert!(net.ms_per_input > 0.0);
+        let neural = get("neural+fofnet", g).unwrap_or_else(|| panic!("no neural+fofnet {g} row"));
+        assert_eq!(neural.mask_iou, get("neural+inflation", g).unwrap().mask_iou);
+    }
+    let ious: Vec<&str> = rep.geometry_iou.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(ious, ["inflation", "fofnet"]);
+    assert_eq!(rep.geometry_iou[0].1, rep.geometry_iou[1].1);
+    assert!(rep.geometry_iou[0].1 > 0.01 && rep.geometry_iou[0].1 < 1.0, "{:?}", rep.geometry_iou);
+    let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
+    assert!(csv.contains("\ngeometric+fofnet,divergent,") && csv.contains("\nneural+fofnet,close,"), "{csv}");
+    let md = std::fs::read_to_string(opts.out.join("report.md")).unwrap();
+    assert!(md.contains("| fofnet |") && md.contains("| inflation |"), "{md}");
+
+    // Without fof.onnx: no FOF-net rows, and report.md says why.
+    std::fs::remove_file(models.join("fof.onnx")).unwrap();
+    let out = dir.path().join("eval2");
+    let rep = run_eval_with(&EvalOptions { out: out.clone(), ..opts }, &nopts).unwrap();
+    assert!(rep.rows.iter().all(|r| !r.method.ends_with("fofnet")), "{:?}", rep.rows);
+    assert!(rep.rows.iter().any(|r| r.method == "neural+inflation"));
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("FOF-net rows") && md.contains("fof.onnx"), "{md}");
+}
+
+/// The volumetric IoU of the report against closed forms: slabs z in [-0.5, 0.5] and [0, 0.5] on the same pixels
+/// overlap by half their union; disjoint pixel sets give 0; a field against itself gives 1.
+#[test]
+fn volumetric_iou_matches_closed_forms() {
+    let (w, h) = (8, 6);
+    let mask = GrayImage::new(w, h, 1.0);
+    let slab = |lo: f32, hi: f32| {
+        Fof::from_depth_maps(&GrayImage::new(w, h, hi), &GrayImage::new(w, h, lo), &mask, 32).unwrap()
+    };
+    let (a, b) = (slab(-0.5, 0.5), slab(0.0, 0.5));
+    let iou = fof_occupancy_iou(&a, &b, 256);
+    assert!((iou - 0.5).abs() < 0.02, "{iou}");
+    assert_eq!(fof_occupancy_iou(&a, &a, 64), 1.0);
+    let left = GrayImage::from_fn(w, h, |c, _| if c < w / 2 { 1.0 } else { 0.0 });
+    let right = GrayImage::from_fn(w, h, |c, _| if c >= w / 2 { 1.0 } else { 0.0 });
+    let d =
+        |m: &GrayImage| Fof::from_depth_maps(&GrayImage::new(w, h, 0.5), &GrayImage::new(w, h, -0.5), m, 32).unwrap();
+    assert_eq!(fof_occupancy_iou(&d(&left), &d(&right), 64), 0.0);
+    let empty = Fof::zeros(32, w, h).unwrap();
+    assert_eq!(fof_occupancy_iou(&empty, &empty, 64), 1.0);
+}
