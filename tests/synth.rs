@@ -401,6 +401,11 @@ mod eval_run {
         let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
         assert!(csv.starts_with("method,group,psnr,ssim,"));
         assert!(csv.contains("ms_per_view,ms_per_input"));
+        assert!(csv.lines().next().unwrap().ends_with(",peak_mib"));
+        // Memory per method (exact values belong to tests/eval_memory.rs: tests here run in parallel threads).
+        for r in &rep.rows {
+            assert!(r.peak_mib.is_none_or(|m| m.is_finite() && m >= 0.0), "{r:?}");
+        }
         assert_eq!(csv.lines().count(), 1 + rep.rows.len());
         assert!(std::fs::read_to_string(opts.out.join("report.md")).unwrap().contains("| billboard | close |"));
         let png = image::open(opts.out.join("error_vs_time.png")).unwrap();

@@ -31,6 +31,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
+use super::memory::{process_peak_mib, PhaseMemory};
 use super::metrics::{depth_l1, mask_iou, psnr, ssim, union_mask, SrgbImage};
 use super::EvalError;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
@@ -142,6 +143,9 @@ pub struct ReportRow {
     pub ms_per_input: f32,
     /// Number of views averaged.
     pub views: usize,
+    /// Peak memory the method needs on its own (MiB beyond what was resident before it: per-input work and one
+    /// view, probed once on the first subject; [`super::memory::PhaseMemory`]). `None` where not measured.
+    pub peak_mib: Option<f32>,
 }
 
 /// What [`run_eval`] produced.
@@ -322,91 +326,174 @@ pub fn fof_occupancy_iou(a: &Fof, b: &Fof, samples: usize) -> f32 {
 /// The accumulators of every method and group.
 type MethodAcc = [[Acc; 2]; METHODS.len()];
 
+/// The networks the evaluation runs with (each `None` when its model did not load or `--no-neural`).
+#[derive(Clone, Copy)]
+struct Nets<'a> {
+    neural: Option<&'a SharedNeural>,
+    fof_net: Option<&'a SharedFofNet>,
+}
+
+/// A subject's source view as every method receives it (ground-truth render, already in the body cube).
+struct SourceView {
+    rgb: RgbImage,
+    mask: GrayImage,
+    prepare: PrepareOptions,
+}
+
+impl SourceView {
+    fn of(mesh: &TexturedMesh, size: usize) -> Self {
+        let gt_src = render_ground_truth(mesh, &Camera::source(size));
+        let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
+        let data = gt_src.mask.iter().map(|&m| m as u8 as f32).collect();
+        let prepare = PrepareOptions { resolution: size, depth_samples: size, ..Default::default() };
+        Self { rgb, mask: Image { width: size, height: size, data }, prepare }
+    }
+
+    fn normalised(&self) -> NormalisedInput {
+        NormalisedInput {
+            rgb: self.rgb.clone(),
+            mask: self.mask.clone(),
+            transform: NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
+        }
+    }
+
+    /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net); `None` for the FOF net when
+    /// it is not loaded or fails on this input (logged: its rows skip the subject, never replaced by the prior).
+    fn geometry(
+        &self,
+        kind: usize,
+        mesh: &TexturedMesh,
+        fof_net: Option<&SharedFofNet>,
+        name: &str,
+    ) -> Result<Option<PreparedInput>, EvalError> {
+        let popts = &self.prepare;
+        let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
+        let fof = match kind {
+            0 => inflate_to_fof(&self.mask, popts.fof_order, &InflateParams::default())
+                .map_err(|e| EvalError::Fof(e.to_string()))?,
+            1 => Fof::from_mesh(&mesh.mesh, self.mask.width, popts.fof_order)
+                .map_err(|e| EvalError::Fof(e.to_string()))?,
+            _ => {
+                let Some(net) = fof_net else { return Ok(None) };
+                let o = PrepareOptions {
+                    geometry: GeometryMode::FofNet,
+                    fof_net: Some(std::sync::Arc::clone(net)),
+                    ..popts.clone()
+                };
+                let mut timings = StageTimings::default();
+                let built = compute_geometry(&self.normalised(), &o, &mut timings)
+                    .and_then(|fof| PreparedInput::from_fof(self.normalised(), fof, &o, timings));
+                return Ok(built.map_err(|e| tracing::warn!("{name}: the FOF net rows skip this subject: {e}")).ok());
+            }
+        };
+        PreparedInput::from_fof(self.normalised(), fof, popts, Default::default()).map(Some).map_err(perr)
+    }
+}
+
+/// The renderer of a renderer-based method on prepared geometry `p`: geometric, or neural when the encoder ran on
+/// `p` (a failing encoder skips the subject's neural rows; no geometric stand-in is ever scored as neural).
+fn method_renderer<'a>(
+    p: &'a PreparedInput,
+    is_neural: bool,
+    neural: Option<&SharedNeural>,
+) -> Option<ViewRenderer<'a>> {
+    if !is_neural {
+        return Some(ViewRenderer::new(p, OcclusionFill::default(), false));
+    }
+    let n = neural?;
+    match n.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).encode(p) {
+        Ok(e) => Some(ViewRenderer::with_neural(p, OcclusionFill::default(), false, std::sync::Arc::clone(n), e)),
+        Err(e) => {
+            tracing::warn!("neural encoder failed, the neural rows skip this subject: {e}");
+            None
+        }
+    }
+}
+
+/// Peak memory each method needs on its own (MiB beyond what was resident before it; [`PhaseMemory`]): its
+/// per-input work and one view at `yaw`, everything dropped before the next method. `None` for a method that did
+/// not run, or where the kernel's peak counter cannot be reset.
+fn method_memory(
+    mesh: &TexturedMesh,
+    opts: &EvalOptions,
+    nets: Nets<'_>,
+    yaw: f32,
+) -> Result<[Option<f32>; METHODS.len()], EvalError> {
+    let src = SourceView::of(mesh, opts.size);
+    let cam = Camera::orbit(yaw, 0.0, opts.size, opts.size);
+    let mut out = [None; METHODS.len()];
+    for (m, slot) in out.iter_mut().enumerate() {
+        let Some(start) = PhaseMemory::start() else { return Ok(out) };
+        let ran = match m {
+            0 => {
+                std::hint::black_box(billboard(&src.rgb, &src.mask, &cam));
+                true
+            }
+            1 => {
+                let p = src.geometry(0, mesh, None, "memory probe")?.expect("the inflation prior always exists");
+                let g = &p.source_gbuffer;
+                let front = depth_mesh(&g.depth, &g.mask, &src.rgb, &src.mask, 0.03);
+                std::hint::black_box(raster_prediction(&front, &cam));
+                true
+            }
+            _ => {
+                let (kind, is_neural) = RENDERED[m - 2];
+                match src.geometry(kind, mesh, nets.fof_net, "memory probe")? {
+                    Some(p) => match method_renderer(&p, is_neural, nets.neural) {
+                        Some(mut r) => r.render_person(&cam).map(std::hint::black_box).is_ok(),
+                        None => false,
+                    },
+                    None => false,
+                }
+            }
+        };
+        *slot = start.finish().filter(|_| ran).map(|p| p.extra_mib());
+    }
+    Ok(out)
+}
+
 /// Evaluates one subject; pushes into the accumulators `[method][group]`, the geometry IoUs (inflation, FOF net)
 /// and counts neural fallbacks.
-#[allow(clippy::too_many_arguments)]
 fn eval_subject(
     name: &str,
     mesh: &TexturedMesh,
     opts: &EvalOptions,
-    neural: Option<&SharedNeural>,
-    fof_net: Option<&SharedFofNet>,
+    nets: Nets<'_>,
     acc: &mut MethodAcc,
     geometry_iou: &mut [Vec<f32>; 2],
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
-    let src_cam = Camera::source(r);
-    let gt_src = render_ground_truth(mesh, &src_cam);
-    let lin = gt_src.to_linear_rgba();
-    let rgb: RgbImage = lin.map(|p| p.truncate());
-    let mask: GrayImage = Image { width: r, height: r, data: gt_src.mask.iter().map(|&m| m as u8 as f32).collect() };
-    let normalised = || NormalisedInput {
-        rgb: rgb.clone(),
-        mask: mask.clone(),
-        transform: NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
-    };
-    let popts = PrepareOptions { resolution: r, depth_samples: r, ..Default::default() };
+    let src = SourceView::of(mesh, r);
+    let (rgb, mask) = (&src.rgb, &src.mask);
     let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
 
     // Per-input work, timed per method.
     let t = Instant::now();
-    let fof =
-        inflate_to_fof(&mask, popts.fof_order, &InflateParams::default()).map_err(|e| EvalError::Fof(e.to_string()))?;
-    let inflated = PreparedInput::from_fof(normalised(), fof, &popts, Default::default()).map_err(perr)?;
+    let inflated = src.geometry(0, mesh, None, name)?.expect("the inflation prior always exists");
     let ms_inflate = t.elapsed().as_secs_f32() * 1e3;
     let t = Instant::now();
     let g = &inflated.source_gbuffer;
-    let front = depth_mesh(&g.depth, &g.mask, &rgb, &mask, 0.03);
+    let front = depth_mesh(&g.depth, &g.mask, rgb, mask, 0.03);
     let ms_25d = ms_inflate + t.elapsed().as_secs_f32() * 1e3;
     let t = Instant::now();
-    let gt_fof = Fof::from_mesh(&mesh.mesh, r, popts.fof_order).map_err(|e| EvalError::Fof(e.to_string()))?;
-    let oracle = PreparedInput::from_fof(normalised(), gt_fof, &popts, Default::default()).map_err(perr)?;
+    let oracle = src.geometry(1, mesh, None, name)?.expect("the ground-truth FOF always exists");
     let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
     // The FOF net's geometry (explicit mode: a network failure on this input is an error of this subject's FOF
     // rows, reported in the log, never silently replaced by the prior).
     let t = Instant::now();
-    let with_net = fof_net.and_then(|net| {
-        let o = PrepareOptions {
-            geometry: GeometryMode::FofNet,
-            fof_net: Some(std::sync::Arc::clone(net)),
-            ..popts.clone()
-        };
-        let mut timings = StageTimings::default();
-        let built = compute_geometry(&normalised(), &o, &mut timings)
-            .and_then(|fof| PreparedInput::from_fof(normalised(), fof, &o, timings));
-        built.map_err(|e| tracing::warn!("{name}: the FOF net rows skip this subject: {e}")).ok()
-    });
+    let with_net = src.geometry(2, mesh, nets.fof_net, name)?;
     let ms_fofnet = t.elapsed().as_secs_f32() * 1e3;
     geometry_iou[0].push(fof_occupancy_iou(&inflated.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
     if let Some(p) = &with_net {
         geometry_iou[1].push(fof_occupancy_iou(&p.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
     }
-    // Methods 3..8: geometric and neural renderers on the inflation, oracle and FOF-net geometry. A neural
-    // renderer exists only when its encoder ran (no geometric stand-in is ever scored as neural).
+    // Methods 3..8: geometric and neural renderers on the inflation, oracle and FOF-net geometry.
     let prepared: [Option<&PreparedInput>; 3] = [Some(&inflated), Some(&oracle), with_net.as_ref()];
-    let mut renderers: Vec<Option<ViewRenderer<'_>>> = Vec::with_capacity(RENDERED.len());
-    for &(k, is_neural) in &RENDERED {
-        let Some(p) = prepared[k] else {
-            renderers.push(None);
-            continue;
-        };
-        if !is_neural {
-            renderers.push(Some(ViewRenderer::new(p, OcclusionFill::default(), false)));
-            continue;
-        }
-        let encoded = neural.map(|n| (n, n.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).encode(p)));
-        renderers.push(match encoded {
-            Some((n, Ok(e))) => {
-                Some(ViewRenderer::with_neural(p, OcclusionFill::default(), false, std::sync::Arc::clone(n), e))
-            }
-            Some((_, Err(e))) => {
-                tracing::warn!("neural encoder failed, the neural rows skip this subject: {e}");
-                None
-            }
-            None => None,
-        });
-    }
+    let mut renderers: Vec<Option<ViewRenderer<'_>>> = RENDERED
+        .iter()
+        .map(|&(k, is_neural)| prepared[k].and_then(|p| method_renderer(p, is_neural, nets.neural)))
+        .collect();
     let encode_ms = |k: usize| renderers[k].as_ref().and_then(|r| r.encode_time()).map(|d| d.as_secs_f32() * 1e3);
     let fofnet_ms = with_net.as_ref().map(|_| ms_fofnet);
     let per_input = [
@@ -456,7 +543,7 @@ fn eval_subject(
         for (m, acc_m) in acc.iter_mut().enumerate() {
             let t = Instant::now();
             let pred = match m {
-                0 => billboard(&rgb, &mask, &cam),
+                0 => billboard(rgb, mask, &cam),
                 1 => raster_prediction(&front, &cam),
                 _ => {
                     let k = m - 2;
@@ -494,15 +581,6 @@ fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
     acc.iou.push(mask_iou(&gt.mask, &pred.mask));
     acc.depth.push(depth_l1(&gt.depth, &gt.mask, &pred.depth, &pred.mask));
     acc.ms_view.push(ms);
-}
-
-fn peak_memory_mib() -> f32 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("VmHWM:")).map(str::to_string))
-        .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f32>().ok()))
-        .map(|kb| kb / 1024.0)
-        .unwrap_or(0.0)
 }
 
 /// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
@@ -551,6 +629,19 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     if !nopts.skip && neural.is_none() {
         notes.push("The neural renderer's models did not load: no neural rows (see the log).".to_string());
     }
+    let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref() };
+    // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
+    let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
+        let off = |y: f32| (y.rem_euclid(360.0) - 180.0).abs();
+        off(*b).total_cmp(&off(*a))
+    });
+    let mut memory: Option<[Option<f32>; METHODS.len()]> = None;
+    let probe_once = |memory: &mut Option<[Option<f32>; METHODS.len()]>, mesh: &TexturedMesh| {
+        if memory.is_none() {
+            *memory = Some(method_memory(mesh, opts, nets, probe_yaw.unwrap_or(180.0))?);
+        }
+        Ok(())
+    };
     if opts.subjects > 0 {
         let assets = SynthAssets::shared()?;
         for i in 0..opts.subjects {
@@ -559,8 +650,8 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             let r = synth::generate(assets, &SubjectParams::sample(seed), opts.texture_size)
                 .map_err(EvalError::from)
                 .and_then(|s| {
-                    let nets = (neural.as_ref(), fof_net.as_ref());
-                    eval_subject(&name, &s.mesh, opts, nets.0, nets.1, &mut acc, &mut geometry_iou, &mut fallbacks)
+                    eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
+                    probe_once(&mut memory, &s.mesh)
                 });
             if let Err(e) = r {
                 failed.push((name, e.to_string()));
@@ -570,16 +661,8 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     for scan in &opts.scans {
         let name = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
         let r = synth::scan::load_scan(scan).map_err(EvalError::from).and_then(|s| {
-            eval_subject(
-                &name,
-                &s.mesh,
-                opts,
-                neural.as_ref(),
-                fof_net.as_ref(),
-                &mut acc,
-                &mut geometry_iou,
-                &mut fallbacks,
-            )
+            eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
+            probe_once(&mut memory, &s.mesh)
         });
         if let Err(e) = r {
             failed.push((scan.display().to_string(), e.to_string()));
@@ -603,6 +686,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
                 ms_per_view: median(&a.ms_view),
                 ms_per_input: median(&a.ms_input),
                 views: a.psnr.len(),
+                peak_mib: memory.and_then(|per_method| per_method[m]),
             });
         }
     }
@@ -619,7 +703,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     let report = EvalReport {
         rows,
         failed,
-        peak_memory_mib: peak_memory_mib(),
+        peak_memory_mib: process_peak_mib().unwrap_or(0.0),
         neural_fallbacks: fallbacks,
         geometry_iou,
         notes,
@@ -629,11 +713,13 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
 }
 
 fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(), EvalError> {
-    let mut csv =
-        String::from("method,group,psnr,ssim,lpips,mask_iou,depth_l1,ms_per_view,ms_per_input,views,psnr_overlap\n");
+    let mut csv = String::from(
+        "method,group,psnr,ssim,lpips,mask_iou,depth_l1,ms_per_view,ms_per_input,views,psnr_overlap,peak_mib\n",
+    );
+    let mib = |r: &ReportRow| r.peak_mib.map(|m| format!("{m:.0}")).unwrap_or_default();
     for r in &rep.rows {
         csv.push_str(&format!(
-            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3}\n",
+            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3},{}\n",
             r.method,
             r.group,
             r.psnr,
@@ -643,7 +729,8 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             r.ms_per_view,
             r.ms_per_input,
             r.views,
-            r.psnr_overlap
+            r.psnr_overlap,
+            mib(r)
         ));
     }
     let p = out.join("report.csv");
@@ -655,9 +742,11 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
          black, so silhouette misses dominate); PSNR overlap: over the pixels both cover (appearance alone). SSIM \
          with an 11x11 Gaussian window (sigma 1.5), averaged over the union. Depth L1 in body-cube units on the union mask (uncovered = -1). LPIPS: not measured (needs \
          ImageNet-pretrained weights that cannot be fetched here). Times: median wall-clock ms on this machine, \
-         CPU reference. Peak memory of the whole run: {:.0} MiB.\n\n\
-         | method | group | PSNR | PSNR overlap | SSIM | mask IoU | depth L1 | ms/view | ms/input | views |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+         CPU reference. Memory: the peak resident memory each method needs on its own beyond what was already \
+         resident (its per-input work and one view, probed once on the first subject; ONNX Runtime's allocations \
+         included); peak of the whole run: {:.0} MiB.\n\n\
+         | method | group | PSNR | PSNR overlap | SSIM | mask IoU | depth L1 | ms/view | ms/input | MiB | views |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
         opts.subjects,
         opts.seed,
         opts.scans.len(),
@@ -668,7 +757,7 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
     );
     for r in &rep.rows {
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.4} | {:.4} | {:.4} | {:.1} | {:.1} | {} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.4} | {:.4} | {:.4} | {:.1} | {:.1} | {} | {} |\n",
             r.method,
             r.group,
             r.psnr,
@@ -678,6 +767,7 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             r.depth_l1,
             r.ms_per_view,
             r.ms_per_input,
+            mib(r),
             r.views
         ));
     }
