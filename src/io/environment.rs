@@ -85,6 +85,12 @@ impl Environment {
 
     /// Bilinear lookup at panorama coordinates (see the module docs for wrapping).
     pub fn sample_uv(&self, u: f32, v: f32) -> Vec3 {
+        self.lookup().sample_uv(u, v)
+    }
+
+    /// [`Environment::sample_uv`] for any coordinates: wraps the longitude and reads across the poles. The
+    /// lookup's interior fast path ([`PanoramaLookup::sample_uv`]) falls back to it near the edges.
+    fn sample_uv_wrapped(&self, u: f32, v: f32) -> Vec3 {
         let img = &self.image;
         let (w, h) = (img.width as i64, img.height as i64);
         let x = u * w as f32 - 0.5;
@@ -109,14 +115,6 @@ impl Environment {
             img.data[(cy * w + cx) as usize]
         };
         let (x0, y0) = (x0 as i64, y0 as i64);
-        if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
-            // Interior: no wrapping or pole reflection needed (almost every lookup).
-            let i = (y0 * w + x0) as usize;
-            let (wu, d) = (w as usize, &img.data);
-            let top = d[i] * (1.0 - tx) + d[i + 1] * tx;
-            let bottom = d[i + wu] * (1.0 - tx) + d[i + wu + 1] * tx;
-            return top * (1.0 - ty) + bottom * ty;
-        }
         let top = fetch(x0, y0) * (1.0 - tx) + fetch(x0 + 1, y0) * tx;
         let bottom = fetch(x0, y0 + 1) * (1.0 - tx) + fetch(x0 + 1, y0 + 1) * tx;
         top * (1.0 - ty) + bottom * ty
@@ -175,7 +173,7 @@ impl PanoramaLookup<'_> {
                 return top * (1.0 - ty) + bottom * ty;
             }
         }
-        self.env.sample_uv(u, v)
+        self.env.sample_uv_wrapped(u, v)
     }
 }
 
@@ -386,7 +384,7 @@ mod tests {
             dirs.extend([Vec3::new(0.0, -0.9999, 0.01), Vec3::ZERO, Vec3::splat(f32::NAN)]);
             for d in dirs {
                 let (u, v) = direction_to_uv(d, yaw);
-                let want = env.sample_uv(u, v);
+                let want = env.sample_uv_wrapped(u, v);
                 assert_eq!(lookup.sample(d), want, "yaw {yaw} d {d}");
                 assert_eq!(env.sample(d), want);
             }
