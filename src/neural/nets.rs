@@ -610,7 +610,7 @@ impl Decoder {
         normals: &Image<Vec3>,
         mask: &GrayImage,
         lookup: &RgbaImage,
-        features_at: impl FnMut(usize, usize, &mut [f32]),
+        features_at: impl Fn(usize, usize, &mut [f32]) + Sync,
     ) -> Result<RgbaImage, NeuralError> {
         let (w, h) = (mask.width, mask.height);
         check_sizes("decoder", "Z-map", zmap.width, zmap.height, w, h)?;
@@ -637,17 +637,18 @@ impl Decoder {
     }
 
     /// The shared decoder path over per-pixel accessors (`alpha`, `z`, `normal`, `rgb` (network space) by pixel
-    /// index; `features_at` by column and row): crop, pad, run, write back.
+    /// index; `features_at` by column and row): crop, pad, run, write back. Packing and unpacking run in
+    /// parallel over the box's rows (they are a sizeable share of a small view next to ONNX Runtime's run).
     #[allow(clippy::too_many_arguments)]
     fn decode(
         &mut self,
         w: usize,
         h: usize,
-        alpha: impl Fn(usize) -> f32,
-        zmap: impl Fn(usize) -> f32,
-        normal: impl Fn(usize) -> Vec3,
-        rgb_in: impl Fn(usize) -> Vec3,
-        mut features_at: impl FnMut(usize, usize, &mut [f32]),
+        alpha: impl Fn(usize) -> f32 + Sync,
+        zmap: impl Fn(usize) -> f32 + Sync,
+        normal: impl Fn(usize) -> Vec3 + Sync,
+        rgb_in: impl Fn(usize) -> Vec3 + Sync,
+        features_at: impl Fn(usize, usize, &mut [f32]) + Sync,
     ) -> Result<RgbaImage, NeuralError> {
         let mut out = RgbaImage::new(w, h, Vec4::ZERO);
         let Some(p) = self.region_of(PixelBox::of_alpha(w, h, &alpha), w, h)? else { return Ok(out) };
@@ -658,44 +659,48 @@ impl Decoder {
         let mut z = vec![0.0f32; plane];
         let mut nrm = vec![0.0f32; 3 * plane];
         let mut photo = vec![0.0f32; 3 * plane];
-        let mut px = vec![0.0f32; c];
-        for row in 0..ph {
-            let y = p.y0 + row as i64;
-            if y < 0 || y >= h as i64 {
-                continue;
+        // The image pixel of a box pixel, `None` outside the image or where the alpha says the pixel is unused
+        // (background and unusable pixels stay zero in every input, as in training).
+        let pixel = |col: usize, row: usize| -> Option<(usize, usize, f32)> {
+            let (x, y) = (p.x0 + col as i64, p.y0 + row as i64);
+            if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+                return None;
             }
-            for col in 0..pw {
-                let x = p.x0 + col as i64;
-                if x < 0 || x >= w as i64 {
-                    continue;
-                }
-                let (x, y) = (x as usize, y as usize);
-                let m = alpha(y * w + x);
-                // Background (and unusable pixels) stay zero in every input, as in training.
-                if m.is_nan() || m <= 0.0 {
-                    continue;
-                }
-                let i = row * pw + col;
-                features_at(x, y, &mut px);
-                for (k, v) in px.iter().enumerate() {
-                    feat[k * plane + i] = if v.is_finite() { *v } else { 0.0 };
-                }
-                let zz = zmap(y * w + x);
-                z[i] = if zz.is_finite() { zz } else { 0.0 };
-                let n = normal(y * w + x);
-                if n.is_finite() {
-                    nrm[i] = n.x;
-                    nrm[plane + i] = n.y;
-                    nrm[2 * plane + i] = n.z;
-                }
-                let p = rgb_in(y * w + x);
-                if p.is_finite() {
-                    photo[i] = p.x;
-                    photo[plane + i] = p.y;
-                    photo[2 * plane + i] = p.z;
-                }
+            let (x, y) = (x as usize, y as usize);
+            let a = alpha(y * w + x);
+            (a > 0.0).then_some((x, y, a)) // false for NaN too
+        };
+        // One entry per box row: that row's slice of every input plane (planes are row-major, so each plane's
+        // row is contiguous), in the order features 0..C, Z, normals xyz, colour rgb.
+        let mut rows: Vec<Vec<&mut [f32]>> = (0..ph).map(|_| Vec::with_capacity(c + 7)).collect();
+        for buffer in [&mut feat, &mut z, &mut nrm, &mut photo] {
+            for (j, chunk) in buffer.chunks_mut(pw).enumerate() {
+                rows[j % ph].push(chunk);
             }
         }
+        rows.par_iter_mut().enumerate().for_each_init(
+            || vec![0.0f32; c],
+            |px, (row, planes)| {
+                for col in 0..pw {
+                    let Some((x, y, _)) = pixel(col, row) else { continue };
+                    let i = y * w + x;
+                    features_at(x, y, px);
+                    for (k, v) in px.iter().enumerate() {
+                        planes[k][col] = if v.is_finite() { *v } else { 0.0 };
+                    }
+                    let zz = zmap(i);
+                    planes[c][col] = if zz.is_finite() { zz } else { 0.0 };
+                    for (k, v) in [(c + 1, normal(i)), (c + 4, rgb_in(i))] {
+                        if v.is_finite() {
+                            planes[k][col] = v.x;
+                            planes[k + 1][col] = v.y;
+                            planes[k + 2][col] = v.z;
+                        }
+                    }
+                }
+            },
+        );
+        drop(rows);
         let inputs: [(&str, [usize; 4], &[f32]); 4] = [
             ("features", [1, c, ph, pw], &feat),
             ("zmap", [1, 1, ph, pw], &z),
@@ -704,27 +709,20 @@ impl Decoder {
         ];
         let (shape, rgb) = self.net.run(&inputs, "rgb")?;
         self.net.expect_output_shape(&shape, [1, 3, ph, pw])?;
-        for row in 0..ph {
-            let y = p.y0 + row as i64;
-            if y < 0 || y >= h as i64 {
-                continue;
+        out.data.par_chunks_mut(w).enumerate().for_each(|(y, out_row)| {
+            let row = y as i64 - p.y0;
+            if row < 0 || row >= ph as i64 {
+                return;
             }
+            let row = row as usize;
             for col in 0..pw {
-                let x = p.x0 + col as i64;
-                if x < 0 || x >= w as i64 {
-                    continue;
-                }
-                let (x, y) = (x as usize, y as usize);
-                let a = alpha(y * w + x);
-                if a.is_nan() || a <= 0.0 {
-                    continue;
-                }
+                let Some((x, _, a)) = pixel(col, row) else { continue };
                 let a = a.min(1.0);
                 let i = row * pw + col;
                 let lin = |v: f32| srgb_to_linear((v + 1.0) * 0.5) * a;
-                out.set(x, y, Vec4::new(lin(rgb[i]), lin(rgb[plane + i]), lin(rgb[2 * plane + i]), a));
+                out_row[x] = Vec4::new(lin(rgb[i]), lin(rgb[plane + i]), lin(rgb[2 * plane + i]), a);
             }
-        }
+        });
         Ok(out)
     }
 }

@@ -130,6 +130,10 @@ fn try_session(
     if let Some(n) = options.intra_threads {
         builder = builder.with_intra_threads(n.max(1)).map_err(|e| Attempt::Session(e.to_string()))?;
     }
+    // ONNX Runtime's pool threads spin for a while after each run by default; the pipeline's own rayon stages
+    // (raster, colour lookup, packing the decoder's inputs) run right before and after on the same cores, and
+    // the spinning threads take their time.
+    builder = builder.with_intra_op_spinning(false).map_err(|e| Attempt::Session(e.to_string()))?;
     match provider {
         ActiveProvider::Cpu => {}
         ActiveProvider::Cuda => {
