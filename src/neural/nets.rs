@@ -681,6 +681,8 @@ impl Decoder {
         rows.par_iter_mut().enumerate().for_each_init(
             || vec![0.0f32; c],
             |px, (row, planes)| {
+                // `col` indexes every plane's row slice, not `planes` itself.
+                #[allow(clippy::needless_range_loop)]
                 for col in 0..pw {
                     let Some((x, y, _)) = pixel(col, row) else { continue };
                     let i = y * w + x;
