@@ -156,8 +156,31 @@ pub fn unpremultiply(rgba: Vec4) -> Vec3 {
     }
 }
 
+/// The 4-connected neighbours (left, right, up, down) of pixel index `p` in a row-major `width x height` image,
+/// those inside the image only.
+pub fn neighbours4(p: usize, width: usize, height: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (p % width, p / width);
+    [
+        (x > 0).then(|| p - 1),
+        (x + 1 < width).then(|| p + 1),
+        (y > 0).then(|| p - width),
+        (y + 1 < height).then(|| p + width),
+    ]
+    .into_iter()
+    .flatten()
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn neighbours4_stay_inside() {
+        let n = |p| super::neighbours4(p, 3, 2).collect::<Vec<_>>();
+        assert_eq!(n(0), vec![1, 3]);
+        assert_eq!(n(4), vec![3, 5, 1]);
+        assert_eq!(n(5), vec![4, 2]);
+        assert_eq!(super::neighbours4(0, 1, 1).count(), 0);
+    }
+
     use super::*;
 
     #[test]

@@ -3,7 +3,7 @@
 
 use std::collections::VecDeque;
 
-use crate::buffer::{GrayImage, Image};
+use crate::buffer::{neighbours4, GrayImage, Image};
 
 /// A binary mask (`true` = person).
 pub type BinaryMask = Image<bool>;
@@ -85,24 +85,11 @@ pub fn largest_component(mask: &BinaryMask) -> BinaryMask {
         let mut size = 0;
         while let Some(p) = queue.pop_front() {
             size += 1;
-            let (x, y) = (p % w, p / w);
-            let mut visit = |q: usize| {
+            for q in neighbours4(p, w, h) {
                 if mask.data[q] && label[q] == 0 {
                     label[q] = next;
                     queue.push_back(q);
                 }
-            };
-            if x > 0 {
-                visit(p - 1);
-            }
-            if x + 1 < w {
-                visit(p + 1);
-            }
-            if y > 0 {
-                visit(p - w);
-            }
-            if y + 1 < h {
-                visit(p + w);
             }
         }
         if size > best.1 {
@@ -127,24 +114,11 @@ pub fn fill_holes(mask: &BinaryMask) -> BinaryMask {
         }
     }
     while let Some(p) = queue.pop_front() {
-        let (x, y) = (p % w, p / w);
-        let mut visit = |q: usize| {
+        for q in neighbours4(p, w, h) {
             if !mask.data[q] && !outside[q] {
                 outside[q] = true;
                 queue.push_back(q);
             }
-        };
-        if x > 0 {
-            visit(p - 1);
-        }
-        if x + 1 < w {
-            visit(p + 1);
-        }
-        if y > 0 {
-            visit(p - w);
-        }
-        if y + 1 < h {
-            visit(p + w);
         }
     }
     Image { width: w, height: h, data: outside.iter().map(|&o| !o).collect() }

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::base::BaseMesh;
 use super::rig::Rig;
 use super::Rng;
-use crate::buffer::srgb_to_linear;
+use crate::buffer::{neighbours4, srgb_to_linear};
 use crate::io::mesh_io::linear_to_srgb8;
 
 /// Body parts used for clothing regions.
@@ -567,28 +567,8 @@ pub fn bake(base: &BaseMesh, parts: &[[f32; 10]], lm: &Landmarks, a: &Appearance
         let fills: Vec<Option<Vec3>> = empty
             .iter()
             .map(|&i| {
-                let (x, y) = (i % size, i / size);
-                let mut acc = Vec3::ZERO;
-                let mut n = 0;
-                let mut add = |j: usize| {
-                    if let Some(c) = colors[j] {
-                        acc += c;
-                        n += 1;
-                    }
-                };
-                if x > 0 {
-                    add(i - 1);
-                }
-                if x + 1 < size {
-                    add(i + 1);
-                }
-                if y > 0 {
-                    add(i - size);
-                }
-                if y + 1 < size {
-                    add(i + size);
-                }
-                (n > 0).then(|| acc / n as f32)
+                let known: Vec<Vec3> = neighbours4(i, size, size).filter_map(|j| colors[j]).collect();
+                (!known.is_empty()).then(|| known.iter().sum::<Vec3>() / known.len() as f32)
             })
             .collect();
         for (&i, f) in empty.iter().zip(&fills) {
