@@ -193,7 +193,9 @@ pub(crate) fn create_session(
             Err(Attempt::Provider(reason)) => {
                 tracing::warn!(
                     "{provider} execution provider could not be registered for {what} ({reason}); falling back to \
-                     {next}. For GPU inference install onnxruntime-gpu 1.31.1 and set ORT_DYLIB_PATH to its library"
+                     {next}. For GPU inference set ORT_DYLIB_PATH to the library of onnxruntime-gpu 1.31.1 and put \
+                     the CUDA and cuDNN (and TensorRT) libraries it needs on the loader path (the reason names \
+                     any missing one)"
                 );
             }
             Err(Attempt::Session(reason)) if provider != ActiveProvider::Cpu => {
