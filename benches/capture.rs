@@ -11,7 +11,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use r2human::app::live::{EncodeProcessor, LiveOptions, LivePipeline};
 use r2human::capture::morph::{close, fill_holes, largest_component, open, threshold};
 use r2human::capture::segment::{CleanPlate, PlateParams};
-use r2human::capture::smooth::MaskSmoother;
+use r2human::capture::smooth::{MaskSmoother, VecSmoother};
 use r2human::capture::synthetic::{composite, empty_scene, walker, WalkerParams, WalkerSource};
 use r2human::capture::{open_video_path, Frame, FrameSource, SegmentMethod, SourceEvent};
 use r2human::neural::{ExecutionProvider, RuntimeOptions};
@@ -43,6 +43,21 @@ fn bench_segmentation(c: &mut Criterion) {
             smoother.update(if flip { &truth } else { &other })
         })
     });
+    // The live loop's FOF smoothing: 512x512 pixels x 32 coefficients, two frames that differ by a few percent
+    // (the EMA path, no reset), as `app::live` configures it.
+    let len = 512 * 512 * 32;
+    let frame_a: Vec<f32> = (0..len).map(|i| ((i % 977) as f32 * 0.01).sin()).collect();
+    let frame_b: Vec<f32> = frame_a.iter().map(|v| v * 1.03).collect();
+    let mut fof_smoother = VecSmoother::new(0.6, 0.5);
+    let mut work = frame_a.clone();
+    g.bench_function("fof_ema_512x512x32", |b| {
+        b.iter(|| {
+            flip = !flip;
+            work.copy_from_slice(if flip { &frame_a } else { &frame_b });
+            fof_smoother.update(&mut work);
+        })
+    });
+    assert_eq!(fof_smoother.resets(), 1, "the FOF bench frames should take the EMA path");
     g.finish();
 }
 
