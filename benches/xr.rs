@@ -203,10 +203,12 @@ fn desktop_view_runs() {
     let (rgb, mask) = xr_support::figure(512);
     let rgba = RgbaImage::from_fn(512, 512, |c, r| (*rgb.get(c, r) * *mask.get(c, r)).extend(*mask.get(c, r)));
     r2human::io::image_io::save_rgba_png(&person, &rgba).expect("write the person");
+    // The Vulkan passes in the window, as the XR eyes use them (`view`'s default `auto` picks the CPU reference
+    // on lavapipe).
     for renderer in ["geometric", "neural"] {
         let out = Command::new(env!("CARGO_BIN_EXE_r2human"))
             .args(["view", "--frames", "60", "--spin", "3", "--size", &EYE_SIDE.to_string(), "--ep", "cpu"])
-            .args(["--renderer", renderer, "--image"])
+            .args(["--backend", "vulkan", "--renderer", renderer, "--image"])
             .arg(&person)
             .env("DISPLAY", &display)
             .stdin(Stdio::null())

@@ -162,6 +162,15 @@ fn write_person(path: &Path) {
     img.save(path).unwrap();
 }
 
+/// A temporary folder holding the test person (`person.png`) and the path of a screenshot `shot` in it.
+fn person_in_tempdir(shot: &str) -> (tempfile::TempDir, PathBuf, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let person = dir.path().join("person.png");
+    write_person(&person);
+    let shot = dir.path().join(shot);
+    (dir, person, shot)
+}
+
 #[test]
 fn mirror_window_renders_frames_and_screenshots_the_person() {
     in_window_child("mirror_window_renders_frames_and_screenshots_the_person", || {
@@ -222,6 +231,34 @@ fn mirror_window_renders_frames_and_screenshots_the_person() {
         // Below the overlay the presented image is the rendered view (8-bit sRGB of the same frame).
         let (a, b) = (shown.get_pixel(64, 80), img.get_pixel(64, 80));
         assert!((0..3).all(|c| (i32::from(a[c]) - i32::from(b[c])).abs() <= 1), "{a:?} vs {b:?}");
+    });
+}
+
+/// `--backend auto` (the `view` default): the CPU reference on a software rasteriser (lavapipe here), the Vulkan
+/// passes on a GPU; either way the person is on screen and the overlay names the engine that drew it.
+#[test]
+fn auto_backend_follows_the_device_type() {
+    in_window_child("auto_backend_follows_the_device_type", || {
+        let software = r2human::gpu::Context::headless().expect("a Vulkan device").is_software();
+        let (dir, person, shot) = person_in_tempdir("shot.png");
+        let stats = run(ViewOptions {
+            image: person,
+            mode: Mode::Vr,
+            backend: Backend::Auto,
+            frames: Some(3),
+            size: 96,
+            screenshot_dir: dir.path().to_path_buf(),
+            screenshot_on_exit: Some(shot.clone()),
+            resolution: 128,
+            ..ViewOptions::default()
+        });
+        let expected = if software { Backend::Cpu } else { Backend::Vulkan };
+        assert_eq!(stats.backend, expected, "device {} (software: {software})", stats.device);
+        let label = if software { "CPU" } else { "VULKAN" };
+        assert!(stats.overlay[0].contains(label), "{}", stats.overlay[0]);
+        let img = image::open(&shot).unwrap().to_rgb8();
+        let person_pixels = img.pixels().filter(|p| p[0] > 150 && p[2] > 130 && p[1] < 90).count();
+        assert!(person_pixels > 96 * 96 / 20, "only {person_pixels} person pixels in the screenshot");
     });
 }
 
@@ -298,10 +335,7 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
 #[test]
 fn resize_recreates_the_swapchain_on_the_cpu_backend() {
     in_window_child("resize_recreates_the_swapchain_on_the_cpu_backend", || {
-        let dir = tempfile::tempdir().unwrap();
-        let person = dir.path().join("person.png");
-        write_person(&person);
-        let shot = dir.path().join("resized.png");
+        let (_dir, person, shot) = person_in_tempdir("resized.png");
         let stats = run(ViewOptions {
             image: person,
             mode: Mode::Vr,

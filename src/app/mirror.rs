@@ -61,6 +61,21 @@ pub enum Backend {
     /// The Vulkan per-view passes.
     #[default]
     Vulkan,
+    /// The Vulkan passes on a GPU; the CPU reference when the only Vulkan device is a software rasteriser
+    /// (lavapipe), where the Vulkan passes share the CPU's cores and run several times slower than the reference.
+    Auto,
+}
+
+impl Backend {
+    /// The backend to run on a device (`software`: [`crate::gpu::Context::is_software`]): `Auto` becomes `Cpu`
+    /// on a software rasteriser and `Vulkan` on a GPU; `Cpu` and `Vulkan` stay as asked.
+    pub fn resolve(self, software: bool) -> Backend {
+        match self {
+            Backend::Auto if software => Backend::Cpu,
+            Backend::Auto => Backend::Vulkan,
+            other => other,
+        }
+    }
 }
 
 /// Which renderer the user asked for (`G`/`N`): the geometric warp or the neural decoder.
@@ -270,8 +285,25 @@ pub fn render_on_backend(
     fusion: bool,
     neural: Option<&SharedNeural>,
 ) -> anyhow::Result<Option<Vec<Frame>>> {
-    if backend == Backend::Cpu {
-        return Ok(None);
+    match backend {
+        Backend::Cpu => return Ok(None),
+        Backend::Vulkan => {}
+        // Probe the device: a software rasteriser (or none) renders on the CPU reference, which is faster there.
+        Backend::Auto => match Context::headless() {
+            Ok(ctx) if !ctx.is_software() => {}
+            Ok(ctx) => {
+                tracing::info!(
+                    "`{}` is a software rasteriser: rendering on the CPU reference (--backend vulkan forces the \
+                     Vulkan passes)",
+                    ctx.device_name()
+                );
+                return Ok(None);
+            }
+            Err(e) => {
+                tracing::info!("no usable Vulkan device ({e}): rendering on the CPU reference");
+                return Ok(None);
+            }
+        },
     }
     let encoded = match neural {
         Some(shared) => match shared.lock().unwrap_or_else(|p| p.into_inner()).encode(input) {
@@ -654,6 +686,16 @@ impl<'a> Engine<'a> {
 
     /// A new renderer (first frame, resize): everything on the GPU must be uploaded again.
     pub fn attach(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
+        if self.backend == Backend::Auto {
+            self.backend = Backend::Auto.resolve(renderer.context().is_software());
+            if self.backend == Backend::Cpu {
+                tracing::info!(
+                    "`{}` is a software rasteriser: rendering the person with the CPU reference, which is faster \
+                     on it (--backend vulkan forces the Vulkan passes)",
+                    renderer.context().device_name()
+                );
+            }
+        }
         let (w, h) = renderer.size();
         self.blank = Some(Frame::Vr(Image::new(w, h, Vec3::splat(0.05))));
         self.uploaded = None;
@@ -766,7 +808,8 @@ impl<'a> Engine<'a> {
         };
         let wants_neural = self.shading == Shading::Neural && self.neural.renderer.is_some();
         match self.backend {
-            Backend::Vulkan => {
+            // `Auto` is resolved by `attach`; an engine drawn before that renders like the Vulkan one.
+            Backend::Vulkan | Backend::Auto => {
                 if let Some((shared, encoded)) = neural {
                     if self.neural_layer == Some((*camera, sequence)) {
                         renderer.render_frame_from_person(None, camera, mode, target)?;
@@ -1121,6 +1164,7 @@ impl App<'_, '_> {
         let backend = match self.engine.backend {
             Backend::Cpu => "CPU",
             Backend::Vulkan => "VULKAN",
+            Backend::Auto => "AUTO",
         };
         let fps = if ms > 0.0 { 1e3 / ms } else { 0.0 };
         let title = format!(
@@ -1274,6 +1318,16 @@ impl ApplicationHandler for App<'_, '_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn auto_backend_is_the_cpu_on_a_software_rasteriser_only() {
+        assert_eq!(Backend::Auto.resolve(true), Backend::Cpu);
+        assert_eq!(Backend::Auto.resolve(false), Backend::Vulkan);
+        for software in [true, false] {
+            assert_eq!(Backend::Cpu.resolve(software), Backend::Cpu);
+            assert_eq!(Backend::Vulkan.resolve(software), Backend::Vulkan);
+        }
+    }
 
     #[test]
     fn a_minimised_window_is_not_drawn() {

@@ -41,8 +41,9 @@ pub struct ViewArgs {
     /// Start in VR (panorama) or AR (person alone); V and A switch while running.
     #[arg(long, value_enum, default_value_t = Mode::Vr)]
     pub mode: Mode,
-    /// Engine for the person: the Vulkan passes or the CPU reference (falls back to CPU without a device).
-    #[arg(long, value_enum, default_value_t = Backend::Vulkan)]
+    /// Engine for the person: the Vulkan passes, the CPU reference, or auto (Vulkan on a GPU, the CPU reference on
+    /// a software rasteriser such as lavapipe, where it is faster); falls back to the CPU when the passes cannot run.
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
     pub backend: Backend,
     /// Render this many frames and exit (for tests and benchmarks).
     #[arg(long)]

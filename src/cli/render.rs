@@ -141,8 +141,9 @@ pub struct RenderArgs {
     /// Output PNG file (one view) or folder (--orbit).
     #[arg(long)]
     pub out: PathBuf,
-    /// Engine for --image views: the CPU reference or the Vulkan passes (no Vulkan device: a message and the CPU);
-    /// the neural renderer on Vulkan runs its decoder through host memory.
+    /// Engine for --image views: the CPU reference, the Vulkan passes (no Vulkan device: a message and the CPU), or
+    /// auto (Vulkan on a GPU, the CPU on a software rasteriser); the neural renderer on Vulkan runs its decoder
+    /// through host memory.
     #[arg(long, value_enum, default_value_t = Backend::Cpu)]
     pub backend: Backend,
     /// Rendering options.

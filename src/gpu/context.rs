@@ -371,6 +371,13 @@ impl Context {
         &self.device_name
     }
 
+    /// Whether the device is a software rasteriser running on the CPU (lavapipe/llvmpipe: Vulkan device type
+    /// `CPU`), where the Vulkan passes run on the same cores as the CPU reference and are slower than it.
+    pub fn is_software(&self) -> bool {
+        let props = unsafe { self.instance.get_physical_device_properties(self.physical_device) };
+        props.device_type == vk::PhysicalDeviceType::CPU
+    }
+
     /// Validation messages counted so far (always zero when validation is off).
     pub fn validation(&self) -> &ValidationLog {
         &self.log
