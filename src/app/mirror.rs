@@ -272,8 +272,9 @@ impl Orbit {
 
 /// `render --backend`: renders one frame per camera on the chosen backend, with the neural renderer when `neural`
 /// is given (through the host-memory seam; views the decoder fails on are drawn geometrically, with a warning).
-/// `Ok(None)` means "use the CPU path": the CPU was asked for, or Vulkan was asked for but no device is usable (the
-/// reason is printed once on stderr, with the fallback). Other GPU failures are errors.
+/// `Ok(None)` means "use the CPU path": the CPU was asked for, `auto` found a software rasteriser or no device
+/// (logged), or Vulkan was asked for but no device is usable (the reason is printed once on stderr, with the
+/// fallback). Other GPU failures are errors.
 #[allow(clippy::too_many_arguments)]
 pub fn render_on_backend(
     backend: Backend,
