@@ -172,16 +172,16 @@ pub fn neighbours4(p: usize, width: usize, height: usize) -> impl Iterator<Item 
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn neighbours4_stay_inside() {
-        let n = |p| super::neighbours4(p, 3, 2).collect::<Vec<_>>();
+        let n = |p| neighbours4(p, 3, 2).collect::<Vec<_>>();
         assert_eq!(n(0), vec![1, 3]);
         assert_eq!(n(4), vec![3, 5, 1]);
         assert_eq!(n(5), vec![4, 2]);
-        assert_eq!(super::neighbours4(0, 1, 1).count(), 0);
+        assert_eq!(neighbours4(0, 1, 1).count(), 0);
     }
-
-    use super::*;
 
     #[test]
     fn floor_fast_equals_floor() {

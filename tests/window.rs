@@ -174,10 +174,7 @@ fn person_in_tempdir(shot: &str) -> (tempfile::TempDir, PathBuf, PathBuf) {
 #[test]
 fn mirror_window_renders_frames_and_screenshots_the_person() {
     in_window_child("mirror_window_renders_frames_and_screenshots_the_person", || {
-        let dir = tempfile::tempdir().unwrap();
-        let person = dir.path().join("person.png");
-        write_person(&person);
-        let shot = dir.path().join("shot.png");
+        let (dir, person, shot) = person_in_tempdir("shot.png");
         let presented = dir.path().join("presented.png");
         let stats = run(ViewOptions {
             image: person,
@@ -375,10 +372,7 @@ fn neural_setup(choice: RendererChoice, models: Option<PathBuf>) -> NeuralSetup 
 #[test]
 fn neural_view_renders_the_person_and_g_n_switch() {
     in_window_child("neural_view_renders_the_person_and_g_n_switch", || {
-        let dir = tempfile::tempdir().unwrap();
-        let person = dir.path().join("person.png");
-        write_person(&person);
-        let shot = dir.path().join("neural.png");
+        let (dir, person, shot) = person_in_tempdir("neural.png");
         let presented = dir.path().join("presented.png");
         let stats = run(ViewOptions {
             image: person,

@@ -286,26 +286,23 @@ pub fn render_on_backend(
     fusion: bool,
     neural: Option<&SharedNeural>,
 ) -> anyhow::Result<Option<Vec<Frame>>> {
-    match backend {
-        Backend::Cpu => return Ok(None),
-        Backend::Vulkan => {}
-        // Probe the device: a software rasteriser (or none) renders on the CPU reference, which is faster there.
-        Backend::Auto => match Context::headless() {
-            Ok(ctx) if !ctx.is_software() => {}
-            Ok(ctx) => {
-                tracing::info!(
-                    "`{}` is a software rasteriser: rendering on the CPU reference (--backend vulkan forces the \
-                     Vulkan passes)",
-                    ctx.device_name()
-                );
-                return Ok(None);
-            }
-            Err(e) => {
-                tracing::info!("no usable Vulkan device ({e}): rendering on the CPU reference");
-                return Ok(None);
-            }
-        },
+    if backend == Backend::Cpu {
+        return Ok(None);
     }
+    // One headless device for the probe of `auto` and for the views.
+    let ctx = match Context::headless() {
+        Ok(ctx) => ctx,
+        Err(e) if backend == Backend::Auto => {
+            tracing::info!("no usable Vulkan device ({e}): rendering on the CPU reference");
+            return Ok(None);
+        }
+        Err(e) => return cpu_without_device(e),
+    };
+    if backend.resolve(ctx.is_software()) == Backend::Cpu {
+        log_software_device(ctx.device_name());
+        return Ok(None);
+    }
+    let ctx = Arc::new(ctx);
     let encoded = match neural {
         Some(shared) => match shared.lock().unwrap_or_else(|p| p.into_inner()).encode(input) {
             Ok(e) => Some((shared, e)),
@@ -318,23 +315,43 @@ pub fn render_on_backend(
     };
     let result = match &encoded {
         Some((shared, encoded)) => {
-            offline::render_views_neural(input, env, cameras, mode, fill, fusion, (shared, encoded)).map(|(f, n)| {
-                if n > 0 {
-                    eprintln!("warning: the neural decoder failed on {n} view(s); the geometric renderer drew them");
-                }
-                f
-            })
+            offline::render_views_neural(ctx, input, env, cameras, mode, fill, fusion, (shared, encoded)).map(
+                |(f, n)| {
+                    if n > 0 {
+                        eprintln!(
+                            "warning: the neural decoder failed on {n} view(s); the geometric renderer drew them"
+                        );
+                    }
+                    f
+                },
+            )
         }
-        None => offline::render_views(input, env, cameras, mode, fill, fusion),
+        None => offline::render_views(ctx, input, env, cameras, mode, fill, fusion),
     };
     match result {
         Ok(frames) => Ok(Some(frames)),
-        Err(e @ (GpuError::NoVulkan(_) | GpuError::NoDevice(_))) => {
+        Err(e) => cpu_without_device(e),
+    }
+}
+
+/// `render --backend vulkan` without a usable device: the reason and the CPU fallback on stderr, `Ok(None)` (the
+/// CPU path); any other GPU failure is an error.
+fn cpu_without_device(e: GpuError) -> anyhow::Result<Option<Vec<Frame>>> {
+    match e {
+        GpuError::NoVulkan(_) | GpuError::NoDevice(_) => {
             eprintln!("warning: {e}\nwarning: rendering on the CPU instead (--backend cpu)");
             Ok(None)
         }
-        Err(e) => Err(anyhow::Error::new(e).context("the Vulkan backend failed")),
+        e => Err(anyhow::Error::new(e).context("the Vulkan backend failed")),
     }
+}
+
+/// Says that `--backend auto` chose the CPU reference on a software rasteriser.
+fn log_software_device(device: &str) {
+    tracing::info!(
+        "`{device}` is a software rasteriser: rendering the person with the CPU reference, which is faster on it \
+         (--backend vulkan forces the Vulkan passes)"
+    );
 }
 
 /// The cameras of an orbit: `n` views evenly spaced in yaw from `start_yaw`, at `pitch`, `size x size` (the
@@ -690,11 +707,7 @@ impl<'a> Engine<'a> {
         if self.backend == Backend::Auto {
             self.backend = Backend::Auto.resolve(renderer.context().is_software());
             if self.backend == Backend::Cpu {
-                tracing::info!(
-                    "`{}` is a software rasteriser: rendering the person with the CPU reference, which is faster \
-                     on it (--backend vulkan forces the Vulkan passes)",
-                    renderer.context().device_name()
-                );
+                log_software_device(renderer.context().device_name());
             }
         }
         let (w, h) = renderer.size();

@@ -1,5 +1,5 @@
-//! Offline rendering on the GPU (`r2human render --backend vulkan`): one headless device, one [`Renderer`], the
-//! input uploaded once, then one frame per camera read back from host-visible memory. Same contract as
+//! Offline rendering on the GPU (`r2human render --backend vulkan`): one headless device (the caller's), one
+//! [`Renderer`], the input uploaded once, then one frame per camera read back from host-visible memory. Same contract as
 //! `pipeline::ViewRenderer::render_frame` (VR: the person over the panorama; AR: premultiplied RGBA). With the
 //! neural renderer, each view goes through the host-memory seam of [`super::neural`].
 
@@ -37,9 +37,10 @@ pub fn upload_input(
     Ok(())
 }
 
-/// Renders one frame per camera on a new headless Vulkan device. All cameras must have one size. With `fusion`,
-/// consecutive views are fused (paper Eq. 8) as in an orbit; without, each view stands alone.
+/// Renders one frame per camera on `ctx`'s device (a headless one: [`Context::headless`]). All cameras must have one
+/// size. With `fusion`, consecutive views are fused (paper Eq. 8) as in an orbit; without, each view stands alone.
 pub fn render_views(
+    ctx: Arc<Context>,
     input: &PreparedInput,
     env: &Environment,
     cameras: &[Camera],
@@ -47,7 +48,7 @@ pub fn render_views(
     fill: OcclusionFill,
     fusion: bool,
 ) -> Result<Vec<Frame>, GpuError> {
-    let Some(mut renderer) = headless_for(input, env, cameras, mode, fill, fusion)? else { return Ok(Vec::new()) };
+    let Some(mut renderer) = headless_for(ctx, input, env, cameras, mode, fill, fusion)? else { return Ok(Vec::new()) };
     let mut frames = Vec::with_capacity(cameras.len());
     for cam in cameras {
         renderer.render_frame(cam, mode, None)?;
@@ -60,7 +61,9 @@ pub fn render_views(
 /// ([`super::neural::gpu_neural_person`]: GPU raster and flow read back, decoder on ONNX Runtime, the result
 /// uploaded for fusion and compositing), given the neural renderer and the encoder's output for `input`. A view the decoder fails on is
 /// drawn by the geometric GPU passes with one warning; returns the frames and how many views fell back.
+#[allow(clippy::too_many_arguments)]
 pub fn render_views_neural(
+    ctx: Arc<Context>,
     input: &PreparedInput,
     env: &Environment,
     cameras: &[Camera],
@@ -69,7 +72,7 @@ pub fn render_views_neural(
     fusion: bool,
     (neural, encoded): (&SharedNeural, &NeuralInput),
 ) -> Result<(Vec<Frame>, usize), GpuError> {
-    let Some(mut renderer) = headless_for(input, env, cameras, mode, fill, fusion)? else {
+    let Some(mut renderer) = headless_for(ctx, input, env, cameras, mode, fill, fusion)? else {
         return Ok((Vec::new(), 0));
     };
     let source = super::neural::SourceView::of(input);
@@ -91,9 +94,9 @@ pub fn render_views_neural(
     Ok((frames, fallbacks))
 }
 
-/// A renderer on a new headless device for `cameras` (all of one size), with `input` uploaded; `None` for no
-/// cameras.
+/// A renderer on `ctx` for `cameras` (all of one size), with `input` uploaded; `None` for no cameras.
 fn headless_for(
+    ctx: Arc<Context>,
     input: &PreparedInput,
     env: &Environment,
     cameras: &[Camera],
@@ -109,7 +112,6 @@ fn headless_for(
             c.width, c.height
         )));
     }
-    let ctx = Arc::new(Context::headless()?);
     tracing::info!("rendering {} view(s) on {}", cameras.len(), ctx.device_name());
     let mut renderer = Renderer::new(ctx, w, h)?;
     upload_input(&mut renderer, input, (mode == Mode::Vr).then_some(env), fill, fusion)?;
