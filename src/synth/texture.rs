@@ -567,8 +567,10 @@ pub fn bake(base: &BaseMesh, parts: &[[f32; 10]], lm: &Landmarks, a: &Appearance
         let fills: Vec<Option<Vec3>> = empty
             .iter()
             .map(|&i| {
-                let known: Vec<Vec3> = neighbours4(i, size, size).filter_map(|j| colors[j]).collect();
-                (!known.is_empty()).then(|| known.iter().sum::<Vec3>() / known.len() as f32)
+                let (sum, n) = neighbours4(i, size, size)
+                    .filter_map(|j| colors[j])
+                    .fold((Vec3::ZERO, 0), |(sum, n), c| (sum + c, n + 1));
+                (n > 0).then(|| sum / n as f32)
             })
             .collect();
         for (&i, f) in empty.iter().zip(&fills) {
