@@ -85,7 +85,8 @@ pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, CaptureError> {
 pub fn model_path_from(explicit: Option<&Path>, files: &[&str]) -> Result<PathBuf, CaptureError> {
     let missing = |p: &Path, from: &str| {
         CaptureError::Model(format!(
-            "the segmentation model `{}`{from} does not exist; install the models with              `bash scripts/setup.d/live.sh`, or give --mask FILE (white = person)",
+            "`{}`{from} does not exist; install the models with `bash scripts/setup.d/live.sh`, or give --mask \
+             FILE (white = person)",
             p.display()
         ))
     };
@@ -103,7 +104,7 @@ pub fn model_path_from(explicit: Option<&Path>, files: &[&str]) -> Result<PathBu
         .find(|p| p.is_file())
         .ok_or_else(|| {
             CaptureError::Model(format!(
-                "no segmentation model is installed (.tools/models/{}); install it with \
+                "none is installed (.tools/models/{}); install it with \
                  `bash scripts/setup.d/live.sh`, or give --mask FILE (white = person)",
                 files.join(" or ")
             ))

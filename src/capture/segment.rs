@@ -73,7 +73,9 @@ impl SegmentMethod {
     /// This method with the clean plate taken from `plate` (a picture of the empty scene) when given.
     pub fn with_plate(self, plate: Option<&Path>) -> Self {
         match (self, plate) {
-            (Self::CleanPlate { plate_frames, .. }, Some(p)) => Self::CleanPlate { plate: Some(p.into()), plate_frames },
+            (Self::CleanPlate { plate_frames, .. }, Some(p)) => {
+                Self::CleanPlate { plate: Some(p.into()), plate_frames }
+            }
             (m, _) => m,
         }
     }
@@ -130,8 +132,13 @@ impl Segmenter for AutoSegmenter {
         };
         if self.last != Some(name) {
             match name {
-                "alpha" => tracing::info!("segmentation: frame {} has an alpha channel; using it as the mask", frame.index),
-                _ => tracing::info!("segmentation: frame {} has no alpha channel; using the segmentation model", frame.index),
+                "alpha" => {
+                    tracing::info!("segmentation: frame {} has an alpha channel; using it as the mask", frame.index)
+                }
+                _ => tracing::info!(
+                    "segmentation: frame {} has no alpha channel; using the segmentation model",
+                    frame.index
+                ),
             }
             self.last = Some(name);
         }
@@ -193,13 +200,20 @@ pub enum PhotoError {
     )]
     NoPlate(PathBuf),
     /// The segmentation model cannot be found, loaded or run.
-    #[error("{} has no alpha channel that separates the person, so the segmentation model is needed: {source}", path.display())]
+    #[error("{} has no alpha channel that separates the person, so it needs the {source}", path.display())]
     Model {
         /// The photo.
         path: PathBuf,
         /// What went wrong with the model (names the install script when it is missing).
         source: CaptureError,
     },
+    /// The segmentation model ran but marked no pixel as a person.
+    #[error(
+        "the segmentation model found no person in {}: give --mask FILE (white = person), or a photo in which the \
+         person stands out from the background",
+        .0.display()
+    )]
+    NoPerson(PathBuf),
     /// Clean-plate segmentation failed (sizes differ, unreadable plate).
     #[error("{0}")]
     Plate(CaptureError),
@@ -208,11 +222,12 @@ pub enum PhotoError {
 /// Loads a still photo and finds the person in it (`--image` with `--mask` / `--segment`). A `mask` file wins;
 /// otherwise `method`: `alpha` = the photo's alpha (an error when it has no real one), `onnx` = the segmentation
 /// model ([`super::onnx::OnnxSegmenter::segment_still`]), `plate` = subtraction against the picture in
-/// [`SegmentMethod::CleanPlate::plate`], `auto` = the alpha when the photo has a real one ([`has_useful_alpha`]),
+/// [`SegmentMethod::CleanPlate::plate`], `auto` = the alpha when the photo has a real one (not fully opaque),
 /// else the model. The choice is logged.
 pub fn segment_photo(image: &Path, mask: Option<&Path>, method: &SegmentMethod) -> Result<SegmentedPhoto, PhotoError> {
     let photo = crate::io::image_io::load_image(image)?;
-    let frame = Frame { index: 0, timestamp: std::time::Duration::ZERO, rgb: photo.rgb.clone(), alpha: photo.alpha.clone() };
+    let frame =
+        Frame { index: 0, timestamp: std::time::Duration::ZERO, rgb: photo.rgb.clone(), alpha: photo.alpha.clone() };
     let done = |mask: GrayImage, origin: MaskOrigin| {
         tracing::info!("person mask of {}: {origin}", image.display());
         Ok(SegmentedPhoto { photo: photo.clone(), mask, origin })
@@ -221,13 +236,19 @@ pub fn segment_photo(image: &Path, mask: Option<&Path>, method: &SegmentMethod) 
         let loaded = crate::io::image_io::load_mask(m, photo.rgb.width, photo.rgb.height)?;
         return done(loaded, MaskOrigin::File(m.into()));
     }
-    let alpha = has_useful_alpha(&frame);
+    // A still's alpha is real unless it is fully opaque (an all-transparent one says there is no one: the pipeline
+    // then reports an empty mask rather than a model guessing at hidden colours).
+    let alpha = frame.alpha.as_ref().is_some_and(|a| a.data.iter().any(|&v| v < 0.5));
     match method {
-        SegmentMethod::Alpha | SegmentMethod::Auto if alpha => done(AlphaSegmenter.segment(&frame).map_err(PhotoError::Plate)?, MaskOrigin::Alpha),
+        SegmentMethod::Alpha | SegmentMethod::Auto if alpha => {
+            done(AlphaSegmenter.segment(&frame).map_err(PhotoError::Plate)?, MaskOrigin::Alpha)
+        }
         SegmentMethod::Alpha => Err(PhotoError::NoAlpha(image.into())),
         SegmentMethod::CleanPlate { plate: None, .. } => Err(PhotoError::NoPlate(image.into())),
         SegmentMethod::CleanPlate { plate: Some(p), .. } => {
-            let seg = SegmentMethod::CleanPlate { plate: Some(p.clone()), plate_frames: 1 }.build(None).map_err(PhotoError::Plate)?;
+            let seg = SegmentMethod::CleanPlate { plate: Some(p.clone()), plate_frames: 1 }
+                .build(None)
+                .map_err(PhotoError::Plate)?;
             let mut seg = seg;
             done(seg.segment(&frame).map_err(PhotoError::Plate)?, MaskOrigin::Plate(p.clone()))
         }
@@ -241,6 +262,9 @@ fn still_model(image: &Path, frame: &Frame, model: Option<&Path>) -> Result<(Gra
     let err = |source| PhotoError::Model { path: image.into(), source };
     let mut seg = super::onnx::OnnxSegmenter::load_still(model).map_err(err)?;
     let mask = seg.segment_still(frame).map_err(err)?;
+    if !mask.data.iter().any(|&v| v >= 0.5) {
+        return Err(PhotoError::NoPerson(image.into()));
+    }
     Ok((mask, MaskOrigin::Model(seg.path().to_path_buf())))
 }
 

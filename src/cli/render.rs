@@ -291,6 +291,9 @@ fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
             eprintln!("warning: {m}")
         })?;
     let renderer = if neural.is_some() { "neural" } else { "geometric" };
+    for frame in &report.frames {
+        println!("{frame}");
+    }
     println!(
         "wrote {} frames to {} with the {renderer} renderer ({} skipped)",
         report.written.len(),
@@ -395,8 +398,7 @@ pub fn run_export(args: &ExportArgs) -> Result<()> {
     let person = segment_photo(&args.image, args.mask.as_deref(), &args.segment.method()?)?;
     let runtime = RuntimeOptions::default();
     let fof_net = load_fof_net(args.geometry, args.models.as_deref(), args.fof_order, &runtime)?;
-    let prepare =
-        PrepareOptions { fof_order: args.fof_order, geometry: args.geometry, fof_net, ..Default::default() };
+    let prepare = PrepareOptions { fof_order: args.fof_order, geometry: args.geometry, fof_net, ..Default::default() };
     let prepared = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)
         .with_context(|| format!("reconstructing the person in {}", args.image.display()))?;
     let report = crate::pipeline::export::person_glb(&args.out, &prepared, &person.mask, &opts)?;

@@ -387,9 +387,14 @@ mod tests {
     use super::*;
     use crate::buffer::Image;
 
-    /// A silhouette: a head disc of radius `hr` centred at (cx, top + hr), a neck `nw` wide down to `neck_end`,
-    /// then shoulders `sw` wide to the bottom row `bottom` (exclusive).
-    fn bust(w: usize, h: usize, top: usize, hr: f32, neck_end: usize, nw: f32, sw: f32, bottom: usize) -> GrayImage {
+    /// A silhouette in a `(w, h)` image: a head disc `(top row, radius)`, a neck `(last row + 1, width)` from the
+    /// top, then a body `(width, bottom row + 1)`.
+    fn bust(
+        (w, h): (usize, usize),
+        (top, hr): (usize, f32),
+        (neck_end, nw): (usize, f32),
+        (sw, bottom): (f32, usize),
+    ) -> GrayImage {
         let cx = w as f32 / 2.0;
         Image::from_fn(w, h, |c, r| {
             let (x, y) = (c as f32 + 0.5, r as f32 + 0.5);
@@ -406,7 +411,7 @@ mod tests {
 
     #[test]
     fn whole_person_takes_the_standing_height() {
-        let m = bust(100, 200, 10, 12.0, 40, 8.0, 40.0, 180);
+        let m = bust((100, 200), (10, 12.0), (40, 8.0), (40.0, 180));
         let v = visible_height(&m, 1.75).unwrap();
         assert_eq!(v, VisibleHeight { metres: 1.75, cue: HeightCue::WholePerson });
         assert!(visible_height(&Image::new(10, 10, 0.0), 1.75).is_none());
@@ -417,7 +422,7 @@ mod tests {
         // Head from row 20 (radius 30: down to row 80), neck 24 px wide to row 100, shoulders to the bottom (300).
         // The narrowest smoothed row is in the neck, just below where the head disc has shrunk to the neck width
         // (row ~76); crown-to-neck ~ 57 rows, visible 280 rows: 1.75 / 7 * 280 / 57 ~ 1.23 m.
-        let m = bust(200, 300, 20, 30.0, 100, 24.0, 160.0, 300);
+        let m = bust((200, 300), (20, 30.0), (100, 24.0), (160.0, 300));
         let v = visible_height(&m, 1.75).unwrap();
         let HeightCue::CutAtNeckScale { visible_rows, neck_rows } = v.cue else { panic!("{v:?}") };
         assert_eq!(visible_rows, 280);
