@@ -78,8 +78,8 @@ pub fn run_synth(args: &SynthArgs) -> Result<()> {
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// Number of synthetic subjects; default 8, or 0 when --scan or --photos is given (then synthetic subjects
-    /// are added only with --subjects N).
+    /// Number of synthetic subjects: 8 by default, none when --scan or --photos is given (add them with
+    /// --subjects N).
     #[arg(long)]
     pub subjects: Option<usize>,
     /// Seed of the synthetic subjects.
@@ -88,7 +88,8 @@ pub struct EvalArgs {
     /// Output folder for report.md, report.csv and error_vs_time.png.
     #[arg(long)]
     pub out: PathBuf,
-    /// A textured scan to evaluate too (glTF/GLB or OBJ+MTL); repeatable.
+    /// A textured scan to evaluate (glTF/GLB or OBJ+MTL); repeatable. Alone, only the scans are evaluated; their
+    /// rows are reported per scan.
     #[arg(long)]
     pub scan: Vec<PathBuf>,
     /// A folder of real photos (PNG/JPEG) to check without ground truth: views at yaws 0-180 per method, a
