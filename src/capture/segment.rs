@@ -159,6 +159,18 @@ pub enum MaskOrigin {
     Plate(PathBuf),
 }
 
+impl MaskOrigin {
+    /// A short label for tables: `alpha`, `mask`, `plate`, or the model's file stem (`isnet_seg`).
+    pub fn short_name(&self) -> String {
+        match self {
+            Self::File(_) => "mask".into(),
+            Self::Alpha => "alpha".into(),
+            Self::Model(p) => p.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+            Self::Plate(_) => "plate".into(),
+        }
+    }
+}
+
 impl std::fmt::Display for MaskOrigin {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
