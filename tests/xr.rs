@@ -424,8 +424,9 @@ fn save_capture(name: &str, img: &RgbaImage) {
 fn validation_layers_are_active_and_captured() {
     use ash::vk;
     use openxr as xr;
-    use r2human::xr::diag::{DiagnosticLog, XrMessenger};
-    use r2human::xr::gfx::VulkanContext;
+    use r2human::xr::device::create_device;
+    use r2human::xr::diag::{ValidationLog, XrMessenger};
+    use std::sync::Arc;
 
     assert_validation_layers_present();
     let entry = r2human::xr::load_entry().unwrap();
@@ -440,7 +441,7 @@ fn validation_layers_are_active_and_captured() {
         api_version: xr::Version::new(1, 0, 0),
     };
     let instance = entry.create_instance(&app, &exts, &[], &()).unwrap();
-    let xr_log = DiagnosticLog::new();
+    let xr_log = Arc::new(ValidationLog::default());
     let messenger = XrMessenger::new(&instance, xr_log.clone()).expect("XR_EXT_debug_utils messenger");
     let system = instance.system(xr::FormFactor::HEAD_MOUNTED_DISPLAY).unwrap();
     // OpenXR: a NULL output pointer; the core validation layer rejects it before the runtime sees it.
@@ -450,16 +451,16 @@ fn validation_layers_are_active_and_captured() {
     assert!(xr_log.count() >= 1, "the OpenXR core validation report was not captured");
 
     // Vulkan: a zero-sized buffer violates VUID-VkBufferCreateInfo-size-00912.
-    let ctx = VulkanContext::new(&instance, system).expect("Vulkan through OpenXR");
-    assert_eq!(ctx.validation.count(), 0);
+    let ctx = create_device(&instance, system, &[], &[]).expect("Vulkan through OpenXR");
+    assert_eq!(ctx.validation().count(), 0);
     let info = vk::BufferCreateInfo::default().size(0).usage(vk::BufferUsageFlags::TRANSFER_SRC);
     // SAFETY: an invalid create info on purpose; a buffer the driver still returns is destroyed right away.
     unsafe {
-        if let Ok(buffer) = ctx.device.create_buffer(&info, None) {
-            ctx.device.destroy_buffer(buffer, None);
+        if let Ok(buffer) = ctx.device().create_buffer(&info, None) {
+            ctx.device().destroy_buffer(buffer, None);
         }
     }
-    let messages = ctx.validation.messages();
+    let messages = ctx.validation().messages();
     println!("captured: {messages:?} / {:?}", xr_log.messages());
     assert!(messages.iter().any(|m| m.contains("00912")), "Vulkan validation did not report the zero-size buffer");
     drop(ctx);

@@ -45,13 +45,12 @@ use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
 use crate::geometry::Camera;
 use crate::gpu::neural::{gpu_neural_person, NeuralViewTimes, SourceView};
-use crate::gpu::{offline, Context, GpuError, OverlayMask, PresentTarget, Renderer};
+use crate::gpu::{offline, Acquired, Context, GpuError, OverlayMask, PresentTarget, Renderer, Swapchain};
 use crate::io::environment::Environment;
 use crate::io::image_io;
 use crate::io::sequence::Frame;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralInput, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
-use crate::window::{Acquired, Swapchain};
 
 /// Which engine computes the person.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -1108,8 +1107,8 @@ impl App<'_, '_> {
         let Some(gfx) = self.gfx.as_mut() else { return Ok(()) };
         let start = Instant::now();
         self.engine.update(&mut gfx.renderer)?;
-        let acquired = gfx.swapchain.acquire()?;
-        let Acquired::Image { index, image, ready, rendered } = acquired else {
+        let acquired = gfx.swapchain.acquire(u64::MAX)?;
+        let Acquired::Image { index, image, ready, rendered, .. } = acquired else {
             self.resized = true;
             return Ok(());
         };

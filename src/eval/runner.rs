@@ -597,28 +597,13 @@ fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
     acc.ms_view.push(ms);
 }
 
-/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
-/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
-/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
-pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
-    run_eval_with(opts, &NeuralEvalOptions::default())
-}
-
-/// [`run_eval`] with explicit settings for the neural methods.
-pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
-    if opts.subjects == 0 && opts.scans.is_empty() {
-        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
-    }
-    if !(32..=2048).contains(&opts.size) {
-        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
-    }
-    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
-    // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
-    let mut sets: Vec<(String, MethodAcc)> = Vec::new();
-    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
-    let mut failed = Vec::new();
-    let mut notes = Vec::new();
-    let mut fallbacks = 0;
+/// The networks of the evaluation as `nopts` asks: the neural renderer (`auto` semantics: one warning and `None`
+/// when its models do not load) and the folder's FOF net (explicit mode, so the reason it does not load is
+/// reported). Why a network is missing goes into `notes` for the report.
+pub(super) fn load_networks(
+    nopts: &NeuralEvalOptions,
+    notes: &mut Vec<String>,
+) -> (Option<SharedNeural>, Option<SharedFofNet>) {
     // Methods 5, 6 and 8: `auto` semantics (one warning and no neural rows when the models do not load).
     let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
     let neural = if nopts.skip {
@@ -644,6 +629,32 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     if !nopts.skip && neural.is_none() {
         notes.push("The neural renderer's models did not load: no neural rows (see the log).".to_string());
     }
+    (neural, fof_net)
+}
+
+/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
+/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
+/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
+pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
+    run_eval_with(opts, &NeuralEvalOptions::default())
+}
+
+/// [`run_eval`] with explicit settings for the neural methods.
+pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
+    if opts.subjects == 0 && opts.scans.is_empty() {
+        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
+    }
+    if !(32..=2048).contains(&opts.size) {
+        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
+    // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
+    let mut sets: Vec<(String, MethodAcc)> = Vec::new();
+    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
+    let mut failed = Vec::new();
+    let mut notes = Vec::new();
+    let mut fallbacks = 0;
+    let (neural, fof_net) = load_networks(nopts, &mut notes);
     let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref() };
     // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
     let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
