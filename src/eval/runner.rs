@@ -346,13 +346,13 @@ struct Nets<'a> {
 }
 
 /// A subject's source view as every method receives it (ground-truth render, already in the body cube).
-struct SourceView {
+struct SubjectSource {
     rgb: RgbImage,
     mask: GrayImage,
     prepare: PrepareOptions,
 }
 
-impl SourceView {
+impl SubjectSource {
     fn of(mesh: &TexturedMesh, size: usize) -> Self {
         let gt_src = render_ground_truth(mesh, &Camera::source(size));
         let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
@@ -431,7 +431,7 @@ fn method_memory(
     nets: Nets<'_>,
     yaw: f32,
 ) -> Result<[Option<f32>; METHODS.len()], EvalError> {
-    let src = SourceView::of(mesh, opts.size);
+    let src = SubjectSource::of(mesh, opts.size);
     let cam = Camera::orbit(yaw, 0.0, opts.size, opts.size);
     let mut out = [None; METHODS.len()];
     for (m, slot) in out.iter_mut().enumerate() {
@@ -476,7 +476,7 @@ fn eval_subject(
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
-    let src = SourceView::of(mesh, r);
+    let src = SubjectSource::of(mesh, r);
     let (rgb, mask) = (&src.rgb, &src.mask);
     let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
 
@@ -561,10 +561,10 @@ fn eval_subject(
                     let k = m - 2;
                     let Some(renderer) = renderers[k].as_mut() else { continue };
                     let Some(geometry) = prepared[RENDERED[k].0] else { continue };
-                    let before = renderer.neural_fallbacks;
+                    let before = renderer.neural_fallbacks();
                     let person = renderer.render_person(&cam).map_err(perr)?;
                     let ms = t.elapsed().as_secs_f32() * 1e3;
-                    *fallbacks += renderer.neural_fallbacks - before;
+                    *fallbacks += renderer.neural_fallbacks() - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
                     let gb = rasterize(&geometry.mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
