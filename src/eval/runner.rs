@@ -44,7 +44,7 @@ use crate::geometry::raster::rasterize;
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::write_atomic;
 use crate::neural::{ExecutionProvider, RuntimeOptions};
-use crate::pipeline::input::{NormaliseTransform, NormalisedInput};
+use crate::pipeline::input::NormalisedInput;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
     compute_geometry, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
@@ -63,6 +63,8 @@ pub struct EvalOptions {
     pub out: PathBuf,
     /// User scans (`--scan FILE`, repeatable).
     pub scans: Vec<PathBuf>,
+    /// How the scans are turned upright and toward the camera (`--up`, `--facing`; detected when unset).
+    pub scan_orientation: synth::scan::ScanOrientation,
     /// Image side (512 like the reference).
     pub size: usize,
     /// Target view yaws in degrees (pitch 0). The input view itself (yaw 0) is not a novel view and is not scored
@@ -93,6 +95,7 @@ impl Default for EvalOptions {
             seed: 0,
             out: PathBuf::from("eval"),
             scans: Vec::new(),
+            scan_orientation: Default::default(),
             size: 512,
             yaws: vec![20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
             texture_size: 1024,
@@ -343,13 +346,13 @@ struct Nets<'a> {
 }
 
 /// A subject's source view as every method receives it (ground-truth render, already in the body cube).
-struct SourceView {
+struct SubjectSource {
     rgb: RgbImage,
     mask: GrayImage,
     prepare: PrepareOptions,
 }
 
-impl SourceView {
+impl SubjectSource {
     fn of(mesh: &TexturedMesh, size: usize) -> Self {
         let gt_src = render_ground_truth(mesh, &Camera::source(size));
         let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
@@ -359,11 +362,7 @@ impl SourceView {
     }
 
     fn normalised(&self) -> NormalisedInput {
-        NormalisedInput {
-            rgb: self.rgb.clone(),
-            mask: self.mask.clone(),
-            transform: NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
-        }
+        NormalisedInput::in_source_view(self.rgb.clone(), self.mask.clone())
     }
 
     /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net); `None` for the FOF net when
@@ -428,7 +427,7 @@ fn method_memory(
     nets: Nets<'_>,
     yaw: f32,
 ) -> Result<[Option<f32>; METHODS.len()], EvalError> {
-    let src = SourceView::of(mesh, opts.size);
+    let src = SubjectSource::of(mesh, opts.size);
     let cam = Camera::orbit(yaw, 0.0, opts.size, opts.size);
     let mut out = [None; METHODS.len()];
     for (m, slot) in out.iter_mut().enumerate() {
@@ -473,7 +472,7 @@ fn eval_subject(
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
-    let src = SourceView::of(mesh, r);
+    let src = SubjectSource::of(mesh, r);
     let (rgb, mask) = (&src.rgb, &src.mask);
     let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
 
@@ -558,10 +557,10 @@ fn eval_subject(
                     let k = m - 2;
                     let Some(renderer) = renderers[k].as_mut() else { continue };
                     let Some(geometry) = prepared[RENDERED[k].0] else { continue };
-                    let before = renderer.neural_fallbacks;
+                    let before = renderer.neural_fallbacks();
                     let person = renderer.render_person(&cam).map_err(perr)?;
                     let ms = t.elapsed().as_secs_f32() * 1e3;
-                    *fallbacks += renderer.neural_fallbacks - before;
+                    *fallbacks += renderer.neural_fallbacks() - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
                     let gb = rasterize(&geometry.mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
@@ -694,7 +693,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             name = format!("{stem} ({k})");
         }
         let mut acc = MethodAcc::default();
-        let r = synth::scan::load_scan(scan).map_err(EvalError::from).and_then(|s| {
+        let r = synth::scan::load_scan_with(scan, &opts.scan_orientation).map_err(EvalError::from).and_then(|s| {
             eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
             probe_once(&mut memory, &s.mesh)
         });

@@ -14,9 +14,9 @@
 
 pub mod commands;
 pub mod context;
-pub mod neural;
 pub mod offline;
 pub mod overlay;
+pub mod person;
 pub mod present;
 pub mod renderer;
 pub mod resources;
@@ -25,6 +25,7 @@ pub mod shaders;
 pub use commands::CommandSlot;
 pub use context::{Context, ContextOptions, DeviceFactory, ValidationLog, VALIDATION_ENV};
 pub use overlay::OverlayMask;
+pub use person::{gpu_neural_person, GpuView};
 pub use present::{Acquired, Swapchain, SwapchainOptions};
 pub use renderer::{PresentTarget, Renderer, RendererCounters};
 

@@ -29,6 +29,7 @@ use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
 use crate::pipeline::fusion::previous_weight;
 use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::SourceView;
 
 const GEOMETRY_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 const WORKGROUP: u32 = 8;
@@ -1007,6 +1008,13 @@ impl Renderer {
             data: rgb.data.iter().zip(&mask.data).map(|(c, m)| c.extend(*m)).collect(),
         };
         self.set_source(&color, gbuffer, camera)
+    }
+
+    /// Uploads what the person renderers draw from: the mesh and the source view (colour, mask, G-buffer,
+    /// camera). Call once per input frame.
+    pub fn set_scene(&mut self, source: &SourceView<'_>) -> Result<(), GpuError> {
+        self.set_mesh(source.mesh)?;
+        self.set_source_parts(source.rgb, source.mask, source.gbuffer, source.camera)
     }
 
     fn upload_flow(&mut self, flowz: &FlowZ, visible: Option<&[bool]>) {

@@ -6,9 +6,9 @@
 //! is not OpenXR-specific (device, validation log, queue locks, the mirror's swapchain) is [`crate::gpu`]'s; the
 //! desktop mirror window is [`crate::window::mirror`].
 //!
-//! The eyes are rendered by [`crate::gpu::Renderer`] (one per eye) from an [`EyeScene`] — the person's mesh and
-//! source view, uploaded once per input frame from a [`SceneFeed`] (a still photo, or a live source in the app
-//! layer). No eye image passes through the CPU on its way to the headset.
+//! The eyes are rendered by [`crate::gpu::Renderer`] (one per eye) from a [`crate::pipeline::Scene`] — the
+//! person's mesh and source view, uploaded once per input frame from a [`SceneFeed`] (a still photo, or a live
+//! source in the app layer). No eye image passes through the CPU on its way to the headset.
 
 pub mod check;
 pub mod device;
@@ -20,7 +20,7 @@ pub mod session;
 pub mod swapchain;
 
 pub use check::{check_runtime, RuntimeReport};
-pub use eyes::{EyeNeural, EyeScene, GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
+pub use eyes::{GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
 pub use pacing::{EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
 pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport, XrMode};
