@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use crate::app::mirror::{self, Backend};
+use crate::app::window;
 use crate::app::xr_session::{self, XrInput, XrOptions};
+use crate::app::Backend;
 use crate::cli::render::NeuralArgs;
 use crate::compose::Mode;
 
@@ -118,7 +119,7 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         anyhow::bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
     };
     let frames = args.frames;
-    let stats = mirror::run_view_with_stats(mirror::ViewOptions {
+    let stats = window::run_view_with_stats(window::WindowOptions {
         image: args.image.clone().unwrap_or_default(),
         mask: args.mask.clone(),
         video: args.video.clone(),
