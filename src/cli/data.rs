@@ -36,6 +36,17 @@ pub struct SynthArgs {
     /// Output glTF binary (.glb).
     #[arg(long)]
     pub out: PathBuf,
+    /// Framing: full body, three-quarter (cut at the thighs) or upper body (cut at the chest or waist).
+    #[arg(long, default_value = "full", value_parser = parse_framing)]
+    pub framing: crate::synth::Framing,
+    /// Also write a contact sheet of the subject seen at yaw 0, 90 and 180 degrees (shaded, 512 px per view).
+    #[arg(long)]
+    pub sheet: Option<PathBuf>,
+}
+
+/// Parses `full`, `three-quarter` or `upper`.
+pub fn parse_framing(s: &str) -> Result<crate::synth::Framing, String> {
+    crate::synth::Framing::parse(s).ok_or_else(|| format!("unknown framing {s:?}: use full, three-quarter or upper"))
 }
 
 /// `r2human dataset`.
@@ -70,8 +81,19 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
 
 /// `r2human synth`.
 pub fn run_synth(args: &SynthArgs) -> Result<()> {
-    let subject = crate::synth::write_subject_glb(args.seed, &args.out)?;
-    println!("wrote {} ({} triangles)", args.out.display(), subject.mesh.mesh.triangle_count());
+    let subject = crate::synth::write_subject_glb(args.seed, args.framing, &args.out)?;
+    println!(
+        "wrote {} ({} triangles; {} framing{}; garments: {})",
+        args.out.display(),
+        subject.mesh.mesh.triangle_count(),
+        subject.crop.framing.label(),
+        if subject.crop.at == "none" { String::new() } else { format!(", cut at the {}", subject.crop.at) },
+        if subject.garments.is_empty() { "none".to_string() } else { subject.garments.iter().map(|g| g.label.as_str()).collect::<Vec<_>>().join(", ") }
+    );
+    if let Some(sheet) = &args.sheet {
+        crate::eval::ground_truth::write_contact_sheet(sheet, &[&subject.mesh], &[0.0, 90.0, 180.0], 512)?;
+        println!("wrote {}", sheet.display());
+    }
     Ok(())
 }
 
