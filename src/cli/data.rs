@@ -100,16 +100,17 @@ pub fn run_synth(args: &SynthArgs) -> Result<()> {
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// Number of synthetic subjects.
-    #[arg(long, default_value_t = 8)]
-    pub subjects: usize,
+    /// Number of synthetic subjects: 8 by default, none when --scan is given (add them with --subjects N).
+    #[arg(long)]
+    pub subjects: Option<usize>,
     /// Seed of the synthetic subjects.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Output folder for report.md, report.csv and error_vs_time.png.
     #[arg(long)]
     pub out: PathBuf,
-    /// A textured scan to evaluate too (glTF/GLB or OBJ+MTL); repeatable.
+    /// A textured scan to evaluate (glTF/GLB or OBJ+MTL); repeatable. Alone, only the scans are evaluated; their
+    /// rows are reported per scan.
     #[arg(long)]
     pub scan: Vec<PathBuf>,
     /// Image side in pixels.
@@ -137,7 +138,7 @@ pub fn run_eval(args: &EvalArgs) -> Result<()> {
         bail!("--size {} is out of range: use 16 to 4096 pixels", args.size);
     }
     let opts = crate::eval::runner::EvalOptions {
-        subjects: args.subjects,
+        subjects: args.subjects.unwrap_or(if args.scan.is_empty() { 8 } else { 0 }),
         seed: args.seed,
         out: args.out.clone(),
         scans: args.scan.clone(),
