@@ -97,7 +97,7 @@ impl Crop {
 fn cuts(framing: Framing, joints: &[Vec3], rig: &Rig, seed: u64) -> Vec<(&'static str, f32)> {
     let y = |name: &str| rig.bone(name).and_then(|b| joints.get(b)).map(|p| p.y);
     let mean = |a: &str, b: &str| Some(0.5 * (y(a)? + y(b)?));
-    let mut rng = Rng::new(seed ^ 0x6672_616d_696e_67);
+    let mut rng = Rng::new(seed ^ 0x0066_7261_6d69_6e67);
     let (f_thigh, chest_first) = (rng.range(0.3, 0.7), rng.uniform() < 0.5);
     let thigh = || -> Option<(&'static str, f32)> {
         let hip = mean("upperleg01.L", "upperleg01.R")?;
@@ -136,7 +136,10 @@ pub fn crop(subject: &Subject, framing: Framing, rig: &Rig) -> Result<Subject, S
         out.garments = subject
             .garments
             .iter()
-            .map(|g| super::GarmentPiece { vertices: new_index(g.vertices.start)..new_index(g.vertices.end), ..g.clone() })
+            .map(|g| super::GarmentPiece {
+                vertices: new_index(g.vertices.start)..new_index(g.vertices.end),
+                ..g.clone()
+            })
             .filter(|g| !g.vertices.is_empty())
             .collect();
         let n = subject.normalization;
@@ -247,4 +250,41 @@ pub fn clip_above(mesh: &TexturedMesh, cut: f32) -> Option<(TexturedMesh, Vec<u3
     let mut out = TriMesh::new(positions, triangles);
     out.uvs = uvs;
     Some((TexturedMesh { mesh: out, texture: mesh.texture.clone() }, keep))
+}
+
+/// Which framings a dataset or an evaluation uses (`--framing mixed|full|three-quarter|upper`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FramingChoice {
+    /// Full, three-quarter and upper in turn ([`Framing::mixed`]).
+    #[default]
+    Mixed,
+    /// One framing for every subject.
+    Only(Framing),
+}
+
+impl FramingChoice {
+    /// The framing of subject `index`.
+    pub fn of(self, index: usize) -> Framing {
+        match self {
+            FramingChoice::Mixed => Framing::mixed(index),
+            FramingChoice::Only(f) => f,
+        }
+    }
+
+    /// Parses `mixed` or a [`Framing::label`].
+    pub fn parse(s: &str) -> Option<Self> {
+        if s == "mixed" {
+            Some(FramingChoice::Mixed)
+        } else {
+            Framing::parse(s).map(FramingChoice::Only)
+        }
+    }
+
+    /// `mixed` or the framing's label.
+    pub fn label(self) -> &'static str {
+        match self {
+            FramingChoice::Mixed => "mixed",
+            FramingChoice::Only(f) => f.label(),
+        }
+    }
 }

@@ -208,21 +208,39 @@ impl Outfit {
         use UpperKind as U;
         let upper = pick(
             rng,
-            &[(U::None, 0.12), (U::Tee, 0.2), (U::LongSleeve, 0.14), (U::Hoodie, 0.16), (U::OpenJacket, 0.2), (U::Dress, 0.18)],
+            &[
+                (U::None, 0.12),
+                (U::Tee, 0.2),
+                (U::LongSleeve, 0.14),
+                (U::Hoodie, 0.16),
+                (U::OpenJacket, 0.2),
+                (U::Dress, 0.18),
+            ],
         );
         let lower = if upper == U::Dress {
             LowerKind::None
         } else {
             pick(
                 rng,
-                &[(LowerKind::None, 0.2), (LowerKind::WideTrousers, 0.27), (LowerKind::Shorts, 0.18), (LowerKind::Skirt, 0.35)],
+                &[
+                    (LowerKind::None, 0.2),
+                    (LowerKind::WideTrousers, 0.27),
+                    (LowerKind::Shorts, 0.18),
+                    (LowerKind::Skirt, 0.35),
+                ],
             )
         };
         let upper_fabric = if rng.uniform() < 0.5 { *top } else { random_fabric(rng, false) };
         let lower_fabric = if rng.uniform() < 0.5 { *bottom } else { random_fabric(rng, true) };
         let hair = pick(
             rng,
-            &[(HairKind::Short, 0.26), (HairKind::Bob, 0.2), (HairKind::Long, 0.22), (HairKind::Ponytail, 0.16), (HairKind::Bun, 0.16)],
+            &[
+                (HairKind::Short, 0.26),
+                (HairKind::Bob, 0.2),
+                (HairKind::Long, 0.22),
+                (HairKind::Ponytail, 0.16),
+                (HairKind::Bun, 0.16),
+            ],
         );
         let hood_up = upper == U::Hoodie && rng.uniform() < 0.45;
         let hat = if hood_up {
@@ -392,9 +410,12 @@ fn convex_hull(mut p: Vec<Vec2>) -> Vec<Vec2> {
     let mut hull: Vec<Vec2> = Vec::with_capacity(2 * p.len());
     for pass in 0..2 {
         let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &Vec2>> = if pass == 0 { Box::new(p.iter()) } else { Box::new(p.iter().rev()) };
+        let iter: Box<dyn Iterator<Item = &Vec2>> =
+            if pass == 0 { Box::new(p.iter()) } else { Box::new(p.iter().rev()) };
         for &q in iter {
-            while hull.len() >= start + 2 && (hull[hull.len() - 1] - hull[hull.len() - 2]).perp_dot(q - hull[hull.len() - 2]) <= 0.0 {
+            while hull.len() >= start + 2
+                && (hull[hull.len() - 1] - hull[hull.len() - 2]).perp_dot(q - hull[hull.len() - 2]) <= 0.0
+            {
                 hull.pop();
             }
             hull.push(q);
@@ -459,10 +480,10 @@ fn fit_profile(body: &BodyRest<'_>, cand: &[u32], stations: &[Station], band: f3
             continue;
         }
         let hull = convex_hull(filled.iter().map(|&b| pts[i][b]).collect());
-        for b in 0..bins {
+        for (b, rb) in r[i].iter_mut().enumerate() {
             let th = (b as f32 + 0.5) / bins as f32 * TAU;
             if let Some(t) = ray_to_hull(&hull, Vec2::new(th.cos(), th.sin())) {
-                r[i][b] = r[i][b].max(t);
+                *rb = rb.max(t);
             }
         }
         // Bins no vertex fell in: nearest filled bin's source, radius interpolated around the ring.
@@ -609,6 +630,10 @@ fn polyline_stations(points: &[Vec3], s0: f32, s1: f32, n: usize, hint: Vec3) ->
     out
 }
 
+/// Replaces a tube vertex's transferred weights: `(station fraction, transferred weights, body vertex of the top
+/// station's ray) -> weights`.
+type WeightsOverride<'f> = dyn Fn(f32, &[(u16, f32)], usize) -> Vec<(u16, f32)> + 'f;
+
 /// How a tube is cut and dressed.
 struct TubeSpec<'f> {
     label: String,
@@ -625,7 +650,7 @@ struct TubeSpec<'f> {
     fold_start: bool,
     fold_end: bool,
     /// Replaces the transferred weights at (station fraction, transferred weights).
-    weights: Option<&'f dyn Fn(f32, &[(u16, f32)], usize) -> Vec<(u16, f32)>>,
+    weights: Option<&'f WeightsOverride<'f>>,
     look: Look,
     hang: bool,
 }
@@ -702,16 +727,26 @@ fn tube(body: &BodyRest<'_>, spec: &TubeSpec<'_>) -> Garment {
     let mut triangles = Vec::with_capacity(2 * (rows.len() - 1) * (nc - 1));
     for k in 0..rows.len() - 1 {
         for j in 0..nc - 1 {
-            let (a, b, c, d) = ((k * nc + j) as u32, (k * nc + j + 1) as u32, ((k + 1) * nc + j + 1) as u32, ((k + 1) * nc + j) as u32);
+            let (a, b, c, d) = (
+                (k * nc + j) as u32,
+                (k * nc + j + 1) as u32,
+                ((k + 1) * nc + j + 1) as u32,
+                ((k + 1) * nc + j) as u32,
+            );
             triangles.push([a, b, c]);
             triangles.push([a, c, d]);
         }
     }
-    orient_outward(&rest, &mut triangles, |p| {
-        let s = &spec.stations[ns / 2];
-        let d = p - s.c;
-        d - s.a * d.dot(s.a)
-    }, (rows.len() / 2) * nc + nc / 2);
+    orient_outward(
+        &rest,
+        &mut triangles,
+        |p| {
+            let s = &spec.stations[ns / 2];
+            let d = p - s.c;
+            d - s.a * d.dot(s.a)
+        },
+        (rows.len() / 2) * nc + nc / 2,
+    );
     Garment {
         label: spec.label.clone(),
         rest,
@@ -758,7 +793,12 @@ fn volume(
         let phi = PI * i as f32 / stacks as f32;
         for j in 0..=slices {
             let th = TAU * j as f32 / slices as f32;
-            let d = Vec3::new(phi.sin() * th.cos(), phi.cos(), phi.sin() * th.sin());
+            // Exact poles, so each is one point whatever `point` does with the longitude.
+            let d = match i {
+                0 => Vec3::Y,
+                i if i == stacks => -Vec3::Y,
+                _ => Vec3::new(phi.sin() * th.cos(), phi.cos(), phi.sin() * th.sin()),
+            };
             let q = point(d);
             local.push(q);
             rest.push(centre + axes[0] * q.x + axes[1] * q.y + axes[2] * q.z);
@@ -769,7 +809,12 @@ fn volume(
     let mut triangles = Vec::new();
     for i in 0..stacks {
         for j in 0..slices {
-            let (a, b, c, d) = ((i * nc + j) as u32, (i * nc + j + 1) as u32, ((i + 1) * nc + j + 1) as u32, ((i + 1) * nc + j) as u32);
+            let (a, b, c, d) = (
+                (i * nc + j) as u32,
+                (i * nc + j + 1) as u32,
+                ((i + 1) * nc + j + 1) as u32,
+                ((i + 1) * nc + j) as u32,
+            );
             if i != 0 {
                 triangles.push([a, b, c]);
             }
@@ -915,15 +960,15 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
         let dress = o.upper == UpperKind::Dress;
         let hem = if dress { o.lower_hem.min(hip_y - 1.0) } else { hip_y + o.upper_hem };
         let parts: &[usize] = if dress { &[TORSO, PELVIS, NECK, THIGH, SHIN] } else { &[TORSO, PELVIS, NECK] };
-        let cand: Vec<u32> =
-            body.select(parts, |p| p.y < neck_y + 0.3).into_iter().filter(|&v| not_arm(v)).collect();
+        let cand: Vec<u32> = body.select(parts, |p| p.y < neck_y + 0.3).into_iter().filter(|&v| not_arm(v)).collect();
         let n = (((neck_y - hem) / 0.25).ceil() as usize).clamp(12, 60);
         let stations = vertical_stations(body, &cand, hem, neck_y - 0.05, n, 0.2);
         let (loose, flare, height) = (o.upper_loose, o.flare, neck_y - hem);
         let extra = move |t: f32, _th: f32| {
             let y = hem + t * height;
             let body_part = 0.08 + loose * (1.0 - smoothstep(hem, shoulder_y, y)).powf(1.2);
-            let skirt = if dress { flare * ((hip_y - y) / (hip_y - hem).max(0.1)).clamp(0.0, 1.0).powi(2) } else { 0.0 };
+            let skirt =
+                if dress { flare * ((hip_y - y) / (hip_y - hem).max(0.1)).clamp(0.0, 1.0).powi(2) } else { 0.0 };
             body_part + skirt
         };
         let legs = blend_weights(&[(&body.bone_weight("upperleg01.L"), 0.5), (&body.bone_weight("upperleg01.R"), 0.5)]);
@@ -971,7 +1016,8 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
                     body.head(&format!("wrist.{side}")),
                 ];
                 let upper_len = chain[0].distance(chain[1]);
-                let s1 = if end <= 1.0 { end * upper_len } else { upper_len + (end - 1.0) * chain[1].distance(chain[2]) };
+                let s1 =
+                    if end <= 1.0 { end * upper_len } else { upper_len + (end - 1.0) * chain[1].distance(chain[2]) };
                 let n = ((s1 + 0.5) / 0.3).ceil().clamp(6.0, 30.0) as usize;
                 let s0 = -1.0;
                 let stations = polyline_stations(&chain, s0, s1, n, Vec3::Y);
@@ -1126,7 +1172,16 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
     if !hood_up {
         let vol = o.hair_volume;
         let hw = head_w.clone();
-        out.push(volume("hair", hc, axes, 20, 32, |d| cap_point(&head, d, vol, 0.42, 0.05, -0.45), |_| hw.clone(), hair_look));
+        out.push(volume(
+            "hair",
+            hc,
+            axes,
+            20,
+            32,
+            |d| cap_point(&head, d, vol, 0.42, 0.05, -0.45),
+            |_| hw.clone(),
+            hair_look,
+        ));
         let len = o.hair_length;
         match o.hair {
             HairKind::Bob | HairKind::Long => {
@@ -1160,7 +1215,16 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
                         blend_weights(&[(&hw2, 1.0 - 0.5 * down), (&neck_w, 0.5 * down)])
                     }
                 };
-                out.push(volume(if long { "hair.long" } else { "hair.bob" }, hc, axes, 24, 36, point, weights, hair_look));
+                out.push(volume(
+                    if long { "hair.long" } else { "hair.bob" },
+                    hc,
+                    axes,
+                    24,
+                    36,
+                    point,
+                    weights,
+                    hair_look,
+                ));
             }
             HairKind::Ponytail => {
                 let back = head.radius(-Vec3::Z);
@@ -1205,7 +1269,16 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
                 HatKind::Beanie => (0.45, 0.1, -0.1),
                 _ => (0.5, 0.25, 0.1),
             };
-            out.push(volume("hat", hc, axes, 20, 32, |d| cap_point(&head, d, vol, front, side, back), |_| w.clone(), look));
+            out.push(volume(
+                "hat",
+                hc,
+                axes,
+                20,
+                32,
+                |d| cap_point(&head, d, vol, front, side, back),
+                |_| w.clone(),
+                look,
+            ));
             let r_front = head.radius(Vec3::Z);
             let brim_y = {
                 let d = Vec3::new(0.0, 0.5, 0.87);
@@ -1230,7 +1303,16 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
                     let rr = head.radius(Vec3::X).max(r_front) + 1.1 + o.hair_volume;
                     let c = hc + Vec3::new(0.0, brim_y - 0.1, 0.0);
                     let w = head_w.clone();
-                    out.push(volume("hat.brim", c, axes, 8, 40, |d| Vec3::new(d.x * rr, d.y * 0.06, d.z * rr), |_| w.clone(), look));
+                    out.push(volume(
+                        "hat.brim",
+                        c,
+                        axes,
+                        8,
+                        40,
+                        |d| Vec3::new(d.x * rr, d.y * 0.06, d.z * rr),
+                        |_| w.clone(),
+                        look,
+                    ));
                 }
                 _ => {}
             }
@@ -1243,14 +1325,27 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
         if hood_up {
             let w = head_w.clone();
             let vol = 0.35 + o.upper_loose * 0.3;
-            out.push(volume("hood", hc, axes, 20, 32, |d| {
-                // Around the head and down to the neck, open at the face.
-                let p = cap_point(&head, d, vol, 0.55, -0.55, -0.95);
-                if d.y < -0.5 && d.z < 0.3 { p * (1.0 + 0.4 * (-d.y - 0.5)) } else { p }
-            }, move |p| {
-                let down = ((hc.y - p.y) / 2.0).clamp(0.0, 1.0);
-                blend_weights(&[(&w, 1.0 - down), (&neck_w, down)])
-            }, look));
+            out.push(volume(
+                "hood",
+                hc,
+                axes,
+                20,
+                32,
+                |d| {
+                    // Around the head and down to the neck, open at the face.
+                    let p = cap_point(&head, d, vol, 0.55, -0.55, -0.95);
+                    if d.y < -0.5 && d.z < 0.3 {
+                        p * (1.0 + 0.4 * (-d.y - 0.5))
+                    } else {
+                        p
+                    }
+                },
+                move |p| {
+                    let down = ((hc.y - p.y) / 2.0).clamp(0.0, 1.0);
+                    blend_weights(&[(&w, 1.0 - down), (&neck_w, down)])
+                },
+                look,
+            ));
         } else {
             let back_z = body
                 .select(&[TORSO, NECK], |p| (p.y - neck_y).abs() < 0.5)
@@ -1259,7 +1354,16 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
                 .fold(f32::MAX, f32::min);
             let c = Vec3::new(0.0, neck_y - 0.3, back_z - 0.25);
             let w = spine_w.clone();
-            out.push(volume("hood", c, axes, 12, 24, |d| Vec3::new(d.x * 1.5, d.y * 0.9, d.z * 0.55), |_| w.clone(), look));
+            out.push(volume(
+                "hood",
+                c,
+                axes,
+                12,
+                24,
+                |d| Vec3::new(d.x * 1.5, d.y * 0.9, d.z * 0.55),
+                |_| w.clone(),
+                look,
+            ));
         }
     }
 
@@ -1353,9 +1457,8 @@ pub fn build(body: &BodyRest<'_>, o: &Outfit, hair_color: [f32; 3], shoes: [f32;
             let a = Vec3::X * side;
             let e1 = Vec3::Y;
             let centre = Vec3::new(x, shoulder_y - 0.9, 0.5 * (back_z + over + 0.8));
-            let stations: Vec<Station> = (0..4)
-                .map(|k| Station { c: centre + a * (-0.3 + 0.2 * k as f32), a, e1, e2: a.cross(e1) })
-                .collect();
+            let stations: Vec<Station> =
+                (0..4).map(|k| Station { c: centre + a * (-0.3 + 0.2 * k as f32), a, e1, e2: a.cross(e1) }).collect();
             let extra = move |_t: f32, _th: f32| 0.08 + over;
             out.push(tube(
                 body,
@@ -1404,12 +1507,8 @@ pub fn pose_garments(
     posed_body: &[Vec3],
     parts: &[[f32; 10]],
 ) -> Vec<Vec<Vec3>> {
-    let legs: Vec<Vec3> = posed_body
-        .iter()
-        .zip(parts)
-        .filter(|(_, w)| w[THIGH] + w[SHIN] > 0.5)
-        .map(|(p, _)| *p)
-        .collect();
+    let legs: Vec<Vec3> =
+        posed_body.iter().zip(parts).filter(|(_, w)| w[THIGH] + w[SHIN] > 0.5).map(|(p, _)| *p).collect();
     garments
         .iter()
         .map(|g| {

@@ -274,14 +274,13 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
         triangles.extend(g.triangles.iter().map(|t| t.map(|i| i + offset)));
         // The right half of the atlas, inset half a texel so bilinear lookups stay inside the piece.
         let inset = Vec2::splat(0.5 / size as f32);
-        let g_uv: Vec<Vec2> = g
-            .uv
-            .iter()
-            .map(|uv| {
-                let q = origin + inset + *uv * (extent - 2.0 * inset).max(Vec2::ZERO);
-                Vec2::new(0.5 + 0.5 * q.x, q.y)
-            })
-            .collect();
+        let g_uv: Vec<Vec2> =
+            g.uv.iter()
+                .map(|uv| {
+                    let q = origin + inset + *uv * (extent - 2.0 * inset).max(Vec2::ZERO);
+                    Vec2::new(0.5 + 0.5 * q.x, q.y)
+                })
+                .collect();
         uvs.extend_from_slice(&g_uv);
         garment_uvs.push(g_uv);
     }
@@ -305,12 +304,8 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
         });
     }
     let texture = canvas.finish(Vec3::from(a.skin));
-    let joints = posed
-        .heads
-        .iter()
-        .zip(&posed.transforms)
-        .map(|(&h, t)| normalization.apply(t.transform_point3(h)))
-        .collect();
+    let joints =
+        posed.heads.iter().zip(&posed.transforms).map(|(&h, t)| normalization.apply(t.transform_point3(h))).collect();
     Ok(Subject {
         params: params.clone(),
         mesh: TexturedMesh { mesh, texture: Some(texture) },

@@ -594,11 +594,20 @@ impl Canvas {
 /// Paints the body's appearance over the base mesh triangles with the given UVs (the base UVs, or the base UVs
 /// mapped into part of an atlas). `parts` is [`part_weights`]; positions are the unmorphed rest pose, so the
 /// pattern does not depend on shape or pose.
-pub fn paint_body(canvas: &mut Canvas, base: &BaseMesh, uvs: &[Vec2], parts: &[[f32; 10]], lm: &Landmarks, a: &Appearance) {
+pub fn paint_body(
+    canvas: &mut Canvas,
+    base: &BaseMesh,
+    uvs: &[Vec2],
+    parts: &[[f32; 10]],
+    lm: &Landmarks,
+    a: &Appearance,
+) {
     canvas.paint(&base.triangles, uvs, |t, w| {
         let tri = base.triangles[t];
         let src = tri.map(|i| base.source_vertex[i as usize] as usize);
-        let p = w[0] * base.full_positions[src[0]] + w[1] * base.full_positions[src[1]] + w[2] * base.full_positions[src[2]];
+        let p = w[0] * base.full_positions[src[0]]
+            + w[1] * base.full_positions[src[1]]
+            + w[2] * base.full_positions[src[2]];
         let mut pw = [0.0f32; 10];
         for k in 0..3 {
             for (acc, x) in pw.iter_mut().zip(&parts[src[k]]) {
