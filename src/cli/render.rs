@@ -108,10 +108,10 @@ fn neural_for(view: &ViewOptions) -> Result<Option<SharedNeural>> {
 }
 
 fn report_fallbacks(renderer: &ViewRenderer<'_>) {
-    if renderer.neural_fallbacks > 0 {
+    if renderer.neural_fallbacks() > 0 {
         eprintln!(
             "warning: the neural decoder failed on {} view(s); the geometric renderer drew them",
-            renderer.neural_fallbacks
+            renderer.neural_fallbacks()
         );
     }
 }

@@ -351,13 +351,13 @@ struct Nets<'a> {
 }
 
 /// A subject's source view as every method receives it (ground-truth render, already in the body cube).
-struct SourceView {
+struct SubjectSource {
     rgb: RgbImage,
     mask: GrayImage,
     prepare: PrepareOptions,
 }
 
-impl SourceView {
+impl SubjectSource {
     fn of(mesh: &TexturedMesh, size: usize) -> Self {
         let gt_src = render_ground_truth(mesh, &Camera::source(size));
         let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
@@ -436,7 +436,7 @@ fn method_memory(
     nets: Nets<'_>,
     yaw: f32,
 ) -> Result<[Option<f32>; METHODS.len()], EvalError> {
-    let src = SourceView::of(mesh, opts.size);
+    let src = SubjectSource::of(mesh, opts.size);
     let cam = Camera::orbit(yaw, 0.0, opts.size, opts.size);
     let mut out = [None; METHODS.len()];
     for (m, slot) in out.iter_mut().enumerate() {
@@ -481,7 +481,7 @@ fn eval_subject(
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
-    let src = SourceView::of(mesh, r);
+    let src = SubjectSource::of(mesh, r);
     let (rgb, mask) = (&src.rgb, &src.mask);
     let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
 
@@ -566,10 +566,10 @@ fn eval_subject(
                     let k = m - 2;
                     let Some(renderer) = renderers[k].as_mut() else { continue };
                     let Some(geometry) = prepared[RENDERED[k].0] else { continue };
-                    let before = renderer.neural_fallbacks;
+                    let before = renderer.neural_fallbacks();
                     let person = renderer.render_person(&cam).map_err(perr)?;
                     let ms = t.elapsed().as_secs_f32() * 1e3;
-                    *fallbacks += renderer.neural_fallbacks - before;
+                    *fallbacks += renderer.neural_fallbacks() - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
                     let gb = rasterize(&geometry.mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
@@ -602,28 +602,13 @@ fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
     acc.ms_view.push(ms);
 }
 
-/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
-/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
-/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
-pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
-    run_eval_with(opts, &NeuralEvalOptions::default())
-}
-
-/// [`run_eval`] with explicit settings for the neural methods.
-pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
-    if opts.subjects == 0 && opts.scans.is_empty() {
-        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
-    }
-    if !(32..=2048).contains(&opts.size) {
-        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
-    }
-    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
-    // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
-    let mut sets: Vec<(String, MethodAcc)> = Vec::new();
-    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
-    let mut failed = Vec::new();
-    let mut notes = Vec::new();
-    let mut fallbacks = 0;
+/// The networks of the evaluation as `nopts` asks: the neural renderer (`auto` semantics: one warning and `None`
+/// when its models do not load) and the folder's FOF net (explicit mode, so the reason it does not load is
+/// reported). Why a network is missing goes into `notes` for the report.
+pub(super) fn load_networks(
+    nopts: &NeuralEvalOptions,
+    notes: &mut Vec<String>,
+) -> (Option<SharedNeural>, Option<SharedFofNet>) {
     // Methods 5, 6 and 8: `auto` semantics (one warning and no neural rows when the models do not load).
     let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
     let neural = if nopts.skip {
@@ -649,6 +634,32 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     if !nopts.skip && neural.is_none() {
         notes.push("The neural renderer's models did not load: no neural rows (see the log).".to_string());
     }
+    (neural, fof_net)
+}
+
+/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
+/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
+/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
+pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
+    run_eval_with(opts, &NeuralEvalOptions::default())
+}
+
+/// [`run_eval`] with explicit settings for the neural methods.
+pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
+    if opts.subjects == 0 && opts.scans.is_empty() {
+        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
+    }
+    if !(32..=2048).contains(&opts.size) {
+        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
+    // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
+    let mut sets: Vec<(String, MethodAcc)> = Vec::new();
+    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
+    let mut failed = Vec::new();
+    let mut notes = Vec::new();
+    let mut fallbacks = 0;
+    let (neural, fof_net) = load_networks(nopts, &mut notes);
     let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref() };
     // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
     let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
