@@ -61,7 +61,7 @@ fn main() -> anyhow::Result<()> {
     }
     let mut pose = PoseEstimator::load(None, &RuntimeOptions::default())?;
     let start = std::time::Instant::now();
-    let found = pose.estimate(&photo.rgb, &mask)?;
+    let found = pose.estimate(&photo.rgb, &mask, None)?;
     println!("pose: {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
     let mut img = photo.rgb.clone();
     for (v, m) in img.data.iter_mut().zip(&mask.data) {

@@ -8,8 +8,12 @@
 //! fallback.
 
 pub mod base;
+pub mod distance;
+pub mod fit;
+pub mod model;
 pub mod morph;
 pub mod pose;
+pub mod prior;
 pub mod rig;
 
 use std::path::{Path, PathBuf};

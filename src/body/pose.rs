@@ -22,8 +22,8 @@
 //! ([`PoseEstimator::estimate_tracked`]) only that one run is made.
 //!
 //! Landmarks come back in the photo's continuous pixel coordinates (pixel centres at `+0.5`), and depths in the
-//! same pixels with **+ toward the camera** (the body cube's convention); [`PoseLandmarks::to_source`] maps them
-//! into the normalised source view and [`PoseLandmarks::cube`] into body-cube coordinates.
+//! same pixels with **+ toward the camera** (the body cube's convention); [`PoseLandmarks::transformed`] maps
+//! them into the normalised source view and [`PoseLandmarks::cube`] into body-cube coordinates.
 
 use std::path::{Path, PathBuf};
 
@@ -221,9 +221,16 @@ pub struct PoseLandmarks {
     pub region: PoseRegion,
     /// MediaPipe's tracking region for the next frame (from the auxiliary points).
     pub next_region: Option<PoseRegion>,
-    /// Size of the image the landmarks are in (pixels): a landmark outside it is outside the photo.
-    pub frame: Vec2,
+    /// Top-left corner of the photo in these pixels (a landmark outside the frame is outside the photo).
+    pub frame_min: Vec2,
+    /// Bottom-right corner of the photo in these pixels.
+    pub frame_max: Vec2,
 }
+
+/// Where the photo lies in the image the network runs on: `(min, max)` corners in pixels. A photo normalised into
+/// the source view covers only part of it ([`crate::pipeline::input::NormalisedInput::frame`]); the rest is black
+/// padding, not a place where the body ends.
+pub type PhotoFrame = (Vec2, Vec2);
 
 fn sigmoid(v: f32) -> f32 {
     1.0 / (1.0 + (-v.clamp(-60.0, 60.0)).exp())
@@ -232,7 +239,7 @@ fn sigmoid(v: f32) -> f32 {
 impl PoseLandmarks {
     /// Decodes the network's raw outputs (`raw`: 39 x 5 values, `world`: 39 x 3, `score`: pose presence) for
     /// `region` of a `frame`-sized image. Non-finite values become invisible points at the region's centre.
-    pub fn decode(raw: &[f32], world: &[f32], score: f32, region: PoseRegion, frame: Vec2) -> Option<Self> {
+    pub fn decode(raw: &[f32], world: &[f32], score: f32, region: PoseRegion, frame: PhotoFrame) -> Option<Self> {
         if raw.len() < NETWORK_POINTS * 5 || world.len() < NETWORK_POINTS * 3 {
             return None;
         }
@@ -263,7 +270,7 @@ impl PoseLandmarks {
             .collect();
         let next_region = PoseRegion::from_auxiliary(point(33).0, point(34).0);
         let score = if score.is_finite() { score.clamp(0.0, 1.0) } else { 0.0 };
-        Some(Self { landmarks, world, score, region, next_region, frame })
+        Some(Self { landmarks, world, score, region, next_region, frame_min: frame.0, frame_max: frame.1 })
     }
 
     /// The region to look again in. MediaPipe's tracking region ([`PoseLandmarks::next_region`]) when the whole
@@ -298,19 +305,22 @@ impl PoseLandmarks {
         (centre.is_finite() && side.is_finite() && side > 1.0).then_some(PoseRegion { centre, side })
     }
 
-    /// Whether landmark `i` lies inside the image frame.
-    pub fn in_frame(&self, i: usize) -> bool {
+    /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` pixels).
+    pub fn in_frame(&self, i: usize, margin: f32) -> bool {
         let p = self.landmarks[i].pixel;
-        p.x >= 0.0 && p.y >= 0.0 && p.x <= self.frame.x && p.y <= self.frame.y
+        p.x >= self.frame_min.x + margin
+            && p.y >= self.frame_min.y + margin
+            && p.x <= self.frame_max.x - margin
+            && p.y <= self.frame_max.y - margin
     }
 
-    /// The landmarks in another pixel grid: `p' = scale * p + offset` (positions, frame corner and regions; depths
-    /// scale too). With a [`crate::pipeline::input::NormaliseTransform`]'s scale and offset this maps photo
-    /// landmarks into the normalised source view; `frame` becomes the photo's bounds there (its top-left corner is
-    /// `offset`, see [`PoseLandmarks::frame_box`]).
-    pub fn to_source(&self, scale: f32, offset: Vec2) -> SourceLandmarks {
+    /// The landmarks in another pixel grid: `p' = scale * p + offset` (positions, depths, the frame and the
+    /// regions). With a [`crate::pipeline::input::NormaliseTransform`]'s scale and offset this maps photo
+    /// landmarks into the normalised source view.
+    pub fn transformed(&self, scale: f32, offset: Vec2) -> Self {
         let map = |p: Vec2| p * scale + offset;
-        SourceLandmarks {
+        let region = |r: PoseRegion| PoseRegion { centre: map(r.centre), side: r.side * scale };
+        Self {
             landmarks: self
                 .landmarks
                 .iter()
@@ -318,49 +328,20 @@ impl PoseLandmarks {
                 .collect(),
             world: self.world.clone(),
             score: self.score,
-            frame_min: map(Vec2::ZERO),
-            frame_max: map(self.frame),
+            region: region(self.region),
+            next_region: self.next_region.map(region),
+            frame_min: map(self.frame_min),
+            frame_max: map(self.frame_max),
         }
     }
 
-    /// The photo's bounds `(min, max)` in its own pixels.
-    pub fn frame_box(&self) -> (Vec2, Vec2) {
-        (Vec2::ZERO, self.frame)
-    }
-}
-
-/// Landmarks in a square source view of the body cube (see [`crate::geometry::camera`]: pixel centre
-/// `x = (col + 0.5) / (R/2) - 1`, `y = 1 - (row + 0.5) / (R/2)`), with the photo's bounds in that view.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SourceLandmarks {
-    /// Image landmarks in source pixels.
-    pub landmarks: Vec<Landmark>,
-    /// World landmarks (metres, cube axes), as [`PoseLandmarks::world`].
-    pub world: Vec<Vec3>,
-    /// Pose presence score.
-    pub score: f32,
-    /// Top-left corner of the photo in source pixels.
-    pub frame_min: Vec2,
-    /// Bottom-right corner of the photo in source pixels.
-    pub frame_max: Vec2,
-}
-
-impl SourceLandmarks {
-    /// Landmark `i` in body-cube coordinates of an `resolution`-pixel source view: x, y from the pixel, z the
+    /// Landmark `i` in body-cube coordinates of a `resolution`² source view (see [`crate::geometry::camera`]:
+    /// pixel centre `x = (col + 0.5) / (R/2) - 1`, `y = 1 - (row + 0.5) / (R/2)`): x, y from the pixel, z the
     /// depth relative to the hip centre (cube units, + toward the camera).
     pub fn cube(&self, i: usize, resolution: usize) -> Vec3 {
         let half = resolution as f32 * 0.5;
         let l = &self.landmarks[i];
         Vec3::new(l.pixel.x / half - 1.0, 1.0 - l.pixel.y / half, l.depth / half)
-    }
-
-    /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` source pixels).
-    pub fn in_frame(&self, i: usize, margin: f32) -> bool {
-        let p = self.landmarks[i].pixel;
-        p.x >= self.frame_min.x + margin
-            && p.y >= self.frame_min.y + margin
-            && p.x <= self.frame_max.x - margin
-            && p.y <= self.frame_max.y - margin
     }
 }
 
@@ -392,9 +373,10 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
     out
 }
 
-/// Whether the person's mask touches the bottom row of the photo (the photo cuts the body there).
-pub fn cut_at_bottom(mask: &GrayImage) -> bool {
-    mask.height > 0 && mask.rows().last().is_some_and(|row| row.iter().filter(|&&m| m >= 0.5).count() >= 2)
+/// Whether the person's mask touches the bottom edge of the photo's `frame` (the photo cuts the body there).
+pub fn cut_at_bottom(mask: &GrayImage, frame: PhotoFrame) -> bool {
+    let row = (frame.1.y.floor() as i64 - 1).clamp(0, mask.height as i64 - 1) as usize;
+    mask.height > 0 && mask.rows().nth(row).is_some_and(|r| r.iter().filter(|&&m| m >= 0.5).count() >= 2)
 }
 
 /// The pose model: `explicit`, else `R2HUMAN_POSE_MODEL`, else `.tools/models/pose_landmark_full.onnx` in the
@@ -450,8 +432,14 @@ impl PoseEstimator {
         &self.path
     }
 
-    /// Runs the network once on `region` of `rgb` (linear RGB); `None` when it finds no pose there.
-    pub fn run(&mut self, rgb: &RgbImage, region: PoseRegion) -> Result<Option<PoseLandmarks>, BodyError> {
+    /// Runs the network once on `region` of `rgb` (linear RGB; the photo lies in `frame` of it); `None` when it
+    /// finds no pose there.
+    pub fn run(
+        &mut self,
+        rgb: &RgbImage,
+        region: PoseRegion,
+        frame: PhotoFrame,
+    ) -> Result<Option<PoseLandmarks>, BodyError> {
         let input = network_input(rgb, region);
         let fail = |e: String| BodyError::Model(format!("running `{}` failed: {e}", self.path.display()));
         let view =
@@ -470,26 +458,31 @@ impl PoseEstimator {
         if score.is_nan() || score < MIN_POSE_SCORE {
             return Ok(None);
         }
-        let frame = Vec2::new(rgb.width as f32, rgb.height as f32);
         Ok(PoseLandmarks::decode(&raw, &world, score, region, frame))
     }
 
-    /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`): one run on the
-    /// mask's region, then one on the region that run gives ([`PoseLandmarks::refined_region`]). `None` when the
-    /// mask is empty or no pose is found.
-    pub fn estimate(&mut self, rgb: &RgbImage, mask: &GrayImage) -> Result<Option<PoseLandmarks>, BodyError> {
+    /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`; the photo lies in
+    /// `frame` of the image, the whole image when `None`): one run on the mask's region, then one on the region
+    /// that run gives ([`PoseLandmarks::refined_region`]). `None` when the mask is empty or no pose is found.
+    pub fn estimate(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        frame: Option<PhotoFrame>,
+    ) -> Result<Option<PoseLandmarks>, BodyError> {
         if (rgb.width, rgb.height) != (mask.width, mask.height) {
             return Err(BodyError::Model(format!(
                 "image is {}x{} but mask is {}x{}",
                 rgb.width, rgb.height, mask.width, mask.height
             )));
         }
+        let frame = frame.unwrap_or((Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32)));
         let Some(region) = PoseRegion::from_mask(mask) else { return Ok(None) };
-        let cut = cut_at_bottom(mask);
+        let cut = cut_at_bottom(mask, frame);
         // A photo that cuts the person may show too little of the body for the network to find it in the mask's
         // region: look again in regions two and three times as large that extend below the photo (the body
         // continues there), keeping the top of the person at the same place.
-        let mut first = self.run(rgb, region)?;
+        let mut first = self.run(rgb, region, frame)?;
         for grow in [2.0f32, 3.0] {
             if first.is_some() || !cut {
                 break;
@@ -497,11 +490,11 @@ impl PoseEstimator {
             let top = region.centre.y - 0.5 * region.side;
             let side = region.side * grow;
             let bigger = PoseRegion { centre: Vec2::new(region.centre.x, top + 0.5 * side), side };
-            first = self.run(rgb, bigger)?;
+            first = self.run(rgb, bigger, frame)?;
         }
         let Some(first) = first else { return Ok(None) };
         match first.refined_region(cut) {
-            Some(next) => Ok(self.run(rgb, next)?.or(Some(first))),
+            Some(next) => Ok(self.run(rgb, next, frame)?.or(Some(first))),
             None => Ok(Some(first)),
         }
     }
@@ -512,15 +505,16 @@ impl PoseEstimator {
         &mut self,
         rgb: &RgbImage,
         mask: &GrayImage,
+        frame: Option<PhotoFrame>,
         previous: Option<&PoseLandmarks>,
     ) -> Result<Option<PoseLandmarks>, BodyError> {
-        let same_frame = |p: &PoseLandmarks| p.frame == Vec2::new(rgb.width as f32, rgb.height as f32);
-        if let Some(region) = previous.filter(|p| same_frame(p)).and_then(|p| p.next_region) {
-            if let Some(found) = self.run(rgb, region)? {
+        let full = frame.unwrap_or((Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32)));
+        if let Some(region) = previous.filter(|p| (p.frame_min, p.frame_max) == full).and_then(|p| p.next_region) {
+            if let Some(found) = self.run(rgb, region, full)? {
                 return Ok(Some(found));
             }
         }
-        self.estimate(rgb, mask)
+        self.estimate(rgb, mask, frame)
     }
 }
 
@@ -559,7 +553,8 @@ mod tests {
         raw[33 * 5..33 * 5 + 2].copy_from_slice(&[128.0, 128.0]);
         raw[34 * 5..34 * 5 + 2].copy_from_slice(&[128.0, 64.0]);
         raw[5] = f32::NAN;
-        let p = PoseLandmarks::decode(&raw, &world, 0.9, region, Vec2::new(400.0, 600.0)).unwrap();
+        let frame = (Vec2::ZERO, Vec2::new(400.0, 600.0));
+        let p = PoseLandmarks::decode(&raw, &world, 0.9, region, frame).unwrap();
         let l = p.landmarks[0];
         // Scale 2 photo pixels per input pixel.
         assert!((l.pixel - Vec2::new(200.0 - 128.0, 300.0 + 128.0)).length() < 1e-4);
@@ -573,16 +568,21 @@ mod tests {
         let next = p.next_region.unwrap();
         assert_eq!(next.centre, Vec2::new(200.0, 300.0));
         assert!((next.side - 1.5 * 2.0 * 128.0).abs() < 1e-3);
-        assert!(p.in_frame(0));
-        assert!(PoseLandmarks::decode(&raw[..10], &world, 0.9, region, Vec2::ONE).is_none());
+        assert!(p.in_frame(0, 0.0));
+        assert!(PoseLandmarks::decode(&raw[..10], &world, 0.9, region, frame).is_none());
         // Into a source view at half scale, offset (10, 20); cube coordinates of a 512 view.
-        let s = p.to_source(0.5, Vec2::new(10.0, 20.0));
+        let s = p.transformed(0.5, Vec2::new(10.0, 20.0));
         assert!((s.landmarks[0].pixel - Vec2::new(46.0, 234.0)).length() < 1e-4);
         assert!((s.landmarks[0].depth - 10.0).abs() < 1e-5);
         assert_eq!(s.frame_max, Vec2::new(210.0, 320.0));
         let c = s.cube(0, 512);
         assert!((c - Vec3::new(46.0 / 256.0 - 1.0, 1.0 - 234.0 / 256.0, 10.0 / 256.0)).length() < 1e-6);
         assert!(s.in_frame(0, 0.0) && !s.in_frame(0, 40.0));
+        assert_eq!(s.next_region.unwrap().centre, Vec2::new(110.0, 170.0));
+        // A mask touching the frame's bottom row is cut there; one ending above it is not.
+        let mask = Image::from_fn(8, 8, |_, r| if r < 6 { 1.0 } else { 0.0 });
+        assert!(cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 6.0))));
+        assert!(!cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 8.0))));
     }
 
     #[test]

@@ -44,7 +44,7 @@ use crate::geometry::raster::rasterize;
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::write_atomic;
 use crate::neural::{ExecutionProvider, RuntimeOptions};
-use crate::pipeline::input::{NormaliseTransform, NormalisedInput};
+use crate::pipeline::input::NormalisedInput;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
     compute_geometry, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
@@ -367,11 +367,7 @@ impl SubjectSource {
     }
 
     fn normalised(&self) -> NormalisedInput {
-        NormalisedInput {
-            rgb: self.rgb.clone(),
-            mask: self.mask.clone(),
-            transform: NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
-        }
+        NormalisedInput::in_source_view(self.rgb.clone(), self.mask.clone())
     }
 
     /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net); `None` for the FOF net when

@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 use glam::{Vec2, Vec4};
 use rayon::prelude::*;
 
+use crate::body::prior::BodyEstimator;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::compose::{self, Mode};
 use crate::geometry::fof::{Fof, FofError};
@@ -76,6 +77,9 @@ pub enum PipelineError {
          train/README.md), or use --geometry inflate"
     )]
     NoFofNet(String),
+    /// The body prior (`--geometry body`) cannot be used: the pose model or the body model data is missing.
+    #[error("body prior: {0}. Install them with `bash scripts/setup.sh`, or use --geometry inflate")]
+    NoBody(String),
     /// The FOF network (`--geometry fofnet`) failed on this input (a run error or non-finite coefficients).
     #[error(
         "FOF network failed on this input: {0}. Use --geometry auto (falls back to the inflation prior) or inflate"
@@ -96,10 +100,18 @@ pub enum GeometryMode {
     /// The FOF network when `fof.onnx` loads, else the inflation prior with one warning; an input the network
     /// fails on (error, NaN) falls back to the inflation prior with a warning.
     Auto,
+    /// The body prior: pose landmarks (ONNX) -> the fitted MakeHuman body -> its FOF reconciled with the
+    /// silhouette (no FOF network; [`crate::body::prior`]). An input where no pose is found falls back to the
+    /// inflation prior with a warning.
+    Body,
 }
 
 /// A loaded FOF network shared by the inputs that use it (it runs under the lock).
 pub type SharedFofNet = Arc<Mutex<FofNet>>;
+
+/// The body prior's pose network and fitter, shared by the inputs that use it (it runs under the lock; it keeps
+/// the last frame's fit for warm starts).
+pub type SharedBody = Arc<Mutex<BodyEstimator>>;
 
 /// Settings for [`PreparedInput::prepare`].
 #[derive(Clone, Debug)]
@@ -117,6 +129,10 @@ pub struct PrepareOptions {
     /// The FOF network for [`GeometryMode::FofNet`] and [`GeometryMode::Auto`] ([`load_fof_net`]); `None` with
     /// `FofNet` is an error, with `Auto` the inflation prior.
     pub fof_net: Option<SharedFofNet>,
+    /// The body prior for [`GeometryMode::Body`] ([`load_body`]); `None` with `Body` is an error.
+    pub body: Option<SharedBody>,
+    /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
+    pub warm_start: bool,
 }
 
 impl Default for PrepareOptions {
@@ -128,6 +144,8 @@ impl Default for PrepareOptions {
             geometry: GeometryMode::Inflate,
             inflate: InflateParams::default(),
             fof_net: None,
+            body: None,
+            warm_start: false,
         }
     }
 }
@@ -147,7 +165,7 @@ pub fn load_fof_net(
     fof_order: usize,
     options: &RuntimeOptions,
 ) -> Result<Option<SharedFofNet>, PipelineError> {
-    if mode == GeometryMode::Inflate {
+    if matches!(mode, GeometryMode::Inflate | GeometryMode::Body) {
         return Ok(None);
     }
     let dir = model_folder(models);
@@ -198,6 +216,63 @@ pub fn load_fof_net(
     }
 }
 
+/// Loads the body prior for [`GeometryMode::Body`] (`Ok(None)` for the other modes): the pose landmark model
+/// (`.tools/models/pose_landmark_full.onnx`) and the MakeHuman body data, or an error saying how to install them.
+pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<SharedBody>, PipelineError> {
+    if mode != GeometryMode::Body {
+        return Ok(None);
+    }
+    let body = BodyEstimator::load(None, options).map_err(|e| PipelineError::NoBody(e.to_string()))?;
+    tracing::info!("geometry: body prior (pose model `{}`)", crate::body::pose::MODEL_FILE);
+    Ok(Some(Arc::new(Mutex::new(body))))
+}
+
+/// The body prior's FOF of a normalised input (see [`GeometryMode::Body`]); the inflation prior `prior` when no
+/// pose is found or the prior fails (one warning per process, then debug messages).
+fn body_geometry(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    prior: Fof,
+    timings: &mut StageTimings,
+) -> Fof {
+    let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut stages: Vec<(&'static str, Duration)> = Vec::new();
+    let found = estimator.estimate(
+        &normalised.rgb,
+        &normalised.mask,
+        Some(normalised.frame),
+        opts.warm_start,
+        &mut |name, d| stages.push((name, d)),
+    );
+    timings.0.extend(stages);
+    let fof = found.and_then(|p| match p {
+        Some(p) => timings
+            .time("body FOF", || crate::body::prior::body_fof(&p.mesh, &normalised.mask, opts.fof_order, &opts.inflate))
+            .map(Some),
+        None => Ok(None),
+    });
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let warn = |m: String| {
+        if !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+            tracing::warn!("{m}");
+        } else {
+            tracing::debug!("{m}");
+        }
+    };
+    match fof {
+        Ok(Some(f)) => f,
+        Ok(None) => {
+            warn("body prior: no pose found in this input, using the silhouette-inflation prior".into());
+            prior
+        }
+        Err(e) => {
+            warn(format!("body prior failed on this input, using the silhouette-inflation prior: {e}"));
+            prior
+        }
+    }
+}
+
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
 /// into `timings`: the inflation prior, then (FOF net modes) the network's correction at the prior's resolution
 /// ([`FofNet::refine`]).
@@ -209,8 +284,14 @@ pub fn compute_geometry(
     let prior = timings.time("geometry (inflate -> FOF)", || {
         inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
     })?;
+    if opts.geometry == GeometryMode::Body {
+        let Some(body) = &opts.body else {
+            return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
+        };
+        return Ok(body_geometry(normalised, opts, body, prior, timings));
+    }
     let net = match (opts.geometry, &opts.fof_net) {
-        (GeometryMode::Inflate, _) => return Ok(prior),
+        (GeometryMode::Inflate, _) | (GeometryMode::Body, _) => return Ok(prior),
         (GeometryMode::FofNet, None) => {
             return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
         }
