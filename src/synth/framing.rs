@@ -129,7 +129,7 @@ pub fn crop(subject: &Subject, framing: Framing, rig: &Rig) -> Result<Subject, S
         let mut out = subject.clone();
         let mut m = TriMesh::new(positions, mesh.mesh.triangles);
         m.uvs = mesh.mesh.uvs;
-        out.mesh = TexturedMesh { mesh: m, texture: mesh.texture };
+        out.mesh = TexturedMesh { mesh: m, ..mesh };
         out.joints = subject.joints.iter().map(|&p| apply(p)).collect();
         // Garment pieces keep their kept vertices (in order); pieces entirely below the cut disappear.
         let new_index = |old: usize| map[..old].iter().filter(|&&k| k != u32::MAX).count();
@@ -209,7 +209,9 @@ pub fn clip_above(mesh: &TexturedMesh, cut: f32) -> Option<(TexturedMesh, Vec<u3
     }
     let mut edge_vertex: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
     let mut triangles = Vec::new();
-    for t in &m.triangles {
+    let mut materials = Vec::new();
+    let per_triangle = mesh.triangle_materials.len() == m.triangles.len();
+    for (ti, t) in m.triangles.iter().enumerate() {
         let inside = t.map(above);
         let count = inside.iter().filter(|&&x| x).count();
         if count == 0 {
@@ -217,31 +219,22 @@ pub fn clip_above(mesh: &TexturedMesh, cut: f32) -> Option<(TexturedMesh, Vec<u3
         }
         if count == 3 {
             triangles.push(t.map(|i| keep[i as usize]));
-            continue;
+        } else {
+            clip_triangle(
+                m,
+                t,
+                inside,
+                cut,
+                &keep,
+                with_uv,
+                &mut edge_vertex,
+                &mut positions,
+                &mut uvs,
+                &mut triangles,
+            );
         }
-        // Walk the triangle's edges in order (Sutherland-Hodgman against one plane), keeping the winding.
-        let mut poly: Vec<u32> = Vec::with_capacity(4);
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            if inside[k] {
-                poly.push(keep[a as usize]);
-            }
-            if inside[k] != inside[(k + 1) % 3] {
-                let key = (a.min(b), a.max(b));
-                let v = *edge_vertex.entry(key).or_insert_with(|| {
-                    let (pa, pb) = (m.positions[key.0 as usize], m.positions[key.1 as usize]);
-                    let f = ((cut - pa.y) / (pb.y - pa.y)).clamp(0.0, 1.0);
-                    positions.push(pa.lerp(pb, f));
-                    if with_uv {
-                        uvs.push(m.uvs[key.0 as usize].lerp(m.uvs[key.1 as usize], f));
-                    }
-                    (positions.len() - 1) as u32
-                });
-                poly.push(v);
-            }
-        }
-        for k in 1..poly.len().saturating_sub(1) {
-            triangles.push([poly[0], poly[k], poly[k + 1]]);
+        if per_triangle {
+            materials.resize(triangles.len(), mesh.triangle_materials[ti]);
         }
     }
     if triangles.is_empty() {
@@ -249,7 +242,48 @@ pub fn clip_above(mesh: &TexturedMesh, cut: f32) -> Option<(TexturedMesh, Vec<u3
     }
     let mut out = TriMesh::new(positions, triangles);
     out.uvs = uvs;
-    Some((TexturedMesh { mesh: out, texture: mesh.texture.clone() }, keep))
+    let triangle_materials = if per_triangle { materials } else { Vec::new() };
+    Some((TexturedMesh { mesh: out, materials: mesh.materials.clone(), triangle_materials }, keep))
+}
+
+/// Clips one triangle with `inside` corners above the cut (Sutherland-Hodgman against one plane, keeping the
+/// winding); new vertices on a clipped edge are shared through `edge_vertex`.
+#[allow(clippy::too_many_arguments)]
+fn clip_triangle(
+    m: &TriMesh,
+    t: &[u32; 3],
+    inside: [bool; 3],
+    cut: f32,
+    keep: &[u32],
+    with_uv: bool,
+    edge_vertex: &mut std::collections::HashMap<(u32, u32), u32>,
+    positions: &mut Vec<Vec3>,
+    uvs: &mut Vec<Vec2>,
+    triangles: &mut Vec<[u32; 3]>,
+) {
+    let mut poly: Vec<u32> = Vec::with_capacity(4);
+    for k in 0..3 {
+        let (a, b) = (t[k], t[(k + 1) % 3]);
+        if inside[k] {
+            poly.push(keep[a as usize]);
+        }
+        if inside[k] != inside[(k + 1) % 3] {
+            let key = (a.min(b), a.max(b));
+            let v = *edge_vertex.entry(key).or_insert_with(|| {
+                let (pa, pb) = (m.positions[key.0 as usize], m.positions[key.1 as usize]);
+                let f = ((cut - pa.y) / (pb.y - pa.y)).clamp(0.0, 1.0);
+                positions.push(pa.lerp(pb, f));
+                if with_uv {
+                    uvs.push(m.uvs[key.0 as usize].lerp(m.uvs[key.1 as usize], f));
+                }
+                (positions.len() - 1) as u32
+            });
+            poly.push(v);
+        }
+    }
+    for k in 1..poly.len().saturating_sub(1) {
+        triangles.push([poly[0], poly[k], poly[k + 1]]);
+    }
 }
 
 /// Which framings a dataset or an evaluation uses (`--framing mixed|full|three-quarter|upper`).

@@ -308,7 +308,7 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
         posed.heads.iter().zip(&posed.transforms).map(|(&h, t)| normalization.apply(t.transform_point3(h))).collect();
     Ok(Subject {
         params: params.clone(),
-        mesh: TexturedMesh { mesh, texture: Some(texture) },
+        mesh: TexturedMesh::textured(mesh, texture),
         normalization,
         joints,
         garments: pieces,
