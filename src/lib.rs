@@ -13,6 +13,7 @@
 //! - [`pipeline`]: the stages as plain functions over images, with the CPU reference for each.
 //! - [`neural`], [`geometry`], [`compose`], [`io`], [`eval`], [`synth`], [`capture`]: the building blocks.
 //! - [`buffer`]: the 2-D image buffer every stage passes around.
+//! - `fuzzing` (hidden): the loaders' fuzz targets, shared by `tests/fuzz.rs` and the `cargo fuzz` crate in `fuzz/`.
 
 pub mod app;
 pub mod buffer;
@@ -20,6 +21,8 @@ pub mod capture;
 pub mod cli;
 pub mod compose;
 pub mod eval;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod geometry;
 pub mod gpu;
 pub mod io;

@@ -329,6 +329,7 @@ impl<T> Shared<T> {
 pub struct LivePipeline<T: Send + Sync + 'static> {
     shared: Arc<Shared<T>>,
     description: String,
+    live: bool,
     threads: Vec<JoinHandle<()>>,
 }
 
@@ -354,14 +355,14 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
             source_done: AtomicBool::new(false),
             worker_done: AtomicBool::new(false),
         });
-        let (opened_tx, opened_rx) = mpsc::channel::<Result<String, CaptureError>>();
+        let (opened_tx, opened_rx) = mpsc::channel::<Result<(String, bool), CaptureError>>();
         let cap_shared = Arc::clone(&shared);
         let pace = options.pace;
         let capture = std::thread::Builder::new()
             .name("r2human-capture".into())
             .spawn(move || match factory() {
                 Ok(mut source) => {
-                    let _ = opened_tx.send(Ok(source.describe()));
+                    let _ = opened_tx.send(Ok((source.describe(), source.is_live())));
                     capture_loop(source.as_mut(), &cap_shared, pace);
                 }
                 Err(e) => {
@@ -370,7 +371,7 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
                 }
             })
             .map_err(|e| LiveError::Thread(e.to_string()))?;
-        let description = match opened_rx.recv() {
+        let (description, live) = match opened_rx.recv() {
             Ok(Ok(d)) => d,
             Ok(Err(e)) => {
                 let _ = capture.join();
@@ -389,12 +390,17 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
                 work_shared.worker_done.store(true, Ordering::SeqCst);
             })
             .map_err(|e| LiveError::Thread(e.to_string()))?;
-        Ok(Self { shared, description, threads: vec![capture, worker] })
+        Ok(Self { shared, description, live, threads: vec![capture, worker] })
     }
 
     /// The source's description.
     pub fn describe(&self) -> &str {
         &self.description
+    }
+
+    /// Is the source real-time (a camera, the live synthetic source), one that never ends by itself?
+    pub fn is_live(&self) -> bool {
+        self.live
     }
 
     /// A non-blocking reader of the latest completed frame, for the display loop.

@@ -171,11 +171,15 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let mut texcoords: Vec<Vec2> = Vec::new();
     let mut materials: HashMap<String, ObjMaterial> = HashMap::new();
     let mut mtl_files: Vec<PathBuf> = Vec::new();
-    let mut current_material: Option<String> = None;
+    let mut current_material: Option<usize> = None;
     // Per triangle: corners as (position index, texcoord index or u32::MAX), and its material.
     let mut corners: Vec<[(u32, u32); 3]> = Vec::new();
-    let mut tri_material: Vec<Option<String>> = Vec::new();
-    let mut used_materials: Vec<String> = Vec::new();
+    // Material names are interned: a triangle stores an index (a long name repeated per triangle would multiply
+    // the memory a small file needs).
+    let mut tri_material: Vec<Option<usize>> = Vec::new();
+    let mut material_names: Vec<String> = Vec::new();
+    let mut material_index: HashMap<String, usize> = HashMap::new();
+    let mut material_used: Vec<bool> = Vec::new();
 
     let parse_f = |tok: Option<&str>, line: usize, what: &str| -> Result<f32, MeshIoError> {
         let tok = tok.ok_or_else(|| obj_err(line, format!("{what}: missing coordinate")))?;
@@ -232,24 +236,38 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 if poly.len() < 3 {
                     return Err(obj_err(line, format!("f: a face needs 3 vertices, got {}", poly.len())));
                 }
-                if let Some(m) = &current_material {
-                    if !used_materials.contains(m) {
-                        used_materials.push(m.clone());
-                    }
+                if let Some(m) = current_material {
+                    material_used[m] = true;
                 }
                 for k in 1..poly.len() - 1 {
                     corners.push([poly[0], poly[k], poly[k + 1]]);
-                    tri_material.push(current_material.clone());
+                    tri_material.push(current_material);
                 }
             }
             "mtllib" => {
                 for name in split_file_list(rest) {
                     let mtl_path = dir.join(name.replace('\\', "/"));
-                    parse_mtl(&mtl_path, &mut materials)?;
+                    if mtl_files.contains(&mtl_path) {
+                        continue; // already read (only existing files get here, so the list stays short)
+                    }
+                    parse_mtl(&mtl_path, &mut materials).map_err(|e| match e {
+                        // A missing or unreadable library: say which OBJ line asked for it.
+                        MeshIoError::Io { path: mtl, source } => {
+                            obj_err(line, format!("mtllib: cannot read {}: {source}", mtl.display()))
+                        }
+                        other => other,
+                    })?;
                     mtl_files.push(mtl_path);
                 }
             }
-            "usemtl" => current_material = Some(rest.to_string()),
+            "usemtl" => {
+                let at = *material_index.entry(rest.to_string()).or_insert_with(|| {
+                    material_names.push(rest.to_string());
+                    material_used.push(false);
+                    material_names.len() - 1
+                });
+                current_material = Some(at);
+            }
             _ => {}
         }
     }
@@ -257,7 +275,7 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     // The single texture used by the faces, if any.
     let mtl_path = mtl_files.first().cloned().unwrap_or_else(|| path.to_path_buf());
     let mut texture_name: Option<String> = None;
-    for m in &used_materials {
+    for m in material_names.iter().zip(&material_used).filter(|(_, &used)| used).map(|(m, _)| m) {
         if let Some(map) = materials.get(m).and_then(|m| m.map_kd.clone()) {
             match &texture_name {
                 Some(t) if *t != map => {
@@ -274,7 +292,7 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let texture = match &texture_name {
         Some(name) => {
             let tex_path = mtl_path.parent().unwrap_or(dir).join(name.replace('\\', "/"));
-            let img = image::open(&tex_path).map_err(|e| MeshIoError::Texture {
+            let img = crate::io::image_io::decode_file(&tex_path).map_err(|e| MeshIoError::Texture {
                 path: mtl_path.clone(),
                 texture: tex_path.display().to_string(),
                 message: e.to_string(),
@@ -300,7 +318,7 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 if textured {
                     out_uv.push(if ti == u32::MAX { Vec2::ZERO } else { texcoords[ti as usize] });
                 } else {
-                    let kd = tri_material[t].as_ref().and_then(|m| materials.get(m)).and_then(|m| m.kd);
+                    let kd = tri_material[t].and_then(|m| materials.get(&material_names[m])).and_then(|m| m.kd);
                     let c = vcolors.get(vi as usize).copied().or(kd).unwrap_or(Vec3::splat(0.7));
                     out_col.push(c);
                 }
@@ -386,10 +404,13 @@ fn strip_map_options(rest: &str) -> String {
 pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let gerr = |message: String| MeshIoError::Gltf { path: path.to_path_buf(), message };
     let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| gerr(e.to_string()))?;
+    let raw = gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| gerr(e.to_string()))?;
+    check_gltf_references(raw.document.as_json()).map_err(gerr)?;
+    let document = gltf::Document::from_json(raw.document.into_json()).map_err(|e| gerr(e.to_string()))?;
+    let blob = raw.blob;
     let dir = path.parent().unwrap_or(Path::new("."));
     // Name a missing external texture or buffer before the importer fails with a generic message.
-    for image in gltf.images() {
+    for image in document.images() {
         if let gltf::image::Source::Uri { uri, .. } = image.source() {
             if !uri.starts_with("data:") && !dir.join(percent_decode(uri)).is_file() {
                 return Err(MeshIoError::Texture {
@@ -400,8 +421,6 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             }
         }
     }
-    let document = gltf.document;
-    let blob = gltf.blob;
     let buffers = gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(format!("buffers: {e}")))?;
 
     let mut positions = Vec::new();
@@ -416,7 +435,14 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
         Some(s) => s.nodes().map(|n| (n, Mat4::IDENTITY)).collect(),
         None => document.nodes().map(|n| (n, Mat4::IDENTITY)).collect(),
     };
+    // The node hierarchy must be a forest (glTF 2.0, 3.5.3); a node reached twice is a cycle or a shared child,
+    // which would otherwise loop forever or duplicate geometry without bound.
+    let mut visited = vec![false; document.nodes().len()];
     while let Some((node, parent)) = stack.pop() {
+        match visited.get_mut(node.index()) {
+            Some(seen) if !*seen => *seen = true,
+            _ => return Err(gerr(format!("node {} appears twice in the node hierarchy (a cycle)", node.index()))),
+        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
             stack.push((child, world));
@@ -426,6 +452,7 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             if prim.mode() != gltf::mesh::Mode::Triangles {
                 continue;
             }
+            check_primitive_accessors(&prim).map_err(gerr)?;
             let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
             let Some(pos) = reader.read_positions() else { continue };
             let base = positions.len() as u32;
@@ -489,13 +516,10 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let texture = match texture_index {
         Some(i) => {
             let image = document.images().nth(i).ok_or_else(|| gerr(format!("image {i} does not exist")))?;
-            let data = gltf::image::Data::from_source(image.source(), Some(dir), &buffers).map_err(|e| {
-                MeshIoError::Texture { path: path.to_path_buf(), texture: format!("image {i}"), message: e.to_string() }
-            })?;
-            Some(gltf_image_to_rgb(&data).ok_or_else(|| MeshIoError::Texture {
+            Some(gltf_texture(path, dir, image.source(), &buffers).map_err(|message| MeshIoError::Texture {
                 path: path.to_path_buf(),
                 texture: format!("image {i}"),
-                message: format!("unsupported pixel format {:?}", data.format),
+                message,
             })?)
         }
         None => None,
@@ -513,6 +537,106 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     }
     check_mesh(path, &mesh)?;
     Ok(TexturedMesh { mesh, texture })
+}
+
+/// Checks what `gltf` 1.4's validation does not but its reader relies on (each of these made it panic in
+/// `tests/fuzz.rs`; the inputs are in `tests/corpus/glb`, `tests/corpus/gltf`): before validation, that every
+/// primitive's accessors exist (validation indexes them) and that images say where their bytes are.
+fn check_gltf_references(root: &gltf::json::Root) -> Result<(), String> {
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            for index in prim.attributes.values().chain(prim.indices.iter()) {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {m} primitive {p} uses accessor {} but there are {}",
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    for (i, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.mime_type, &image.uri) {
+            (Some(_), None, _) => return Err(format!("image {i} is in a buffer view but has no mimeType")),
+            (None, _, None) => return Err(format!("image {i} has neither a uri nor a bufferView")),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// After validation: the accessors this reader reads (positions, the first UVs and colours, indices) have the
+/// component types and shapes the `gltf` reader handles (others reach an `unreachable!`) and lie inside their
+/// buffer views (so the number of elements read is bounded by the file's size).
+fn check_primitive_accessors(prim: &gltf::Primitive<'_>) -> Result<(), String> {
+    use gltf::accessor::{DataType as T, Dimensions as D};
+    use gltf::Semantic;
+    for (semantic, acc) in prim.attributes() {
+        let allowed: &[(T, D)] = match semantic {
+            Semantic::Positions => &[(T::F32, D::Vec3)],
+            Semantic::TexCoords(_) => &[(T::F32, D::Vec2), (T::U8, D::Vec2), (T::U16, D::Vec2)],
+            Semantic::Colors(_) => &[
+                (T::F32, D::Vec3),
+                (T::U8, D::Vec3),
+                (T::U16, D::Vec3),
+                (T::F32, D::Vec4),
+                (T::U8, D::Vec4),
+                (T::U16, D::Vec4),
+            ],
+            _ => continue,
+        };
+        check_accessor(&acc, &format!("{semantic:?}"), allowed)?;
+    }
+    if let Some(acc) = prim.indices() {
+        check_accessor(&acc, "indices", &[(T::U8, D::Scalar), (T::U16, D::Scalar), (T::U32, D::Scalar)])?;
+    }
+    Ok(())
+}
+
+fn check_accessor(
+    acc: &gltf::Accessor<'_>,
+    what: &str,
+    allowed: &[(gltf::accessor::DataType, gltf::accessor::Dimensions)],
+) -> Result<(), String> {
+    let kind = (acc.data_type(), acc.dimensions());
+    if !allowed.contains(&kind) {
+        return Err(format!(
+            "accessor {} ({what}) is {:?} {:?}, which this reader does not take",
+            acc.index(),
+            kind.0,
+            kind.1
+        ));
+    }
+    let out = |detail: String| format!("accessor {} ({what}) {detail}", acc.index());
+    // The byte range of `count` elements of `size` bytes at `stride` from `offset` must fit the view.
+    let fits = |view: &gltf::buffer::View<'_>, offset: usize, count: usize, size: usize| -> Result<(), String> {
+        let stride = view.stride().unwrap_or(size);
+        if stride < size {
+            return Err(out(format!("has a byte stride of {stride}, less than its {size}-byte elements")));
+        }
+        let end = match count {
+            0 => Some(offset),
+            n => stride.checked_mul(n - 1).and_then(|s| s.checked_add(offset)).and_then(|e| e.checked_add(size)),
+        };
+        let view_end = view.offset().checked_add(view.length());
+        match (end, view_end) {
+            (Some(e), Some(v)) if e <= view.length() && v <= view.buffer().length() => Ok(()),
+            _ => Err(out(format!("reads {count} elements past the end of buffer view {}", view.index()))),
+        }
+    };
+    if let Some(view) = acc.view() {
+        fits(&view, acc.offset(), acc.count(), acc.size())?;
+    }
+    if let Some(sparse) = acc.sparse() {
+        if acc.count() == 0 || sparse.count() == 0 {
+            return Err(out("is sparse with no elements".into()));
+        }
+        let indices = sparse.indices();
+        fits(&indices.view(), indices.offset(), sparse.count(), indices.index_type().size())?;
+        fits(&sparse.values().view(), sparse.values().offset(), sparse.count(), acc.size())?;
+    }
+    Ok(())
 }
 
 fn percent_decode(uri: &str) -> String {
@@ -533,21 +657,39 @@ fn percent_decode(uri: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
-fn gltf_image_to_rgb(data: &gltf::image::Data) -> Option<image::RgbImage> {
-    use gltf::image::Format;
-    let (w, h) = (data.width, data.height);
-    let px = &data.pixels;
-    let n = (w * h) as usize;
-    let rgb: Vec<u8> = match data.format {
-        Format::R8 => px.iter().flat_map(|&v| [v, v, v]).collect(),
-        Format::R8G8 => px.chunks_exact(2).flat_map(|c| [c[0], c[0], c[0]]).collect(),
-        Format::R8G8B8 => px.clone(),
-        Format::R8G8B8A8 => px.chunks_exact(4).flat_map(|c| [c[0], c[1], c[2]]).collect(),
-        Format::R16G16B16 => px.chunks_exact(2).map(|c| c[1]).collect(),
-        Format::R16G16B16A16 => px.chunks_exact(8).flat_map(|c| [c[1], c[3], c[5]]).collect(),
-        _ => return None,
+/// Decodes a glTF image (in a buffer view, a `data:` URI or a file next to the glTF) into 8-bit sRGB, with the
+/// photo loader's size checks (a forged header cannot allocate more than the file can hold).
+fn gltf_texture(
+    path: &Path,
+    dir: &Path,
+    source: gltf::image::Source<'_>,
+    buffers: &[gltf::buffer::Data],
+) -> Result<image::RgbImage, String> {
+    use crate::io::image_io::{decode_bytes, decode_file};
+    let image = match source {
+        gltf::image::Source::View { view, .. } => {
+            let buffer = buffers.get(view.buffer().index()).ok_or("its buffer does not exist")?;
+            let bytes = view
+                .offset()
+                .checked_add(view.length())
+                .and_then(|end| buffer.0.get(view.offset()..end))
+                .ok_or("its buffer view lies past the end of the buffer")?;
+            decode_bytes(bytes, path)
+        }
+        gltf::image::Source::Uri { uri, .. } => match uri.strip_prefix("data:") {
+            Some(data) => {
+                let (header, payload) = data.split_once(',').ok_or("a data: URI without a comma")?;
+                let bytes = if header.ends_with(";base64") {
+                    base64::decode(payload).map_err(|e| format!("data: URI: {e}"))?
+                } else {
+                    percent_decode(payload).into_bytes()
+                };
+                decode_bytes(&bytes, path)
+            }
+            None => decode_file(&dir.join(percent_decode(uri))),
+        },
     };
-    (rgb.len() == n * 3).then(|| image::RgbImage::from_raw(w, h, rgb)).flatten()
+    Ok(image.map_err(|e| e.to_string())?.to_rgb8())
 }
 
 /// Encodes a mesh as glTF 2.0 binary: positions, normals, `TEXCOORD_0` and an embedded PNG base-colour texture
