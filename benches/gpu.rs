@@ -26,12 +26,11 @@ use r2human::buffer::Image;
 use r2human::compose::{self, Mode};
 use r2human::geometry::raster::{rasterize, rasterize_into, GBuffer};
 use r2human::geometry::Camera;
-use r2human::gpu::neural::{gpu_neural_person, SourceView};
-use r2human::gpu::{offline, Context, Renderer};
+use r2human::gpu::{gpu_neural_person, offline, Context, Renderer};
 use r2human::io::environment::Environment;
 use r2human::neural::{ExecutionProvider, RuntimeOptions};
 use r2human::pipeline::warp::{render_geometric, OcclusionFill};
-use r2human::pipeline::{NeuralRenderer, PrepareOptions, PreparedInput, ViewRenderer};
+use r2human::pipeline::{NeuralRenderer, PrepareOptions, PreparedInput, SourceView, ViewRenderer};
 
 const SIZE: usize = 512;
 
@@ -154,7 +153,7 @@ fn bench(c: &mut Criterion) {
             let ctx = Arc::new(ctx);
             eprintln!("Vulkan device: {}", ctx.device_name());
             let mut gpu = Renderer::new(ctx, SIZE, SIZE).expect("renderer");
-            offline::upload_input(&mut gpu, &input, Some(&env), fill, true).expect("upload");
+            offline::upload_scene(&mut gpu, &SourceView::of(&input), Some(&env), fill, true).expect("upload");
             gpu.render_frame(&cams[0], Mode::Vr, None).expect("warm-up frame");
             let before = gpu.counters();
             let mut stages: Vec<Vec<Duration>> = vec![Vec::new(); 4];
@@ -250,11 +249,12 @@ fn bench_neural(c: &mut Criterion, input: &PreparedInput, env: &Environment, cam
             cpu.render_frame(&cams[k % cams.len()], Mode::Vr, env).expect("CPU neural frame")
         })
     });
-    assert_eq!(cpu.neural_fallbacks, 0, "the decoder failed on the CPU path");
+    assert_eq!(cpu.neural_fallbacks(), 0, "the decoder failed on the CPU path");
     match Context::headless() {
         Ok(ctx) => {
             let mut gpu = Renderer::new(Arc::new(ctx), SIZE, SIZE).expect("renderer");
-            offline::upload_input(&mut gpu, input, Some(env), OcclusionFill::default(), true).expect("upload");
+            offline::upload_scene(&mut gpu, &SourceView::of(input), Some(env), OcclusionFill::default(), true)
+                .expect("upload");
             let source = SourceView::of(input);
             let (mut gpu_inputs, mut decoder) = (Vec::new(), Vec::new());
             group.bench_function("vulkan/neural_seam_total_vr", |b| {

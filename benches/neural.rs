@@ -158,7 +158,7 @@ fn bench_per_view(c: &mut Criterion) {
     let mut net = ViewRenderer::for_renderer(&prepared, OcclusionFill::MirroredFront, false, neural.as_ref());
     assert!(net.is_neural(), "the tiny encoder failed");
     group.bench_function("tiny/256", |b| b.iter(|| black_box(net.render_frame(&cam, Mode::Vr, &env).unwrap())));
-    assert_eq!(net.neural_fallbacks, 0, "the decoder fell back to the geometric renderer");
+    assert_eq!(net.neural_fallbacks(), 0, "the decoder fell back to the geometric renderer");
     group.finish();
 }
 

@@ -22,18 +22,19 @@ use std::time::Duration;
 
 use criterion::{criterion_group, Criterion};
 use glam::{Quat, Vec3};
-use r2human::app::xr_session::scene_from_prepared;
 use r2human::buffer::RgbaImage;
 use r2human::compose::{self, Mode};
 use r2human::geometry::camera::Fov;
-use r2human::gpu::neural::{gpu_neural_person, SourceView};
+use r2human::gpu::gpu_neural_person;
 use r2human::gpu::offline;
 use r2human::gpu::{Context, Renderer};
 use r2human::io::environment::Environment;
 use r2human::neural::{ExecutionProvider, RuntimeOptions};
 use r2human::pipeline::warp::OcclusionFill;
-use r2human::pipeline::{NeuralInput, NeuralRenderer, PrepareOptions, PreparedInput, SharedNeural};
-use r2human::xr::{run_session, EyeNeural, Placement, SessionConfig, StaticScene, XrMode};
+use r2human::pipeline::{
+    NeuralInput, NeuralRenderer, PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural, SourceView,
+};
+use r2human::xr::{run_session, Placement, SessionConfig, StaticScene, XrMode};
 
 /// Eye image size cap used in all paths (the CLI default).
 const EYE_SIDE: u32 = 384;
@@ -74,11 +75,8 @@ fn bench_xr(c: &mut Criterion) {
         Ok(ctx) => {
             let ctx = Arc::new(ctx);
             let mut renderer = Renderer::new(ctx, w, h).expect("renderer");
-            let scene = scene_from_prepared(&input, None);
-            renderer.set_mesh(&scene.mesh).expect("mesh");
-            renderer
-                .set_source_parts(&scene.source_rgb, &scene.source_mask, &scene.source_gbuffer, &scene.source_camera)
-                .expect("source");
+            let scene = Scene::from_prepared(&input, None);
+            renderer.set_scene(&scene.source()).expect("scene");
             renderer.set_environment(&env).expect("panorama");
             renderer.set_fusion(true);
             let mut k = 0u64;
@@ -107,7 +105,8 @@ fn bench_xr(c: &mut Criterion) {
     if let Some((shared, encoded)) = &neural {
         if let Ok(ctx) = Context::headless() {
             let mut renderer = Renderer::new(Arc::new(ctx), w, h).expect("renderer");
-            offline::upload_input(&mut renderer, &input, Some(&env), OcclusionFill::default(), true).expect("upload");
+            offline::upload_scene(&mut renderer, &SourceView::of(&input), Some(&env), OcclusionFill::default(), true)
+                .expect("upload");
             let source = SourceView::of(&input);
             group.bench_function("gpu_eye_render_neural", |b| {
                 b.iter(|| {
@@ -142,7 +141,7 @@ fn bench_xr(c: &mut Criterion) {
     group.measurement_time(Duration::from_secs(20));
     group.bench_function("frame_interval", |b| {
         b.iter_custom(|iters| {
-            let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
+            let feed = Box::new(StaticScene::new(Scene::from_prepared(&input, None)));
             let report = run_session(&config(iters), feed, Some(env.clone())).expect("XR session");
             let interval = if report.display_fps > 0.0 { 1.0 / report.display_fps } else { 1.0 };
             Duration::from_secs_f64(interval * iters as f64)
@@ -155,13 +154,13 @@ fn bench_xr(c: &mut Criterion) {
         return;
     }
     println!("\nload average at the start of the sessions: {}", load_average());
-    let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
+    let feed = Box::new(StaticScene::new(Scene::from_prepared(&input, None)));
     // 600 person frames (about 11 s at the XCB compositor's rate): a few dozen eye renders per renderer.
     let report = run_session(&config(600), feed, Some(env.clone())).expect("XR session");
     println!("\nXR session with the simulated HMD (600 person frames, geometric renderer):\n{report}\n");
     if let Some((shared, encoded)) = &neural {
-        let eye = EyeNeural { renderer: Arc::clone(shared), encoded: encoded.clone() };
-        let feed = Box::new(StaticScene::new(scene_from_prepared(&input, Some(eye))));
+        let eye = SceneNeural { renderer: Arc::clone(shared), encoded: encoded.clone() };
+        let feed = Box::new(StaticScene::new(Scene::from_prepared(&input, Some(eye))));
         let report = run_session(&config(600), feed, Some(env.clone())).expect("XR session");
         println!("\nXR session with the simulated HMD (600 person frames, neural renderer):\n{report}\n");
     }

@@ -12,10 +12,12 @@
 //! - [`xr`], [`gpu`], [`window`]: OpenXR client, the Vulkan renderer and the desktop window.
 //! - [`pipeline`]: the stages as plain functions over images, with the CPU reference for each.
 //! - [`neural`], [`geometry`], [`compose`], [`io`], [`eval`], [`synth`], [`capture`]: the building blocks.
+//! - [`body`] (beside [`geometry`]): the MakeHuman body model the synthetic subjects and the body prior share.
 //! - [`buffer`]: the 2-D image buffer every stage passes around.
 //! - `fuzzing` (hidden): the loaders' fuzz targets, shared by `tests/fuzz.rs` and the `cargo fuzz` crate in `fuzz/`.
 
 pub mod app;
+pub mod body;
 pub mod buffer;
 pub mod capture;
 pub mod cli;

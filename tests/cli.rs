@@ -3,19 +3,8 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
-fn r2human() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_r2human"));
-    c.env("R2HUMAN_LOG", "warn");
-    c
-}
-
-fn run(cmd: &mut Command) -> (bool, String) {
-    let out = cmd.output().expect("run r2human");
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    (out.status.success(), text)
-}
+use common::{r2human, run};
 
 fn no_partial_files(dir: &Path) {
     for e in std::fs::read_dir(dir).unwrap() {

@@ -238,11 +238,7 @@ fn shipped_fof_net_beats_inflation_on_held_out_subjects() {
     let subjects: Vec<u64> = (0..5).map(|k| subject_seed(7, 10 * k + 9)).collect();
     for &seed in &subjects {
         let (rgb, mask, gt) = subject_source(seed, size);
-        let norm = r2human::pipeline::input::NormalisedInput {
-            rgb,
-            mask,
-            transform: r2human::pipeline::input::NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
-        };
+        let norm = r2human::pipeline::input::NormalisedInput::in_source_view(rgb, mask);
         let mut timings = StageTimings::default();
         let fof = compute_geometry(&norm, &opts, &mut timings).unwrap_or_else(|e| panic!("{e}"));
         assert!(timings.0.iter().any(|(name, _)| *name == "geometry (FOF net)"), "{:?}", timings.0);

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use glam::Vec3;
 use r2human::buffer::{GrayImage, Image};
-use r2human::geometry::fof::{intervals_from_mesh, Fof};
+use r2human::geometry::fof::{intervals_from_mesh, sheet_thickness, Fof};
 use r2human::geometry::inflate::{inflate, inflate_to_fof, InflateError, InflateParams};
 use r2human::geometry::marching::extract_mesh;
 use r2human::geometry::TriMesh;
@@ -159,7 +159,7 @@ fn non_watertight_scan_still_meshes() {
     });
     let extra: Vec<[u32; 3]> = scan.triangles.iter().take(200).copied().collect();
     scan.triangles.extend(extra);
-    let intervals = intervals_from_mesh(&scan, res, res);
+    let intervals = intervals_from_mesh(&scan, res, res, sheet_thickness(32));
     assert!(intervals.data.iter().all(|v| v.iter().all(|&(a, b)| a < b && a >= -1.0 && b <= 1.0)));
     let fof = Fof::from_intervals(&intervals, 32).unwrap();
     let mesh = extract_mesh(&fof, 64);

@@ -564,7 +564,7 @@ fn zero_residual_decoder_is_the_geometric_renderer() {
         let cam = Camera::orbit(yaw, 10.0, 80, 80);
         let g = geo.render_person(&cam).unwrap();
         let n = net.render_person(&cam).unwrap();
-        assert_eq!(net.neural_fallbacks, 0);
+        assert_eq!(net.neural_fallbacks(), 0);
         // Which pixels the photo has a colour for (the lookup's alpha).
         let mut target = GBuffer::new(80, 80);
         r2human::geometry::raster::rasterize_into(&mut target, &prepared.mesh, &cam);
@@ -604,7 +604,7 @@ fn nan_decoder_falls_back_to_the_geometric_view() {
     for (k, yaw) in [30.0f32, 200.0].into_iter().enumerate() {
         let cam = Camera::orbit(yaw, 0.0, 48, 48);
         let out = r.render_person(&cam).unwrap();
-        assert_eq!(r.neural_fallbacks, k + 1);
+        assert_eq!(r.neural_fallbacks(), k + 1);
         assert_eq!(out, geo.render_person(&cam).unwrap());
         assert!(out.data.iter().filter(|p| p.w > 0.5 && p.truncate().max_element() > 0.01).count() > 100);
     }
@@ -614,7 +614,7 @@ fn nan_decoder_falls_back_to_the_geometric_view() {
     let mut r = ViewRenderer::for_renderer(&prepared, OcclusionFill::MirroredFront, false, Some(&neural));
     let cam = Camera::orbit(30.0, 0.0, 48, 48);
     let out = r.render_person(&cam).unwrap();
-    assert_eq!(r.neural_fallbacks, 0);
+    assert_eq!(r.neural_fallbacks(), 0);
     assert_ne!(out, geo.render_person(&cam).unwrap());
 }
 

@@ -110,7 +110,7 @@ fn engine_switches_renderers_on_the_gpu_and_reuses_the_neural_layer() {
     let mut engine = Engine::still(&input, &env, Backend::Vulkan, loaded());
     // A loaded neural renderer is where the window starts; the photo was encoded once.
     assert_eq!(engine.shading(), Shading::Neural);
-    assert_eq!(engine.neural_counters().encodes, 1);
+    assert_eq!(engine.encodes(), 1);
     engine.attach(&mut gpu).unwrap();
     let cam = Camera::orbit(35.0, 5.0, 96, 96);
     let frame = |engine: &mut Engine<'_>, gpu: &mut Renderer, mode| draw(engine, gpu, &cam, mode);
@@ -120,7 +120,7 @@ fn engine_switches_renderers_on_the_gpu_and_reuses_the_neural_layer() {
     // The same camera and input again: the layer on the GPU is reused, the decoder does not run.
     let again = frame(&mut engine, &mut gpu, Mode::Ar);
     let c = engine.neural_counters();
-    assert_eq!((c.frames, c.decoder_runs, c.fallbacks), (2, 1, 0));
+    assert_eq!((c.views, c.decoder_runs, c.fallbacks), (2, 1, 0));
     assert_eq!(mean_abs_diff(&neural, &again), 0.0);
     // G: the geometric warp draws the next frame, and it is a different image of the same person.
     engine.set_shading(Shading::Geometric).unwrap();
@@ -138,7 +138,7 @@ fn engine_switches_renderers_on_the_gpu_and_reuses_the_neural_layer() {
     // VR: the layer composited over the panorama, finite and bounded.
     let vr = frame(&mut engine, &mut gpu, Mode::Vr);
     assert!(rgb_of(&vr).iter().all(|c| c.is_finite() && c.min_element() >= 0.0 && c.max_element() <= 1.0 + 1e-4));
-    assert_eq!(engine.neural_counters().encodes, 1, "views never run the encoder");
+    assert_eq!(engine.encodes(), 1, "views never run the encoder");
 }
 
 /// The host-memory seam (GPU raster and flow read back, lookup and decoder on the host, fusion and compositing on
@@ -162,7 +162,7 @@ fn gpu_seam_matches_the_cpu_neural_path() {
         for yaw in [0.0f32, 60.0, 180.0] {
             let cam = Camera::orbit(yaw, 0.0, 96, 96);
             let want = reference.render_frame(&cam, Mode::Vr, &env).unwrap();
-            assert_eq!(reference.neural_fallbacks, 0);
+            assert_eq!(reference.neural_fallbacks(), 0);
             let got = draw(&mut engine, &mut gpu, &cam, Mode::Vr);
             assert_eq!(engine.drawn(), Drawn::Neural);
             let p = psnr(&want, &got);
@@ -264,7 +264,7 @@ fn live_pipeline_encodes_exactly_once_per_new_frame_and_drops_the_rest() {
             encoded,
         );
         let person = view.render_person(&Camera::orbit(40.0 * views as f32, 0.0, 48, 48)).unwrap();
-        assert_eq!(view.neural_fallbacks, 0);
+        assert_eq!(view.neural_fallbacks(), 0);
         assert!(person.data.iter().all(|p| p.is_finite() && p.w <= 1.0));
         views += 1;
     }

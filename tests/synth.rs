@@ -401,7 +401,12 @@ mod eval_run {
         let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
         assert!(csv.starts_with("method,group,psnr,ssim,"));
         assert!(csv.contains("ms_per_view,ms_per_input"));
-        assert!(csv.lines().next().unwrap().ends_with(",peak_mib"));
+        assert!(csv.lines().next().unwrap().ends_with(",peak_mib,psnr_frame,ssim_frame,inputs"));
+        // The paper's whole-frame metrics: the background both agree on counts, so they exceed the union's.
+        for r in &rep.rows {
+            assert_eq!(r.inputs, "synthetic");
+            assert!(r.psnr_frame > r.psnr && r.ssim_frame > r.ssim && r.ssim_frame <= 1.0, "{r:?}");
+        }
         // Memory per method (exact values belong to tests/eval_memory.rs: tests here run in parallel threads).
         for r in &rep.rows {
             assert!(r.peak_mib.is_none_or(|m| m.is_finite() && m >= 0.0), "{r:?}");

@@ -450,9 +450,9 @@ fn neural_view_renders_the_person_and_g_n_switch() {
         assert_eq!(stats.frames, 6);
         assert_eq!(stats.renderer, Drawn::Neural);
         // Frames 0, 1 (reused), 4 and 5 (reused) neural; 2 and 3 geometric. One encoder run for the photo.
-        assert_eq!(stats.neural.frames, 4);
+        assert_eq!(stats.neural.views, 4);
         assert_eq!(stats.neural.decoder_runs, 2);
-        assert_eq!(stats.neural.encodes, 1);
+        assert_eq!(stats.encodes, 1);
         assert_eq!(stats.neural.fallbacks, 0);
         assert!(stats.overlay[0].contains("VULKAN") && stats.overlay[0].ends_with("| NEURAL"), "{:?}", stats.overlay);
         assert!(stats.overlay.iter().any(|l| l.starts_with("NEURAL MS:")), "{:?}", stats.overlay);
@@ -490,7 +490,7 @@ fn n_without_models_shows_why_in_the_overlay() {
         });
         assert_eq!(stats.frames, 4);
         assert_eq!(stats.renderer, Drawn::Geometric);
-        assert_eq!(stats.neural.frames, 0);
+        assert_eq!(stats.neural.views, 0);
         let why = stats.neural_message.clone().expect("N was refused with a reason");
         assert!(why.starts_with("NEURAL RENDERER OFF:"), "{why}");
         assert!(stats.overlay.contains(&why), "the reason is on screen: {:?}", stats.overlay);
@@ -530,7 +530,7 @@ neural: {:?}",
         );
         assert!(stats.source_finished);
         assert_eq!(live.read, 4);
-        assert_eq!(stats.neural.encodes, live.completed, "one encoder run per completed frame");
+        assert_eq!(stats.encodes, live.completed, "one encoder run per completed frame");
         assert_eq!(live.completed + live.dropped, live.read);
         assert_eq!(stats.renderer, Drawn::Neural);
         assert!(stats.neural.decoder_runs >= 1 && stats.neural.fallbacks == 0);

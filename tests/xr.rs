@@ -21,8 +21,9 @@ use r2human::buffer::{GrayImage, RgbImage, RgbaImage};
 use r2human::geometry::raster::rasterize;
 use r2human::geometry::{Camera, TriMesh};
 use r2human::io::environment::Environment;
+use r2human::pipeline::Scene;
 use r2human::xr::session::{EndReason, SessionReport};
-use r2human::xr::{check_runtime, run_session, EyeScene, SceneFeed, SessionConfig, StaticScene, XrError, XrMode};
+use r2human::xr::{check_runtime, run_session, SceneFeed, SessionConfig, StaticScene, XrError, XrMode};
 
 const IGNORE_REASON: &str = "needs a running OpenXR runtime; run via xr_suite_in_monado_root";
 
@@ -138,14 +139,14 @@ fn check_on_a_machine_without_openxr_is_a_clear_sentence() {
 const BOX_HALF: Vec3 = Vec3::new(0.25, 0.9, 0.15);
 const FRONT: Vec3 = Vec3::new(0.8, 0.2, 0.1);
 
-fn box_scene() -> EyeScene {
+fn box_scene() -> Scene {
     let mesh = TriMesh::cuboid(-BOX_HALF, BOX_HALF);
     let source_camera = Camera::source(256);
     let gbuffer = rasterize(&mesh, &source_camera);
     let (w, h) = (gbuffer.width, gbuffer.height);
     let mask = GrayImage::from_fn(w, h, |c, r| if gbuffer.mask[r * w + c] { 1.0 } else { 0.0 });
     let rgb = RgbImage::from_fn(w, h, |c, r| if gbuffer.mask[r * w + c] { FRONT } else { Vec3::ZERO });
-    EyeScene { mesh, source_rgb: rgb, source_mask: mask, source_gbuffer: gbuffer, source_camera, neural: None }
+    Scene { mesh, rgb, mask, gbuffer, camera: source_camera, neural: None }
 }
 
 fn box_feed() -> Box<dyn SceneFeed> {
@@ -424,8 +425,9 @@ fn save_capture(name: &str, img: &RgbaImage) {
 fn validation_layers_are_active_and_captured() {
     use ash::vk;
     use openxr as xr;
-    use r2human::xr::diag::{DiagnosticLog, XrMessenger};
-    use r2human::xr::gfx::VulkanContext;
+    use r2human::xr::device::create_device;
+    use r2human::xr::diag::{ValidationLog, XrMessenger};
+    use std::sync::Arc;
 
     assert_validation_layers_present();
     let entry = r2human::xr::load_entry().unwrap();
@@ -440,7 +442,7 @@ fn validation_layers_are_active_and_captured() {
         api_version: xr::Version::new(1, 0, 0),
     };
     let instance = entry.create_instance(&app, &exts, &[], &()).unwrap();
-    let xr_log = DiagnosticLog::new();
+    let xr_log = Arc::new(ValidationLog::default());
     let messenger = XrMessenger::new(&instance, xr_log.clone()).expect("XR_EXT_debug_utils messenger");
     let system = instance.system(xr::FormFactor::HEAD_MOUNTED_DISPLAY).unwrap();
     // OpenXR: a NULL output pointer; the core validation layer rejects it before the runtime sees it.
@@ -450,16 +452,16 @@ fn validation_layers_are_active_and_captured() {
     assert!(xr_log.count() >= 1, "the OpenXR core validation report was not captured");
 
     // Vulkan: a zero-sized buffer violates VUID-VkBufferCreateInfo-size-00912.
-    let ctx = VulkanContext::new(&instance, system).expect("Vulkan through OpenXR");
-    assert_eq!(ctx.validation.count(), 0);
+    let ctx = create_device(&instance, system, &[], &[]).expect("Vulkan through OpenXR");
+    assert_eq!(ctx.validation().count(), 0);
     let info = vk::BufferCreateInfo::default().size(0).usage(vk::BufferUsageFlags::TRANSFER_SRC);
     // SAFETY: an invalid create info on purpose; a buffer the driver still returns is destroyed right away.
     unsafe {
-        if let Ok(buffer) = ctx.device.create_buffer(&info, None) {
-            ctx.device.destroy_buffer(buffer, None);
+        if let Ok(buffer) = ctx.device().create_buffer(&info, None) {
+            ctx.device().destroy_buffer(buffer, None);
         }
     }
-    let messages = ctx.validation.messages();
+    let messages = ctx.validation().messages();
     println!("captured: {messages:?} / {:?}", xr_log.messages());
     assert!(messages.iter().any(|m| m.contains("00912")), "Vulkan validation did not report the zero-size buffer");
     drop(ctx);
@@ -555,11 +557,10 @@ fn parse_ppm(bytes: &[u8]) -> Option<(usize, usize, Vec<u8>)> {
 #[test]
 #[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
 fn pipeline_person_appears_where_the_eye_pose_says() {
-    use r2human::app::xr_session::scene_from_prepared;
     use r2human::pipeline::{PrepareOptions, PreparedInput};
     let (rgb, mask) = xr_support::figure(512);
     let input = PreparedInput::prepare(&rgb, &mask, &PrepareOptions::default()).expect("prepare");
-    let feed = Box::new(StaticScene::new(scene_from_prepared(&input, None)));
+    let feed = Box::new(StaticScene::new(Scene::from_prepared(&input, None)));
     let report = run_session(&config(XrMode::Ar, 10), feed, None).expect("session runs");
     assert_clean_session(&report, 10);
     for cap in &report.captures {
@@ -588,10 +589,9 @@ fn pipeline_person_appears_where_the_eye_pose_says() {
 #[test]
 #[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
 fn neural_eyes_show_the_person_where_the_eye_pose_says() {
-    use r2human::app::xr_session::scene_from_prepared;
     use r2human::neural::{ExecutionProvider, RuntimeOptions};
+    use r2human::pipeline::SceneNeural;
     use r2human::pipeline::{NeuralRenderer, PrepareOptions, PreparedInput};
-    use r2human::xr::EyeNeural;
     use std::sync::{Arc, Mutex};
     assert_validation_layers_present();
     let (rgb, mask) = xr_support::figure(512);
@@ -601,14 +601,14 @@ fn neural_eyes_show_the_person_where_the_eye_pose_says() {
     let neural = NeuralRenderer::load(&models, &options).unwrap_or_else(|e| panic!("models/tiny: {e}"));
     let renderer = Arc::new(Mutex::new(neural));
     let encoded = renderer.lock().unwrap().encode(&input).expect("encoder");
-    let scene = scene_from_prepared(&input, Some(EyeNeural { renderer, encoded }));
+    let scene = Scene::from_prepared(&input, Some(SceneNeural { renderer, encoded }));
     let report = run_session(&config(XrMode::Ar, 6), Box::new(StaticScene::new(scene)), None).expect("session runs");
     assert_clean_session(&report, 6);
     println!("neural eyes: {:?}", report.neural);
     assert!(report.person_renderer.starts_with("neural"), "{}", report.person_renderer);
-    assert_eq!(report.neural.fallbacks, 0, "the decoder failed on some eyes");
-    assert!(report.neural.decoder_runs >= 2, "both eyes decoded at least once: {:?}", report.neural);
-    assert_eq!(report.neural.eyes as usize, report.eye_renders, "every eye render was neural");
+    assert_eq!(report.neural.counters.fallbacks, 0, "the decoder failed on some eyes");
+    assert!(report.neural.counters.decoder_runs >= 2, "both eyes decoded at least once: {:?}", report.neural);
+    assert_eq!(report.neural.counters.views as usize, report.eye_renders, "every eye render was neural");
     for cap in &report.captures {
         let (w, h) = (cap.image.width, cap.image.height);
         let cam = cap.placement.eye_camera(cap.view.position, cap.view.orientation, cap.view.fov, w, h);

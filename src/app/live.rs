@@ -705,7 +705,7 @@ pub fn render_video_views(
             _ => ViewRenderer::new(&frame.input, fill, false),
         };
         let person = view.render_person(camera).map_err(|e| e.to_string());
-        fallbacks += view.neural_fallbacks;
+        fallbacks += view.neural_fallbacks();
         person
     };
     let report = render_video(source, method, options, &mut processor, render, out_dir, on_message)?;

@@ -45,14 +45,16 @@ use crate::capture::stats::DurationHistogram;
 use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
 use crate::geometry::Camera;
-use crate::gpu::neural::{gpu_neural_person, NeuralViewTimes, SourceView};
-use crate::gpu::{offline, Context, GpuError, OverlayMask, PresentTarget, Renderer};
+use crate::gpu::{offline, Acquired, Context, GpuError, GpuView, OverlayMask, PresentTarget, Renderer, Swapchain};
 use crate::io::environment::Environment;
 use crate::io::image_io;
 use crate::io::sequence::Frame;
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{NeuralInput, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
-use crate::window::{Acquired, Swapchain};
+pub use crate::pipeline::{Drawn, NeuralCounters};
+use crate::pipeline::{
+    Neural, NeuralInput, NeuralPolicy, NeuralRequest, PrepareOptions, PreparedInput, SharedNeural, SourceView,
+    ViewRenderer,
+};
 
 /// Which engine computes the person.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -271,8 +273,10 @@ pub struct ViewStats {
     pub frames_after_source_end: u64,
     /// Which renderer drew the last frame.
     pub renderer: Drawn,
-    /// Neural frames, decoder and encoder runs, fallbacks.
+    /// Neural frames, decoder runs, reused layers, fallbacks.
     pub neural: NeuralCounters,
+    /// Encoder runs: once for a photo, once per completed live frame (on the worker thread).
+    pub encodes: u64,
     /// The last refused switch to the neural renderer: why, and how to enable it.
     pub neural_message: Option<String>,
 }
@@ -355,31 +359,30 @@ pub fn render_on_backend(
     let ctx = Arc::new(ctx);
     let encoded = match neural {
         Some(shared) => match shared.lock().unwrap_or_else(|p| p.into_inner()).encode(input) {
-            Ok(e) => Some((shared, e)),
+            Ok(e) => Some(e),
             Err(e) => {
-                eprintln!("warning: the neural encoder failed on this input ({e}); rendering geometrically");
+                tracing::warn!("the neural encoder failed on this input ({e}); rendering geometrically");
                 None
             }
         },
         None => None,
     };
-    let result = match &encoded {
-        Some((shared, encoded)) => {
-            offline::render_views_neural(ctx, input, env, cameras, mode, fill, fusion, (shared, encoded)).map(
-                |(f, n)| {
-                    if n > 0 {
-                        eprintln!(
-                            "warning: the neural decoder failed on {n} view(s); the geometric renderer drew them"
-                        );
-                    }
-                    f
-                },
-            )
-        }
-        None => offline::render_views(ctx, input, env, cameras, mode, fill, fusion),
+    // An input the encoder failed on is drawn geometrically (said above), not counted per view.
+    let request = match encoded.as_ref() {
+        Some(e) => NeuralRequest::from_parts(neural, Some(e)),
+        None => NeuralRequest::Off,
     };
-    match result {
-        Ok(frames) => Ok(Some(frames)),
+    let settings = offline::ViewSettings { mode, fill, fusion };
+    match offline::render_views(ctx, SourceView::of(input), request, env, cameras, settings) {
+        Ok((frames, counters)) => {
+            if counters.fallbacks > 0 {
+                tracing::warn!(
+                    "the neural decoder failed on {} view(s); the geometric renderer drew them",
+                    counters.fallbacks
+                );
+            }
+            Ok(Some(frames))
+        }
         Err(e) => cpu_without_device(e),
     }
 }
@@ -577,50 +580,11 @@ impl LiveInput {
     }
 }
 
-/// Which renderer drew a frame (shown in the overlay and the title).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Drawn {
-    /// No frame yet, or no person yet (a live source before its first frame).
-    #[default]
-    Nothing,
-    /// The geometric warp.
-    Geometric,
-    /// The neural decoder.
-    Neural,
-    /// The geometric warp because the neural renderer failed on this frame (decoder error, or no encoder output).
-    GeometricFallback,
-}
-
-impl Drawn {
-    /// The overlay's label.
-    pub fn label(self) -> &'static str {
-        match self {
-            Drawn::Nothing => "NO PERSON YET",
-            Drawn::Geometric => "GEOMETRIC",
-            Drawn::Neural => "NEURAL",
-            Drawn::GeometricFallback => "GEOMETRIC (NEURAL FAILED)",
-        }
-    }
-}
-
-/// Counters of the neural renderer in a window session.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct NeuralCounters {
-    /// Frames drawn by the neural decoder (including reused layers).
-    pub frames: u64,
-    /// Decoder runs (a frame whose camera and input did not change reuses the last layer on the GPU path).
-    pub decoder_runs: u64,
-    /// Frames the neural renderer failed on (drawn geometrically instead).
-    pub fallbacks: u64,
-    /// Encoder runs: once for a photo, once per completed live frame (on the worker thread).
-    pub encodes: u64,
-}
-
 /// Renders the person for the window: the Vulkan passes or the CPU reference (then only presented through
 /// Vulkan), from a photo or from the live pipeline's latest completed frame, with the geometric or the neural
 /// renderer ([`Engine::set_shading`], the `G`/`N` keys).
 ///
-/// The neural renderer on the Vulkan backend goes through host memory ([`crate::gpu::neural::gpu_neural_person`]):
+/// The neural renderer on the Vulkan backend goes through host memory ([`crate::gpu::gpu_neural_person`]):
 /// GPU raster and flow/Z-map, read back; colour lookup, feature sampling and the decoder on ONNX Runtime; the
 /// person layer uploaded for fusion, compositing and presentation on the GPU. An unmoved camera on an unchanged
 /// input reuses the last layer without running the decoder. On the CPU backend the CPU per-view path runs it.
@@ -643,11 +607,12 @@ pub struct Engine<'a> {
     drawn: Drawn,
     /// A one-line message for the overlay (why `N` did nothing), with when it was set.
     message: Option<(String, Instant)>,
-    /// Camera and input sequence of the neural layer on the GPU (reused while both stay).
-    neural_layer: Option<(Camera, u64)>,
-    counters: NeuralCounters,
-    /// Host times of the last decoder run: GPU inputs incl. read-back, decoder.
-    neural_times: NeuralViewTimes,
+    /// The person-renderer policy of the Vulkan backend (neural layer reuse, fallbacks, host times).
+    policy: NeuralPolicy,
+    /// What the CPU backend's view renderers did (they are replaced with the input or the shading).
+    cpu_counters: NeuralCounters,
+    /// Encoder runs for a photo (live frames count theirs on the worker thread).
+    encodes: u64,
 }
 
 impl<'a> Engine<'a> {
@@ -666,16 +631,16 @@ impl<'a> Engine<'a> {
             shading: Shading::Geometric,
             drawn: Drawn::Nothing,
             message: None,
-            neural_layer: None,
-            counters: NeuralCounters::default(),
-            neural_times: NeuralViewTimes::default(),
+            policy: NeuralPolicy::default(),
+            cpu_counters: NeuralCounters::default(),
+            encodes: 0,
         };
         if let (PersonInput::Still(p), Some(shared)) = (&engine.input, &engine.neural.renderer) {
             let encoded = shared.lock().unwrap_or_else(|e| e.into_inner()).encode(p);
             match encoded {
                 Ok(e) => {
                     engine.still_encoded = Some(e);
-                    engine.counters.encodes += 1;
+                    engine.encodes += 1;
                 }
                 Err(e) => {
                     tracing::warn!("the neural encoder failed on this photo; using the geometric renderer: {e}");
@@ -712,13 +677,19 @@ impl<'a> Engine<'a> {
         self.backend
     }
 
-    /// Neural counters so far (frames, decoder runs, fallbacks, encoder runs).
+    /// Neural counters so far (frames, decoder runs, reused layers, fallbacks) of both backends.
     pub fn neural_counters(&self) -> NeuralCounters {
-        let mut c = self.counters;
-        if let PersonInput::Live(live) = &self.input {
-            c.encodes = live.encodes.load(Ordering::Relaxed);
-        }
+        let mut c = self.policy.counters();
+        c += self.cpu_counters;
         c
+    }
+
+    /// Encoder runs so far: once for a photo, once per completed live frame (on the worker thread).
+    pub fn encodes(&self) -> u64 {
+        match &self.input {
+            PersonInput::Live(live) => live.encodes.load(Ordering::Relaxed),
+            PersonInput::Still(_) => self.encodes,
+        }
     }
 
     /// The one-line overlay message of the last refused switch (why the neural renderer is unavailable), if any.
@@ -738,7 +709,7 @@ impl<'a> Engine<'a> {
         if shading != self.shading {
             self.shading = shading;
             self.message = None;
-            self.neural_layer = None;
+            self.policy.forget_layer();
             tracing::info!("renderer: {shading:?}");
         }
         Ok(())
@@ -769,11 +740,11 @@ impl<'a> Engine<'a> {
         let (w, h) = renderer.size();
         self.blank = Some(Frame::Vr(Image::new(w, h, Vec3::splat(0.05))));
         self.uploaded = None;
-        self.neural_layer = None;
+        self.policy.forget_layer();
         if self.backend == Backend::Vulkan {
             renderer.set_environment(self.env)?;
             if let PersonInput::Still(p) = self.input {
-                offline::upload_input(renderer, p, None, self.fill, true)?;
+                offline::upload_scene(renderer, &SourceView::of(p), None, self.fill, true)?;
                 self.uploaded = Some(0);
             }
         }
@@ -791,7 +762,7 @@ impl<'a> Engine<'a> {
         let Some(current) = live.current.as_ref() else { return Ok(()) };
         if self.uploaded != Some(current.sequence) {
             if self.backend == Backend::Vulkan {
-                offline::upload_input(renderer, &current.output.input, None, self.fill, true)?;
+                offline::upload_scene(renderer, &SourceView::of(&current.output.input), None, self.fill, true)?;
             }
             self.uploaded = Some(current.sequence);
             self.uploads += 1;
@@ -874,96 +845,41 @@ impl<'a> Engine<'a> {
             self.drawn = Drawn::Nothing;
             return Ok(want_frame.then(|| blank.clone()));
         };
-        let neural = match (&self.neural.renderer, self.shading) {
-            (Some(shared), Shading::Neural) => match encoded {
-                Some(encoded) => Some((Arc::clone(shared), encoded.clone())),
-                None => {
-                    // The encoder failed on this live frame: drawn geometrically, and said so.
-                    self.counters.fallbacks += 1;
-                    None
-                }
-            },
-            _ => None,
+        let request = match self.shading {
+            Shading::Neural => NeuralRequest::from_parts(self.neural.renderer.as_ref(), encoded),
+            Shading::Geometric => Neural::Off,
         };
-        let wants_neural = self.shading == Shading::Neural && self.neural.renderer.is_some();
         match self.backend {
             // `Auto` is resolved by `attach`; an engine drawn before that renders like the Vulkan one.
             Backend::Vulkan | Backend::Auto => {
-                if let Some((shared, encoded)) = neural {
-                    if self.neural_layer == Some((*camera, sequence)) {
-                        renderer.render_frame_from_person(None, camera, mode, target)?;
-                        self.counters.frames += 1;
-                        self.drawn = Drawn::Neural;
-                        return Ok(want_frame.then(|| renderer.read_output(mode)));
-                    }
-                    let source = SourceView::of(input);
-                    match gpu_neural_person(renderer, &shared, source, &encoded, camera) {
-                        Ok((person, times)) => {
-                            renderer.render_frame_from_person(Some(&person), camera, mode, target)?;
-                            self.neural_layer = Some((*camera, sequence));
-                            self.neural_times = times;
-                            self.counters.frames += 1;
-                            self.counters.decoder_runs += 1;
-                            self.drawn = Drawn::Neural;
-                            return Ok(want_frame.then(|| renderer.read_output(mode)));
-                        }
-                        Err(e) => {
-                            if self.counters.fallbacks == 0 {
-                                tracing::warn!("neural renderer failed on a frame, drawing it geometrically: {e}");
-                            }
-                            self.counters.fallbacks += 1;
-                        }
-                    }
-                }
-                self.neural_layer = None;
-                renderer.render_frame(camera, mode, target)?;
-                self.drawn = if wants_neural { Drawn::GeometricFallback } else { Drawn::Geometric };
+                let mut view = GpuView { renderer: &mut *renderer, mode, target };
+                let ((), drawn) = self.policy.draw(&mut view, SourceView::of(input), request, sequence, camera)?;
+                self.drawn = drawn;
                 Ok(want_frame.then(|| renderer.read_output(mode)))
             }
             Backend::Cpu => {
-                let use_neural = neural.is_some();
-                let (frame, failed) = match (&self.input, neural) {
-                    (&PersonInput::Still(p), neural) => {
-                        let shading = if use_neural { Shading::Neural } else { Shading::Geometric };
+                let (frame, drawn, counters) = match &self.input {
+                    &PersonInput::Still(p) => {
+                        let shading =
+                            if matches!(request, Neural::On(_)) { Shading::Neural } else { Shading::Geometric };
                         if self.cpu_still.as_ref().is_none_or(|(s, _)| *s != shading) {
-                            let view = match neural {
-                                Some((shared, encoded)) => {
-                                    ViewRenderer::with_neural(p, self.fill, true, shared, encoded)
-                                }
-                                None => ViewRenderer::new(p, self.fill, true),
-                            };
-                            self.cpu_still = Some((shading, view));
+                            self.cpu_still = Some((shading, ViewRenderer::for_request(p, self.fill, true, request)));
                         }
                         let (_, view) = self.cpu_still.as_mut().context("the CPU renderer was just made")?;
-                        let before = view.neural_fallbacks;
+                        let before = view.neural_counters();
                         let frame = view.render_frame(camera, mode, self.env)?;
-                        (frame, view.neural_fallbacks > before)
+                        (frame, view.drawn(), view.neural_counters().since(before))
                     }
                     // Live frames change under the view: a fresh reference renderer (no fusion) per frame; the
                     // encoder's output comes with the frame, so nothing is encoded here.
-                    (PersonInput::Live(_), neural) => {
-                        let mut view = match neural {
-                            Some((shared, encoded)) => {
-                                ViewRenderer::with_neural(input, self.fill, false, shared, encoded)
-                            }
-                            None => ViewRenderer::new(input, self.fill, false),
-                        };
+                    PersonInput::Live(_) => {
+                        let mut view = ViewRenderer::for_request(input, self.fill, false, request);
                         let frame = view.render_frame(camera, mode, self.env)?;
-                        (frame, view.neural_fallbacks > 0)
+                        (frame, view.drawn(), view.neural_counters())
                     }
                 };
-                if use_neural && !failed {
-                    self.counters.frames += 1;
-                    self.counters.decoder_runs += 1;
-                    self.drawn = Drawn::Neural;
-                } else if wants_neural {
-                    if failed {
-                        self.counters.fallbacks += 1;
-                    }
-                    self.drawn = Drawn::GeometricFallback;
-                } else {
-                    self.drawn = Drawn::Geometric;
-                }
+                self.cpu_counters += counters;
+                self.drawn = drawn;
                 if let Some(target) = target {
                     renderer.present_frame(&frame, target)?;
                 }
@@ -981,7 +897,7 @@ impl<'a> Engine<'a> {
             }
         }
         if self.drawn == Drawn::Neural && self.backend == Backend::Vulkan {
-            let t = self.neural_times;
+            let t = self.policy.last_times();
             lines.push(format!(
                 "NEURAL MS: GPU RASTER+FLOW+READBACK {:.1} LOOKUP+DECODER {:.1} (HOST MEMORY SEAM)",
                 t.gpu_inputs.as_secs_f64() * 1e3,
@@ -1026,6 +942,7 @@ impl<'a> Engine<'a> {
         stats.live_uploads = self.uploads;
         stats.renderer = self.drawn;
         stats.neural = self.neural_counters();
+        stats.encodes = self.encodes();
         stats.neural_message = self.message.as_ref().map(|(m, _)| m.clone());
         if let PersonInput::Live(live) = &self.input {
             stats.live = Some(live.pipeline.stats());
@@ -1178,8 +1095,8 @@ impl App<'_, '_> {
         let Some(gfx) = self.gfx.as_mut() else { return Ok(()) };
         let start = Instant::now();
         self.engine.update(&mut gfx.renderer)?;
-        let acquired = gfx.swapchain.acquire()?;
-        let Acquired::Image { index, image, ready, rendered } = acquired else {
+        let acquired = gfx.swapchain.acquire(u64::MAX)?;
+        let Acquired::Image { index, image, ready, rendered, .. } = acquired else {
             self.resized = true;
             return Ok(());
         };

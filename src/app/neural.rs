@@ -3,7 +3,7 @@
 //! - [`NeuralSetup`] / [`NeuralAvailability`]: `--renderer auto|geometric|neural` resolved once, keeping the
 //!   reason when the neural renderer is not available (the window shows it in one overlay line when `N` is
 //!   pressed) instead of only logging it.
-//! - The Vulkan paths draw neural views through the host-memory seam [`crate::gpu::neural::gpu_neural_person`].
+//! - The Vulkan paths draw neural views through the host-memory seam [`crate::gpu::gpu_neural_person`].
 //!
 //! The encoder runs once per input frame (a photo once; live frames on the pipeline's worker thread, see
 //! [`crate::app::live::EncodeProcessor`]); the decoder once per view.

@@ -4,7 +4,7 @@
 //!
 //! The OpenXR session, the per-eye Vulkan renderers, frame pacing and placement live in [`crate::xr`]; this module
 //! prepares the input (once for a photo; per frame on the live pipeline's worker thread for `--video`/`--camera`)
-//! and hands it to the session as [`EyeScene`]s.
+//! and hands it to the session as [`Scene`]s.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -20,8 +20,8 @@ use crate::capture::{CameraRequest, SegmentMethod, SourceFactory};
 use crate::compose::Mode;
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::pipeline::{PrepareOptions, PreparedInput, SharedNeural};
-use crate::xr::{EyeNeural, EyeScene, SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
+use crate::pipeline::{PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural};
+use crate::xr::{SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
 
 /// Where the person comes from.
 #[derive(Clone, Debug)]
@@ -87,19 +87,6 @@ impl Default for XrOptions {
     }
 }
 
-/// The renderer's view of a prepared input: mesh, source colour and mask, source G-buffer and camera, and the
-/// neural renderer with the encoder's output for the input when the eyes are drawn by it.
-pub fn scene_from_prepared(input: &PreparedInput, neural: Option<EyeNeural>) -> EyeScene {
-    EyeScene {
-        mesh: input.mesh.clone(),
-        source_rgb: input.normalised.rgb.clone(),
-        source_mask: input.normalised.mask.clone(),
-        source_gbuffer: input.source_gbuffer.clone(),
-        source_camera: input.source_camera,
-        neural,
-    }
-}
-
 /// A live source as a scene feed: the newest completed frame of a [`LivePipeline`] (read without blocking), its
 /// messages passed on, and one message when the source ends (the session keeps showing the last person).
 pub struct LiveFeed {
@@ -139,7 +126,7 @@ impl LiveFeed {
 }
 
 impl SceneFeed for LiveFeed {
-    fn poll(&mut self) -> Option<Arc<EyeScene>> {
+    fn poll(&mut self) -> Option<Arc<Scene>> {
         let done = self.reader.get()?;
         if done.sequence == self.last_sequence {
             return None;
@@ -147,11 +134,11 @@ impl SceneFeed for LiveFeed {
         self.last_sequence = done.sequence;
         let neural = match (&self.decoder, &done.output.neural) {
             (Some(renderer), Some(encoded)) => {
-                Some(EyeNeural { renderer: Arc::clone(renderer), encoded: encoded.clone() })
+                Some(SceneNeural { renderer: Arc::clone(renderer), encoded: encoded.clone() })
             }
             _ => None,
         };
-        Some(Arc::new(scene_from_prepared(&done.output.input, neural)))
+        Some(Arc::new(Scene::from_prepared(&done.output.input, neural)))
     }
 
     fn take_messages(&mut self) -> Vec<String> {
@@ -194,7 +181,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
                 Some(shared) => {
                     let encoded = shared.lock().unwrap_or_else(|p| p.into_inner()).encode(&prepared);
                     match encoded {
-                        Ok(encoded) => Some(EyeNeural { renderer: Arc::clone(shared), encoded }),
+                        Ok(encoded) => Some(SceneNeural { renderer: Arc::clone(shared), encoded }),
                         Err(e) => {
                             tracing::warn!("the neural encoder failed on this photo; the eyes are geometric: {e}");
                             None
@@ -203,7 +190,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
                 }
                 None => None,
             };
-            Box::new(StaticScene::new(scene_from_prepared(&prepared, eye_neural)))
+            Box::new(StaticScene::new(Scene::from_prepared(&prepared, eye_neural)))
         }
         XrInput::Video { path, fps, segment } => {
             if !(*fps > 0.0 && fps.is_finite()) {

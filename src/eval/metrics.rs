@@ -7,6 +7,10 @@
 //!   ground-truth masks ([`union_mask`]): background both agree on would inflate the score. SSIM statistics come
 //!   from an 11x11 Gaussian window (sigma 1.5) evaluated on the whole image with edge-replicated borders, then
 //!   averaged over the region; `C1 = (0.01)^2`, `C2 = (0.03)^2`, per channel, channels averaged.
+//! - [`psnr_frame`] and [`ssim_frame`] are the paper's kind (R²Human Table 2): the same formulas over the **whole
+//!   frame** (every pixel, outputs masked to black), so background both agree on counts as perfect. A frame
+//!   whose person covers a fraction `f` of the pixels scores `10 log10(1/f)` dB more than over the union mask for
+//!   the same errors; these are the numbers to read next to the paper's.
 //! - [`mask_iou`] is `|A and B| / |A or B|` (1 when both masks are empty).
 //! - [`depth_l1`] is the mean absolute depth difference over the union mask, with uncovered pixels at depth -1
 //!   (the far face of the body cube), so a missing or extra surface costs its distance to the back of the cube.
@@ -68,6 +72,17 @@ pub fn psnr(a: &SrgbImage, b: &SrgbImage, region: &[bool]) -> f32 {
     }
     let mse = sum / n as f64;
     (10.0 * (1.0 / mse).log10()) as f32
+}
+
+/// PSNR over the whole frame (every pixel; the paper's Table 2 convention, images over black); see [`psnr`].
+pub fn psnr_frame(a: &SrgbImage, b: &SrgbImage) -> f32 {
+    psnr(a, b, &vec![true; a.data.len().min(b.data.len())])
+}
+
+/// Mean SSIM over the whole frame (every pixel; the paper's Table 2 convention, images over black); see
+/// [`ssim`]. 1 for empty images.
+pub fn ssim_frame(a: &SrgbImage, b: &SrgbImage) -> f32 {
+    ssim_region_of_map(&ssim_map(a, b), &vec![true; a.data.len()])
 }
 
 fn gaussian_kernel() -> [f32; 11] {
@@ -270,6 +285,44 @@ mod tests {
             assert!((ssim(&a, &b, &region) - expect).abs() < 1e-6, "{} vs {expect}", ssim(&a, &b, &region));
         }
         assert_eq!(ssim(&a, &b, &vec![false; 60 * 40]), 1.0);
+    }
+
+    #[test]
+    fn whole_frame_metrics_in_closed_form() {
+        // A 64x64 frame on black with a 10x10 person; the prediction is off by 0.1 on the person only.
+        let (w, h) = (64usize, 64usize);
+        let person = |x: usize, y: usize| (20..30).contains(&x) && (30..40).contains(&y);
+        let gt = img(w, h, |x, y| if person(x, y) { Vec3::splat(0.5) } else { Vec3::ZERO });
+        let pred = img(w, h, |x, y| if person(x, y) { Vec3::splat(0.6) } else { Vec3::ZERO });
+        let union: Vec<bool> = (0..w * h).map(|i| person(i % w, i / w)).collect();
+        // MSE over the frame = 0.01 * 100 / 4096: PSNR = 20 + 10 log10(40.96) dB, the union's 20 dB plus
+        // 10 log10(1 / covered fraction).
+        let want = 20.0 + 10.0 * (4096.0f32 / 100.0).log10();
+        assert!((psnr_frame(&gt, &pred) - want).abs() < 1e-3, "{}", psnr_frame(&gt, &pred));
+        assert!((psnr(&gt, &pred, &union) - 20.0).abs() < 1e-3);
+        assert_eq!(psnr_frame(&gt, &gt), f32::INFINITY);
+        // SSIM: pixels whose 11x11 window sees only black in both images score exactly 1; the frame mean is the
+        // map's mean, so it exceeds the mean over the person alone.
+        let map = ssim_map(&gt, &pred);
+        let near = |x: usize, y: usize| (15..35).contains(&x) && (25..45).contains(&y);
+        for (i, v) in map.iter().enumerate() {
+            if !near(i % w, i / w) {
+                assert!((v - 1.0).abs() < 1e-6, "pixel {i}: {v}");
+            }
+        }
+        let frame = ssim_frame(&gt, &pred);
+        assert!((frame - map.iter().map(|&v| v as f64).sum::<f64>() as f32 / 4096.0).abs() < 1e-6);
+        assert!(frame > ssim(&gt, &pred, &union) && frame < 1.0);
+        // Two constant frames: SSIM = (2 mu_x mu_y + C1) / (mu_x^2 + mu_y^2 + C1) everywhere.
+        let a = img(16, 16, |_, _| Vec3::splat(0.2));
+        let b = img(16, 16, |_, _| Vec3::splat(0.6));
+        let c1 = 1e-4f32;
+        assert!((ssim_frame(&a, &b) - (2.0 * 0.2 * 0.6 + c1) / (0.04 + 0.36 + c1)).abs() < 1e-4);
+        // Everything missed (prediction all black): frame MSE = 0.25 * 100 / 4096.
+        let black = img(w, h, |_, _| Vec3::ZERO);
+        let want = 10.0 * (4096.0f32 / 25.0).log10();
+        assert!((psnr_frame(&gt, &black) - want).abs() < 1e-3);
+        assert!(ssim_frame(&gt, &black).is_finite() && ssim_frame(&black, &black) == 1.0);
     }
 
     #[test]

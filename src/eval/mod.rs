@@ -1,10 +1,12 @@
 //! Ground truth and evaluation: rendering known views of synthetic subjects and scans ([`ground_truth`]) and
-//! writing them as a dataset ([`dataset`]), the error metrics ([`metrics`]) and the method comparison ([`runner`]).
+//! writing them as a dataset ([`dataset`]), the error metrics ([`metrics`]), the method comparison ([`runner`]) and the
+//! ground-truth-free checks on real photos ([`photos`]).
 
 pub mod dataset;
 pub mod ground_truth;
 pub mod memory;
 pub mod metrics;
+pub mod photos;
 pub mod runner;
 
 use std::path::{Path, PathBuf};

@@ -1,7 +1,8 @@
 //! `r2human eval`: renders each subject's source view, runs every method on it, and compares the novel views with
 //! ground truth, grouped like the paper's Tables 2 and 3: close views (at most 45 degrees from the input) and
 //! divergent views (at least 90 degrees). Metrics are those of [`super::metrics`] (read its conventions: sRGB over
-//! black, averaged over the union of predicted and true masks). LPIPS needs ImageNet-pretrained weights that
+//! black, averaged over the union of predicted and true masks; plus the paper's whole-frame PSNR and SSIM). Rows are
+//! reported per input set: the synthetic subjects together, and each `--scan` on its own. LPIPS needs ImageNet-pretrained weights that
 //! cannot be fetched here: its column is left empty (`lpips` in the CSV) until a model is shipped.
 //!
 //! Methods, measured side by side on the same subjects and views:
@@ -32,7 +33,7 @@ use serde::Serialize;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
 use super::memory::{process_peak_mib, PhaseMemory};
-use super::metrics::{depth_l1, mask_iou, psnr, ssim, union_mask, SrgbImage};
+use super::metrics::{depth_l1, mask_iou, psnr, psnr_frame, ssim, ssim_frame, union_mask, SrgbImage};
 use super::EvalError;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::geometry::camera::Camera;
@@ -43,7 +44,7 @@ use crate::geometry::raster::rasterize;
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::write_atomic;
 use crate::neural::{ExecutionProvider, RuntimeOptions};
-use crate::pipeline::input::{NormaliseTransform, NormalisedInput};
+use crate::pipeline::input::NormalisedInput;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
     compute_geometry, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
@@ -122,6 +123,8 @@ const IOU_DEPTH_SAMPLES: usize = 128;
 /// One row of the report: a method on a view group.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ReportRow {
+    /// The inputs averaged: `synthetic` (every synthetic subject) or a scan's name (its file stem).
+    pub inputs: String,
     /// Method name (see [`METHODS`]).
     pub method: String,
     /// `close` (<= 45 deg) or `divergent` (>= 90 deg).
@@ -133,6 +136,10 @@ pub struct ReportRow {
     pub psnr_overlap: f32,
     /// Mean SSIM.
     pub ssim: f32,
+    /// Mean PSNR (dB) over the whole frame on black, the paper's Table 2 convention ([`psnr_frame`]).
+    pub psnr_frame: f32,
+    /// Mean SSIM over the whole frame on black, the paper's Table 2 convention ([`ssim_frame`]).
+    pub ssim_frame: f32,
     /// Mean mask IoU.
     pub mask_iou: f32,
     /// Mean depth L1 (body-cube units) on the union mask.
@@ -171,6 +178,8 @@ struct Acc {
     psnr: Vec<f32>,
     psnr_overlap: Vec<f32>,
     ssim: Vec<f32>,
+    psnr_frame: Vec<f32>,
+    ssim_frame: Vec<f32>,
     iou: Vec<f32>,
     depth: Vec<f32>,
     ms_view: Vec<f32>,
@@ -334,13 +343,13 @@ struct Nets<'a> {
 }
 
 /// A subject's source view as every method receives it (ground-truth render, already in the body cube).
-struct SourceView {
+struct SubjectSource {
     rgb: RgbImage,
     mask: GrayImage,
     prepare: PrepareOptions,
 }
 
-impl SourceView {
+impl SubjectSource {
     fn of(mesh: &TexturedMesh, size: usize) -> Self {
         let gt_src = render_ground_truth(mesh, &Camera::source(size));
         let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
@@ -350,11 +359,7 @@ impl SourceView {
     }
 
     fn normalised(&self) -> NormalisedInput {
-        NormalisedInput {
-            rgb: self.rgb.clone(),
-            mask: self.mask.clone(),
-            transform: NormaliseTransform { scale: 1.0, offset: glam::Vec2::ZERO },
-        }
+        NormalisedInput::in_source_view(self.rgb.clone(), self.mask.clone())
     }
 
     /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net); `None` for the FOF net when
@@ -419,7 +424,7 @@ fn method_memory(
     nets: Nets<'_>,
     yaw: f32,
 ) -> Result<[Option<f32>; METHODS.len()], EvalError> {
-    let src = SourceView::of(mesh, opts.size);
+    let src = SubjectSource::of(mesh, opts.size);
     let cam = Camera::orbit(yaw, 0.0, opts.size, opts.size);
     let mut out = [None; METHODS.len()];
     for (m, slot) in out.iter_mut().enumerate() {
@@ -464,7 +469,7 @@ fn eval_subject(
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
-    let src = SourceView::of(mesh, r);
+    let src = SubjectSource::of(mesh, r);
     let (rgb, mask) = (&src.rgb, &src.mask);
     let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
 
@@ -549,10 +554,10 @@ fn eval_subject(
                     let k = m - 2;
                     let Some(renderer) = renderers[k].as_mut() else { continue };
                     let Some(geometry) = prepared[RENDERED[k].0] else { continue };
-                    let before = renderer.neural_fallbacks;
+                    let before = renderer.neural_fallbacks();
                     let person = renderer.render_person(&cam).map_err(perr)?;
                     let ms = t.elapsed().as_secs_f32() * 1e3;
-                    *fallbacks += renderer.neural_fallbacks - before;
+                    *fallbacks += renderer.neural_fallbacks() - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
                     let gb = rasterize(&geometry.mesh, &cam);
                     let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
@@ -578,32 +583,20 @@ fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
     let overlap: Vec<bool> = gt.mask.iter().zip(&pred.mask).map(|(&x, &y)| x && y).collect();
     acc.psnr_overlap.push(psnr(&a, &b, &overlap));
     acc.ssim.push(ssim(&a, &b, &region));
+    acc.psnr_frame.push(psnr_frame(&a, &b));
+    acc.ssim_frame.push(ssim_frame(&a, &b));
     acc.iou.push(mask_iou(&gt.mask, &pred.mask));
     acc.depth.push(depth_l1(&gt.depth, &gt.mask, &pred.depth, &pred.mask));
     acc.ms_view.push(ms);
 }
 
-/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
-/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
-/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
-pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
-    run_eval_with(opts, &NeuralEvalOptions::default())
-}
-
-/// [`run_eval`] with explicit settings for the neural methods.
-pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
-    if opts.subjects == 0 && opts.scans.is_empty() {
-        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
-    }
-    if !(32..=2048).contains(&opts.size) {
-        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
-    }
-    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
-    let mut acc: MethodAcc = Default::default();
-    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
-    let mut failed = Vec::new();
-    let mut notes = Vec::new();
-    let mut fallbacks = 0;
+/// The networks of the evaluation as `nopts` asks: the neural renderer (`auto` semantics: one warning and `None`
+/// when its models do not load) and the folder's FOF net (explicit mode, so the reason it does not load is
+/// reported). Why a network is missing goes into `notes` for the report.
+pub(super) fn load_networks(
+    nopts: &NeuralEvalOptions,
+    notes: &mut Vec<String>,
+) -> (Option<SharedNeural>, Option<SharedFofNet>) {
     // Methods 5, 6 and 8: `auto` semantics (one warning and no neural rows when the models do not load).
     let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
     let neural = if nopts.skip {
@@ -629,6 +622,32 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     if !nopts.skip && neural.is_none() {
         notes.push("The neural renderer's models did not load: no neural rows (see the log).".to_string());
     }
+    (neural, fof_net)
+}
+
+/// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
+/// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
+/// project's `models/tiny` when they load ([`run_eval_with`] chooses).
+pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport, EvalError> {
+    run_eval_with(opts, &NeuralEvalOptions::default())
+}
+
+/// [`run_eval`] with explicit settings for the neural methods.
+pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<EvalReport, EvalError> {
+    if opts.subjects == 0 && opts.scans.is_empty() {
+        return Err(EvalError::InvalidOptions("nothing to evaluate: give --subjects N or --scan FILE".into()));
+    }
+    if !(32..=2048).contains(&opts.size) {
+        return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
+    // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
+    let mut sets: Vec<(String, MethodAcc)> = Vec::new();
+    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
+    let mut failed = Vec::new();
+    let mut notes = Vec::new();
+    let mut fallbacks = 0;
+    let (neural, fof_net) = load_networks(nopts, &mut notes);
     let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref() };
     // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
     let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
@@ -643,6 +662,8 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         Ok(())
     };
     if opts.subjects > 0 {
+        sets.push(("synthetic".to_string(), Default::default()));
+        let acc = &mut sets[0].1;
         let assets = SynthAssets::shared()?;
         for i in 0..opts.subjects {
             let name = format!("subject_{i:04}");
@@ -650,7 +671,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             let r = synth::generate(assets, &SubjectParams::sample(seed), opts.texture_size)
                 .map_err(EvalError::from)
                 .and_then(|s| {
-                    eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
+                    eval_subject(&name, &s.mesh, opts, nets, acc, &mut geometry_iou, &mut fallbacks)?;
                     probe_once(&mut memory, &s.mesh)
                 });
             if let Err(e) = r {
@@ -659,28 +680,41 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         }
     }
     for scan in &opts.scans {
-        let name = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
+        let stem = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
+        // Two scans with the same file name keep separate rows.
+        let mut name = stem.clone();
+        for k in 2.. {
+            if !sets.iter().any(|(n, _)| *n == name) {
+                break;
+            }
+            name = format!("{stem} ({k})");
+        }
+        let mut acc = MethodAcc::default();
         let r = synth::scan::load_scan(scan).map_err(EvalError::from).and_then(|s| {
             eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
             probe_once(&mut memory, &s.mesh)
         });
-        if let Err(e) = r {
-            failed.push((scan.display().to_string(), e.to_string()));
+        match r {
+            Ok(()) => sets.push((name, acc)),
+            Err(e) => failed.push((scan.display().to_string(), e.to_string())),
         }
     }
     let mut rows = Vec::new();
-    for (m, name) in METHODS.iter().enumerate() {
+    for ((set, acc), (m, name)) in sets.iter().flat_map(|s| std::iter::repeat(s).zip(METHODS.iter().enumerate())) {
         for (g, group) in ["close", "divergent"].iter().enumerate() {
             let a = &acc[m][g];
             if a.psnr.is_empty() {
                 continue;
             }
             rows.push(ReportRow {
+                inputs: set.clone(),
                 method: name.to_string(),
                 group: group.to_string(),
                 psnr: mean(&a.psnr),
                 psnr_overlap: mean(&a.psnr_overlap),
                 ssim: mean(&a.ssim),
+                psnr_frame: mean(&a.psnr_frame),
+                ssim_frame: mean(&a.ssim_frame),
                 mask_iou: mean(&a.iou),
                 depth_l1: mean(&a.depth),
                 ms_per_view: median(&a.ms_view),
@@ -714,12 +748,13 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
 
 fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(), EvalError> {
     let mut csv = String::from(
-        "method,group,psnr,ssim,lpips,mask_iou,depth_l1,ms_per_view,ms_per_input,views,psnr_overlap,peak_mib\n",
+        "method,group,psnr,ssim,lpips,mask_iou,depth_l1,ms_per_view,ms_per_input,views,psnr_overlap,peak_mib,\
+         psnr_frame,ssim_frame,inputs\n",
     );
     let mib = |r: &ReportRow| r.peak_mib.map(|m| format!("{m:.0}")).unwrap_or_default();
     for r in &rep.rows {
         csv.push_str(&format!(
-            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3},{}\n",
+            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3},{},{:.3},{:.4},\"{}\"\n",
             r.method,
             r.group,
             r.psnr,
@@ -730,7 +765,10 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             r.ms_per_input,
             r.views,
             r.psnr_overlap,
-            mib(r)
+            mib(r),
+            r.psnr_frame,
+            r.ssim_frame,
+            r.inputs.replace('"', "\"\"")
         ));
     }
     let p = out.join("report.csv");
@@ -740,13 +778,15 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
          Close = at most 45 degrees from the input view, divergent = at least 90 degrees. PSNR/SSIM on sRGB over \
          black, averaged over the union of predicted and true masks (a pixel only one of them covers counts against \
          black, so silhouette misses dominate); PSNR overlap: over the pixels both cover (appearance alone). SSIM \
-         with an 11x11 Gaussian window (sigma 1.5), averaged over the union. Depth L1 in body-cube units on the union mask (uncovered = -1). LPIPS: not measured (needs \
+         with an 11x11 Gaussian window (sigma 1.5), averaged over the union. **PSNR frame / SSIM frame**: the same \
+         over the whole frame on black, the paper's Table 2 convention (R2Human on THuman2.0: close 26.92 dB / \
+         0.9415, divergent 25.36 dB / 0.9221); the background both agree on counts as perfect, so these are higher \
+         than the union figures by about 10 log10(frame / person area) dB. Depth L1 in body-cube units on the union \
+         mask (uncovered = -1). LPIPS: not measured (needs \
          ImageNet-pretrained weights that cannot be fetched here). Times: median wall-clock ms on this machine, \
          CPU reference. Memory: the peak resident memory each method needs on its own beyond what was already \
          resident (its per-input work and one view, probed once on the first subject; ONNX Runtime's allocations \
-         included); peak of the whole run: {:.0} MiB.\n\n\
-         | method | group | PSNR | PSNR overlap | SSIM | mask IoU | depth L1 | ms/view | ms/input | MiB | views |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n",
+         included); peak of the whole run: {:.0} MiB.\n",
         opts.subjects,
         opts.seed,
         opts.scans.len(),
@@ -755,21 +795,40 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
         opts.yaws,
         rep.peak_memory_mib
     );
+    let mut sets: Vec<&str> = Vec::new();
     for r in &rep.rows {
+        if !sets.contains(&r.inputs.as_str()) {
+            sets.push(&r.inputs);
+        }
+    }
+    for set in sets {
+        let title = match set {
+            "synthetic" => format!("Synthetic subjects ({})", opts.subjects),
+            scan => format!("Scan: {scan}"),
+        };
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.4} | {:.4} | {:.4} | {:.1} | {:.1} | {} | {} |\n",
-            r.method,
-            r.group,
-            r.psnr,
-            r.psnr_overlap,
-            r.ssim,
-            r.mask_iou,
-            r.depth_l1,
-            r.ms_per_view,
-            r.ms_per_input,
-            mib(r),
-            r.views
+            "\n## {title}\n\n\
+             | method | group | PSNR | PSNR overlap | SSIM | PSNR frame | SSIM frame | mask IoU | depth L1 | ms/view | \
+             ms/input | MiB | views |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
         ));
+        for r in rep.rows.iter().filter(|r| r.inputs == set) {
+            md.push_str(&format!(
+                "| {} | {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.4} | {:.4} | {:.4} | {:.1} | {:.1} | {} | {} |\n",
+                r.method,
+                r.group,
+                r.psnr,
+                r.psnr_overlap,
+                r.ssim,
+                r.psnr_frame,
+                r.ssim_frame,
+                r.mask_iou,
+                r.depth_l1,
+                r.ms_per_view,
+                r.ms_per_input,
+                mib(r),
+                r.views
+            ));
+        }
     }
     if !rep.geometry_iou.is_empty() {
         md.push_str(&format!(
@@ -828,7 +887,10 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
         for r in pts {
             let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % colors.len()];
             let marker = if r.group == "close" { 0 } else { 1 };
-            let label = format!("{} ({})", r.method, r.group);
+            let label = match r.inputs.as_str() {
+                "synthetic" => format!("{} ({})", r.method, r.group),
+                scan => format!("{} ({}, {scan})", r.method, r.group),
+            };
             let p = (r.ms_per_view, r.psnr);
             if marker == 0 {
                 chart.draw_series(std::iter::once(Circle::new(p, 6, c.filled()))).map_err(|e| perr(e.to_string()))?;

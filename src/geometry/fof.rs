@@ -174,7 +174,8 @@ impl Fof {
     }
 
     /// Encodes a triangle mesh (body-cube coordinates) on a `resolution x resolution` source grid with `n`
-    /// coefficients, using [`intervals_from_mesh`] (robust to non-watertight meshes).
+    /// coefficients, using [`intervals_from_mesh`] (robust to non-watertight meshes) with single-sided sheets
+    /// given [`sheet_thickness`]`(n)`.
     pub fn from_mesh(mesh: &TriMesh, resolution: usize, n: usize) -> Result<Self, FofError> {
         check_order(n)?;
         check_size(resolution, resolution)?;
@@ -185,7 +186,7 @@ impl Fof {
             // Only out-of-range indices remain possible here; report them as a size problem of the mesh.
             tracing::warn!("FOF from mesh: {msg}; offending triangles are skipped");
         }
-        Self::from_intervals(&intervals_from_mesh(mesh, resolution, resolution), n)
+        Self::from_intervals(&intervals_from_mesh(mesh, resolution, resolution, sheet_thickness(n)), n)
     }
 
     /// Encodes per-pixel intervals `(z_lo, z_hi)` (z in `[-1, 1]`, clamped; empty or reversed intervals are
@@ -330,6 +331,18 @@ fn owns_boundary(a: [f32; 2], b: [f32; 2]) -> bool {
 /// Rows per rasterisation band (the unit of parallel work).
 const BAND_ROWS: usize = 8;
 
+/// Thickness (body-cube z units) given to a single-sided sheet by [`intervals_from_mesh`] when the field has `n`
+/// coefficients: `2 / n` (0.0625 for N = 32, about 6 cm on a 1.8 m person).
+///
+/// A zero-thickness sheet cannot be represented: an interval of length `t` decodes (at the sheet) to an
+/// occupancy of about `t n / 2`, which stays below the surface level 0.5 for `t <= 1 / n` and vanishes from the
+/// mesh. At `2 / n` the decoded bump peaks at about 0.85 and its 0.5 level set is about `2.4 / n` thick, for every
+/// `n` from 8 to 64 (tested): the thinnest sheet the series resolves with margin. (Depth sampling is much finer —
+/// 512 samples over the cube are 0.004 apart — so the coefficient count, not the sampling, sets the scale.)
+pub fn sheet_thickness(n: usize) -> f32 {
+    2.0 / n.max(1) as f32
+}
+
 /// Per-pixel intervals `(z_lo, z_hi)` (ascending, z in `[-1, 1]`) of a mesh on the `width x height` source
 /// grid.
 ///
@@ -337,9 +350,22 @@ const BAND_ROWS: usize = 8;
 /// tagged *entering* when the triangle faces the camera (normal z > 0) and *leaving* otherwise; edge-on and
 /// non-finite triangles are skipped. Hits are sorted from the camera inward and paired by the reference's
 /// automaton: wait for an entering hit; a leaving hit closes the interval; further leaving hits extend it; an
-/// entering hit after a close opens a new one; unmatched hits are dropped. Non-watertight scans (holes,
-/// duplicated faces, inner shells) therefore still give usable intervals. Depths are clamped to the cube.
-pub fn intervals_from_mesh(mesh: &TriMesh, width: usize, height: usize) -> Image<Vec<(f32, f32)>> {
+/// entering hit after a close opens a new one. Non-watertight scans (holes, duplicated faces, inner shells)
+/// therefore still give usable intervals, and watertight meshes give exactly the reference's intervals.
+///
+/// Hits the reference drops are single-sided sheets (hair cards, capes, a skirt modelled as one surface, a scan
+/// with a hole behind a surface): an entering hit never followed by a leaving one, and a leaving hit with nothing
+/// open (the back of a sheet facing the camera). With `sheet_thickness > 0` each becomes the interval
+/// `(z - sheet_thickness, z)`: thickened away from the camera, so the surface the source camera sees keeps its
+/// depth. Overlapping intervals are merged. `sheet_thickness = 0` drops them like the reference; [`Fof::from_mesh`]
+/// uses [`sheet_thickness`]. Depths are clamped to the cube.
+pub fn intervals_from_mesh(
+    mesh: &TriMesh,
+    width: usize,
+    height: usize,
+    sheet_thickness: f32,
+) -> Image<Vec<(f32, f32)>> {
+    let sheet = if sheet_thickness.is_finite() { sheet_thickness.clamp(0.0, 2.0) } else { 0.0 };
     let mut result = Image::new(width, height, Vec::new());
     if width == 0 || height == 0 {
         return result;
@@ -421,27 +447,37 @@ pub fn intervals_from_mesh(mesh: &TriMesh, width: usize, height: usize) -> Image
         // give two adjacent intervals.
         hits.sort_unstable_by(|p, q| p.pixel.cmp(&q.pixel).then(q.z.total_cmp(&p.z)).then(p.entering.cmp(&q.entering)));
         for group in hits.chunk_by(|p, q| p.pixel == q.pixel) {
-            out[group[0].pixel as usize] = pair_hits(group);
+            out[group[0].pixel as usize] = pair_hits(group, sheet);
         }
     });
     result
 }
 
-/// The reference's interval automaton over hits sorted from the camera inward; returns ascending intervals.
-fn pair_hits(hits: &[Hit]) -> Vec<(f32, f32)> {
+/// The reference's interval automaton over hits sorted from the camera inward, with unmatched hits turned into
+/// sheets of thickness `sheet` (none when 0; see [`intervals_from_mesh`]); returns ascending, disjoint intervals.
+fn pair_hits(hits: &[Hit], sheet: f32) -> Vec<(f32, f32)> {
     enum State {
         Outside,
-        Inside(f32),
+        /// Inside an interval opened at depth `start` by hit `from`; the reference ignores the entering hits that
+        /// follow, and they all become sheets if no leaving hit ever closes the interval.
+        Inside {
+            start: f32,
+            from: usize,
+        },
         Closed,
     }
     let mut state = State::Outside;
     let mut intervals: Vec<(f32, f32)> = Vec::new();
-    for h in hits {
+    let mut sheets: Vec<(f32, f32)> = Vec::new();
+    for (i, h) in hits.iter().enumerate() {
         state = match (state, h.entering) {
-            (State::Outside, true) | (State::Closed, true) => State::Inside(h.z),
-            (State::Outside, false) => State::Outside,
-            (State::Inside(start), true) => State::Inside(start),
-            (State::Inside(start), false) => {
+            (State::Outside, true) | (State::Closed, true) => State::Inside { start: h.z, from: i },
+            (State::Outside, false) => {
+                sheets.push((h.z - sheet, h.z));
+                State::Outside
+            }
+            (inside @ State::Inside { .. }, true) => inside,
+            (State::Inside { start, .. }, false) => {
                 intervals.push((h.z, start));
                 State::Closed
             }
@@ -453,9 +489,23 @@ fn pair_hits(hits: &[Hit]) -> Vec<(f32, f32)> {
             }
         };
     }
+    if let State::Inside { from, .. } = state {
+        // No leaving hit after the opening one: every entering hit since is an unmatched sheet.
+        sheets.extend(hits[from..].iter().filter(|h| h.entering).map(|h| (h.z - sheet, h.z)));
+    }
+    if sheet > 0.0 {
+        intervals.extend(sheets.into_iter().map(|(lo, hi)| (lo.max(-1.0), hi)));
+    }
     intervals.retain(|&(lo, hi)| hi > lo);
-    intervals.reverse();
-    intervals
+    intervals.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut merged: Vec<(f32, f32)> = Vec::with_capacity(intervals.len());
+    for (lo, hi) in intervals {
+        match merged.last_mut() {
+            Some(last) if lo < last.1 => last.1 = last.1.max(hi),
+            _ => merged.push((lo, hi)),
+        }
+    }
+    merged
 }
 
 #[cfg(test)]
@@ -564,6 +614,7 @@ mod tests {
     #[test]
     fn non_watertight_and_duplicated_meshes_still_give_intervals() {
         let res = 32;
+        let sheet = 0.05;
         let sphere = TriMesh::uv_sphere(Vec3::ZERO, 0.7, 24, 48);
         let mut holed = sphere.clone();
         // Remove the back faces around the -z pole region: a hole in the back.
@@ -573,25 +624,29 @@ mod tests {
         });
         let mut doubled = sphere.clone();
         doubled.triangles.extend(sphere.triangles.clone());
-        let full = intervals_from_mesh(&sphere, res, res);
-        let dup = intervals_from_mesh(&doubled, res, res);
-        let hole = intervals_from_mesh(&holed, res, res);
+        let full = intervals_from_mesh(&sphere, res, res, sheet);
+        let dup = intervals_from_mesh(&doubled, res, res, sheet);
+        let hole = intervals_from_mesh(&holed, res, res, sheet);
+        let hole_reference = intervals_from_mesh(&holed, res, res, 0.0);
         assert_eq!(full, dup, "duplicated faces must not change the intervals");
-        let (mut with_interval, mut lost) = (0, 0);
+        assert_eq!(full, intervals_from_mesh(&sphere, res, res, 0.0), "a closed mesh has no sheets");
+        let (mut with_interval, mut sheets) = (0, 0);
         for i in 0..res * res {
             assert!(full.data[i].len() <= 1);
-            // Pixels behind the hole lose their leaving hit: the interval is dropped, never invented.
-            if let (Some(a), Some(b)) = (full.data[i].first(), hole.data[i].first()) {
-                assert_eq!(a, b);
-                with_interval += 1;
-            }
-            if !full.data[i].is_empty() && hole.data[i].is_empty() {
+            if hole_reference.data[i].is_empty() && !full.data[i].is_empty() {
+                // Behind the hole the leaving hit is missing: the reference drops the column, the sheet rule keeps
+                // the front surface with the sheet thickness behind it.
                 let (col, row) = (i % res, i / res);
                 assert!(centre(col, res).abs() < 0.3 && centre(row, res).abs() < 0.3);
-                lost += 1;
+                let front = full.data[i][0].1;
+                assert_eq!(hole.data[i], vec![(front - sheet, front)]);
+                sheets += 1;
+            } else {
+                assert_eq!(hole.data[i], full.data[i]);
+                with_interval += !full.data[i].is_empty() as usize;
             }
         }
-        assert!(with_interval > 300 && lost > 0);
+        assert!(with_interval > 300 && sheets > 0);
     }
 
     #[test]
@@ -608,14 +663,144 @@ mod tests {
             h(-0.2, false),
             h(-0.5, true),
         ];
-        assert_eq!(pair_hits(&hits), vec![(-0.2, 0.1), (0.4, 0.8)]);
+        assert_eq!(pair_hits(&hits, 0.0), vec![(-0.2, 0.1), (0.4, 0.8)]);
+        // With sheets: the lone leaving hit at 0.9 and the unmatched entering hit at -0.5 become sheets.
+        assert_eq!(pair_hits(&hits, 0.05), vec![(-0.5 - 0.05, -0.5), (-0.2, 0.1), (0.4, 0.8), (0.9 - 0.05, 0.9)]);
+        // Two stacked front-facing sheets (hair cards): both kept; overlapping sheets merge.
+        assert_eq!(pair_hits(&[h(0.3, true), h(0.1, true)], 0.05), vec![(0.1 - 0.05, 0.1), (0.3 - 0.05, 0.3)]);
+        assert_eq!(pair_hits(&[h(0.3, true), h(0.28, true)], 0.05), vec![(0.28 - 0.05, 0.3)]);
+        // A sheet at the back of the cube is clamped to it.
+        assert_eq!(pair_hits(&[h(-0.98, false)], 0.05), vec![(-1.0, -0.98)]);
+        assert!(pair_hits(&[], 0.05).is_empty());
+    }
+
+    /// A square sheet `|x|, |y| <= a` at depth `z`, facing +z (toward the source camera) or -z.
+    fn plane(a: f32, z: f32, facing_camera: bool) -> TriMesh {
+        let p = vec![Vec3::new(-a, -a, z), Vec3::new(a, -a, z), Vec3::new(a, a, z), Vec3::new(-a, a, z)];
+        let t = if facing_camera { vec![[0, 1, 2], [0, 2, 3]] } else { vec![[0, 2, 1], [0, 3, 2]] };
+        TriMesh::new(p, t)
+    }
+
+    /// An open cone frustum (a one-sided skirt, no caps): radius `r_top` at `y_top` widening to `r_hem` at
+    /// `y_hem`, `segments` around; outward normals unless `inward`.
+    fn skirt(y_top: f32, r_top: f32, y_hem: f32, r_hem: f32, segments: usize, inward: bool) -> TriMesh {
+        let mut p = Vec::new();
+        for i in 0..segments {
+            let a = i as f32 / segments as f32 * std::f32::consts::TAU;
+            let (s, c) = a.sin_cos();
+            p.push(Vec3::new(r_top * s, y_top, r_top * c));
+            p.push(Vec3::new(r_hem * s, y_hem, r_hem * c));
+        }
+        let mut t = Vec::new();
+        for i in 0..segments as u32 {
+            let j = (i + 1) % segments as u32;
+            let (a, b, c, d) = (2 * i, 2 * i + 1, 2 * j, 2 * j + 1);
+            // Counter-clockwise from outside: top_i, hem_i, hem_j and top_i, hem_j, top_j.
+            let (t0, t1) = ([a, b, d], [a, d, c]);
+            if inward {
+                t.extend([[t0[0], t0[2], t0[1]], [t1[0], t1[2], t1[1]]]);
+            } else {
+                t.extend([t0, t1]);
+            }
+        }
+        TriMesh::new(p, t)
+    }
+
+    #[test]
+    fn open_plane_becomes_a_sheet_in_closed_form() {
+        let (res, n, z) = (32usize, 32usize, 0.2f32);
+        let t = sheet_thickness(n);
+        assert!((t - 0.0625).abs() < 1e-7);
+        let want = closed_form(z - t, z, n);
+        for facing in [true, false] {
+            let m = plane(0.5, z, facing);
+            assert!(intervals_from_mesh(&m, res, res, 0.0).data.iter().all(Vec::is_empty), "reference drops it");
+            let fof = Fof::from_mesh(&m, res, n).unwrap();
+            for row in 0..res {
+                for col in 0..res {
+                    let inside = centre(col, res).abs() < 0.5 && centre(row, res).abs() < 0.5;
+                    let c = fof.column(col, row);
+                    for k in 0..n {
+                        let w = if inside { want[k] } else { 0.0 };
+                        assert!((c[k] - w).abs() < 1e-5, "facing {facing} ({col},{row}) k={k}: {} vs {w}", c[k]);
+                    }
+                }
+            }
+            // The sheet survives decoding: occupancy above the surface level in the middle of the sheet.
+            let s_mid = (z - 0.5 * t + 1.0) / 2.0;
+            assert!(fof.occupancy(res / 2, res / 2, s_mid) > 0.8);
+        }
+    }
+
+    #[test]
+    fn sheet_thickness_survives_decoding_at_every_order() {
+        for n in [8usize, 16, 32, 64] {
+            let t = sheet_thickness(n);
+            let mut intervals = Image::new(1, 1, Vec::new());
+            intervals.data[0] = vec![(0.1 - t, 0.1)];
+            let fof = Fof::from_intervals(&intervals, n).unwrap();
+            let mut occ = vec![0.0f32; 2048];
+            fof.decode_column(0, 0, occ.len(), &mut occ);
+            let peak = occ.iter().copied().fold(f32::MIN, f32::max);
+            // Decoded level-set thickness in z units.
+            let width = occ.iter().filter(|&&v| v >= 0.5).count() as f32 * 2.0 / occ.len() as f32;
+            assert!(peak > 0.75 && peak < 1.0, "n={n}: peak {peak}");
+            assert!(width > t && width < 1.5 * t, "n={n}: level-set width {width} for thickness {t}");
+            // Half the thickness would vanish from the mesh.
+            intervals.data[0] = vec![(0.1 - 0.5 * t, 0.1)];
+            let thin = Fof::from_intervals(&intervals, n).unwrap();
+            thin.decode_column(0, 0, occ.len(), &mut occ);
+            assert!(occ.iter().all(|&v| v < 0.5), "n={n}");
+        }
+    }
+
+    #[test]
+    fn one_sided_skirt_in_closed_form() {
+        let (res, n) = (64usize, 32usize);
+        let (y_top, r_top, y_hem, r_hem) = (0.3f32, 0.25f32, -0.7f32, 0.6f32);
+        let t = sheet_thickness(n);
+        // Radius of the cone at height y.
+        let radius = |y: f32| r_top + (r_hem - r_top) * (y_top - y) / (y_top - y_hem);
+        for inward in [false, true] {
+            let m = skirt(y_top, r_top, y_hem, r_hem, 512, inward);
+            let iv = intervals_from_mesh(&m, res, res, t);
+            let mut checked = 0;
+            for row in 0..res {
+                for col in 0..res {
+                    let (x, y) = (centre(col, res), -centre(row, res));
+                    let got = &iv.data[row * res + col];
+                    if y > y_top || y < y_hem {
+                        assert!(got.is_empty(), "({col},{row}) outside the skirt: {got:?}");
+                        continue;
+                    }
+                    let r = radius(y);
+                    if x.abs() > 0.97 * r {
+                        continue; // the polygon's silhouette
+                    }
+                    let h = (r * r - x * x).sqrt();
+                    // Outward normals: the front wall enters, the back wall leaves, so the reference's interval
+                    // fills the skirt. Inward normals: a lone leaving hit at the front, a lone entering hit at the
+                    // back: two sheets, each thickened away from the camera.
+                    let want = if inward { vec![(-h - t, -h), (h - t, h)] } else { vec![(-h, h)] };
+                    assert_eq!(got.len(), want.len(), "({col},{row}): {got:?} vs {want:?}");
+                    for (g, w) in got.iter().zip(&want) {
+                        assert!((g.0 - w.0).abs() < 2e-3 && (g.1 - w.1).abs() < 2e-3, "{got:?} vs {want:?}");
+                    }
+                    checked += 1;
+                }
+            }
+            assert!(checked > 600, "{checked}");
+            // Without sheets the inward skirt vanishes entirely (the reference's behaviour).
+            let none = intervals_from_mesh(&m, res, res, 0.0);
+            assert_eq!(none.data.iter().all(Vec::is_empty), inward);
+        }
     }
 
     #[test]
     fn from_mesh_and_from_depth_maps_agree_for_a_convex_shape() {
         let (res, n, r) = (32usize, 16usize, 0.55f32);
         let mesh = TriMesh::uv_sphere(Vec3::new(0.1, 0.0, 0.05), r, 48, 96);
-        let intervals = intervals_from_mesh(&mesh, res, res);
+        let intervals = intervals_from_mesh(&mesh, res, res, sheet_thickness(n));
         let front = intervals.map(|v| v.first().map_or(-1.0, |i| i.1));
         let back = intervals.map(|v| v.first().map_or(-1.0, |i| i.0));
         let mask = intervals.map(|v| if v.is_empty() { 0.0 } else { 1.0 });

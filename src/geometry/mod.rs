@@ -2,6 +2,7 @@
 //! rasterisation and the flow / Z-map of paper Eq. 4.
 
 pub mod camera;
+pub mod circle;
 pub mod fof;
 pub mod inflate;
 pub mod marching;

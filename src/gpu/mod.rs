@@ -1,4 +1,6 @@
-//! The Vulkan renderer (ash): a thin backend ([`Context`], [`resources`]) and the per-view passes above it
+//! The one Vulkan platform of r2human (ash): the device ([`Context`], created by us — headless or for a window —
+//! or through OpenXR's `XR_KHR_vulkan_enable2` with a [`DeviceFactory`]), resources and submissions
+//! ([`resources`], [`commands`]), presentation to a window ([`present`]), and the per-view passes above it
 //! ([`Renderer`]): target depth/normal rasterisation of the mesh, flow + Z-map + visibility (paper Eq. 4, 9),
 //! warp of colour and of neural features, spatial fusion (Eq. 8), the VR panorama composite and the AR alpha
 //! layer. Each pass matches the CPU reference's data contract (see `tests/gpu_parity.rs`).
@@ -10,16 +12,21 @@
 //! Validation: set `R2HUMAN_VULKAN_VALIDATION=1` (or [`ContextOptions::validation`]) to enable the Khronos
 //! validation layer; its errors and warnings are counted in [`Context::validation`].
 
+pub mod commands;
 pub mod context;
-pub mod neural;
 pub mod offline;
 pub mod overlay;
+pub mod person;
+pub mod present;
 pub mod renderer;
 pub mod resources;
 pub mod shaders;
 
-pub use context::{Context, ContextOptions, ValidationLog, VALIDATION_ENV};
+pub use commands::CommandSlot;
+pub use context::{Context, ContextOptions, DeviceFactory, ValidationLog, VALIDATION_ENV};
 pub use overlay::OverlayMask;
+pub use person::{gpu_neural_person, GpuView};
+pub use present::{Acquired, Swapchain, SwapchainOptions};
 pub use renderer::{PresentTarget, Renderer, RendererCounters};
 
 use ash::vk;

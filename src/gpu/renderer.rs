@@ -18,8 +18,8 @@ use ash::vk;
 use glam::{Mat4, Vec2, Vec3, Vec4};
 
 use super::overlay::OverlayMask;
-use super::resources::{shader_module, subresource, Buffer, Image2d};
-use super::{shaders, Context, GpuError};
+use super::resources::{shader_module, Buffer, Image2d};
+use super::{present, shaders, Context, GpuError};
 use crate::buffer::{Image, RgbImage, RgbaImage};
 use crate::compose::{background_camera, Mode};
 use crate::geometry::raster::{GBuffer, BACKGROUND_DEPTH};
@@ -29,6 +29,7 @@ use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
 use crate::pipeline::fusion::previous_weight;
 use crate::pipeline::warp::OcclusionFill;
+use crate::pipeline::SourceView;
 
 const GEOMETRY_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 const WORKGROUP: u32 = 8;
@@ -1009,6 +1010,13 @@ impl Renderer {
         self.set_source(&color, gbuffer, camera)
     }
 
+    /// Uploads what the person renderers draw from: the mesh and the source view (colour, mask, G-buffer,
+    /// camera). Call once per input frame.
+    pub fn set_scene(&mut self, source: &SourceView<'_>) -> Result<(), GpuError> {
+        self.set_mesh(source.mesh)?;
+        self.set_source_parts(source.rgb, source.mask, source.gbuffer, source.camera)
+    }
+
     fn upload_flow(&mut self, flowz: &FlowZ, visible: Option<&[bool]>) {
         let data: Vec<Vec4> = (0..flowz.mask.len())
             .map(|i| {
@@ -1389,18 +1397,12 @@ impl Renderer {
         }
     }
 
+    /// Records the copy of the encoded output into the swapchain `image` and its hand-over to presentation.
+    ///
+    /// # Safety
+    /// `cb` is recording; `image` is an acquired swapchain image of the renderer's size.
     unsafe fn record_present_copy(&self, cb: vk::CommandBuffer, image: vk::Image) {
         let device = self.ctx.device();
-        let range = subresource(vk::ImageAspectFlags::COLOR);
-        let to_dst = vk::ImageMemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::empty())
-            .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-            .old_layout(vk::ImageLayout::UNDEFINED)
-            .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-            .image(image)
-            .subresource_range(range);
         let encoded_ready = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::SHADER_WRITE)
             .dst_access_mask(vk::AccessFlags::TRANSFER_READ);
@@ -1412,15 +1414,7 @@ impl Renderer {
                 layer_count: 1,
             })
             .image_extent(vk::Extent3D { width: self.width, height: self.height, depth: 1 });
-        let to_present = vk::ImageMemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-            .dst_access_mask(vk::AccessFlags::empty())
-            .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-            .new_layout(vk::ImageLayout::PRESENT_SRC_KHR)
-            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-            .image(image)
-            .subresource_range(range);
+        // SAFETY: as the caller guarantees; the encoded buffer was written by the encode pass recorded before.
         unsafe {
             device.cmd_pipeline_barrier(
                 cb,
@@ -1429,7 +1423,7 @@ impl Renderer {
                 vk::DependencyFlags::empty(),
                 &[encoded_ready],
                 &[],
-                &[to_dst],
+                &[present::to_transfer_dst(image)],
             );
             device.cmd_copy_buffer_to_image(
                 cb,
@@ -1438,15 +1432,7 @@ impl Renderer {
                 vk::ImageLayout::TRANSFER_DST_OPTIMAL,
                 &[region],
             );
-            device.cmd_pipeline_barrier(
-                cb,
-                vk::PipelineStageFlags::TRANSFER,
-                vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-                vk::DependencyFlags::empty(),
-                &[],
-                &[],
-                &[to_present],
-            );
+            present::record_to_present(device, cb, image);
         }
     }
 

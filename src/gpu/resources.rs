@@ -201,6 +201,37 @@ pub fn subresource(aspect: vk::ImageAspectFlags) -> vk::ImageSubresourceRange {
     }
 }
 
+/// A layout transition of a whole colour image (no queue-family transfer).
+pub fn color_barrier(
+    image: vk::Image,
+    (old, new): (vk::ImageLayout, vk::ImageLayout),
+    (src_access, dst_access): (vk::AccessFlags, vk::AccessFlags),
+) -> vk::ImageMemoryBarrier<'static> {
+    vk::ImageMemoryBarrier::default()
+        .old_layout(old)
+        .new_layout(new)
+        .src_access_mask(src_access)
+        .dst_access_mask(dst_access)
+        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        .image(image)
+        .subresource_range(subresource(vk::ImageAspectFlags::COLOR))
+}
+
+/// Records one image barrier between two pipeline stages.
+///
+/// # Safety
+/// `cmd` is in the recording state and `barrier` names a valid image of `device`.
+pub unsafe fn record_image_barrier(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    (src, dst): (vk::PipelineStageFlags, vk::PipelineStageFlags),
+    barrier: vk::ImageMemoryBarrier<'_>,
+) {
+    // SAFETY: as the caller guarantees.
+    unsafe { device.cmd_pipeline_barrier(cmd, src, dst, vk::DependencyFlags::empty(), &[], &[], &[barrier]) };
+}
+
 /// Creates a shader module from SPIR-V bytes produced by build.rs.
 pub fn shader_module(ctx: &Context, spv: &[u8]) -> Result<vk::ShaderModule, GpuError> {
     let words = ash::util::read_spv(&mut std::io::Cursor::new(spv))

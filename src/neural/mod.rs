@@ -49,9 +49,11 @@ mod tensor;
 
 use std::path::{Path, PathBuf};
 
+pub(crate) use library::project_roots;
 pub use library::{find_library, library_candidates, ORT_LIBRARY_FILE, ORT_TOOLS_SUBDIR};
 pub use model::{ModelInfo, ModelKind, FORMAT_VERSION};
 pub use nets::{Decoder, Encoder, EncoderInput, FofNet, FofPrediction, DECODER_INPUTS};
+pub(crate) use provider::create_session;
 pub use provider::{environment, ActiveProvider, ExecutionProvider, RuntimeOptions};
 pub use tensor::{Coefficients, FeatureMap, PixelBox};
 

@@ -72,6 +72,18 @@ pub struct NormalisedInput {
     pub mask: GrayImage,
     /// How photo pixels map to these.
     pub transform: NormaliseTransform,
+    /// Where the photo lies in the source view: `(min, max)` corners in source pixels (the photo's corners
+    /// through `transform`). Outside it the source view is padding, not a place where the person ends.
+    pub frame: (Vec2, Vec2),
+}
+
+impl NormalisedInput {
+    /// An input already in the source view (a render of a subject in the body cube): identity transform, the
+    /// whole view is the photo. `rgb` premultiplied by `mask`, both the same size.
+    pub fn in_source_view(rgb: RgbImage, mask: GrayImage) -> Self {
+        let frame = (Vec2::ZERO, Vec2::new(mask.width as f32, mask.height as f32));
+        Self { rgb, mask, transform: NormaliseTransform { scale: 1.0, offset: Vec2::ZERO }, frame }
+    }
 }
 
 /// Normalises a photo (`rgb` linear straight colour, `mask` in `[0, 1]`, same size) into the body cube at
@@ -142,7 +154,8 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
             mask_row[col] = (acc_m / n).clamp(0.0, 1.0);
         }
     });
-    Ok(NormalisedInput { rgb: out_rgb, mask: out_mask, transform })
+    let frame = (transform.forward(Vec2::ZERO), transform.forward(Vec2::new(w as f32, h as f32)));
+    Ok(NormalisedInput { rgb: out_rgb, mask: out_mask, transform, frame })
 }
 
 #[cfg(test)]
@@ -172,6 +185,9 @@ mod tests {
         // The transform maps the photo's mask centre to the source centre.
         let c = n.transform.forward(Vec2::new(50.0, 100.0));
         assert!((c - Vec2::splat(256.0)).length() < 1e-3);
+        // The photo's frame: its corners through the transform (taller than the source view here).
+        assert_eq!(n.frame.0, n.transform.forward(Vec2::ZERO));
+        assert!((n.frame.1.y - n.frame.0.y - 200.0 * n.transform.scale).abs() < 1e-3);
     }
 
     #[test]

@@ -13,6 +13,7 @@
 
 pub mod fusion;
 pub mod input;
+pub mod person;
 pub mod warp;
 
 use std::path::{Path, PathBuf};
@@ -22,6 +23,7 @@ use std::time::{Duration, Instant};
 use glam::{Vec2, Vec4};
 use rayon::prelude::*;
 
+use crate::body::prior::BodyEstimator;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::compose::{self, Mode};
 use crate::geometry::fof::{Fof, FofError};
@@ -36,6 +38,10 @@ use crate::neural::{Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError,
 
 use fusion::SpatialFusion;
 use input::{InputError, NormalisedInput};
+pub use person::{
+    Drawn, Neural, NeuralCounters, NeuralPolicy, NeuralRef, NeuralRequest, NeuralViewTimes, PersonBackend, Scene,
+    SceneNeural, SourceView,
+};
 use warp::OcclusionFill;
 
 /// Errors of the pipeline layer.
@@ -71,6 +77,9 @@ pub enum PipelineError {
          train/README.md), or use --geometry inflate"
     )]
     NoFofNet(String),
+    /// The body prior (`--geometry body`) cannot be used: the pose model or the body model data is missing.
+    #[error("body prior: {0}. Install them with `bash scripts/setup.sh`, or use --geometry inflate")]
+    NoBody(String),
     /// The FOF network (`--geometry fofnet`) failed on this input (a run error or non-finite coefficients).
     #[error(
         "FOF network failed on this input: {0}. Use --geometry auto (falls back to the inflation prior) or inflate"
@@ -91,10 +100,18 @@ pub enum GeometryMode {
     /// The FOF network when `fof.onnx` loads, else the inflation prior with one warning; an input the network
     /// fails on (error, NaN) falls back to the inflation prior with a warning.
     Auto,
+    /// The body prior: pose landmarks (ONNX) -> the fitted MakeHuman body -> its FOF reconciled with the
+    /// silhouette (no FOF network; [`crate::body::prior`]). An input where no pose is found falls back to the
+    /// inflation prior with a warning.
+    Body,
 }
 
 /// A loaded FOF network shared by the inputs that use it (it runs under the lock).
 pub type SharedFofNet = Arc<Mutex<FofNet>>;
+
+/// The body prior's pose network and fitter, shared by the inputs that use it (it runs under the lock; it keeps
+/// the last frame's fit for warm starts).
+pub type SharedBody = Arc<Mutex<BodyEstimator>>;
 
 /// Settings for [`PreparedInput::prepare`].
 #[derive(Clone, Debug)]
@@ -112,6 +129,10 @@ pub struct PrepareOptions {
     /// The FOF network for [`GeometryMode::FofNet`] and [`GeometryMode::Auto`] ([`load_fof_net`]); `None` with
     /// `FofNet` is an error, with `Auto` the inflation prior.
     pub fof_net: Option<SharedFofNet>,
+    /// The body prior for [`GeometryMode::Body`] ([`load_body`]); `None` with `Body` is an error.
+    pub body: Option<SharedBody>,
+    /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
+    pub warm_start: bool,
 }
 
 impl Default for PrepareOptions {
@@ -123,6 +144,8 @@ impl Default for PrepareOptions {
             geometry: GeometryMode::Inflate,
             inflate: InflateParams::default(),
             fof_net: None,
+            body: None,
+            warm_start: false,
         }
     }
 }
@@ -142,7 +165,7 @@ pub fn load_fof_net(
     fof_order: usize,
     options: &RuntimeOptions,
 ) -> Result<Option<SharedFofNet>, PipelineError> {
-    if mode == GeometryMode::Inflate {
+    if matches!(mode, GeometryMode::Inflate | GeometryMode::Body) {
         return Ok(None);
     }
     let dir = model_folder(models);
@@ -193,6 +216,63 @@ pub fn load_fof_net(
     }
 }
 
+/// Loads the body prior for [`GeometryMode::Body`] (`Ok(None)` for the other modes): the pose landmark model
+/// (`.tools/models/pose_landmark_full.onnx`) and the MakeHuman body data, or an error saying how to install them.
+pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<SharedBody>, PipelineError> {
+    if mode != GeometryMode::Body {
+        return Ok(None);
+    }
+    let body = BodyEstimator::load(None, options).map_err(|e| PipelineError::NoBody(e.to_string()))?;
+    tracing::info!("geometry: body prior (pose model `{}`)", crate::body::pose::MODEL_FILE);
+    Ok(Some(Arc::new(Mutex::new(body))))
+}
+
+/// The body prior's FOF of a normalised input (see [`GeometryMode::Body`]); the inflation prior `prior` when no
+/// pose is found or the prior fails (one warning per process, then debug messages).
+fn body_geometry(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    prior: Fof,
+    timings: &mut StageTimings,
+) -> Fof {
+    let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut stages: Vec<(&'static str, Duration)> = Vec::new();
+    let found = estimator.estimate(
+        &normalised.rgb,
+        &normalised.mask,
+        Some(normalised.frame),
+        opts.warm_start,
+        &mut |name, d| stages.push((name, d)),
+    );
+    timings.0.extend(stages);
+    let fof = found.and_then(|p| match p {
+        Some(p) => timings
+            .time("body FOF", || crate::body::prior::body_fof(&p.mesh, &normalised.mask, opts.fof_order, &opts.inflate))
+            .map(Some),
+        None => Ok(None),
+    });
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let warn = |m: String| {
+        if !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+            tracing::warn!("{m}");
+        } else {
+            tracing::debug!("{m}");
+        }
+    };
+    match fof {
+        Ok(Some(f)) => f,
+        Ok(None) => {
+            warn("body prior: no pose found in this input, using the silhouette-inflation prior".into());
+            prior
+        }
+        Err(e) => {
+            warn(format!("body prior failed on this input, using the silhouette-inflation prior: {e}"));
+            prior
+        }
+    }
+}
+
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
 /// into `timings`: the inflation prior, then (FOF net modes) the network's correction at the prior's resolution
 /// ([`FofNet::refine`]).
@@ -204,8 +284,14 @@ pub fn compute_geometry(
     let prior = timings.time("geometry (inflate -> FOF)", || {
         inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
     })?;
+    if opts.geometry == GeometryMode::Body {
+        let Some(body) = &opts.body else {
+            return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
+        };
+        return Ok(body_geometry(normalised, opts, body, prior, timings));
+    }
     let net = match (opts.geometry, &opts.fof_net) {
-        (GeometryMode::Inflate, _) => return Ok(prior),
+        (GeometryMode::Inflate, _) | (GeometryMode::Body, _) => return Ok(prior),
         (GeometryMode::FofNet, None) => {
             return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
         }
@@ -453,18 +539,52 @@ pub struct ViewRenderer<'a> {
     fill: OcclusionFill,
     fusion: Option<SpatialFusion>,
     target: GBuffer,
-    neural: Option<NeuralView>,
+    neural: Neural<SceneNeural>,
+    /// Scratch flow/Z-map of the neural decoder, reused between views.
+    flowz: FlowZ,
+    policy: NeuralPolicy,
+    drawn: Drawn,
     /// Per-view stage times of the last view.
     pub timings: StageTimings,
-    /// Views the neural decoder failed on (error or non-finite output) that the geometric renderer drew instead.
-    pub neural_fallbacks: usize,
 }
 
-/// The neural state of a [`ViewRenderer`].
-struct NeuralView {
-    renderer: SharedNeural,
-    encoded: NeuralInput,
-    flowz: FlowZ,
+/// The CPU reference as a [`PersonBackend`] for one view whose target is already rasterised.
+struct CpuBackend<'r> {
+    input: &'r PreparedInput,
+    target: &'r GBuffer,
+    fill: OcclusionFill,
+    flowz: &'r mut FlowZ,
+    timings: &'r mut StageTimings,
+}
+
+impl PersonBackend<NeuralRef<'_>> for CpuBackend<'_> {
+    type Output = RgbaImage;
+    type Error = std::convert::Infallible;
+
+    fn neural(
+        &mut self,
+        _source: SourceView<'_>,
+        n: &NeuralRef<'_>,
+        camera: &Camera,
+    ) -> Result<Result<(RgbaImage, NeuralViewTimes), String>, Self::Error> {
+        let (input, target, flowz) = (self.input, self.target, &mut *self.flowz);
+        let person = self.timings.time("flow + Z-map + decoder", || {
+            let mut renderer = n.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            renderer.render_view(input, n.encoded, target, camera, flowz)
+        });
+        Ok(person.map(|p| (p, NeuralViewTimes::default())).map_err(|e| e.to_string()))
+    }
+
+    fn reuse_neural(&mut self, _camera: &Camera) -> Result<Option<RgbaImage>, Self::Error> {
+        Ok(None)
+    }
+
+    fn geometric(&mut self, source: SourceView<'_>, camera: &Camera) -> Result<RgbaImage, Self::Error> {
+        let (target, fill) = (self.target, self.fill);
+        Ok(self.timings.time("flow + Z-map + warp", || {
+            warp::render_geometric(source.rgb, source.mask, source.gbuffer, source.camera, target, camera, fill)
+        }))
+    }
 }
 
 impl<'a> ViewRenderer<'a> {
@@ -475,9 +595,11 @@ impl<'a> ViewRenderer<'a> {
             fill,
             fusion: fuse.then(SpatialFusion::new),
             target: GBuffer::new(0, 0),
-            neural: None,
+            neural: Neural::Off,
+            flowz: FlowZ::default(),
+            policy: NeuralPolicy::default(),
+            drawn: Drawn::Nothing,
             timings: StageTimings::default(),
-            neural_fallbacks: 0,
         }
     }
 
@@ -492,7 +614,7 @@ impl<'a> ViewRenderer<'a> {
         encoded: NeuralInput,
     ) -> Self {
         let mut r = Self::new(input, fill, fuse);
-        r.neural = Some(NeuralView { renderer, encoded, flowz: FlowZ::default() });
+        r.neural = Neural::On(SceneNeural { renderer, encoded });
         r
     }
 
@@ -515,63 +637,78 @@ impl<'a> ViewRenderer<'a> {
         }
     }
 
+    /// A renderer for a view's neural request: the neural decoder for [`Neural::On`]; the geometric renderer
+    /// for [`Neural::Missing`] (each view counted as a fallback) and [`Neural::Off`].
+    pub fn for_request(input: &'a PreparedInput, fill: OcclusionFill, fuse: bool, request: NeuralRequest<'_>) -> Self {
+        let mut r = Self::new(input, fill, fuse);
+        r.neural = match request {
+            Neural::On(n) => Neural::On(SceneNeural { renderer: Arc::clone(n.renderer), encoded: n.encoded.clone() }),
+            Neural::Missing => Neural::Missing,
+            Neural::Off => Neural::Off,
+        };
+        r
+    }
+
     /// The encoder's time for this renderer's input, when it draws with the neural decoder.
     pub fn encode_time(&self) -> Option<Duration> {
-        self.neural.as_ref().map(|n| n.encoded.encode_time)
+        match &self.neural {
+            Neural::On(n) => Some(n.encoded.encode_time),
+            _ => None,
+        }
     }
 
     /// Whether views are drawn by the neural decoder (falling back to the geometric renderer per view on
     /// failure).
     pub fn is_neural(&self) -> bool {
-        self.neural.is_some()
+        matches!(self.neural, Neural::On(_))
+    }
+
+    /// Which renderer drew the last view.
+    pub fn drawn(&self) -> Drawn {
+        self.drawn
+    }
+
+    /// Views the neural decoder failed on (error or non-finite output) that the geometric renderer drew instead.
+    pub fn neural_fallbacks(&self) -> usize {
+        self.policy.counters().fallbacks as usize
+    }
+
+    /// What the neural renderer did so far (views, decoder runs, fallbacks).
+    pub fn neural_counters(&self) -> NeuralCounters {
+        self.policy.counters()
     }
 
     /// The person alone for `camera`: premultiplied linear RGBA.
     pub fn render_person(&mut self, camera: &Camera) -> Result<RgbaImage, PipelineError> {
+        self.render_person_drawn(camera).map(|(person, _)| person)
+    }
+
+    /// [`ViewRenderer::render_person`], also saying which renderer drew it.
+    pub fn render_person_drawn(&mut self, camera: &Camera) -> Result<(RgbaImage, Drawn), PipelineError> {
         let mut timings = StageTimings::default();
         let input = self.input;
         timings.time("target raster", || raster::rasterize_into(&mut self.target, &input.mesh, camera));
-        let target = &self.target;
-        let neural = self.neural.as_mut().map(|nv| {
-            timings.time("flow + Z-map + decoder", || {
-                let mut renderer = nv.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-                renderer.render_view(input, &nv.encoded, target, camera, &mut nv.flowz)
-            })
-        });
-        let person = match neural {
-            Some(Ok(person)) => person,
-            failed_or_geometric => {
-                if let Some(Err(e)) = failed_or_geometric {
-                    // One warning per renderer; later failures are counted and logged at debug level.
-                    if self.neural_fallbacks == 0 {
-                        tracing::warn!("neural renderer failed on a view, drawing it with the geometric one: {e}");
-                    } else {
-                        tracing::debug!("neural renderer failed again (geometric fallback): {e}");
-                    }
-                    self.neural_fallbacks += 1;
-                }
-                timings.time("flow + Z-map + warp", || {
-                    warp::render_geometric(
-                        &input.normalised.rgb,
-                        &input.normalised.mask,
-                        &input.source_gbuffer,
-                        &input.source_camera,
-                        target,
-                        camera,
-                        self.fill,
-                    )
-                })
-            }
+        let neural = match &self.neural {
+            Neural::On(n) => Neural::On(NeuralRef { renderer: &n.renderer, encoded: &n.encoded }),
+            Neural::Missing => Neural::Missing,
+            Neural::Off => Neural::Off,
+        };
+        let mut backend =
+            CpuBackend { input, target: &self.target, fill: self.fill, flowz: &mut self.flowz, timings: &mut timings };
+        let (person, drawn) = match self.policy.draw(&mut backend, SourceView::of(input), neural, 0, camera) {
+            Ok(drawn) => drawn,
+            Err(never) => match never {},
         };
         let person = match self.fusion.as_mut() {
             Some(f) => timings.time("spatial fusion", || f.fuse(&person, &self.target, camera)),
             None => person,
         };
         self.timings = timings;
+        self.drawn = drawn;
         if person.data.iter().any(|p| !p.is_finite()) {
             return Err(PipelineError::NonFinite("novel view"));
         }
-        Ok(person)
+        Ok((person, drawn))
     }
 
     /// A finished frame for `camera`: composited over the panorama in VR, the bare layer in AR (no panorama

@@ -9,16 +9,15 @@
 //! from PyPI packages that `scripts/setup.d/synth.sh` unpacks into `.tools/` (override with
 //! `R2HUMAN_TOOLS_DIR`). Missing data is a clear [`SynthError::Asset`], never a silent fallback.
 
-pub mod base;
-pub mod morph;
 pub mod normalize;
 pub mod pose;
-pub mod rig;
 pub mod scan;
 pub mod texture;
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
+
+use crate::body::BodyError;
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -26,6 +25,8 @@ use serde::{Deserialize, Serialize};
 use crate::geometry::mesh::TriMesh;
 use crate::io::mesh_io::{MeshIoError, TexturedMesh};
 
+/// The body model lives in [`crate::body`]; these re-exports keep the `synth::{base, morph, rig}` paths.
+pub use crate::body::{base, morph, rig, tools_dir};
 pub use morph::MacroParams;
 pub use normalize::Normalization;
 pub use pose::PoseParams;
@@ -45,6 +46,9 @@ pub enum SynthError {
         /// What is wrong and how to fix it.
         message: String,
     },
+    /// The body model (base mesh, morph targets, rig) is missing or malformed.
+    #[error(transparent)]
+    Body(#[from] BodyError),
     /// A scan file could not be read.
     #[error(transparent)]
     MeshIo(#[from] MeshIoError),
@@ -103,13 +107,6 @@ impl Rng {
             (self.next_u64() % n as u64) as usize
         }
     }
-}
-
-/// Where the registry data lives: `$R2HUMAN_TOOLS_DIR`, else `<crate root>/.tools`.
-pub fn tools_dir() -> PathBuf {
-    std::env::var_os("R2HUMAN_TOOLS_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools"))
 }
 
 /// Everything the generator loads once: base mesh, morph targets, rig, part weights and landmarks.

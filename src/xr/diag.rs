@@ -1,51 +1,15 @@
-//! Validation-message capture: debug-utils messengers for OpenXR (XR_EXT_debug_utils, which the core validation
-//! layer reports through) and Vulkan (VK_EXT_debug_utils, which the Khronos validation layer reports through).
-//! Warnings and errors are logged with `tracing` and kept, so a run can report "validation said nothing".
+//! OpenXR validation-message capture: a debug-utils messenger (XR_EXT_debug_utils, which the core validation layer
+//! reports through) feeding the same [`ValidationLog`] type the Vulkan device keeps (`crate::gpu::Context::
+//! validation`). Warnings and errors are logged with `tracing` and kept, so a run can report "validation said
+//! nothing".
 
 use std::ffi::{c_void, CStr};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
-use ash::vk;
 use openxr as xr;
 use xr::sys::Handle as _;
 
-/// How many messages are kept verbatim (the count keeps going).
-const KEPT_MESSAGES: usize = 64;
-
-/// Collected validation warnings and errors of one API (OpenXR or Vulkan).
-#[derive(Debug, Default)]
-pub struct DiagnosticLog {
-    count: AtomicUsize,
-    messages: Mutex<Vec<String>>,
-}
-
-impl DiagnosticLog {
-    /// A new, empty log.
-    pub fn new() -> Arc<Self> {
-        Arc::new(Self::default())
-    }
-
-    /// Records one message.
-    pub fn push(&self, message: String) {
-        self.count.fetch_add(1, Ordering::Relaxed);
-        if let Ok(mut kept) = self.messages.lock() {
-            if kept.len() < KEPT_MESSAGES {
-                kept.push(message);
-            }
-        }
-    }
-
-    /// Number of warnings and errors seen.
-    pub fn count(&self) -> usize {
-        self.count.load(Ordering::Relaxed)
-    }
-
-    /// The first messages (at most 64).
-    pub fn messages(&self) -> Vec<String> {
-        self.messages.lock().map(|m| m.clone()).unwrap_or_default()
-    }
-}
+pub use crate::gpu::ValidationLog;
 
 /// Reads a possibly-null C string from a callback.
 ///
@@ -60,29 +24,7 @@ unsafe fn c_str(ptr: *const std::ffi::c_char) -> String {
     }
 }
 
-/// The Vulkan debug-utils callback: records warnings and errors into the [`DiagnosticLog`] in `user_data`.
-pub(crate) unsafe extern "system" fn vulkan_callback(
-    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
-    _types: vk::DebugUtilsMessageTypeFlagsEXT,
-    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
-    user_data: *mut c_void,
-) -> vk::Bool32 {
-    if data.is_null() || user_data.is_null() {
-        return vk::FALSE;
-    }
-    // SAFETY: the loader passes valid callback data; user_data is the Arc<DiagnosticLog> pointer registered in
-    // `VulkanContext`, which outlives the messenger.
-    let (text, log) = unsafe { (c_str((*data).p_message), &*(user_data as *const DiagnosticLog)) };
-    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
-        tracing::error!(target: "vulkan", "{text}");
-    } else {
-        tracing::warn!(target: "vulkan", "{text}");
-    }
-    log.push(text);
-    vk::FALSE
-}
-
-/// The OpenXR debug-utils callback: records warnings and errors into the [`DiagnosticLog`] in `user_data`.
+/// The OpenXR debug-utils callback: records warnings and errors into the [`ValidationLog`] in `user_data`.
 unsafe extern "system" fn openxr_callback(
     severity: xr::sys::DebugUtilsMessageSeverityFlagsEXT,
     _types: xr::sys::DebugUtilsMessageTypeFlagsEXT,
@@ -92,29 +34,31 @@ unsafe extern "system" fn openxr_callback(
     if data.is_null() || user_data.is_null() {
         return xr::sys::FALSE;
     }
-    // SAFETY: as in `vulkan_callback`; the log outlives the messenger (see `XrMessenger`).
+    // SAFETY: the runtime passes valid callback data for the duration of the call; user_data is the
+    // Arc<ValidationLog> registered in `XrMessenger::new`, which keeps it alive as long as the messenger.
     let (function, text, log) =
-        unsafe { (c_str((*data).function_name), c_str((*data).message), &*(user_data as *const DiagnosticLog)) };
+        unsafe { (c_str((*data).function_name), c_str((*data).message), &*(user_data as *const ValidationLog)) };
     let line = format!("{function}: {text}");
-    if severity.contains(xr::sys::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+    let error = severity.contains(xr::sys::DebugUtilsMessageSeverityFlagsEXT::ERROR);
+    if error {
         tracing::error!(target: "openxr", "{line}");
     } else {
         tracing::warn!(target: "openxr", "{line}");
     }
-    log.push(line);
+    log.record(error, line);
     xr::sys::FALSE
 }
 
-/// An OpenXR debug-utils messenger feeding a [`DiagnosticLog`]; destroyed on drop (before the instance).
+/// An OpenXR debug-utils messenger feeding a [`ValidationLog`]; destroyed on drop (before the instance).
 pub struct XrMessenger {
     handle: xr::sys::DebugUtilsMessengerEXT,
     destroy: xr::sys::pfn::DestroyDebugUtilsMessengerEXT,
-    _log: Arc<DiagnosticLog>,
+    _log: Arc<ValidationLog>,
 }
 
 impl XrMessenger {
     /// Creates the messenger when XR_EXT_debug_utils is enabled on `instance`; `None` otherwise.
-    pub fn new(instance: &xr::Instance, log: Arc<DiagnosticLog>) -> Option<Self> {
+    pub fn new(instance: &xr::Instance, log: Arc<ValidationLog>) -> Option<Self> {
         let ext = instance.exts().ext_debug_utils.as_ref()?;
         let info = xr::sys::DebugUtilsMessengerCreateInfoEXT {
             ty: xr::sys::DebugUtilsMessengerCreateInfoEXT::TYPE,

@@ -1,6 +1,7 @@
 //! The eyes on the Vulkan renderer: one [`gpu::Renderer`] per eye (so spatial fusion follows each eye's own view
 //! sequence) on the device the OpenXR runtime chose, fed with the person's mesh and source view once per input
-//! frame ([`EyeScene`], from a [`SceneFeed`]), rendering each eye's perspective camera on the GPU.
+//! frame ([`Scene`], from a [`SceneFeed`]), rendering each eye's perspective camera on the GPU through the person
+//! renderer of every path ([`GpuView`] under a per-eye [`NeuralPolicy`]).
 //!
 //! Where the renderers run: on the OpenXR session's device, on a second queue of its queue family when there is
 //! one (the results are then copied GPU to GPU). A device with a single queue (lavapipe, many GPUs' graphics
@@ -21,56 +22,18 @@ use glam::Vec4;
 use super::pacing::{EyeRenderer, EyeRequest};
 use super::placement::Placement;
 use super::session::XrMode;
-use crate::buffer::{GrayImage, RgbImage};
 use crate::compose::Mode;
-use crate::geometry::raster::GBuffer;
-use crate::geometry::{Camera, TriMesh};
-use crate::gpu::neural::{gpu_neural_person, SourceView};
-use crate::gpu::{self, resources::Buffer, Renderer};
+use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
 use crate::io::sequence::Frame;
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{NeuralInput, SharedNeural};
-
-/// What the eyes show of one input frame: the person's mesh in body-cube coordinates and the source view the
-/// renderer warps (premultiplied linear RGB, its mask, the source G-buffer and camera, all of one size).
-#[derive(Clone, Debug)]
-pub struct EyeScene {
-    /// The person's mesh.
-    pub mesh: TriMesh,
-    /// Source colour, premultiplied linear RGB.
-    pub source_rgb: RgbImage,
-    /// Source mask in [0, 1].
-    pub source_mask: GrayImage,
-    /// Depth and normals of the mesh seen by the source camera.
-    pub source_gbuffer: GBuffer,
-    /// The source camera.
-    pub source_camera: Camera,
-    /// The neural renderer and the encoder's output for this input; `None` draws the eyes geometrically.
-    pub neural: Option<EyeNeural>,
-}
-
-/// The neural renderer of an [`EyeScene`]: the shared decoder and the encoder's features of the scene's input
-/// (computed once per input frame, never per eye).
-#[derive(Clone)]
-pub struct EyeNeural {
-    /// The decoder (run under its lock, one eye at a time, on the render thread).
-    pub renderer: SharedNeural,
-    /// The encoder's output for the scene's input.
-    pub encoded: NeuralInput,
-}
-
-impl std::fmt::Debug for EyeNeural {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("EyeNeural").field("encoded", &self.encoded).finish_non_exhaustive()
-    }
-}
+use crate::pipeline::{NeuralCounters, NeuralPolicy, Scene};
 
 /// Where new scenes come from: a still photo (one scene) or a live source (a new scene per completed frame).
 /// Polled by the render thread before every request; must never block.
 pub trait SceneFeed: Send {
     /// The newest scene if one completed since the last call.
-    fn poll(&mut self) -> Option<Arc<EyeScene>>;
+    fn poll(&mut self) -> Option<Arc<Scene>>;
     /// Messages for the user since the last call (a source that ended, a corrupt frame).
     fn take_messages(&mut self) -> Vec<String> {
         Vec::new()
@@ -78,17 +41,17 @@ pub trait SceneFeed: Send {
 }
 
 /// A feed with one scene (a still photo).
-pub struct StaticScene(Option<Arc<EyeScene>>);
+pub struct StaticScene(Option<Arc<Scene>>);
 
 impl StaticScene {
     /// A feed that yields `scene` once.
-    pub fn new(scene: EyeScene) -> Self {
+    pub fn new(scene: Scene) -> Self {
         Self(Some(Arc::new(scene)))
     }
 }
 
 impl SceneFeed for StaticScene {
-    fn poll(&mut self) -> Option<Arc<EyeScene>> {
+    fn poll(&mut self) -> Option<Arc<Scene>> {
         self.0.take()
     }
 }
@@ -96,14 +59,9 @@ impl SceneFeed for StaticScene {
 /// What the neural renderer did for the eyes of a session.
 #[derive(Clone, Debug, Default)]
 pub struct NeuralEyeStats {
-    /// Eye images drawn by the neural decoder (including reused layers).
-    pub eyes: u64,
-    /// Decoder runs.
-    pub decoder_runs: u64,
-    /// Eye images whose layer was reused (same pose, same input: no decoder run).
-    pub reused: u64,
-    /// Eye images the neural renderer failed on (drawn geometrically instead).
-    pub fallbacks: u64,
+    /// Over both eyes: eye images drawn by the decoder (reused layers included), decoder runs, reused layers
+    /// (same pose, same input), fallbacks (eye images the neural renderer failed on, drawn geometrically).
+    pub counters: NeuralCounters,
     /// Per decoder run: GPU raster + flow/Z-map including the read-back into host memory.
     pub gpu_inputs: Vec<Duration>,
     /// Per decoder run: colour lookup, feature sampling and the decoder on ONNX Runtime.
@@ -113,7 +71,8 @@ pub struct NeuralEyeStats {
 impl NeuralEyeStats {
     /// One line for the session report; `None` when no eye was meant to be neural.
     pub fn summary(&self) -> Option<String> {
-        if self.eyes + self.fallbacks == 0 {
+        let c = self.counters;
+        if c.views + c.fallbacks == 0 {
             return None;
         }
         let ms = |v: &[Duration]| super::pacing::median_ms(v).unwrap_or(0.0);
@@ -121,12 +80,12 @@ impl NeuralEyeStats {
             "neural (decoder on ONNX Runtime through host memory: GPU raster + flow read back, decoded on the host, \
              uploaded for compositing): {} eye images, {} decoder runs (median GPU inputs {:.1} ms, lookup + \
              decoder {:.1} ms), {} reused, {} geometric fallbacks",
-            self.eyes,
-            self.decoder_runs,
+            c.views,
+            c.decoder_runs,
             ms(&self.gpu_inputs),
             ms(&self.decoder),
-            self.reused,
-            self.fallbacks
+            c.reused,
+            c.fallbacks
         ))
     }
 }
@@ -144,11 +103,11 @@ pub struct GpuEyes {
     staging: Option<Vec<Buffer>>,
     feed: Box<dyn SceneFeed>,
     /// The scene on the GPU (kept for the neural decoder's colour lookup and features).
-    scene: Option<Arc<EyeScene>>,
+    scene: Option<Arc<Scene>>,
     /// Scenes uploaded so far (identifies the scene of a cached neural layer).
     scene_count: u64,
-    /// Per eye: camera and scene of the neural layer on its renderer (reused while both stay).
-    neural_layers: Vec<Option<(Camera, u64)>>,
+    /// Per eye: the person-renderer policy (its neural layer, fallbacks and counters).
+    policies: Vec<NeuralPolicy>,
     /// Neural eye renders, decoder runs, fallbacks and host times.
     pub neural_stats: NeuralEyeStats,
     mode: Mode,
@@ -208,7 +167,7 @@ impl GpuEyes {
             feed,
             scene: None,
             scene_count: 0,
-            neural_layers: vec![None; sizes.len()],
+            policies: vec![NeuralPolicy::default(); sizes.len()],
             neural_stats: NeuralEyeStats::default(),
             mode,
             environment: if mode == Mode::Vr { environment } else { None },
@@ -225,10 +184,9 @@ impl GpuEyes {
         base_yaw + placement_yaw
     }
 
-    fn upload_scene(&mut self, scene: &EyeScene) -> Result<(), gpu::GpuError> {
+    fn upload_scene(&mut self, scene: &Scene) -> Result<(), gpu::GpuError> {
         for r in &mut self.renderers {
-            r.set_mesh(&scene.mesh)?;
-            r.set_source_parts(&scene.source_rgb, &scene.source_mask, &scene.source_gbuffer, &scene.source_camera)?;
+            r.set_scene(&scene.source())?;
         }
         Ok(())
     }
@@ -272,47 +230,23 @@ impl EyeRenderer for GpuEyes {
                 eye.eye, eye.body_camera.width, eye.body_camera.height
             ));
         }
-        let neural = self.scene.as_ref().and_then(|s| s.neural.as_ref().map(|n| (Arc::clone(s), n)));
-        let mut drawn_neural = false;
-        if let Some((scene, n)) = neural {
-            let layer = self.neural_layers.get_mut(eye.eye).ok_or_else(|| format!("eye {}: no layer slot", eye.eye))?;
-            let key = (eye.body_camera, self.scene_count);
-            if *layer == Some(key) {
-                // Same pose, same input: the layer on the GPU stands (as the geometric path reuses its own).
-                r.render_frame_from_person(None, &eye.body_camera, mode, None)
+        let policy = self.policies.get_mut(eye.eye).ok_or_else(|| format!("eye {}: no policy slot", eye.eye))?;
+        match &self.scene {
+            Some(scene) => {
+                let before = policy.counters();
+                let mut view = GpuView { renderer: &mut *r, mode, target: None };
+                policy
+                    .draw(&mut view, scene.source(), scene.neural(), self.scene_count, &eye.body_camera)
                     .map_err(|e| format!("eye {}: {e}", eye.eye))?;
-                self.neural_stats.reused += 1;
-                drawn_neural = true;
-            } else {
-                let source =
-                    SourceView { rgb: &scene.source_rgb, mask: &scene.source_mask, camera: &scene.source_camera };
-                match gpu_neural_person(r, &n.renderer, source, &n.encoded, &eye.body_camera) {
-                    Ok((person, times)) => {
-                        r.render_frame_from_person(Some(&person), &eye.body_camera, mode, None)
-                            .map_err(|e| format!("eye {}: {e}", eye.eye))?;
-                        *layer = Some(key);
-                        self.neural_stats.decoder_runs += 1;
-                        self.neural_stats.gpu_inputs.push(times.gpu_inputs);
-                        self.neural_stats.decoder.push(times.decoder);
-                        drawn_neural = true;
-                    }
-                    Err(e) => {
-                        if self.neural_stats.fallbacks == 0 {
-                            tracing::warn!("eye {}: the neural renderer failed, drawing geometrically: {e}", eye.eye);
-                        }
-                        self.neural_stats.fallbacks += 1;
-                        *layer = None;
-                    }
+                let drawn = policy.counters().since(before);
+                if drawn.decoder_runs > 0 {
+                    let times = policy.last_times();
+                    self.neural_stats.gpu_inputs.push(times.gpu_inputs);
+                    self.neural_stats.decoder.push(times.decoder);
                 }
+                self.neural_stats.counters += drawn;
             }
-        }
-        if drawn_neural {
-            self.neural_stats.eyes += 1;
-        } else {
-            if let Some(layer) = self.neural_layers.get_mut(eye.eye) {
-                *layer = None;
-            }
-            r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?;
+            None => r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?,
         }
         match self.staging.as_mut().and_then(|s| s.get_mut(eye.eye)) {
             // Separate device: hand the result over through the session device's host-visible buffer. Safe to
@@ -371,12 +305,15 @@ mod tests {
 
     #[test]
     fn a_static_scene_is_polled_once() {
-        let scene = EyeScene {
+        use crate::buffer::{GrayImage, RgbImage};
+        use crate::geometry::raster::GBuffer;
+        use crate::geometry::{Camera, TriMesh};
+        let scene = Scene {
             mesh: TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
-            source_rgb: RgbImage::new(4, 4, Vec3::ONE),
-            source_mask: GrayImage::new(4, 4, 1.0),
-            source_gbuffer: GBuffer::new(4, 4),
-            source_camera: Camera::source(4),
+            rgb: RgbImage::new(4, 4, Vec3::ONE),
+            mask: GrayImage::new(4, 4, 1.0),
+            gbuffer: GBuffer::new(4, 4),
+            camera: Camera::source(4),
             neural: None,
         };
         let mut feed = StaticScene::new(scene);

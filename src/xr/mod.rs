@@ -1,24 +1,26 @@
 //! OpenXR client (XR_KHR_vulkan_enable2 on ash): runtime discovery ([`check`]), the Vulkan device the runtime
-//! asks for, wrapped as the renderer's [`crate::gpu::Context`], and the per-eye swapchains filled on the GPU
-//! ([`gfx`]), the session state machine and frame loop ([`session`]), the placement of the person in the room
-//! ([`placement`]), the per-eye Vulkan renderers ([`eyes`]) and the render thread that keeps the display loop from
-//! ever waiting on them ([`pacing`]).
+//! asks for, created as the one [`crate::gpu::Context`] type ([`device`]), the per-eye swapchains filled on the GPU
+//! ([`swapchain`]), the session state machine and frame loop ([`session`]), the placement of the person in the
+//! room ([`placement`]), the per-eye Vulkan renderers ([`eyes`]), the render thread that keeps the display loop
+//! from ever waiting on them ([`pacing`]) and the OpenXR validation messenger ([`diag`]). Everything Vulkan that
+//! is not OpenXR-specific (device, validation log, queue locks, the mirror's swapchain) is [`crate::gpu`]'s; the
+//! desktop mirror window is [`crate::window::mirror`].
 //!
-//! The eyes are rendered by [`crate::gpu::Renderer`] (one per eye) from an [`EyeScene`] — the person's mesh and
-//! source view, uploaded once per input frame from a [`SceneFeed`] (a still photo, or a live source in the app
-//! layer). No eye image passes through the CPU on its way to the headset.
+//! The eyes are rendered by [`crate::gpu::Renderer`] (one per eye) from a [`crate::pipeline::Scene`] — the
+//! person's mesh and source view, uploaded once per input frame from a [`SceneFeed`] (a still photo, or a live
+//! source in the app layer). No eye image passes through the CPU on its way to the headset.
 
 pub mod check;
+pub mod device;
 pub mod diag;
 pub mod eyes;
-pub mod gfx;
-pub mod mirror;
 pub mod pacing;
 pub mod placement;
 pub mod session;
+pub mod swapchain;
 
 pub use check::{check_runtime, RuntimeReport};
-pub use eyes::{EyeNeural, EyeScene, GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
+pub use eyes::{GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
 pub use pacing::{EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
 pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport, XrMode};
@@ -59,17 +61,9 @@ pub enum XrError {
         /// Its result code.
         result: xr::sys::Result,
     },
-    /// The Vulkan library could not be loaded.
-    #[error("no Vulkan loader found ({0}): install libvulkan1 and a Vulkan driver (e.g. mesa-vulkan-drivers)")]
-    VulkanLoader(String),
-    /// A Vulkan call failed.
-    #[error("Vulkan call {call} failed: {result}")]
-    Vulkan {
-        /// The Vulkan function that failed.
-        call: &'static str,
-        /// Its result code.
-        result: ash::vk::Result,
-    },
+    /// The Vulkan device (no loader, no usable device, a failed call, a lost device, the mirror's window).
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
     /// The runtime or device cannot do something r2human needs.
     #[error("unsupported by the OpenXR runtime or Vulkan device: {0}")]
     Unsupported(String),
@@ -98,18 +92,6 @@ impl<T> XrContext<T> for Result<T, xr::sys::Result> {
             }
             result => XrError::Openxr { call, result },
         })
-    }
-}
-
-/// Adds the name of the failing Vulkan call to an `ash` result.
-pub(crate) trait VkContext<T> {
-    /// Maps the error to [`XrError::Vulkan`] naming `call`.
-    fn vk(self, call: &'static str) -> Result<T, XrError>;
-}
-
-impl<T> VkContext<T> for Result<T, ash::vk::Result> {
-    fn vk(self, call: &'static str) -> Result<T, XrError> {
-        self.map_err(|result| XrError::Vulkan { call, result })
     }
 }
 

@@ -4,7 +4,7 @@
 //! The person is rendered on the GPU by a separate thread ([`super::pacing`], [`super::eyes`]); the frame loop
 //! copies the newest finished eye images into the swapchains on the GPU ([`EyeUploader`]) and never waits for a
 //! render. The renderer and the OpenXR session share one Vulkan queue when the device has only one (lavapipe):
-//! every use of it is serialised by [`VulkanContext::lock_queue`], and the time the frame loop spends waiting for
+//! every use of it is serialised by [`crate::gpu::Context::lock_queue_at`], and the time the frame loop spends waiting for
 //! that lock is measured and reported. Every way a session can end — the frame budget, the runtime asking
 //! to exit, session loss, instance loss, the runtime process going away — ends the loop cleanly with an
 //! [`EndReason`]; only setup failures are errors.
@@ -18,16 +18,18 @@ use openxr as xr;
 use xr::sys::Handle as _;
 
 use super::check::{blend_mode_name, extension_names};
-use super::diag::{DiagnosticLog, XrMessenger};
+use super::device::{create_device, renderer_shares_queue, SESSION_QUEUE};
+use super::diag::{ValidationLog, XrMessenger};
 use super::eyes::{GpuEyes, NeuralEyeStats, SceneFeed};
-use super::gfx::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat, VulkanContext};
-use super::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 use super::pacing::{median_ms, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedFrame};
 use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
+use super::swapchain::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat};
 use super::{load_entry, XrContext, XrError};
 use crate::buffer::RgbaImage;
 use crate::geometry::camera::{Camera, Fov};
+use crate::gpu;
 use crate::io::environment::Environment;
+use crate::window::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 
 const VIEW_TYPE: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_STEREO;
 
@@ -509,7 +511,7 @@ pub fn run_session(
             &(),
         )
         .xr("xrCreateInstance")?;
-    let xr_log = DiagnosticLog::new();
+    let xr_log = Arc::new(ValidationLog::default());
     let _messenger = XrMessenger::new(&instance, xr_log.clone());
     let props = instance.properties().xr("xrGetInstanceProperties")?;
     let runtime = format!("{} {}", props.runtime_name, props.runtime_version);
@@ -544,8 +546,8 @@ pub fn run_session(
             Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
         }
     }
-    let vk = VulkanContext::with_extensions(&instance, system, &mirror_instance_exts, &mirror_device_exts)?;
-    tracing::info!("OpenXR runtime {runtime}, system {system_name}, Vulkan device {}", vk.device_name);
+    let vk = create_device(&instance, system, &mirror_instance_exts, &mirror_device_exts)?;
+    tracing::info!("OpenXR runtime {runtime}, system {system_name}, Vulkan device {}", vk.device_name());
 
     // SAFETY: the Vulkan handles come from this runtime through XR_KHR_vulkan_enable2 and outlive the session
     // (the session and everything holding it are locals declared after `vk`, so they are dropped first).
@@ -554,11 +556,11 @@ pub fn run_session(
         instance.create_session::<xr::Vulkan>(
             system,
             &xr::vulkan::SessionCreateInfo {
-                instance: vk.instance.handle().as_raw() as _,
-                physical_device: vk.physical_device.as_raw() as _,
-                device: vk.device.handle().as_raw() as _,
-                queue_family_index: vk.queue_family_index,
-                queue_index: 0,
+                instance: vk.instance().handle().as_raw() as _,
+                physical_device: vk.physical_device().as_raw() as _,
+                device: vk.device().handle().as_raw() as _,
+                queue_family_index: vk.queue_family(),
+                queue_index: SESSION_QUEUE as u32,
             },
         )
     }
@@ -592,20 +594,20 @@ pub fn run_session(
     let sizes: Vec<(usize, usize)> = eyes.iter().map(|e| (e.width as usize, e.height as usize)).collect();
     // On a one-queue device the renderer gets its own device, so the runtime's per-frame work on the session
     // queue never waits behind an eye render (see `super::eyes`).
-    let render_ctx = if vk.renderer_shares_queue() {
+    let render_ctx = if renderer_shares_queue(&vk) {
         let validation = std::env::var("VK_INSTANCE_LAYERS").is_ok_and(|l| l.contains("KHRONOS_validation"));
         match crate::gpu::Context::new(&crate::gpu::ContextOptions { validation: Some(validation), display: None }) {
             Ok(c) => Arc::new(c),
             Err(e) => {
                 tracing::warn!("no separate render device ({e}); the eyes share the session's queue");
-                vk.gpu.clone()
+                vk.clone()
             }
         }
     } else {
-        vk.gpu.clone()
+        vk.clone()
     };
-    let render_path = if Arc::ptr_eq(&render_ctx, &vk.gpu) {
-        if vk.renderer_shares_queue() {
+    let render_path = if Arc::ptr_eq(&render_ctx, &vk) {
+        if renderer_shares_queue(&vk) {
             "the session's queue (copied on the GPU)".to_string()
         } else {
             "a second queue of the session's device (copied on the GPU)".to_string()
@@ -613,7 +615,7 @@ pub fn run_session(
     } else {
         format!("its own device on {} (staged through host memory)", render_ctx.device_name())
     };
-    let mut renderer = GpuEyes::new(vk.gpu.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
+    let mut renderer = GpuEyes::new(vk.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
         .map_err(|e| XrError::Render(format!("cannot set up the GPU renderer: {e}")))?;
     let mut uploader = EyeUploader::new(&vk)?;
     let passthrough = if blend.passthrough_fb {
@@ -675,24 +677,21 @@ pub fn run_session(
         end
     });
     // The render thread has ended; collect a capture still in flight.
-    if uploader.wait(&vk).is_ok() {
-        collect_captures(&mut uploader, &vk, &eyes, &mut loop_state);
+    if uploader.wait().is_ok() {
+        collect_captures(&mut uploader, &eyes, &mut loop_state);
     }
     if loop_state.sm.running {
         // The loop left while the session was still running (runtime gone or render failure): best effort.
-        let _q = vk.lock_queue();
+        let _q = vk.lock_queue_at(SESSION_QUEUE);
         let _ = session.end();
     }
     if let Some(m) = loop_state.mirror.take() {
         loop_state.mirror_presented = m.presented;
-        m.destroy(&vk);
+        m.destroy();
     }
-    // SAFETY: waiting for the device to finish all uploads before the swapchains go away.
-    unsafe {
-        let _q = vk.lock_queue();
-        let _ = vk.device.device_wait_idle();
-    }
-    uploader.destroy(&vk);
+    // The device finishes all uploads before the swapchains go away.
+    let _ = vk.wait_idle();
+    drop(uploader);
     let neural = renderer.neural_stats.clone();
     let person_renderer = neural.summary().unwrap_or_else(|| "geometric (GPU passes)".to_string());
     drop(renderer);
@@ -700,7 +699,7 @@ pub fn run_session(
     drop(passthrough);
     drop((controllers, space, frame_wait, frame_stream, session));
     let eye_times = mailbox.eye_times();
-    let (render_messages, render_message_count) = if Arc::ptr_eq(&render_ctx, &vk.gpu) {
+    let (render_messages, render_message_count) = if Arc::ptr_eq(&render_ctx, &vk) {
         (Vec::new(), 0)
     } else {
         // The loader's notice that VK_INSTANCE_LAYERS switched the layer on (it is how tests enable validation) is
@@ -712,7 +711,7 @@ pub fn run_session(
             .filter(|m| !(m.starts_with("env var '") && m.contains("defined and adding layers")))
             .collect();
         let notices = render_ctx.validation().messages().len() - findings.len();
-        let count = (render_ctx.validation().errors() + render_ctx.validation().warnings()) as usize;
+        let count = render_ctx.validation().count() as usize;
         (findings, count.saturating_sub(notices))
     };
     drop(render_ctx);
@@ -725,7 +724,7 @@ pub fn run_session(
     let report = SessionReport {
         runtime,
         system: system_name,
-        vulkan_device: vk.device_name.clone(),
+        vulkan_device: vk.device_name().to_string(),
         blend,
         reference_space: space_name.into(),
         swapchain_format: format_name(format.vk.as_raw() as u32),
@@ -738,7 +737,7 @@ pub fn run_session(
         eye_renders: eye_times.len(),
         scene_uploads: mailbox.uploads(),
         source_messages: mailbox.messages(),
-        renderer_shares_queue: vk.renderer_shares_queue(),
+        renderer_shares_queue: renderer_shares_queue(&vk),
         queue_wait_ms: (
             median_ms(&loop_state.queue_waits),
             loop_state.queue_waits.iter().max().map_or(0.0, |d| d.as_secs_f64() * 1e3),
@@ -746,9 +745,9 @@ pub fn run_session(
         display_fps,
         end,
         xr_messages: xr_log.messages(),
-        xr_message_count: xr_log.count(),
-        vk_messages: vk.validation.messages().into_iter().chain(render_messages).collect(),
-        vk_message_count: vk.validation.count() + render_message_count,
+        xr_message_count: xr_log.count() as usize,
+        vk_messages: vk.validation().messages().into_iter().chain(render_messages).collect(),
+        vk_message_count: vk.validation().count() as usize + render_message_count,
         render_path,
         person_renderer,
         neural,
@@ -767,7 +766,7 @@ struct FrameContext<'a> {
     space: &'a xr::Space,
     stage_has_floor: bool,
     controllers: &'a Controllers,
-    vk: &'a VulkanContext,
+    vk: &'a Arc<gpu::Context>,
     blend: &'a BlendChoice,
     passthrough_layer: Option<&'a xr::PassthroughLayerFB>,
     mailbox: &'a RenderMailbox,
@@ -796,8 +795,8 @@ struct LoopState {
 const EXIT_GRACE: Duration = Duration::from_secs(10);
 
 /// Turns finished read-backs into [`EyeCapture`]s (never blocks).
-fn collect_captures(uploader: &mut EyeUploader, vk: &VulkanContext, eyes: &[EyeSwapchain], st: &mut LoopState) {
-    let Some(images) = uploader.take_captures(vk, eyes) else { return };
+fn collect_captures(uploader: &mut EyeUploader, eyes: &[EyeSwapchain], st: &mut LoopState) {
+    let Some(images) = uploader.take_captures(eyes) else { return };
     let Some(frame) = st.capture_of.take() else { return };
     for (i, image) in images.into_iter().enumerate() {
         let cap = EyeCapture {
@@ -816,8 +815,8 @@ fn collect_captures(uploader: &mut EyeUploader, vk: &VulkanContext, eyes: &[EyeS
 }
 
 /// Runs `f` holding the session queue lock, adding the time spent waiting for the lock to `waited`.
-fn with_queue<T>(vk: &VulkanContext, waited: &mut Duration, f: impl FnOnce() -> T) -> T {
-    let _q = vk.lock_queue_timed(waited);
+fn with_queue<T>(vk: &gpu::Context, waited: &mut Duration, f: impl FnOnce() -> T) -> T {
+    let _q = vk.lock_queue_timed(SESSION_QUEUE, waited);
     f()
 }
 
@@ -871,7 +870,7 @@ fn frame_loop(
                         }
                         StateCommand::End => {
                             let ended = {
-                                let _q = ctx.vk.lock_queue();
+                                let _q = ctx.vk.lock_queue_at(SESSION_QUEUE);
                                 ctx.session.end()
                             };
                             if let Err(e) = ended {
@@ -914,7 +913,7 @@ fn frame_loop(
                 tracing::info!("mirror window closed; the session goes on");
                 if let Some(m) = st.mirror.take() {
                     st.mirror_presented = m.presented;
-                    m.destroy(ctx.vk);
+                    m.destroy();
                 }
             }
         }
@@ -923,7 +922,7 @@ fn frame_loop(
             continue;
         }
 
-        collect_captures(uploader, ctx.vk, eyes, st);
+        collect_captures(uploader, eyes, st);
 
         // 2. One frame.
         let mut waited = Duration::ZERO;
@@ -988,11 +987,11 @@ fn frame_loop(
                         }
                         if let Some(m) = &mut st.mirror {
                             let images: Vec<_> = eyes.iter().map(|e| &e.linear).collect();
-                            if let Err(e) = m.present(ctx.vk, &images) {
+                            if let Err(e) = m.present(&images) {
                                 tracing::warn!("desktop mirror stopped: {e}");
                                 if let Some(m) = st.mirror.take() {
                                     st.mirror_presented = m.presented;
-                                    m.destroy(ctx.vk);
+                                    m.destroy();
                                 }
                             }
                         }

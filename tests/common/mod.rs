@@ -2,6 +2,21 @@
 #![allow(dead_code)]
 
 use std::path::Path;
+use std::process::Command;
+
+/// The r2human binary of this build, logging warnings only.
+pub fn r2human() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_r2human"));
+    c.env("R2HUMAN_LOG", "warn");
+    c
+}
+
+/// Runs a command to completion: (exit success, stdout and stderr together).
+pub fn run(cmd: &mut Command) -> (bool, String) {
+    let out = cmd.output().expect("run r2human");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    (out.status.success(), text)
+}
 
 /// Draws a simple standing figure (head, torso, arms, legs) with a striped shirt into an RGBA PNG of
 /// `w x h` pixels: alpha is the exact mask. Deterministic; used where a person photo with a mask is needed.

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 
 use glam::{Vec2, Vec3};
 
-use super::SynthError;
+use super::BodyError;
 
 const BASE_OBJ: &str = include_str!("../../assets/makehuman/base.obj");
 const VERTEX_GROUPS_JSON: &str = include_str!("../../assets/makehuman/basemesh_vertex_groups.json");
@@ -40,8 +40,8 @@ pub struct BaseMesh {
 impl BaseMesh {
     /// Parses the embedded `base.obj` and `basemesh_vertex_groups.json`, checking the facts the body extraction
     /// relies on (counts, index ranges).
-    pub fn load() -> Result<Self, SynthError> {
-        let bad = |m: String| SynthError::Asset { what: "assets/makehuman/base.obj".into(), message: m };
+    pub fn load() -> Result<Self, BodyError> {
+        let bad = |m: String| BodyError::Asset { what: "assets/makehuman/base.obj".into(), message: m };
         let mut full_positions = Vec::with_capacity(FULL_VERTEX_COUNT);
         let mut texcoords = Vec::with_capacity(21_334);
         let mut group = String::new();
@@ -99,7 +99,7 @@ impl BaseMesh {
             return Err(bad("a body face indexes outside the body vertices or texcoords".into()));
         }
         let groups: HashMap<String, Vec<[u32; 2]>> = serde_json::from_str(VERTEX_GROUPS_JSON).map_err(|e| {
-            SynthError::Asset { what: "assets/makehuman/basemesh_vertex_groups.json".into(), message: e.to_string() }
+            BodyError::Asset { what: "assets/makehuman/basemesh_vertex_groups.json".into(), message: e.to_string() }
         })?;
 
         // Split seam vertices: one output vertex per (vertex, texcoord) pair.

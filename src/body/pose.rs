@@ -1,0 +1,600 @@
+//! Pose landmarks from a photo: the MediaPipe Pose landmark "full" network (BlazePose GHUM 3D, from the PyPI
+//! wheel `mediapipe` 0.10.21, Apache-2.0, converted to ONNX by `scripts/setup.d/live.sh`) run through ONNX
+//! Runtime.
+//!
+//! # What the network expects and returns (checked against the converted model and the photos)
+//! - Input `[1, 3, 256, 256]`: RGB, sRGB-encoded in `[0, 1]`, of a square, upright region around the person
+//!   (MediaPipe's region of interest; outside the photo the region is black).
+//! - `Identity` `[1, 195]`: 39 points x (x, y, z, visibility, presence) in input pixels; `z` is depth in the
+//!   same units as `x`, relative to the middle of the hips, smaller = nearer the camera; visibility and presence
+//!   are logits (a sigmoid gives the probability). Points 0..33 are the pose landmarks ([`NAMES`]), 33 and 34
+//!   the auxiliary points MediaPipe uses to place the next region (hip centre, and a point whose distance from
+//!   it is half the body's extent).
+//! - `Identity_1` `[1, 1]`: the pose presence score, already a probability.
+//! - `Identity_4` `[1, 117]`: 39 x (x, y, z) world landmarks in metres, origin at the hip centre, x right, y down,
+//!   z away from the camera (axes of the input region).
+//!
+//! # The region
+//! First the mask's bounding box, squared and enlarged by [`MASK_MARGIN`] around its centre (the person detector's
+//! box in MediaPipe is about 1.25 times the person). When the network finds a pose there, it runs once more on
+//! the region MediaPipe's tracker derives from the auxiliary points (centre = hip centre, side = 1.5 x 2 x
+//! their distance), which is how the network was trained to see people; with a previous frame's region
+//! ([`PoseEstimator::estimate_tracked`]) only that one run is made.
+//!
+//! Landmarks come back in the photo's continuous pixel coordinates (pixel centres at `+0.5`), and depths in the
+//! same pixels with **+ toward the camera** (the body cube's convention); [`PoseLandmarks::transformed`] maps
+//! them into the normalised source view and [`PoseLandmarks::cube`] into body-cube coordinates.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Vec2, Vec3};
+use ort::session::Session;
+use ort::value::TensorRef;
+
+use super::BodyError;
+use crate::buffer::{linear_to_srgb, sample_bilinear, GrayImage, RgbImage};
+use crate::neural::RuntimeOptions;
+
+/// Number of pose landmarks.
+pub const LANDMARK_COUNT: usize = 33;
+/// Points the network outputs (landmarks + auxiliary points).
+const NETWORK_POINTS: usize = 39;
+/// Network input side.
+pub const INPUT_SIZE: usize = 256;
+/// Side of the first region relative to the mask's larger bounding-box side.
+pub const MASK_MARGIN: f32 = 1.25;
+/// MediaPipe's region scale around the auxiliary points (`pose_landmarks_to_roi`: 1.5).
+pub const AUX_SCALE: f32 = 1.5;
+/// Pose presence below which the network is taken to have found no person.
+pub const MIN_POSE_SCORE: f32 = 0.5;
+/// File name of the model under `.tools/models/`.
+pub const MODEL_FILE: &str = "pose_landmark_full.onnx";
+
+/// Landmark names, in the network's order (MediaPipe's topology; "left" is the person's left).
+pub const NAMES: [&str; LANDMARK_COUNT] = [
+    "nose",
+    "left eye (inner)",
+    "left eye",
+    "left eye (outer)",
+    "right eye (inner)",
+    "right eye",
+    "right eye (outer)",
+    "left ear",
+    "right ear",
+    "mouth (left)",
+    "mouth (right)",
+    "left shoulder",
+    "right shoulder",
+    "left elbow",
+    "right elbow",
+    "left wrist",
+    "right wrist",
+    "left pinky",
+    "right pinky",
+    "left index",
+    "right index",
+    "left thumb",
+    "right thumb",
+    "left hip",
+    "right hip",
+    "left knee",
+    "right knee",
+    "left ankle",
+    "right ankle",
+    "left heel",
+    "right heel",
+    "left foot index",
+    "right foot index",
+];
+
+/// Landmark indices used by the fitter.
+pub mod index {
+    /// Nose.
+    pub const NOSE: usize = 0;
+    /// Left ear.
+    pub const LEFT_EAR: usize = 7;
+    /// Right ear.
+    pub const RIGHT_EAR: usize = 8;
+    /// Left shoulder.
+    pub const LEFT_SHOULDER: usize = 11;
+    /// Right shoulder.
+    pub const RIGHT_SHOULDER: usize = 12;
+    /// Left elbow.
+    pub const LEFT_ELBOW: usize = 13;
+    /// Right elbow.
+    pub const RIGHT_ELBOW: usize = 14;
+    /// Left wrist.
+    pub const LEFT_WRIST: usize = 15;
+    /// Right wrist.
+    pub const RIGHT_WRIST: usize = 16;
+    /// Left hip.
+    pub const LEFT_HIP: usize = 23;
+    /// Right hip.
+    pub const RIGHT_HIP: usize = 24;
+    /// Left knee.
+    pub const LEFT_KNEE: usize = 25;
+    /// Right knee.
+    pub const RIGHT_KNEE: usize = 26;
+    /// Left ankle.
+    pub const LEFT_ANKLE: usize = 27;
+    /// Right ankle.
+    pub const RIGHT_ANKLE: usize = 28;
+    /// Left foot index (toe).
+    pub const LEFT_FOOT: usize = 31;
+    /// Right foot index (toe).
+    pub const RIGHT_FOOT: usize = 32;
+}
+
+/// Pairs of landmarks drawn as the skeleton (for pictures and checks).
+pub const SKELETON: [(usize, usize); 16] = [
+    (11, 12),
+    (11, 13),
+    (13, 15),
+    (12, 14),
+    (14, 16),
+    (11, 23),
+    (12, 24),
+    (23, 24),
+    (23, 25),
+    (25, 27),
+    (24, 26),
+    (26, 28),
+    (27, 31),
+    (28, 32),
+    (0, 7),
+    (0, 8),
+];
+
+/// A square, upright region of the photo fed to the network: centre and side in photo pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseRegion {
+    /// Centre (continuous pixel coordinates).
+    pub centre: Vec2,
+    /// Side length in photo pixels.
+    pub side: f32,
+}
+
+impl PoseRegion {
+    /// Photo pixels per network input pixel.
+    pub fn scale(&self) -> f32 {
+        self.side / INPUT_SIZE as f32
+    }
+
+    /// Network input coordinates (0..256) to photo pixels.
+    pub fn to_photo(&self, p: Vec2) -> Vec2 {
+        self.centre + (p - Vec2::splat(0.5 * INPUT_SIZE as f32)) * self.scale()
+    }
+
+    /// The first region: the bounding box of `mask >= 0.5`, squared and enlarged by [`MASK_MARGIN`]. `None` for
+    /// an empty mask.
+    pub fn from_mask(mask: &GrayImage) -> Option<Self> {
+        let (mut c0, mut r0, mut c1, mut r1) = (usize::MAX, usize::MAX, 0usize, 0usize);
+        for (k, &m) in mask.data.iter().enumerate() {
+            if m >= 0.5 {
+                let (c, r) = (k % mask.width, k / mask.width);
+                c0 = c0.min(c);
+                r0 = r0.min(r);
+                c1 = c1.max(c + 1);
+                r1 = r1.max(r + 1);
+            }
+        }
+        if c0 == usize::MAX {
+            return None;
+        }
+        let centre = Vec2::new((c0 + c1) as f32, (r0 + r1) as f32) * 0.5;
+        let side = MASK_MARGIN * ((c1 - c0).max(r1 - r0) as f32);
+        Some(Self { centre, side })
+    }
+
+    /// MediaPipe's tracking region from the two auxiliary points (photo pixels): centred on the first, side
+    /// [`AUX_SCALE`] x 2 x their distance. `None` when the points are not finite or coincide.
+    pub fn from_auxiliary(centre: Vec2, scale_point: Vec2) -> Option<Self> {
+        let side = AUX_SCALE * 2.0 * centre.distance(scale_point);
+        (centre.is_finite() && side.is_finite() && side > 1.0).then_some(Self { centre, side })
+    }
+}
+
+/// One pose landmark in photo pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Landmark {
+    /// Position (continuous pixel coordinates, `+0.5` = first pixel centre).
+    pub pixel: Vec2,
+    /// Depth relative to the hip centre in the same pixels, **+ toward the camera**.
+    pub depth: f32,
+    /// Probability that the point is visible (in the photo and not occluded).
+    pub visibility: f32,
+    /// Probability that the point is in the photo's frame (occluded or not).
+    pub presence: f32,
+}
+
+/// The 33 landmarks of one person, their world landmarks, and where they were found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseLandmarks {
+    /// Image landmarks, [`NAMES`] order.
+    pub landmarks: Vec<Landmark>,
+    /// World landmarks in metres, origin at the hip centre, x right, **y up, z toward the camera** (the body
+    /// cube's axes; the network's are y down, z away).
+    pub world: Vec<Vec3>,
+    /// The network's pose presence score in `[0, 1]`.
+    pub score: f32,
+    /// The region the landmarks came from.
+    pub region: PoseRegion,
+    /// MediaPipe's tracking region for the next frame (from the auxiliary points).
+    pub next_region: Option<PoseRegion>,
+    /// Top-left corner of the photo in these pixels (a landmark outside the frame is outside the photo).
+    pub frame_min: Vec2,
+    /// Bottom-right corner of the photo in these pixels.
+    pub frame_max: Vec2,
+}
+
+/// Where the photo lies in the image the network runs on: `(min, max)` corners in pixels. A photo normalised into
+/// the source view covers only part of it ([`crate::pipeline::input::NormalisedInput::frame`]); the rest is black
+/// padding, not a place where the body ends.
+pub type PhotoFrame = (Vec2, Vec2);
+
+fn sigmoid(v: f32) -> f32 {
+    1.0 / (1.0 + (-v.clamp(-60.0, 60.0)).exp())
+}
+
+impl PoseLandmarks {
+    /// Decodes the network's raw outputs (`raw`: 39 x 5 values, `world`: 39 x 3, `score`: pose presence) for
+    /// `region` of a `frame`-sized image. Non-finite values become invisible points at the region's centre.
+    pub fn decode(raw: &[f32], world: &[f32], score: f32, region: PoseRegion, frame: PhotoFrame) -> Option<Self> {
+        if raw.len() < NETWORK_POINTS * 5 || world.len() < NETWORK_POINTS * 3 {
+            return None;
+        }
+        let point = |i: usize| -> (Vec2, f32, f32, f32) {
+            let v = &raw[i * 5..i * 5 + 5];
+            let p = Vec2::new(v[0], v[1]);
+            if p.is_finite() && v[2].is_finite() && v[3].is_finite() && v[4].is_finite() {
+                (region.to_photo(p), -v[2] * region.scale(), sigmoid(v[3]), sigmoid(v[4]))
+            } else {
+                (region.centre, 0.0, 0.0, 0.0)
+            }
+        };
+        let landmarks: Vec<Landmark> = (0..LANDMARK_COUNT)
+            .map(|i| {
+                let (pixel, depth, visibility, presence) = point(i);
+                Landmark { pixel, depth, visibility, presence }
+            })
+            .collect();
+        let world: Vec<Vec3> = (0..LANDMARK_COUNT)
+            .map(|i| {
+                let w = Vec3::new(world[i * 3], -world[i * 3 + 1], -world[i * 3 + 2]);
+                if w.is_finite() {
+                    w
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect();
+        let next_region = PoseRegion::from_auxiliary(point(33).0, point(34).0);
+        let score = if score.is_finite() { score.clamp(0.0, 1.0) } else { 0.0 };
+        Some(Self { landmarks, world, score, region, next_region, frame_min: frame.0, frame_max: frame.1 })
+    }
+
+    /// The region to look again in. MediaPipe's tracking region ([`PoseLandmarks::next_region`]) when the whole
+    /// person is in the photo. When the photo cuts the person at the bottom (`cut`: a head-and-shoulders or
+    /// half-body photo) the network, given a region the visible part fills, explains it as a small whole body
+    /// (hips at the chest, legs over the arms); the region is then the larger of the tracking region and the one
+    /// the head and shoulders imply for a whole adult body ([`PoseLandmarks::body_region`]), so the hidden part
+    /// of the body falls outside the photo, where the network sees black and reports it absent.
+    pub fn refined_region(&self, cut: bool) -> Option<PoseRegion> {
+        let body = if cut { self.body_region() } else { None };
+        match (self.next_region, body) {
+            (Some(a), Some(b)) => Some(if b.side > a.side { b } else { a }),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// The region a whole adult body would need, from the shoulders and the nose (the landmarks a portrait shows
+    /// reliably): body height `H = max(4.2 x shoulder width, 6 x nose-to-shoulder-centre distance)`, hip centre
+    /// `0.3 H` below the shoulder centre, side `1.5 H` (MediaPipe's margin). `None` when the shoulders or the nose
+    /// are not visible.
+    pub fn body_region(&self) -> Option<PoseRegion> {
+        use index::{LEFT_SHOULDER, NOSE, RIGHT_SHOULDER};
+        let l = &self.landmarks;
+        if [NOSE, LEFT_SHOULDER, RIGHT_SHOULDER].iter().any(|&i| l[i].visibility < 0.5) {
+            return None;
+        }
+        let shoulders = 0.5 * (l[LEFT_SHOULDER].pixel + l[RIGHT_SHOULDER].pixel);
+        let width = l[LEFT_SHOULDER].pixel.distance(l[RIGHT_SHOULDER].pixel);
+        let height = (4.2 * width).max(6.0 * l[NOSE].pixel.distance(shoulders));
+        let centre = shoulders + Vec2::new(0.0, 0.3 * height);
+        let side = 1.5 * height;
+        (centre.is_finite() && side.is_finite() && side > 1.0).then_some(PoseRegion { centre, side })
+    }
+
+    /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` pixels).
+    pub fn in_frame(&self, i: usize, margin: f32) -> bool {
+        let p = self.landmarks[i].pixel;
+        p.x >= self.frame_min.x + margin
+            && p.y >= self.frame_min.y + margin
+            && p.x <= self.frame_max.x - margin
+            && p.y <= self.frame_max.y - margin
+    }
+
+    /// The landmarks in another pixel grid: `p' = scale * p + offset` (positions, depths, the frame and the
+    /// regions). With a [`crate::pipeline::input::NormaliseTransform`]'s scale and offset this maps photo
+    /// landmarks into the normalised source view.
+    pub fn transformed(&self, scale: f32, offset: Vec2) -> Self {
+        let map = |p: Vec2| p * scale + offset;
+        let region = |r: PoseRegion| PoseRegion { centre: map(r.centre), side: r.side * scale };
+        Self {
+            landmarks: self
+                .landmarks
+                .iter()
+                .map(|l| Landmark { pixel: map(l.pixel), depth: l.depth * scale, ..*l })
+                .collect(),
+            world: self.world.clone(),
+            score: self.score,
+            region: region(self.region),
+            next_region: self.next_region.map(region),
+            frame_min: map(self.frame_min),
+            frame_max: map(self.frame_max),
+        }
+    }
+
+    /// Landmark `i` in body-cube coordinates of a `resolution`² source view (see [`crate::geometry::camera`]:
+    /// pixel centre `x = (col + 0.5) / (R/2) - 1`, `y = 1 - (row + 0.5) / (R/2)`): x, y from the pixel, z the
+    /// depth relative to the hip centre (cube units, + toward the camera).
+    pub fn cube(&self, i: usize, resolution: usize) -> Vec3 {
+        let half = resolution as f32 * 0.5;
+        let l = &self.landmarks[i];
+        Vec3::new(l.pixel.x / half - 1.0, 1.0 - l.pixel.y / half, l.depth / half)
+    }
+}
+
+/// The network's input for `region` of `rgb` (linear RGB): `[3, 256, 256]` sRGB in `[0, 1]`, black outside the
+/// image, box-filtered when the region is larger than the input (so a large photo is not aliased).
+pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
+    let s = INPUT_SIZE;
+    let scale = region.scale();
+    let taps = (scale.ceil() as usize).clamp(1, 4);
+    let mut out = vec![0.0f32; 3 * s * s];
+    for r in 0..s {
+        for c in 0..s {
+            let mut acc = Vec3::ZERO;
+            for j in 0..taps {
+                for i in 0..taps {
+                    let q =
+                        Vec2::new(c as f32 + (i as f32 + 0.5) / taps as f32, r as f32 + (j as f32 + 0.5) / taps as f32);
+                    let p = region.to_photo(q);
+                    acc += sample_bilinear(rgb, p.x, p.y, Vec3::ZERO);
+                }
+            }
+            let v = acc / (taps * taps) as f32;
+            for ch in 0..3 {
+                let x = linear_to_srgb(v[ch]);
+                out[ch * s * s + r * s + c] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+            }
+        }
+    }
+    out
+}
+
+/// Whether the person's mask touches the bottom edge of the photo's `frame` (the photo cuts the body there).
+pub fn cut_at_bottom(mask: &GrayImage, frame: PhotoFrame) -> bool {
+    let row = (frame.1.y.floor() as i64 - 1).clamp(0, mask.height as i64 - 1) as usize;
+    mask.height > 0 && mask.rows().nth(row).is_some_and(|r| r.iter().filter(|&&m| m >= 0.5).count() >= 2)
+}
+
+/// The pose model: `explicit`, else `R2HUMAN_POSE_MODEL`, else `.tools/models/pose_landmark_full.onnx` in the
+/// project (installed by `scripts/setup.d/live.sh`).
+pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, BodyError> {
+    let missing = |p: &Path| BodyError::Model(format!("pose model `{}` does not exist", p.display()));
+    if let Some(p) = explicit {
+        return if p.is_file() { Ok(p.into()) } else { Err(missing(p)) };
+    }
+    if let Some(p) = std::env::var_os("R2HUMAN_POSE_MODEL").filter(|p| !p.is_empty()) {
+        return model_path(Some(Path::new(&p)));
+    }
+    let candidates: Vec<PathBuf> = [super::tools_dir()]
+        .into_iter()
+        .chain(crate::neural::project_roots().into_iter().map(|r| r.join(".tools")))
+        .map(|t| t.join("models").join(MODEL_FILE))
+        .collect();
+    candidates.iter().find(|p| p.is_file()).cloned().ok_or_else(|| {
+        BodyError::Model(format!(
+            "the pose model is not installed (.tools/models/{MODEL_FILE}); run `bash scripts/setup.d/live.sh`, \
+             or use --geometry inflate"
+        ))
+    })
+}
+
+/// The MediaPipe pose landmark network in an ONNX Runtime session.
+pub struct PoseEstimator {
+    session: Session,
+    path: PathBuf,
+}
+
+impl PoseEstimator {
+    /// Loads the model (see [`model_path`]) on the execution provider of `options`.
+    pub fn load(model: Option<&Path>, options: &RuntimeOptions) -> Result<Self, BodyError> {
+        let path = model_path(model)?;
+        let (session, _) = crate::neural::create_session(&path, "pose landmark model", options)
+            .map_err(|e| BodyError::Model(e.to_string()))?;
+        let outputs: Vec<String> = session.outputs().iter().map(|o| o.name().to_string()).collect();
+        for needed in ["Identity", "Identity_1", "Identity_4"] {
+            if !outputs.iter().any(|o| o == needed) {
+                return Err(BodyError::Model(format!(
+                    "`{}` is not the MediaPipe pose landmark model (no output `{needed}`; outputs {outputs:?}); \
+                     reinstall it with `bash scripts/setup.d/live.sh`",
+                    path.display()
+                )));
+            }
+        }
+        Ok(Self { session, path })
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Runs the network once on `region` of `rgb` (linear RGB; the photo lies in `frame` of it); `None` when it
+    /// finds no pose there.
+    pub fn run(
+        &mut self,
+        rgb: &RgbImage,
+        region: PoseRegion,
+        frame: PhotoFrame,
+    ) -> Result<Option<PoseLandmarks>, BodyError> {
+        let input = network_input(rgb, region);
+        let fail = |e: String| BodyError::Model(format!("running `{}` failed: {e}", self.path.display()));
+        let view =
+            ndarray::ArrayView4::from_shape((1, 3, INPUT_SIZE, INPUT_SIZE), &input).map_err(|e| fail(e.to_string()))?;
+        let tensor = TensorRef::from_array_view(view).map_err(|e| fail(e.to_string()))?;
+        let outputs = self.session.run(ort::inputs!["input_1" => tensor]).map_err(|e| fail(e.to_string()))?;
+        let get = |name: &str| -> Result<Vec<f32>, BodyError> {
+            let v = outputs.get(name).ok_or_else(|| fail(format!("no output {name}")))?;
+            let a = v.try_extract_array::<f32>().map_err(|e| fail(e.to_string()))?;
+            Ok(a.iter().copied().collect())
+        };
+        let raw = get("Identity")?;
+        let score = get("Identity_1")?.first().copied().unwrap_or(0.0);
+        let world = get("Identity_4")?;
+        tracing::debug!("pose network: score {score:.3} in region {region:?}");
+        if score.is_nan() || score < MIN_POSE_SCORE {
+            return Ok(None);
+        }
+        Ok(PoseLandmarks::decode(&raw, &world, score, region, frame))
+    }
+
+    /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`; the photo lies in
+    /// `frame` of the image, the whole image when `None`): one run on the mask's region, then one on the region
+    /// that run gives ([`PoseLandmarks::refined_region`]). `None` when the mask is empty or no pose is found.
+    pub fn estimate(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        frame: Option<PhotoFrame>,
+    ) -> Result<Option<PoseLandmarks>, BodyError> {
+        if (rgb.width, rgb.height) != (mask.width, mask.height) {
+            return Err(BodyError::Model(format!(
+                "image is {}x{} but mask is {}x{}",
+                rgb.width, rgb.height, mask.width, mask.height
+            )));
+        }
+        let frame = frame.unwrap_or((Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32)));
+        let Some(region) = PoseRegion::from_mask(mask) else { return Ok(None) };
+        let cut = cut_at_bottom(mask, frame);
+        // A photo that cuts the person may show too little of the body for the network to find it in the mask's
+        // region: look again in regions two and three times as large that extend below the photo (the body
+        // continues there), keeping the top of the person at the same place.
+        let mut first = self.run(rgb, region, frame)?;
+        for grow in [2.0f32, 3.0] {
+            if first.is_some() || !cut {
+                break;
+            }
+            let top = region.centre.y - 0.5 * region.side;
+            let side = region.side * grow;
+            let bigger = PoseRegion { centre: Vec2::new(region.centre.x, top + 0.5 * side), side };
+            first = self.run(rgb, bigger, frame)?;
+        }
+        let Some(first) = first else { return Ok(None) };
+        match first.refined_region(cut) {
+            Some(next) => Ok(self.run(rgb, next, frame)?.or(Some(first))),
+            None => Ok(Some(first)),
+        }
+    }
+
+    /// Live input: one run on the previous frame's tracking region when there is one (MediaPipe's tracking),
+    /// else [`PoseEstimator::estimate`].
+    pub fn estimate_tracked(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        frame: Option<PhotoFrame>,
+        previous: Option<&PoseLandmarks>,
+    ) -> Result<Option<PoseLandmarks>, BodyError> {
+        let full = frame.unwrap_or((Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32)));
+        if let Some(region) = previous.filter(|p| (p.frame_min, p.frame_max) == full).and_then(|p| p.next_region) {
+            if let Some(found) = self.run(rgb, region, full)? {
+                return Ok(Some(found));
+            }
+        }
+        self.estimate(rgb, mask, frame)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::buffer::Image;
+
+    #[test]
+    fn region_from_mask_is_a_square_around_the_box() {
+        let mask =
+            Image::from_fn(100, 80, |c, r| if (20..40).contains(&c) && (10..70).contains(&r) { 1.0 } else { 0.0 });
+        let r = PoseRegion::from_mask(&mask).unwrap();
+        assert_eq!(r.centre, Vec2::new(30.0, 40.0));
+        assert!((r.side - 1.25 * 60.0).abs() < 1e-5);
+        assert!(PoseRegion::from_mask(&Image::new(4, 4, 0.2)).is_none());
+        // Input pixel centre 128 maps to the region centre; the edges to +-side/2.
+        assert!((r.to_photo(Vec2::splat(128.0)) - r.centre).length() < 1e-5);
+        assert!((r.to_photo(Vec2::ZERO) - (r.centre - Vec2::splat(r.side / 2.0))).length() < 1e-4);
+        let aux = PoseRegion::from_auxiliary(Vec2::new(10.0, 10.0), Vec2::new(10.0, 30.0)).unwrap();
+        assert_eq!(aux.centre, Vec2::new(10.0, 10.0));
+        assert!((aux.side - 60.0).abs() < 1e-5);
+        assert!(PoseRegion::from_auxiliary(Vec2::ONE, Vec2::ONE).is_none());
+        assert!(PoseRegion::from_auxiliary(Vec2::NAN, Vec2::ONE).is_none());
+    }
+
+    #[test]
+    fn decode_maps_network_units_to_photo_pixels() {
+        let region = PoseRegion { centre: Vec2::new(200.0, 300.0), side: 512.0 };
+        let mut raw = vec![0.0f32; 39 * 5];
+        let mut world = vec![0.0f32; 39 * 3];
+        // Landmark 0 at input (64, 192), z = -10 (nearer), visibility logit 0 -> 0.5, presence logit 2.
+        raw[..5].copy_from_slice(&[64.0, 192.0, -10.0, 0.0, 2.0]);
+        world[..3].copy_from_slice(&[0.1, -0.5, -0.2]);
+        // Auxiliary points 33 (centre) and 34 (scale).
+        raw[33 * 5..33 * 5 + 2].copy_from_slice(&[128.0, 128.0]);
+        raw[34 * 5..34 * 5 + 2].copy_from_slice(&[128.0, 64.0]);
+        raw[5] = f32::NAN;
+        let frame = (Vec2::ZERO, Vec2::new(400.0, 600.0));
+        let p = PoseLandmarks::decode(&raw, &world, 0.9, region, frame).unwrap();
+        let l = p.landmarks[0];
+        // Scale 2 photo pixels per input pixel.
+        assert!((l.pixel - Vec2::new(200.0 - 128.0, 300.0 + 128.0)).length() < 1e-4);
+        assert!((l.depth - 20.0).abs() < 1e-5, "nearer the camera is +z");
+        assert!((l.visibility - 0.5).abs() < 1e-6);
+        assert!((l.presence - 1.0 / (1.0 + (-2.0f32).exp())).abs() < 1e-6);
+        assert_eq!(p.world[0], Vec3::new(0.1, 0.5, 0.2));
+        // A NaN landmark is invisible, at the region centre.
+        assert_eq!(p.landmarks[1].visibility, 0.0);
+        assert_eq!(p.landmarks[1].pixel, region.centre);
+        let next = p.next_region.unwrap();
+        assert_eq!(next.centre, Vec2::new(200.0, 300.0));
+        assert!((next.side - 1.5 * 2.0 * 128.0).abs() < 1e-3);
+        assert!(p.in_frame(0, 0.0));
+        assert!(PoseLandmarks::decode(&raw[..10], &world, 0.9, region, frame).is_none());
+        // Into a source view at half scale, offset (10, 20); cube coordinates of a 512 view.
+        let s = p.transformed(0.5, Vec2::new(10.0, 20.0));
+        assert!((s.landmarks[0].pixel - Vec2::new(46.0, 234.0)).length() < 1e-4);
+        assert!((s.landmarks[0].depth - 10.0).abs() < 1e-5);
+        assert_eq!(s.frame_max, Vec2::new(210.0, 320.0));
+        let c = s.cube(0, 512);
+        assert!((c - Vec3::new(46.0 / 256.0 - 1.0, 1.0 - 234.0 / 256.0, 10.0 / 256.0)).length() < 1e-6);
+        assert!(s.in_frame(0, 0.0) && !s.in_frame(0, 40.0));
+        assert_eq!(s.next_region.unwrap().centre, Vec2::new(110.0, 170.0));
+        // A mask touching the frame's bottom row is cut there; one ending above it is not.
+        let mask = Image::from_fn(8, 8, |_, r| if r < 6 { 1.0 } else { 0.0 });
+        assert!(cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 6.0))));
+        assert!(!cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 8.0))));
+    }
+
+    #[test]
+    fn network_input_is_srgb_and_black_outside() {
+        let rgb = Image::new(64, 64, Vec3::new(0.214, 0.0, 1.0)); // linear 0.214 ~ sRGB 0.5
+        let region = PoseRegion { centre: Vec2::new(32.0, 32.0), side: 128.0 };
+        let x = network_input(&rgb, region);
+        let s = INPUT_SIZE;
+        let at = |ch: usize, r: usize, c: usize| x[ch * s * s + r * s + c];
+        assert!((at(0, 128, 128) - 0.5).abs() < 0.01);
+        assert!((at(2, 128, 128) - 1.0).abs() < 1e-5);
+        assert_eq!(at(0, 2, 2), 0.0, "outside the photo is black");
+        assert!(x.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)));
+    }
+}

@@ -1,0 +1,153 @@
+//! The body prior of one input: pose landmarks ([`super::pose`]) -> fitted body ([`super::fit`]) -> the posed
+//! body's FOF (the **body FOF**), reconciled with the person's silhouette.
+//!
+//! Reconciliation ([`body_fof`]): the FOF intervals of the posed body mesh where the mask covers the pixel; none
+//! outside the mask (so whatever the photo does not show, past its frame or beyond the silhouette, is cut); mask
+//! pixels the body does not cover (hair, loose clothes, a hand the fit missed) get the silhouette-inflation
+//! prior's thickness there, centred on the depth of the nearest body column, so they join the body instead of
+//! floating at depth 0. The body is placed in depth like the reference's preprocessing: its xz minimal enclosing
+//! circle centred on z = 0.
+
+use std::path::Path;
+
+use glam::{DVec3, Vec2};
+
+use super::distance::DistanceField;
+use super::fit::{fit_body, BodyFit, FitOptions, FitTarget};
+use super::model::{BodyModel, Pose};
+use super::pose::{PhotoFrame, PoseEstimator, PoseLandmarks};
+use super::BodyError;
+use crate::buffer::{GrayImage, Image, RgbImage};
+use crate::geometry::circle::min_enclosing_circle;
+use crate::geometry::fof::{intervals_from_mesh, sheet_thickness, Fof};
+use crate::geometry::inflate::{inflate, InflateParams};
+use crate::geometry::mesh::TriMesh;
+use crate::neural::RuntimeOptions;
+
+/// The fitted body of one input.
+#[derive(Clone, Debug)]
+pub struct BodyPrior {
+    /// The pose landmarks it was fitted to (source-view pixels).
+    pub landmarks: PoseLandmarks,
+    /// The fit.
+    pub fit: BodyFit,
+    /// The posed body surface in the body cube.
+    pub mesh: TriMesh,
+}
+
+/// Places a pose in depth like the reference's preprocessing: the posed mesh's xz minimal enclosing circle
+/// centred on z = 0 (x stays where the photo put it). Returns the shifted pose and its mesh.
+pub fn centre_depth(model: &BodyModel, pose: &Pose) -> (Pose, TriMesh) {
+    let mut mesh = model.mesh(pose);
+    let xz: Vec<Vec2> = mesh.positions.iter().map(|p| Vec2::new(p.x, p.z)).collect();
+    let (centre, _) = min_enclosing_circle(&xz);
+    let dz = if centre.y.is_finite() { centre.y } else { 0.0 };
+    mesh.positions.iter_mut().for_each(|p| p.z -= dz);
+    let pose = Pose { translation: pose.translation - DVec3::Z * dz as f64, ..*pose };
+    (pose, mesh)
+}
+
+/// The pose network, the body model and the last frame's result (for warm starts on live input).
+pub struct BodyEstimator {
+    pose: PoseEstimator,
+    model: &'static BodyModel,
+    /// Fit settings.
+    pub options: FitOptions,
+    previous: Option<(PoseLandmarks, Pose)>,
+}
+
+impl std::fmt::Debug for BodyEstimator {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BodyEstimator")
+            .field("pose_model", &self.pose.path())
+            .field("options", &self.options)
+            .field("has_previous", &self.previous.is_some())
+            .finish()
+    }
+}
+
+impl BodyEstimator {
+    /// Loads the pose model (see [`super::pose::model_path`]) and the shared body model.
+    pub fn load(pose_model: Option<&Path>, options: &RuntimeOptions) -> Result<Self, BodyError> {
+        let model = BodyModel::shared()?;
+        let pose = PoseEstimator::load(pose_model, options)?;
+        Ok(Self { pose, model, options: FitOptions::default(), previous: None })
+    }
+
+    /// The body model.
+    pub fn model(&self) -> &'static BodyModel {
+        self.model
+    }
+
+    /// Forgets the previous frame (the next [`BodyEstimator::estimate`] with `warm` starts cold).
+    pub fn reset(&mut self) {
+        self.previous = None;
+    }
+
+    /// Landmarks and the fitted body of the person in a normalised source view (`rgb` linear, `mask` in
+    /// `[0, 1]`, `frame` where the photo lies in it). With `warm` (live input) the network runs on the previous
+    /// frame's tracking region and the fit starts from the previous pose. `None` when no pose is found.
+    pub fn estimate(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        frame: Option<PhotoFrame>,
+        warm: bool,
+        timings: &mut dyn FnMut(&'static str, std::time::Duration),
+    ) -> Result<Option<BodyPrior>, BodyError> {
+        let t = std::time::Instant::now();
+        let previous = if warm { self.previous.as_ref() } else { None };
+        let landmarks = self.pose.estimate_tracked(rgb, mask, frame, previous.map(|p| &p.0))?;
+        timings("pose landmarks", t.elapsed());
+        let Some(landmarks) = landmarks else {
+            self.previous = None;
+            return Ok(None);
+        };
+        let t = std::time::Instant::now();
+        let target = FitTarget::new(&landmarks, mask);
+        let start = previous.map(|p| p.1);
+        let fit = fit_body(self.model, &target, start.as_ref(), &self.options);
+        let (pose, mesh) = centre_depth(self.model, &fit.pose);
+        timings("body fit", t.elapsed());
+        self.previous = Some((landmarks.clone(), pose));
+        Ok(Some(BodyPrior { landmarks, fit: BodyFit { pose, ..fit }, mesh }))
+    }
+}
+
+/// The body FOF reconciled with the silhouette (see the module docs): `mesh` (body cube) and `mask` (`[0, 1]`,
+/// threshold 0.5) on the mask's grid, `n` coefficients.
+pub fn body_fof(mesh: &TriMesh, mask: &GrayImage, n: usize, inflate_params: &InflateParams) -> Result<Fof, BodyError> {
+    let fof_err = |e: String| BodyError::Model(format!("body FOF: {e}"));
+    let (w, h) = (mask.width, mask.height);
+    let body = intervals_from_mesh(mesh, w, h, sheet_thickness(n));
+    let inside = |i: usize| mask.data[i] >= 0.5;
+    let has_body = |i: usize| inside(i) && !body.data[i].is_empty();
+    let filled = (0..w * h).any(|i| inside(i) && !has_body(i));
+    let mut out: Image<Vec<(f32, f32)>> = Image::new(w, h, Vec::new());
+    if filled {
+        let surfaces = inflate(mask, inflate_params).map_err(|e| fof_err(e.to_string()))?;
+        let nearest = DistanceField::new(w, h, has_body);
+        for i in 0..w * h {
+            if has_body(i) {
+                out.data[i] = body.data[i].clone();
+            } else if surfaces.mask.data[i] > 0.5 {
+                let half = 0.5 * (surfaces.front.data[i] - surfaces.back.data[i]).max(0.0);
+                let centre = match nearest.nearest[i] {
+                    usize::MAX => 0.5 * (surfaces.front.data[i] + surfaces.back.data[i]),
+                    j => {
+                        let list = &body.data[j];
+                        0.5 * (list[0].0 + list[list.len() - 1].1)
+                    }
+                };
+                out.data[i] = vec![((centre - half).max(-1.0), (centre + half).min(1.0))];
+            }
+        }
+    } else {
+        for i in 0..w * h {
+            if has_body(i) {
+                out.data[i] = body.data[i].clone();
+            }
+        }
+    }
+    Fof::from_intervals(&out, n).map_err(|e| fof_err(e.to_string()))
+}
