@@ -127,6 +127,20 @@ impl DurationHistogram {
     }
 }
 
+/// Least-squares line through `(x, y)` points: `(slope, intercept)`; `None` with fewer than two distinct `x`
+/// (or a non-finite result). Soak runs fit resident memory against time with it.
+pub fn linear_fit(points: &[(f64, f64)]) -> Option<(f64, f64)> {
+    let n = points.len() as f64;
+    if points.len() < 2 {
+        return None;
+    }
+    let (mx, my) = points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x / n, b + y / n));
+    let (sxy, sxx) =
+        points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + (x - mx) * (y - my), b + (x - mx) * (x - mx)));
+    let slope = sxy / sxx;
+    (sxx > 0.0 && slope.is_finite()).then_some((slope, my - slope * mx))
+}
+
 /// The summary of one stage.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StageSummary {
@@ -227,6 +241,21 @@ impl StageStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn linear_fit_closed_forms() {
+        // Exact line: y = 2x + 1.
+        let (m, c) = linear_fit(&[(0.0, 1.0), (1.0, 3.0), (2.0, 5.0)]).unwrap();
+        assert!((m - 2.0).abs() < 1e-12 && (c - 1.0).abs() < 1e-12);
+        // Symmetric noise around y = 0.5x: (0,0) (1,1) (2,1) (3,2) -> slope 0.6, intercept 0.1.
+        let (m, c) = linear_fit(&[(0.0, 0.0), (1.0, 1.0), (2.0, 1.0), (3.0, 2.0)]).unwrap();
+        assert!((m - 0.6).abs() < 1e-12 && (c - 0.1).abs() < 1e-12, "{m} {c}");
+        assert_eq!(linear_fit(&[(1.0, 2.0)]), None);
+        assert_eq!(linear_fit(&[(1.0, 2.0), (1.0, 3.0)]), None, "no spread in x");
+        // Large offsets (seconds since the epoch, bytes) stay exact enough: centred sums.
+        let pts: Vec<(f64, f64)> = (0..1000).map(|i| (1.7e9 + i as f64, 5e8 + 3.0 * i as f64)).collect();
+        assert!((linear_fit(&pts).unwrap().0 - 3.0).abs() < 1e-6);
+    }
 
     #[test]
     fn histogram_quantiles_and_ranges() {
