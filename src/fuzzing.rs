@@ -513,10 +513,10 @@ fn box_mesh(textured: bool) -> mesh_io::TexturedMesh {
     if textured {
         mesh.uvs = uvs;
         let texture = image::RgbImage::from_fn(8, 8, |c, r| image::Rgb([(c * 30) as u8, (r * 30) as u8, 60]));
-        mesh_io::TexturedMesh { mesh, texture: Some(texture) }
+        mesh_io::TexturedMesh::textured(mesh, texture)
     } else {
         mesh.colors = mesh.positions.iter().map(|p| *p + Vec3::splat(0.5)).collect();
-        mesh_io::TexturedMesh { mesh, texture: None }
+        mesh_io::TexturedMesh::untextured(mesh)
     }
 }
 

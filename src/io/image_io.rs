@@ -121,16 +121,18 @@ pub fn check_dimensions(
     if width == 0 || height == 0 {
         return Err(IoError::Decode { path: path.to_owned(), reason: "the image has no pixels".into() });
     }
-    let pixels = width as u64 * height as u64;
-    if pixels > max_plausible_pixels(format, len) {
-        return Err(IoError::Decode {
-            path: path.to_owned(),
-            reason: format!(
-                "its header claims {width}x{height} pixels, more than a {len}-byte {} file can hold: it is truncated \
-                 or corrupt",
-                format.map(|f| format!("{f:?}").to_uppercase()).unwrap_or_default()
-            ),
-        });
+    check_plausible(format, width, height, len).map_err(|reason| IoError::Decode { path: path.to_owned(), reason })
+}
+
+/// Checks only that `width x height` is plausible for `len` bytes of `format` ([`max_plausible_pixels`]); the
+/// error says why (for loaders with their own size limits, such as mesh textures).
+pub fn check_plausible(format: Option<ImageFormat>, width: u32, height: u32, len: u64) -> Result<(), String> {
+    if width as u64 * height as u64 > max_plausible_pixels(format, len) {
+        return Err(format!(
+            "its header claims {width}x{height} pixels, more than a {len}-byte {} file can hold: it is truncated or \
+             corrupt",
+            format.map(|f| format!("{f:?}").to_uppercase()).unwrap_or_default()
+        ));
     }
     Ok(())
 }
