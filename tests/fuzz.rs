@@ -233,7 +233,7 @@ fn committed_corpus(target: Target) -> Vec<(String, Vec<u8>)> {
 
 fn fuzz_target(target: Target, cases: u64, seed: u64, timeout: Duration) -> TargetReport {
     let mut report = TargetReport { target: target.name().into(), ..Default::default() };
-    let dir = tmp_root().join("fuzz-work").join(target.name());
+    let dir = tmp_root().join(format!("fuzz-work-{}", std::process::id())).join(target.name());
     let failures_dir = tmp_root().join("fuzz-failures").join(target.name());
     let root = project_root();
     let seeds = fuzzing::seeds(target, &root);
