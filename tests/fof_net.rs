@@ -293,6 +293,7 @@ fn eval_scores_the_fof_net_rows_and_notes_when_they_are_skipped() {
         yaws: vec![20.0, 180.0],
         texture_size: 64,
         save_views: false,
+        ..EvalOptions::default()
     };
     let nopts = NeuralEvalOptions { models: Some(models.clone()), skip: false, ep: ExecutionProvider::Cpu };
     let rep = run_eval_with(&opts, &nopts).unwrap();

@@ -39,7 +39,7 @@ fn obj_with_mtl_texture_reads_with_flipped_uvs_and_split_seams() {
     let p = write(dir.path(), "a.obj", OBJ);
     let m = read_mesh(&p).unwrap();
     assert_eq!(m.mesh.triangles.len(), 4); // quad -> 2, plus 2 triangles
-    assert_eq!(m.texture.as_ref().unwrap(), &tex);
+    assert_eq!(m.first_texture().unwrap(), &tex);
     assert_eq!(m.mesh.uvs.len(), m.mesh.positions.len());
     // Vertex 1 (0,0,0) is used with vt 1 and vt 5: split into two vertices.
     let at_origin = m.mesh.positions.iter().filter(|p| **p == Vec3::ZERO).count();
@@ -51,7 +51,7 @@ fn obj_with_mtl_texture_reads_with_flipped_uvs_and_split_seams() {
     let t = m.mesh.triangles[0].map(|k| m.mesh.positions[k as usize]);
     assert!((t[1] - t[0]).cross(t[2] - t[0]).z > 0.0);
     // Texture lookup is bilinear in linear light: the centre of texel (0,0) is pure red.
-    let c = sample_texture(m.texture.as_ref().unwrap(), Vec2::new(0.125, 0.125));
+    let c = sample_texture(m.first_texture().unwrap(), Vec2::new(0.125, 0.125));
     assert!((c - Vec3::X).length() < 1e-5, "{c}");
 }
 
@@ -60,12 +60,21 @@ fn obj_without_texture_uses_vertex_colours_or_kd() {
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "c.obj", "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n");
     let m = read_obj(&p).unwrap();
-    assert!(m.texture.is_none() && m.mesh.uvs.is_empty());
+    assert!(m.first_texture().is_none() && m.mesh.uvs.is_empty() && m.materials.is_empty());
     assert_eq!(m.mesh.colors, vec![Vec3::X, Vec3::Y, Vec3::Z]);
+    // Vertex colours are sRGB, in [0, 1] or [0, 255]: mid grey 0.5 (or 128) is linear 0.214.
+    for (name, level) in [("half.obj", "0.5"), ("byte.obj", "128")] {
+        let text = format!("v 0 0 0 {level} {level} {level}\nv 1 0 0 0 0 0\nv 0 1 0 0 0 0\nf 1 2 3\n");
+        let m = read_obj(&write(dir.path(), name, &text)).unwrap();
+        let want = r2human::buffer::srgb_to_linear(if level == "128" { 128.0 / 255.0 } else { 0.5 });
+        assert!((m.mesh.colors[0] - Vec3::splat(want)).length() < 1e-5, "{name}: {}", m.mesh.colors[0]);
+        assert!((want - 0.214).abs() < 0.003);
+    }
     write(dir.path(), "k.mtl", "newmtl a\nKd 0.2 0.4 0.6\n");
     let p = write(dir.path(), "k.obj", "mtllib k.mtl\nusemtl a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
     let m = read_obj(&p).unwrap();
-    assert!(m.mesh.colors.iter().all(|c| (*c - Vec3::new(0.2, 0.4, 0.6)).length() < 1e-6));
+    assert_eq!(m.materials.len(), 1);
+    assert!((m.albedo(0, None, None) - Vec3::new(0.2, 0.4, 0.6)).length() < 1e-6);
 }
 
 fn err_names_file(e: &dyn std::fmt::Display, file: &str) {
@@ -100,7 +109,7 @@ fn bad_obj_inputs_are_clear_errors() {
     let e = read_mesh(&write(d, "trunc.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n")).unwrap_err();
     err_names_file(&e, "trunc.obj");
     // Unknown extension and missing file.
-    assert!(matches!(read_mesh(&d.join("x.ply")).unwrap_err(), MeshIoError::UnsupportedFormat { .. }));
+    assert!(matches!(read_mesh(&d.join("x.stl")).unwrap_err(), MeshIoError::UnsupportedFormat { .. }));
     err_names_file(&read_mesh(&d.join("gone.obj")).unwrap_err(), "gone.obj");
 }
 
@@ -108,7 +117,7 @@ fn textured_cube() -> TexturedMesh {
     let mut mesh = TriMesh::cuboid(Vec3::new(-0.3, -0.9, -0.2), Vec3::new(0.3, 0.9, 0.2));
     mesh.uvs = mesh.positions.iter().map(|p| Vec2::new(p.x + 0.5, 0.5 - p.y * 0.5)).collect();
     let tex = image::RgbImage::from_fn(8, 8, |x, y| image::Rgb([(x * 30) as u8, (y * 30) as u8, 200]));
-    TexturedMesh { mesh, texture: Some(tex) }
+    TexturedMesh::textured(mesh, tex)
 }
 
 #[test]
@@ -121,9 +130,9 @@ fn glb_round_trip_and_corrupt_glb_errors() {
     assert_eq!(back.mesh.positions, cube.mesh.positions);
     assert_eq!(back.mesh.triangles, cube.mesh.triangles);
     assert_eq!(back.mesh.uvs, cube.mesh.uvs);
-    assert_eq!(back.texture, cube.texture);
+    assert_eq!(back.first_texture(), cube.first_texture());
     // Colour-only meshes round-trip through COLOR_0.
-    let mut col = TexturedMesh { mesh: TriMesh::uv_sphere(Vec3::ZERO, 0.5, 6, 8), texture: None };
+    let mut col = TexturedMesh::untextured(TriMesh::uv_sphere(Vec3::ZERO, 0.5, 6, 8));
     col.mesh.colors = col.mesh.positions.iter().map(|p| (*p + Vec3::splat(0.5)).clamp(Vec3::ZERO, Vec3::ONE)).collect();
     let pc = dir.path().join("col.glb");
     write_glb(&pc, &col).unwrap();
@@ -172,16 +181,299 @@ fn scans_are_normalised_and_implausible_ones_rejected() {
     let (lo, hi) = s.mesh.mesh.bounds().unwrap();
     assert!((lo.y + 0.9).abs() < 1e-5 && (hi.y - 0.9).abs() < 1e-5);
     assert!((lo.x + hi.x).abs() < 1e-4 && (lo.z + hi.z).abs() < 1e-4);
-    assert!(s.mesh.texture.is_some());
-    // A floor plane far wider than the person: does not fit the body cube.
-    let floor =
-        "v -50 0 -50\nv 50 0 -50\nv 50 0 50\nv -50 0 50\nv 0 0 0\nv 1 0 0\nv 0 17 0\nf 1 3 2\nf 1 4 3\nf 5 6 7\n";
-    let e = load_scan(&write(dir.path(), "floor.obj", floor)).unwrap_err();
-    assert!(matches!(e, SynthError::Scan { .. }), "{e}");
-    err_names_file(&e, "floor.obj");
+    assert!(s.mesh.first_texture().is_some() && !s.fitted);
     // Absurd coordinates and flat meshes.
     let e = load_scan(&write(dir.path(), "far.obj", "v 0 0 0\nv 1e9 0 0\nv 0 1 0\nf 1 2 3\n")).unwrap_err();
     err_names_file(&e, "far.obj");
-    let e = load_scan(&write(dir.path(), "flat.obj", "v 0 0 0\nv 1 0 0\nv 0 0 1\nf 1 2 3\n")).unwrap_err();
+    // Flat on the floor when Y is up (with Z up the same triangle stands: detection picks that).
+    let flat = write(dir.path(), "flat.obj", "v 0 0 0\nv 1 0 0\nv 0 0 1\nf 1 2 3\n");
+    let e = load_scan_with(&flat, &ScanOrientation { up: Some(UpAxis::Y), facing: None }).unwrap_err();
     err_names_file(&e, "flat.obj");
+    assert_eq!(load_scan(&flat).unwrap().up, UpAxis::Z);
+    let e = load_scan(&write(dir.path(), "point.obj", "v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n")).unwrap_err();
+    err_names_file(&e, "point.obj");
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// Scans as users bring them: several materials and texture formats, vertex colours, PLY, T-pose, Z up.
+// ------------------------------------------------------------------------------------------------------------
+
+use r2human::eval::ground_truth::render_ground_truth;
+use r2human::geometry::camera::Camera;
+use r2human::synth::scan::{load_scan_with, Facing, ScanOrientation, UpAxis, FIT_RADIUS};
+
+/// A 2x2 texture of one sRGB colour, saved in the format its extension names.
+fn solid(dir: &Path, name: &str, rgb: [u8; 3]) {
+    image::RgbImage::from_pixel(2, 2, image::Rgb(rgb)).save(dir.join(name)).unwrap();
+}
+
+/// Linear colour of an sRGB byte triple.
+fn lin(rgb: [u8; 3]) -> Vec3 {
+    Vec3::from(rgb.map(|v| r2human::buffer::srgb_to_linear(v as f32 / 255.0)))
+}
+
+/// Albedo at the source-camera pixel over body-cube point (x, y).
+fn albedo_at(m: &TexturedMesh, x: f32, y: f32) -> Vec3 {
+    let size = 64;
+    let gt = render_ground_truth(m, &Camera::source(size));
+    let (col, row) = (((x + 1.0) * 32.0) as usize, ((1.0 - y) * 32.0) as usize);
+    assert!(gt.mask[row * size + col], "nothing at ({x}, {y})");
+    gt.albedo[row * size + col]
+}
+
+/// Four quads side by side facing +z, x in [-1, -0.5], [-0.5, 0], [0, 0.5], [0.5, 1], each with its own material:
+/// BMP, TGA, WebP textures and a plain Kd.
+const MULTI_OBJ: &str = "mtllib multi.mtl
+v -0.9 -0.5 0\nv -0.6 -0.5 0\nv -0.6 0.5 0\nv -0.9 0.5 0
+v -0.4 -0.5 0\nv -0.1 -0.5 0\nv -0.1 0.5 0\nv -0.4 0.5 0
+v 0.1 -0.5 0\nv 0.4 -0.5 0\nv 0.4 0.5 0\nv 0.1 0.5 0
+v 0.6 -0.5 0\nv 0.9 -0.5 0\nv 0.9 0.5 0\nv 0.6 0.5 0
+vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1
+usemtl bmp\nf 1/1 2/2 3/3 4/4
+usemtl tga\nf 5/1 6/2 7/3 8/4
+usemtl webp\nf 9/1 10/2 11/3 12/4
+usemtl plain\nf 13/1 14/2 15/3 16/4
+";
+
+const RED: [u8; 3] = [230, 20, 10];
+const GREEN: [u8; 3] = [15, 200, 40];
+const YELLOW: [u8; 3] = [250, 220, 0];
+
+fn multi_material_obj(dir: &Path) -> std::path::PathBuf {
+    solid(dir, "skin.bmp", RED);
+    solid(dir, "cloth.tga", GREEN);
+    solid(dir, "hair.webp", YELLOW);
+    // Windows paths and odd case, as scans from other machines carry them.
+    write(
+        dir,
+        "multi.mtl",
+        "newmtl bmp\nKd 0.8 0.8 0.8\nmap_Kd skin.bmp\nnewmtl tga\nmap_Kd C:\\Users\\artist\\cloth.tga\n\
+         newmtl webp\nmap_kd HAIR.webp\nnewmtl plain\nKd 0.1 0.2 0.9\n",
+    );
+    write(dir, "multi.obj", MULTI_OBJ)
+}
+
+#[test]
+fn multi_material_obj_with_bmp_tga_webp_textures() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = read_mesh(&multi_material_obj(dir.path())).unwrap();
+    assert_eq!(m.materials.len(), 4);
+    assert_eq!(m.triangle_materials, vec![0, 0, 1, 1, 2, 2, 3, 3]);
+    assert!(m.materials[..3].iter().all(|mat| mat.texture.is_some() && mat.base_color == Vec3::ONE));
+    assert_eq!(m.materials[3].base_color, Vec3::new(0.1, 0.2, 0.9));
+    // Each quad shows its own material in the ground truth.
+    for (x, want) in [(-0.75, lin(RED)), (-0.25, lin(GREEN)), (0.25, lin(YELLOW)), (0.75, Vec3::new(0.1, 0.2, 0.9))] {
+        let got = albedo_at(&m, x, 0.0);
+        assert!((got - want).length() < 2e-3, "x {x}: {got} vs {want}");
+    }
+    // A missing texture among several is named.
+    std::fs::remove_file(dir.path().join("cloth.tga")).unwrap();
+    let e = read_mesh(&dir.path().join("multi.obj")).unwrap_err();
+    err_names_file(&e, "cloth.tga");
+}
+
+#[test]
+fn multi_material_glb_round_trip_keeps_every_material() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = read_mesh(&multi_material_obj(dir.path())).unwrap();
+    let p = dir.path().join("multi.glb");
+    write_glb(&p, &m).unwrap();
+    // One primitive per material, three embedded images, readable by the reference loader.
+    let (doc, _, images) = gltf::import(&p).unwrap();
+    assert_eq!(doc.meshes().next().unwrap().primitives().count(), 4);
+    assert_eq!((doc.materials().count(), images.len()), (4, 3));
+    let back = read_gltf(&p).unwrap();
+    assert_eq!(back.materials.len(), 4);
+    assert_eq!(back.triangle_materials, m.triangle_materials);
+    let cam = Camera::orbit(20.0, 0.0, 64, 64);
+    assert_eq!(render_ground_truth(&back, &cam), render_ground_truth(&m, &cam));
+    // glTF base colour factors and COLOR_0 multiply the texture.
+    let mut tinted = m.clone();
+    tinted.materials[0].base_color = Vec3::new(0.5, 1.0, 1.0);
+    tinted.mesh.colors = vec![Vec3::new(1.0, 0.5, 1.0); tinted.mesh.positions.len()];
+    let q = dir.path().join("tinted.glb");
+    write_glb(&q, &tinted).unwrap();
+    let back = read_mesh(&q).unwrap();
+    let got = albedo_at(&back, -0.75, 0.0);
+    let want = lin(RED) * Vec3::new(0.5, 0.5, 1.0);
+    assert!((got - want).length() < 2e-3, "{got} vs {want}");
+}
+
+#[test]
+fn gltf_with_external_bmp_and_tga_textures() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    solid(d, "a.bmp", RED);
+    solid(d, "b.tga", GREEN);
+    // Two triangles, one per material, in one .gltf with an external buffer.
+    let pos: [[f32; 3]; 6] =
+        [[-0.8, -0.5, 0.0], [-0.1, -0.5, 0.0], [-0.8, 0.5, 0.0], [0.1, -0.5, 0.0], [0.8, -0.5, 0.0], [0.8, 0.5, 0.0]];
+    let uv: [[f32; 2]; 6] = [[0.0, 1.0], [1.0, 1.0], [0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]];
+    let mut bin: Vec<u8> = pos.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    bin.extend(uv.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    std::fs::write(d.join("buf.bin"), &bin).unwrap();
+    let gltf = r#"{"asset": {"version": "2.0"}, "buffers": [{"uri": "buf.bin", "byteLength": 120}],
+      "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 72}, {"buffer": 0, "byteOffset": 72, "byteLength": 48}],
+      "accessors": [
+        {"bufferView": 0, "byteOffset": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [-0.8,-0.5,0], "max": [-0.1,0.5,0]},
+        {"bufferView": 0, "byteOffset": 36, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0.1,-0.5,0], "max": [0.8,0.5,0]},
+        {"bufferView": 1, "byteOffset": 0, "componentType": 5126, "count": 3, "type": "VEC2"},
+        {"bufferView": 1, "byteOffset": 24, "componentType": 5126, "count": 3, "type": "VEC2"}],
+      "images": [{"uri": "a.bmp"}, {"uri": "b.tga"}], "textures": [{"source": 0}, {"source": 1}],
+      "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}},
+                    {"pbrMetallicRoughness": {"baseColorTexture": {"index": 1}}}],
+      "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 2}, "material": 0},
+                                 {"attributes": {"POSITION": 1, "TEXCOORD_0": 3}, "material": 1}]}],
+      "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}], "scene": 0}"#;
+    let p = write(d, "two.gltf", gltf);
+    let m = read_mesh(&p).unwrap();
+    assert_eq!(m.materials.len(), 2);
+    assert!((albedo_at(&m, -0.6, -0.3) - lin(RED)).length() < 2e-3);
+    assert!((albedo_at(&m, 0.6, -0.3) - lin(GREEN)).length() < 2e-3);
+}
+
+/// A quad facing +z at x, y in [-0.5, 0.5] as a PLY: colours per vertex (uchar), in ASCII.
+const PLY_ASCII: &str = "ply
+format ascii 1.0
+comment made by a test
+element vertex 4
+property float x
+property float y
+property float z
+property uchar red
+property uchar green
+property uchar blue
+element face 1
+property list uchar int vertex_indices
+end_header
+-0.5 -0.5 0 230 20 10
+0.5 -0.5 0 230 20 10
+0.5 0.5 0 230 20 10
+-0.5 0.5 0 230 20 10
+4 0 1 2 3
+";
+
+#[test]
+fn ply_ascii_and_binary_with_vertex_colours_and_textures() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let m = read_mesh(&write(d, "quad.ply", PLY_ASCII)).unwrap();
+    assert_eq!(m.mesh.triangles.len(), 2);
+    assert!((albedo_at(&m, 0.0, 0.0) - lin(RED)).length() < 1e-4);
+    // Binary little endian, double positions, float colours, an extra element, MeshLab's per-face texcoords and
+    // a TextureFile comment.
+    solid(d, "tex.tga", GREEN);
+    let mut b = b"ply\nformat binary_little_endian 1.0\ncomment TextureFile tex.tga\nelement vertex 3\n\
+property double x\nproperty double y\nproperty double z\nproperty float red\nproperty float green\nproperty float blue\n\
+element face 1\nproperty list uchar uint vertex_indices\nproperty list uchar float texcoord\n\
+element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n"
+        .to_vec();
+    for p in [[-0.5f64, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]] {
+        p.iter().for_each(|v| b.extend(v.to_le_bytes()));
+        [1.0f32, 1.0, 1.0].iter().for_each(|v| b.extend(v.to_le_bytes()));
+    }
+    b.push(3);
+    [0u32, 1, 2].iter().for_each(|v| b.extend(v.to_le_bytes()));
+    b.push(6);
+    [0.0f32, 0.0, 1.0, 0.0, 0.5, 1.0].iter().for_each(|v| b.extend(v.to_le_bytes()));
+    [0i32, 1].iter().for_each(|v| b.extend(v.to_le_bytes()));
+    let p = d.join("bin.ply");
+    std::fs::write(&p, &b).unwrap();
+    let m = read_mesh(&p).unwrap();
+    assert_eq!((m.mesh.triangles.len(), m.materials.len()), (1, 1));
+    assert!((albedo_at(&m, 0.0, -0.2) - lin(GREEN)).length() < 2e-3);
+    // Truncated data, a point cloud and a bad index are errors naming the file.
+    let q = d.join("trunc.ply");
+    std::fs::write(&q, &b[..b.len() - 30]).unwrap();
+    err_names_file(&read_mesh(&q).unwrap_err(), "trunc.ply");
+    let cloud =
+        PLY_ASCII.replace("element face 1\nproperty list uchar int vertex_indices\n", "").replace("4 0 1 2 3\n", "");
+    let e = read_mesh(&write(d, "cloud.ply", &cloud)).unwrap_err();
+    assert!(e.to_string().contains("point cloud"), "{e}");
+    err_names_file(&e, "cloud.ply");
+    let e = read_mesh(&write(d, "idx.ply", &PLY_ASCII.replace("4 0 1 2 3", "4 0 1 2 9"))).unwrap_err();
+    assert!(matches!(e, MeshIoError::Ply { .. }), "{e}");
+    err_names_file(&e, "idx.ply");
+    let e = read_mesh(&write(d, "junk.ply", "ply\nformat ascii 1.0\nelement vertex -3\nend_header\n")).unwrap_err();
+    err_names_file(&e, "junk.ply");
+}
+
+/// An OBJ of cuboids (each `(min, max)`).
+fn boxes_obj(boxes: &[(Vec3, Vec3)]) -> String {
+    let mut s = String::new();
+    for (k, (lo, hi)) in boxes.iter().enumerate() {
+        let m = TriMesh::cuboid(*lo, *hi);
+        for p in &m.positions {
+            s.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+        }
+        for t in &m.triangles {
+            let o = 8 * k as u32 + 1;
+            s.push_str(&format!("f {} {} {}\n", t[0] + o, t[1] + o, t[2] + o));
+        }
+    }
+    s
+}
+
+#[test]
+fn t_pose_scan_is_fitted_and_a_floor_still_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // Torso 0.4 wide, 1.7 tall; arms out to 2.4 across at shoulder height: too wide for the cube at height 1.8.
+    let t_pose = boxes_obj(&[
+        (Vec3::new(-0.2, 0.0, -0.12), Vec3::new(0.2, 1.7, 0.12)),
+        (Vec3::new(-1.2, 1.35, -0.05), Vec3::new(1.2, 1.45, 0.05)),
+    ]);
+    let s = load_scan_with(&write(dir.path(), "tpose.obj", &t_pose), &ScanOrientation::default()).unwrap();
+    assert!(s.fitted);
+    assert_eq!((s.up, s.facing), (UpAxis::Y, Facing::PlusZ));
+    let (lo, hi) = s.mesh.mesh.bounds().unwrap();
+    // The minimal enclosing circle of the arm tips (x = +-1.2, z = +-0.05) becomes the fit radius.
+    let r = (1.2f32 * 1.2 + 0.05 * 0.05).sqrt();
+    let widest = s.mesh.mesh.positions.iter().map(|p| p.x.hypot(p.z)).fold(0.0f32, f32::max);
+    assert!((widest - FIT_RADIUS).abs() < 1e-4 && (hi.x + lo.x).abs() < 1e-4, "{lo} {hi}");
+    // Height scaled by the same factor: 1.7 * 0.98 / r.
+    assert!(((hi.y - lo.y) - 1.7 * FIT_RADIUS / r).abs() < 1e-4, "{lo} {hi}");
+    // A floor far wider than the person is still refused, naming the file. (The person, an ellipsoid 17 tall,
+    // has far more vertices than the floor, as in real scans: detection keeps Y up.)
+    let mut floor = boxes_obj(&[(Vec3::new(-50.0, -0.1, -50.0), Vec3::new(50.0, 0.0, 50.0))]);
+    let body = TriMesh::uv_sphere(Vec3::ZERO, 1.0, 16, 16);
+    for p in &body.positions {
+        floor.push_str(&format!("v {} {} {}\n", 0.2 * p.x, 8.5 * (p.y + 1.0), 0.12 * p.z));
+    }
+    for t in &body.triangles {
+        floor.push_str(&format!("f {} {} {}\n", t[0] + 9, t[1] + 9, t[2] + 9));
+    }
+    let e = load_scan_with(&write(dir.path(), "floor.obj", &floor), &ScanOrientation::default()).unwrap_err();
+    assert!(matches!(e, SynthError::Scan { .. }), "{e}");
+    err_names_file(&e, "floor.obj");
+}
+
+#[test]
+fn z_up_scan_is_detected_or_told_and_turned_to_face_the_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    // Blender convention: +Z up, the person faces -Y. Body 0.4 wide (x), 0.25 deep (y), 1.7 tall (z); toes and
+    // a nose toward -Y.
+    let z_up = boxes_obj(&[
+        (Vec3::new(-0.2, -0.12, 0.0), Vec3::new(0.2, 0.12, 1.7)),
+        (Vec3::new(-0.15, -0.3, 0.0), Vec3::new(0.15, 0.0, 0.04)),
+        (Vec3::new(-0.03, -0.2, 1.5), Vec3::new(0.03, -0.1, 1.55)),
+    ]);
+    let p = write(dir.path(), "zup.obj", &z_up);
+    let s = load_scan_with(&p, &ScanOrientation::default()).unwrap();
+    assert_eq!((s.up, s.facing), (UpAxis::Z, Facing::PlusZ), "Blender's -Y front becomes +z");
+    let (lo, hi) = s.mesh.mesh.bounds().unwrap();
+    assert!((hi.y - lo.y - 1.8).abs() < 1e-3 && !s.fitted, "{lo} {hi}");
+    // The nose (the only vertices at 88-91 % of the height) is in front of the body, on the camera side.
+    let z_of = |band: std::ops::Range<f32>| {
+        let z: Vec<f32> = s.mesh.mesh.positions.iter().filter(|q| band.contains(&q.y)).map(|q| q.z).collect();
+        z.iter().sum::<f32>() / z.len() as f32
+    };
+    let (nose, body) = (z_of(0.6..0.75), z_of(0.85..1.0));
+    assert!(nose > body + 0.1, "nose z {nose}, body {body}");
+    // Flags override detection: facing -z turns the person around.
+    let turned = load_scan_with(&p, &ScanOrientation { up: Some(UpAxis::Z), facing: Some(Facing::MinusZ) }).unwrap();
+    let (lo2, _) = turned.mesh.mesh.bounds().unwrap();
+    assert!((lo2.z + hi.z).abs() < 1e-3, "turned around: {lo2} vs {hi}");
+    // Read as Y-up, the same file lies on its back: 1.7 deep, 0.24 tall, far too wide at height 1.8.
+    let e = load_scan_with(&p, &ScanOrientation { up: Some(UpAxis::Y), facing: Some(Facing::PlusZ) }).unwrap_err();
+    assert!(e.to_string().contains("--up"), "{e}");
 }

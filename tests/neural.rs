@@ -653,6 +653,7 @@ fn eval_includes_the_neural_rows_when_models_exist() {
         yaws: vec![20.0, 90.0, 180.0],
         texture_size: 64,
         save_views: false,
+        ..EvalOptions::default()
     };
     let nopts = NeuralEvalOptions { models: Some(data("untrained_tiny")), skip: false, ep: ExecutionProvider::Cpu };
     let rep = run_eval_with(&opts, &nopts).unwrap();

@@ -152,7 +152,7 @@ fn subjects_are_reproducible_normalised_and_in_the_cube() {
     let c = small(8);
     assert_ne!(a.params, c.params);
     assert_ne!(a.mesh.mesh.positions, c.mesh.mesh.positions);
-    assert_ne!(a.mesh.texture, c.mesh.texture);
+    assert_ne!(a.mesh.first_texture(), c.mesh.first_texture());
     for seed in 0..12u64 {
         let s = small(seed);
         let p = &s.mesh.mesh.positions;
@@ -184,7 +184,8 @@ fn glb_round_trip_keeps_geometry_uvs_and_texture() {
     assert_eq!(back.mesh.triangles, s.mesh.mesh.triangles);
     assert_eq!(back.mesh.positions, s.mesh.mesh.positions);
     assert_eq!(back.mesh.uvs, s.mesh.mesh.uvs);
-    assert_eq!(back.texture, s.mesh.texture);
+    assert_eq!(back.first_texture(), s.mesh.first_texture());
+    assert_eq!(back.materials.len(), 1);
     // The document itself is valid glTF for the reference loader.
     let (doc, _, images) = gltf::import(&path).unwrap();
     assert_eq!(images.len(), 1);
@@ -381,6 +382,7 @@ mod eval_run {
             yaws: vec![0.0, 30.0, 90.0, 180.0],
             texture_size: 128,
             save_views: true,
+            ..EvalOptions::default()
         };
         let rep = run_eval(&opts).unwrap();
         // The broken scan is reported by name, the synthetic subject still evaluated.

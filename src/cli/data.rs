@@ -92,6 +92,12 @@ pub struct EvalArgs {
     /// rows are reported per scan.
     #[arg(long)]
     pub scan: Vec<PathBuf>,
+    /// The scans' up axis (y or z); detected when not given (the log says what was detected).
+    #[arg(long)]
+    pub up: Option<crate::synth::scan::UpAxis>,
+    /// The direction the scanned person faces once upright (+z, -z, +x or -x); detected when not given.
+    #[arg(long, allow_hyphen_values = true)]
+    pub facing: Option<crate::synth::scan::Facing>,
     /// A folder of real photos (PNG/JPEG) to check without ground truth: views at yaws 0-180 per method, a
     /// contact sheet per photo, input-view PSNR, detached fragments, doubled surfaces (DIR/photos.md).
     #[arg(long, value_name = "DIR")]
@@ -134,6 +140,7 @@ pub fn run_eval(args: &EvalArgs) -> Result<()> {
             seed: args.seed,
             out: args.out.clone(),
             scans: args.scan.clone(),
+            scan_orientation: crate::synth::scan::ScanOrientation { up: args.up, facing: args.facing },
             size: args.size,
             save_views: args.save_views,
             ..Default::default()

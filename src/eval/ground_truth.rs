@@ -1,13 +1,13 @@
-//! Ground-truth views of a textured subject: per-pixel albedo (texture looked up at the interpolated UV, or the
-//! interpolated vertex colour for untextured meshes), coverage mask, view depth and view-space normals, from
-//! the project rasteriser. No lighting: every view of a subject agrees on the colour of a surface point.
+//! Ground-truth views of a textured subject: per-pixel albedo ([`TexturedMesh::albedo`]: the material of the
+//! triangle seen, its texture at the interpolated UV, the interpolated vertex colour), coverage mask, view depth
+//! and view-space normals, from the project rasteriser. No lighting: every view of a subject agrees on the colour of a surface point.
 
 use glam::{Vec3, Vec4};
 
 use crate::buffer::{premultiply, RgbaImage};
 use crate::geometry::camera::Camera;
-use crate::geometry::raster::{rasterize, GBuffer};
-use crate::io::mesh_io::{linear_to_srgb8, sample_texture, TexturedMesh};
+use crate::geometry::raster::{rasterize, rasterize_with_triangles, GBuffer};
+use crate::io::mesh_io::{linear_to_srgb8, TexturedMesh};
 
 /// Depth written to ground-truth depth maps where no surface covers the pixel (dataset convention).
 pub const BACKGROUND_DEPTH: f32 = -1.0;
@@ -57,12 +57,16 @@ impl GroundTruthView {
 
 /// Renders the ground truth of `mesh` seen by `camera`.
 pub fn render_ground_truth(mesh: &TexturedMesh, camera: &Camera) -> GroundTruthView {
-    let textured = mesh.texture.is_some() && mesh.mesh.uvs.len() == mesh.mesh.positions.len();
-    // The rasteriser interpolates the per-vertex UVs (and colours, when present) itself.
-    let g: GBuffer = rasterize(&mesh.mesh, camera);
+    // The rasteriser interpolates the per-vertex UVs (and colours, when present) itself; the triangle seen is only
+    // needed when triangles differ in material.
+    let g: GBuffer = match mesh.has_several_materials() {
+        true => rasterize_with_triangles(&mesh.mesh, camera),
+        false => rasterize(&mesh.mesh, camera),
+    };
     let n = g.width * g.height;
     let uv = g.uv.as_deref();
     let color = g.color.as_deref();
+    let triangle = g.triangle.as_deref();
     let mut albedo = vec![Vec3::ZERO; n];
     let mut depth = vec![BACKGROUND_DEPTH; n];
     let mut normal = vec![Vec3::ZERO; n];
@@ -72,11 +76,9 @@ pub fn render_ground_truth(mesh: &TexturedMesh, camera: &Camera) -> GroundTruthV
         }
         depth[i] = g.depth[i];
         normal[i] = g.normal[i].try_normalize().unwrap_or(Vec3::Z);
-        albedo[i] = match (textured, uv, color, &mesh.texture) {
-            (true, Some(uv), _, Some(tex)) => sample_texture(tex, uv[i]),
-            (_, _, Some(c), _) => c[i].clamp(Vec3::ZERO, Vec3::ONE),
-            _ => Vec3::splat(0.7),
-        };
+        let t = triangle.map_or(0, |t| t[i] as usize);
+        let a = mesh.albedo(t, uv.map(|u| u[i]), color.map(|c| c[i].clamp(Vec3::ZERO, Vec3::ONE)));
+        albedo[i] = if a.is_finite() { a.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::ZERO };
     }
     GroundTruthView { width: g.width, height: g.height, albedo, mask: g.mask, depth, normal }
 }

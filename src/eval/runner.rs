@@ -63,6 +63,8 @@ pub struct EvalOptions {
     pub out: PathBuf,
     /// User scans (`--scan FILE`, repeatable).
     pub scans: Vec<PathBuf>,
+    /// How the scans are turned upright and toward the camera (`--up`, `--facing`; detected when unset).
+    pub scan_orientation: synth::scan::ScanOrientation,
     /// Image side (512 like the reference).
     pub size: usize,
     /// Target view yaws in degrees (pitch 0). The input view itself (yaw 0) is not a novel view and is not scored
@@ -93,6 +95,7 @@ impl Default for EvalOptions {
             seed: 0,
             out: PathBuf::from("eval"),
             scans: Vec::new(),
+            scan_orientation: Default::default(),
             size: 512,
             yaws: vec![20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
             texture_size: 1024,
@@ -736,7 +739,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             name = format!("{stem} ({k})");
         }
         let mut acc = MethodAcc::default();
-        let r = synth::scan::load_scan(scan).map_err(EvalError::from).and_then(|s| {
+        let r = synth::scan::load_scan_with(scan, &opts.scan_orientation).map_err(EvalError::from).and_then(|s| {
             eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
             probe_once(&mut memory, &s.mesh)
         });

@@ -49,7 +49,7 @@ const HALF_SUBPIXEL: i64 = 1 << (SUBPIXEL_BITS - 1);
 /// at most 2^29 fixed-point units) fit in an i64 with room to spare.
 const MAX_SCREEN_PIXELS: f32 = (1u32 << 20) as f32;
 /// Marks a pixel no triangle covers in the visibility buffer.
-const NO_TRIANGLE: u32 = u32::MAX;
+pub const NO_TRIANGLE: u32 = u32::MAX;
 
 /// The rasteriser's output for one camera. All per-pixel vectors are row-major, `width * height` long, row 0 at
 /// the top.
@@ -70,6 +70,9 @@ pub struct GBuffer {
     /// Interpolated per-vertex texture coordinates, when the mesh has one UV per vertex; zero where not covered.
     /// (Perspective-correct like every attribute.) Textured ground truth samples its texture here.
     pub uv: Option<Vec<Vec2>>,
+    /// Index of the mesh triangle seen at each pixel ([`NO_TRIANGLE`] where not covered), only from
+    /// [`rasterize_with_triangles`]: per-triangle attributes such as a multi-material mesh's material.
+    pub triangle: Option<Vec<u32>>,
 }
 
 impl GBuffer {
@@ -99,6 +102,7 @@ impl GBuffer {
             self.color = None;
         }
         self.uv = None;
+        self.triangle = None;
     }
 
     /// Like [`GBuffer::reset`], and also clears (or drops) the UV channel.
@@ -133,12 +137,26 @@ pub fn rasterize(mesh: &TriMesh, camera: &Camera) -> GBuffer {
     out
 }
 
+/// [`rasterize`], also recording which triangle each pixel shows ([`GBuffer::triangle`]).
+pub fn rasterize_with_triangles(mesh: &TriMesh, camera: &Camera) -> GBuffer {
+    let mut out = GBuffer::default();
+    rasterize_into_impl(&mut out, mesh, camera, true);
+    out
+}
+
 /// Rasterises `mesh` as seen by `camera` into `out`, resized to the camera's image size. Reuses `out`'s memory
 /// and a per-thread scratch cache, so repeated calls at one size allocate nothing.
 pub fn rasterize_into(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera) {
+    rasterize_into_impl(out, mesh, camera, false)
+}
+
+fn rasterize_into_impl(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera, with_triangles: bool) {
     let with_color = !mesh.colors.is_empty() && mesh.colors.len() == mesh.positions.len();
     let with_uv = !mesh.uvs.is_empty() && mesh.uvs.len() == mesh.positions.len();
     out.reset_with_uv(camera.width, camera.height, with_color, with_uv);
+    if with_triangles {
+        out.triangle = Some(vec![NO_TRIANGLE; camera.width * camera.height]);
+    }
     if camera.width == 0 || camera.height == 0 || mesh.is_empty() {
         return;
     }
@@ -588,6 +606,15 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
                 }
             });
         }
+    }
+    if let Some(tri) = out.triangle.as_mut() {
+        tri.par_chunks_mut(w).enumerate().for_each(|(row, tr)| {
+            for (col, t) in tr.iter_mut().enumerate() {
+                if let Some((e, _)) = resolve(row * w + col) {
+                    *t = e;
+                }
+            }
+        });
     }
     if let Some(uv) = out.uv.as_mut() {
         let uvs = &mesh.uvs;
@@ -1078,5 +1105,31 @@ mod tests {
         }
         assert!(checked > 500);
         assert!(rasterize(&TriMesh::cuboid(Vec3::ZERO, Vec3::ONE), &cam).uv.is_none());
+    }
+
+    /// The triangle channel names the front-most triangle: its depth matches the pixel's.
+    #[test]
+    fn triangle_ids_name_the_visible_triangle() {
+        let mesh = TriMesh::cuboid(Vec3::new(-0.5, -0.6, -0.3), Vec3::new(0.4, 0.5, 0.2));
+        let cam = Camera::orbit(30.0, 10.0, 40, 40);
+        let g = rasterize_with_triangles(&mesh, &cam);
+        let tri = g.triangle.as_ref().unwrap();
+        assert!(rasterize(&mesh, &cam).triangle.is_none());
+        let mut checked = 0;
+        for (i, &ti) in tri.iter().enumerate() {
+            if !g.mask[i] {
+                assert_eq!(ti, NO_TRIANGLE);
+                continue;
+            }
+            let t =
+                mesh.triangles[ti as usize].map(|k| cam.view_from_world.transform_point3(mesh.positions[k as usize]));
+            // The pixel's view-space point lies on the named triangle's plane.
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+            let p = cam.unproject((i % 40) as f32 + 0.5, (i / 40) as f32 + 0.5, g.depth[i]);
+            let pv = cam.view_from_world.transform_point3(p);
+            assert!((pv - t[0]).dot(n).abs() < 1e-3, "pixel {i}");
+            checked += 1;
+        }
+        assert!(checked > 300);
     }
 }

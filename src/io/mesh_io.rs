@@ -6,6 +6,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{Mat4, Vec2, Vec3};
 use serde_json::json;
@@ -24,11 +25,19 @@ pub enum MeshIoError {
         /// The cause.
         source: std::io::Error,
     },
-    /// The file extension is not one of `.obj`, `.gltf`, `.glb`.
-    #[error("{path}: unsupported mesh format (expected .obj, .gltf or .glb)")]
+    /// The file extension is not one of `.obj`, `.gltf`, `.glb`, `.ply`.
+    #[error("{path}: unsupported mesh format (expected .obj, .gltf, .glb or .ply)")]
     UnsupportedFormat {
         /// The file.
         path: PathBuf,
+    },
+    /// Malformed or unsupported PLY.
+    #[error("{path}: invalid PLY: {message}")]
+    Ply {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
     },
     /// Malformed OBJ or MTL text.
     #[error("{path}:{line}: {message}")]
@@ -84,20 +93,111 @@ pub enum MeshIoError {
     },
 }
 
-/// A triangle mesh with optional per-vertex UVs ([`TriMesh::uvs`], glTF convention) and an optional base-colour
-/// texture (8-bit sRGB). Without a texture, appearance comes from [`TriMesh::colors`] (linear RGB) when present.
+/// Albedo of a surface with neither a material nor vertex colours (linear grey).
+pub const DEFAULT_ALBEDO: f32 = 0.7;
+
+/// Largest texture side accepted from a mesh file (bounded memory on hostile files).
+pub const MAX_TEXTURE_SIDE: u32 = 16384;
+
+/// How a triangle's base colour (albedo) is made, the glTF way: `base_color` times the interpolated vertex colour
+/// (when the mesh has [`TriMesh::colors`]) times the texture at the interpolated UV (when the material has a
+/// texture and the mesh has [`TriMesh::uvs`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Material {
+    /// Name from the file (for messages), may be empty.
+    pub name: String,
+    /// Linear RGB base-colour factor.
+    pub base_color: Vec3,
+    /// Base-colour texture, 8-bit sRGB (row 0 at the top, sampled at glTF UVs); shared between the materials of
+    /// a file that use the same image.
+    pub texture: Option<Arc<image::RgbImage>>,
+}
+
+impl Material {
+    /// A material of one colour (linear RGB).
+    pub fn color(name: &str, base_color: Vec3) -> Self {
+        Self { name: name.to_string(), base_color, texture: None }
+    }
+
+    /// A textured material (base colour factor 1).
+    pub fn textured(name: &str, texture: Arc<image::RgbImage>) -> Self {
+        Self { name: name.to_string(), base_color: Vec3::ONE, texture: Some(texture) }
+    }
+}
+
+/// A triangle mesh with its appearance: any number of [`Material`]s, one per triangle
+/// ([`TexturedMesh::triangle_materials`]), optional per-vertex UVs ([`TriMesh::uvs`], glTF convention) and
+/// per-vertex colours ([`TriMesh::colors`], linear RGB). [`TexturedMesh::albedo`] is the one rule every consumer
+/// (ground truth, GLB writing) applies.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TexturedMesh {
     /// Geometry, normals, UVs and optional colours.
     pub mesh: TriMesh,
-    /// Base-colour texture, 8-bit sRGB (row 0 at the top, sampled at glTF UVs).
-    pub texture: Option<image::RgbImage>,
+    /// Materials; empty: the albedo is the vertex colour, or [`DEFAULT_ALBEDO`] grey without one.
+    pub materials: Vec<Material>,
+    /// Material index of each triangle; empty when every triangle uses material 0 (the single-material fast
+    /// path: no per-pixel triangle lookup).
+    pub triangle_materials: Vec<u32>,
 }
 
 impl TexturedMesh {
-    /// Linear RGB albedo of the texture at a glTF UV; `None` without a texture.
-    pub fn albedo_at_uv(&self, uv: Vec2) -> Option<Vec3> {
-        self.texture.as_ref().map(|t| sample_texture(t, uv))
+    /// One textured material on every triangle (the mesh needs one UV per vertex to sample it).
+    pub fn textured(mesh: TriMesh, texture: image::RgbImage) -> Self {
+        Self { mesh, materials: vec![Material::textured("albedo", Arc::new(texture))], triangle_materials: Vec::new() }
+    }
+
+    /// No material: vertex colours when present, else grey.
+    pub fn untextured(mesh: TriMesh) -> Self {
+        Self { mesh, materials: Vec::new(), triangle_materials: Vec::new() }
+    }
+
+    /// Whether triangles can differ in material (the per-pixel lookup needs the triangle; see
+    /// [`crate::geometry::raster::rasterize_with_triangles`]).
+    pub fn has_several_materials(&self) -> bool {
+        self.materials.len() > 1 && !self.triangle_materials.is_empty()
+    }
+
+    /// The material of triangle `t` (`None` without materials).
+    pub fn material_of(&self, t: usize) -> Option<&Material> {
+        let m = self.triangle_materials.get(t).map_or(0, |&m| m as usize);
+        self.materials.get(m)
+    }
+
+    /// The texture of the first textured material (the single-texture case; `None` without one).
+    pub fn first_texture(&self) -> Option<&image::RgbImage> {
+        self.materials.iter().find_map(|m| m.texture.as_deref())
+    }
+
+    /// Linear RGB albedo on triangle `t` at the interpolated `uv` and vertex colour (`None` when the mesh has none):
+    /// the rule of [`Material`], or the vertex colour (grey without one) for a mesh without materials.
+    pub fn albedo(&self, t: usize, uv: Option<Vec2>, vertex_color: Option<Vec3>) -> Vec3 {
+        let Some(m) = self.material_of(t) else {
+            return vertex_color.unwrap_or(Vec3::splat(DEFAULT_ALBEDO));
+        };
+        let mut c = m.base_color * vertex_color.unwrap_or(Vec3::ONE);
+        if let (Some(tex), Some(uv)) = (&m.texture, uv) {
+            c *= sample_texture(tex, uv);
+        }
+        c
+    }
+
+    /// Checks what [`TriMesh::validate`] checks plus the appearance: one material index per triangle (or none),
+    /// each naming an existing material, and UVs/colours either absent or one per vertex.
+    pub fn validate(&self) -> Result<(), String> {
+        self.mesh.validate()?;
+        let (nt, nv) = (self.mesh.triangles.len(), self.mesh.positions.len());
+        if !self.triangle_materials.is_empty() && self.triangle_materials.len() != nt {
+            return Err(format!("{} material indices for {nt} triangles", self.triangle_materials.len()));
+        }
+        if let Some(&m) = self.triangle_materials.iter().find(|&&m| m as usize >= self.materials.len()) {
+            return Err(format!("material index {m} past the {} materials", self.materials.len()));
+        }
+        for (what, len) in [("UVs", self.mesh.uvs.len()), ("colours", self.mesh.colors.len())] {
+            if len != 0 && len != nv {
+                return Err(format!("{len} {what} for {nv} vertices"));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -121,21 +221,77 @@ pub fn sample_texture(tex: &image::RgbImage, uv: Vec2) -> Vec3 {
     top.lerp(bottom, fy)
 }
 
+/// Linear value of an 8-bit sRGB level.
+pub fn srgb8_to_linear(v: u8) -> f32 {
+    SRGB_LUT[v as usize]
+}
+
+/// Decodes a texture file (PNG, JPEG, BMP, TGA, WebP, GIF; format from the content, then the extension), at
+/// most [`MAX_TEXTURE_SIDE`] a side. A name that does not exist is looked up as its bare file name in `dir`,
+/// then case-insensitively there (scans often carry absolute paths of the machine that made them, or a
+/// different case). `referrer` (the mesh or MTL file) labels errors.
+pub fn load_texture(dir: &Path, name: &str, referrer: &Path) -> Result<Arc<image::RgbImage>, MeshIoError> {
+    let err = |texture: &Path, message: String| MeshIoError::Texture {
+        path: referrer.to_path_buf(),
+        texture: texture.display().to_string(),
+        message,
+    };
+    let given = dir.join(name.replace('\\', "/"));
+    let path = resolve_texture(dir, &given).ok_or_else(|| err(&given, "file not found".into()))?;
+    let bytes = std::fs::read(&path).map_err(|e| err(&path, e.to_string()))?;
+    decode_texture(&bytes, image::ImageFormat::from_path(&path).ok()).map(Arc::new).map_err(|e| err(&path, e))
+}
+
+/// Decodes an encoded texture (format from the content, else `hint`: TGA has no signature), at most
+/// [`MAX_TEXTURE_SIDE`] a side, to 8-bit RGB.
+fn decode_texture(bytes: &[u8], hint: Option<image::ImageFormat>) -> Result<image::RgbImage, String> {
+    let mut reader =
+        image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string())?;
+    if let (None, Some(format)) = (reader.format(), hint) {
+        reader.set_format(format);
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+    reader.limits(limits);
+    Ok(reader.decode().map_err(|e| e.to_string())?.to_rgb8())
+}
+
+fn resolve_texture(dir: &Path, given: &Path) -> Option<PathBuf> {
+    if given.is_file() {
+        return Some(given.to_path_buf());
+    }
+    let base = given.file_name()?.to_str()?.rsplit(['/', '\\']).next()?.to_string();
+    let bare = dir.join(&base);
+    if bare.is_file() {
+        return Some(bare);
+    }
+    let lower = base.to_lowercase();
+    std::fs::read_dir(dir)
+        .ok()?
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.is_file() && p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.to_lowercase() == lower))
+}
+
 static SRGB_LUT: std::sync::LazyLock<[f32; 256]> =
     std::sync::LazyLock::new(|| std::array::from_fn(|i| srgb_to_linear(i as f32 / 255.0)));
 
-/// Reads a textured mesh, choosing the reader by extension (`.obj`, `.gltf`, `.glb`, case-insensitive).
+/// Reads a textured mesh, choosing the reader by extension (`.obj`, `.gltf`, `.glb`, `.ply`, case-insensitive).
 pub fn read_mesh(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     match ext.as_deref() {
         Some("obj") => read_obj(path),
         Some("gltf") | Some("glb") => read_gltf(path),
+        Some("ply") => super::ply::read_ply(path),
         _ => Err(MeshIoError::UnsupportedFormat { path: path.to_path_buf() }),
     }
 }
 
-/// Checks the common invariants of a freshly read mesh: triangles present, finite vertices, indices in range.
-fn check_mesh(path: &Path, mesh: &TriMesh) -> Result<(), MeshIoError> {
+/// Checks the common invariants of a freshly read mesh: triangles present, finite vertices, indices in range,
+/// consistent materials.
+pub(crate) fn check_mesh(path: &Path, textured: &TexturedMesh) -> Result<(), MeshIoError> {
+    let mesh = &textured.mesh;
     if mesh.is_empty() {
         return Err(MeshIoError::Empty { path: path.to_path_buf() });
     }
@@ -143,7 +299,7 @@ fn check_mesh(path: &Path, mesh: &TriMesh) -> Result<(), MeshIoError> {
         let p = mesh.positions[index];
         return Err(MeshIoError::NonFinite { path: path.to_path_buf(), index, value: p.to_array() });
     }
-    mesh.validate().map_err(|message| MeshIoError::Gltf { path: path.to_path_buf(), message })
+    textured.validate().map_err(|message| MeshIoError::Gltf { path: path.to_path_buf(), message })
 }
 
 // ------------------------------------------------------------------------------------------------------------
@@ -154,12 +310,17 @@ fn check_mesh(path: &Path, mesh: &TriMesh) -> Result<(), MeshIoError> {
 struct ObjMaterial {
     kd: Option<Vec3>,
     map_kd: Option<String>,
+    /// The MTL file that defined it (textures are relative to it).
+    mtl: PathBuf,
 }
 
 /// Reads a Wavefront OBJ with its MTL materials. Polygons are fan-triangulated, negative indices resolved, UVs
-/// (OBJ convention, v up) flipped to glTF's (v down) with seam vertices split. The `map_Kd` texture (relative to
-/// the MTL file) becomes the texture; without one, per-vertex colours (`v x y z r g b`) or the material `Kd`
-/// become [`TriMesh::colors`]. Materials with different textures are not supported (an error says so).
+/// (OBJ convention, v up) flipped to glTF's (v down) with seam vertices split. Every material used by the faces
+/// becomes a [`Material`]: its `map_Kd` texture (relative to the MTL file; any number of textures, in any format
+/// [`load_texture`] reads) replaces `Kd` (exporters write `Kd 0.8` next to textures), otherwise `Kd` is its colour.
+/// Per-vertex colours (`v x y z r g b`, sRGB in `[0, 1]`, or `[0, 255]` when any exceeds 1) become
+/// [`TriMesh::colors`] (linear) and replace `Kd`; on a textured material they multiply the texture. Faces before
+/// any `usemtl` (or naming an unknown material) are grey, or their vertex colour.
 pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
     let text = String::from_utf8_lossy(&bytes);
@@ -170,12 +331,13 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let mut vcolors: Vec<Vec3> = Vec::new();
     let mut texcoords: Vec<Vec2> = Vec::new();
     let mut materials: HashMap<String, ObjMaterial> = HashMap::new();
-    let mut mtl_files: Vec<PathBuf> = Vec::new();
-    let mut current_material: Option<String> = None;
-    // Per triangle: corners as (position index, texcoord index or u32::MAX), and its material.
+    // Material names in order of first use by a face; triangles index into it (None: no usemtl yet).
+    let mut used: Vec<Option<String>> = Vec::new();
+    let mut current: Option<usize> = None;
+    let mut current_name: Option<String> = None;
+    // Per triangle: corners as (position index, texcoord index or u32::MAX), and its index into `used`.
     let mut corners: Vec<[(u32, u32); 3]> = Vec::new();
-    let mut tri_material: Vec<Option<String>> = Vec::new();
-    let mut used_materials: Vec<String> = Vec::new();
+    let mut tri_used: Vec<u32> = Vec::new();
 
     let parse_f = |tok: Option<&str>, line: usize, what: &str| -> Result<f32, MeshIoError> {
         let tok = tok.ok_or_else(|| obj_err(line, format!("{what}: missing coordinate")))?;
@@ -197,9 +359,9 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 let y = parse_f(it.next(), line, "v")?;
                 let z = parse_f(it.next(), line, "v")?;
                 positions.push(Vec3::new(x, y, z));
-                let c: Vec<f32> = it.filter_map(|t| t.parse().ok()).collect();
-                if c.len() >= 3 {
-                    vcolors.resize(positions.len() - 1, Vec3::splat(0.7));
+                let c: Vec<f32> = it.take(3).filter_map(|t| t.parse().ok()).collect();
+                if c.len() == 3 && c.iter().all(|v| v.is_finite()) {
+                    vcolors.resize(positions.len() - 1, Vec3::ONE);
                     vcolors.push(Vec3::new(c[0], c[1], c[2]));
                 }
             }
@@ -232,77 +394,100 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 if poly.len() < 3 {
                     return Err(obj_err(line, format!("f: a face needs 3 vertices, got {}", poly.len())));
                 }
-                if let Some(m) = &current_material {
-                    if !used_materials.contains(m) {
-                        used_materials.push(m.clone());
-                    }
-                }
+                let m = *current.get_or_insert_with(|| {
+                    used.push(current_name.clone());
+                    used.len() - 1
+                });
                 for k in 1..poly.len() - 1 {
                     corners.push([poly[0], poly[k], poly[k + 1]]);
-                    tri_material.push(current_material.clone());
+                    tri_used.push(m as u32);
                 }
             }
             "mtllib" => {
                 for name in split_file_list(rest) {
                     let mtl_path = dir.join(name.replace('\\', "/"));
                     parse_mtl(&mtl_path, &mut materials)?;
-                    mtl_files.push(mtl_path);
                 }
             }
-            "usemtl" => current_material = Some(rest.to_string()),
+            "usemtl" => {
+                current_name = Some(rest.to_string());
+                current = used.iter().position(|u| u.as_deref() == Some(rest));
+            }
             _ => {}
         }
     }
 
-    // The single texture used by the faces, if any.
-    let mtl_path = mtl_files.first().cloned().unwrap_or_else(|| path.to_path_buf());
-    let mut texture_name: Option<String> = None;
-    for m in &used_materials {
-        if let Some(map) = materials.get(m).and_then(|m| m.map_kd.clone()) {
-            match &texture_name {
-                Some(t) if *t != map => {
-                    return Err(MeshIoError::Texture {
-                        path: mtl_path,
-                        texture: map,
-                        message: format!("a second base-colour texture (first was {t:?}); bake them into one"),
-                    })
-                }
-                _ => texture_name = Some(map),
+    // Vertex colours are sRGB display values; some writers use 0..255.
+    if vcolors.iter().any(|c| c.max_element() > 1.0) {
+        vcolors.iter_mut().for_each(|c| *c /= 255.0);
+    }
+    vcolors.iter_mut().for_each(|c| *c = c.clamp(Vec3::ZERO, Vec3::ONE).to_array().map(srgb_to_linear).into());
+    let has_vcolors = !vcolors.is_empty();
+    vcolors.resize(if has_vcolors { positions.len() } else { 0 }, Vec3::ONE);
+
+    // One material per used name; textures decoded once each.
+    let mut textures: HashMap<PathBuf, Arc<image::RgbImage>> = HashMap::new();
+    let mut out_materials = Vec::with_capacity(used.len());
+    let mut textured = Vec::with_capacity(used.len());
+    for name in &used {
+        let def = name.as_ref().and_then(|n| materials.get(n));
+        let grey = if has_vcolors { Vec3::ONE } else { Vec3::splat(DEFAULT_ALBEDO) };
+        let label = name.clone().unwrap_or_default();
+        let material = match def {
+            Some(ObjMaterial { map_kd: Some(map), mtl, .. }) if !texcoords.is_empty() => {
+                let mtl_dir = mtl.parent().unwrap_or(dir);
+                let key = mtl_dir.join(map);
+                let tex = match textures.get(&key) {
+                    Some(t) => Arc::clone(t),
+                    None => {
+                        let t = load_texture(mtl_dir, map, mtl)?;
+                        textures.insert(key, Arc::clone(&t));
+                        t
+                    }
+                };
+                Material::textured(&label, tex)
+            }
+            Some(ObjMaterial { kd: Some(kd), .. }) if !has_vcolors => Material::color(&label, *kd),
+            _ => Material::color(&label, grey),
+        };
+        textured.push(material.texture.is_some());
+        out_materials.push(material);
+    }
+    // A referenced texture that is missing is an error even when the file has no UVs to use it.
+    for name in used.iter().flatten() {
+        if let Some(ObjMaterial { map_kd: Some(map), mtl, .. }) = materials.get(name) {
+            let mtl_dir = mtl.parent().unwrap_or(dir);
+            if resolve_texture(mtl_dir, &mtl_dir.join(map.replace('\\', "/"))).is_none() {
+                return Err(MeshIoError::Texture {
+                    path: mtl.clone(),
+                    texture: mtl_dir.join(map).display().to_string(),
+                    message: "file not found".into(),
+                });
             }
         }
     }
-    let texture = match &texture_name {
-        Some(name) => {
-            let tex_path = mtl_path.parent().unwrap_or(dir).join(name.replace('\\', "/"));
-            let img = image::open(&tex_path).map_err(|e| MeshIoError::Texture {
-                path: mtl_path.clone(),
-                texture: tex_path.display().to_string(),
-                message: e.to_string(),
-            })?;
-            Some(img.to_rgb8())
-        }
-        None => None,
-    };
-    let textured = texture.is_some() && !texcoords.is_empty();
+    let any_textured = textured.iter().any(|&t| t);
+    // No face names a material the MTL files define: appearance from the vertex colours (or grey) alone.
+    let no_materials = used.iter().all(|u| u.as_ref().and_then(|n| materials.get(n)).is_none());
 
-    // Split vertices per (position, texcoord) pair so UVs are per vertex.
+    // Split vertices per (position, texcoord) pair on textured triangles so UVs are per vertex.
     let mut remap: HashMap<(u32, u32), u32> = HashMap::new();
     let mut out_pos = Vec::new();
     let mut out_uv = Vec::new();
     let mut out_col = Vec::new();
     let mut triangles = Vec::with_capacity(corners.len());
-    for (t, tri) in corners.iter().enumerate() {
+    for (tri, &m) in corners.iter().zip(&tri_used) {
+        let tex = textured[m as usize];
         let mut idx = [0u32; 3];
         for (k, &(vi, ti)) in tri.iter().enumerate() {
-            let key = if textured { (vi, ti) } else { (vi, u32::MAX) };
+            let key = if tex { (vi, ti) } else { (vi, u32::MAX) };
             idx[k] = *remap.entry(key).or_insert_with(|| {
                 out_pos.push(positions[vi as usize]);
-                if textured {
-                    out_uv.push(if ti == u32::MAX { Vec2::ZERO } else { texcoords[ti as usize] });
-                } else {
-                    let kd = tri_material[t].as_ref().and_then(|m| materials.get(m)).and_then(|m| m.kd);
-                    let c = vcolors.get(vi as usize).copied().or(kd).unwrap_or(Vec3::splat(0.7));
-                    out_col.push(c);
+                if any_textured {
+                    out_uv.push(texcoords.get(ti as usize).copied().unwrap_or(Vec2::ZERO));
+                }
+                if has_vcolors {
+                    out_col.push(vcolors[vi as usize]);
                 }
                 (out_pos.len() - 1) as u32
             });
@@ -312,8 +497,14 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let mut mesh = TriMesh::new(out_pos, triangles);
     mesh.uvs = out_uv;
     mesh.colors = out_col;
-    check_mesh(path, &mesh)?;
-    Ok(TexturedMesh { mesh, texture: if textured { texture } else { None } })
+    let several = out_materials.len() > 1;
+    let out = TexturedMesh {
+        mesh,
+        materials: if no_materials { Vec::new() } else { out_materials },
+        triangle_materials: if several && !no_materials { tri_used } else { Vec::new() },
+    };
+    check_mesh(path, &out)?;
+    Ok(out)
 }
 
 /// File names on an `mtllib` line: whitespace separated unless the whole rest names one file with spaces.
@@ -326,7 +517,8 @@ fn split_file_list(rest: &str) -> Vec<String> {
 }
 
 fn parse_mtl(path: &Path, materials: &mut HashMap<String, ObjMaterial>) -> Result<(), MeshIoError> {
-    let text = std::fs::read_to_string(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
+    let text = String::from_utf8_lossy(&bytes);
     let mut current: Option<String> = None;
     for (lineno, raw) in text.lines().enumerate() {
         let l = raw.trim();
@@ -335,9 +527,9 @@ fn parse_mtl(path: &Path, materials: &mut HashMap<String, ObjMaterial>) -> Resul
         match key {
             "newmtl" => {
                 current = Some(rest.to_string());
-                materials.entry(rest.to_string()).or_default();
+                materials.insert(rest.to_string(), ObjMaterial { mtl: path.to_path_buf(), ..Default::default() });
             }
-            "Kd" | "map_Kd" => {
+            k if k.eq_ignore_ascii_case("Kd") || k.eq_ignore_ascii_case("map_Kd") => {
                 let Some(name) = &current else {
                     return Err(MeshIoError::Obj {
                         path: path.to_path_buf(),
@@ -346,10 +538,14 @@ fn parse_mtl(path: &Path, materials: &mut HashMap<String, ObjMaterial>) -> Resul
                     });
                 };
                 let m = materials.entry(name.clone()).or_default();
-                if key == "Kd" {
-                    let c: Vec<f32> = rest.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+                if key.eq_ignore_ascii_case("Kd") {
+                    let c: Vec<f32> = rest
+                        .split_whitespace()
+                        .filter_map(|t| t.parse().ok())
+                        .filter(|v: &f32| v.is_finite())
+                        .collect();
                     if c.len() >= 3 {
-                        m.kd = Some(Vec3::new(c[0], c[1], c[2]));
+                        m.kd = Some(Vec3::new(c[0], c[1], c[2]).max(Vec3::ZERO));
                     }
                 } else {
                     m.map_kd = Some(strip_map_options(rest));
@@ -380,9 +576,10 @@ fn strip_map_options(rest: &str) -> String {
 // ------------------------------------------------------------------------------------------------------------
 
 /// Reads a glTF 2.0 file (`.gltf` with its buffers/images, or `.glb`): every triangle primitive of the default
-/// scene, with node transforms applied, merged into one mesh. UVs are `TEXCOORD_0`; the texture is the base-colour
-/// texture of the materials (one texture at most); untextured primitives get the material's base colour factor
-/// (or `COLOR_0`) as per-vertex colour.
+/// scene, with node transforms applied, merged into one mesh. Each glTF material used becomes a [`Material`]
+/// (base colour factor and base-colour texture, any number of them; UVs from the texture's `TEXCOORD_n`);
+/// `COLOR_0` becomes [`TriMesh::colors`] (1 where a primitive has none), multiplying the material as glTF
+/// specifies. Primitives without a material get glTF's default (white).
 pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let gerr = |message: String| MeshIoError::Gltf { path: path.to_path_buf(), message };
     let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
@@ -404,22 +601,35 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let blob = gltf.blob;
     let buffers = gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(format!("buffers: {e}")))?;
 
+    struct Prim {
+        base: u32,
+        n: usize,
+        uv: Option<Vec<Vec2>>,
+        colors: Option<Vec<Vec3>>,
+        material: u32,
+    }
     let mut positions = Vec::new();
-    let mut uvs = Vec::new();
-    let mut colors = Vec::new();
     let mut triangles = Vec::new();
-    let mut texture_index: Option<usize> = None;
-    let mut any_untextured = false;
+    let mut triangle_materials: Vec<u32> = Vec::new();
+    let mut prims: Vec<Prim> = Vec::new();
+    // (glTF material index, whether its texture is sampled) -> our material; images decoded once each.
+    let mut material_ids: HashMap<(Option<usize>, bool), u32> = HashMap::new();
+    let mut materials: Vec<Material> = Vec::new();
+    let mut images: HashMap<usize, Arc<image::RgbImage>> = HashMap::new();
 
     let scene = document.default_scene().or_else(|| document.scenes().next());
-    let mut stack: Vec<(gltf::Node, Mat4)> = match &scene {
-        Some(s) => s.nodes().map(|n| (n, Mat4::IDENTITY)).collect(),
-        None => document.nodes().map(|n| (n, Mat4::IDENTITY)).collect(),
+    let mut stack: Vec<(gltf::Node, Mat4, usize)> = match &scene {
+        Some(s) => s.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect(),
+        None => document.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect(),
     };
-    while let Some((node, parent)) = stack.pop() {
+    while let Some((node, parent, depth)) = stack.pop() {
+        // A node graph with cycles (invalid, but possible in a hostile file) must not loop forever.
+        if depth > 256 {
+            return Err(gerr("the node hierarchy is deeper than 256 levels (a cycle?)".into()));
+        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
-            stack.push((child, world));
+            stack.push((child, world, depth + 1));
         }
         let Some(mesh) = node.mesh() else { continue };
         for prim in mesh.primitives() {
@@ -437,31 +647,39 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             let prim_uv: Option<Vec<Vec2>> = tex
                 .as_ref()
                 .and_then(|t| reader.read_tex_coords(t.tex_coord()))
-                .map(|tc| tc.into_f32().map(Vec2::from).collect());
-            match (&tex, &prim_uv) {
-                (Some(t), Some(uv)) if uv.len() == n => {
-                    let idx = t.texture().source().index();
-                    if texture_index.is_some_and(|i| i != idx) {
-                        return Err(MeshIoError::Texture {
-                            path: path.to_path_buf(),
-                            texture: format!("image {idx}"),
-                            message: "a second base-colour texture; bake them into one".into(),
-                        });
-                    }
-                    texture_index = Some(idx);
-                    uvs.resize(base as usize, Vec2::ZERO);
-                    uvs.extend_from_slice(uv);
+                .map(|tc| tc.into_f32().map(Vec2::from).collect::<Vec<_>>())
+                .filter(|uv| uv.len() == n);
+            let sampled = tex.is_some() && prim_uv.is_some();
+            let key = (material.index(), sampled);
+            let id = match material_ids.get(&key) {
+                Some(&id) => id,
+                None => {
+                    let factor = Vec3::from_slice(&pbr.base_color_factor()[..3]);
+                    let factor = if factor.is_finite() { factor.max(Vec3::ZERO) } else { Vec3::ONE };
+                    let texture = match (&tex, sampled) {
+                        (Some(t), true) => {
+                            let i = t.texture().source().index();
+                            Some(match images.get(&i) {
+                                Some(img) => Arc::clone(img),
+                                None => {
+                                    let img = Arc::new(decode_gltf_image(&document, i, dir, &buffers, path)?);
+                                    images.insert(i, Arc::clone(&img));
+                                    img
+                                }
+                            })
+                        }
+                        _ => None,
+                    };
+                    let name = material.name().unwrap_or("").to_string();
+                    materials.push(Material { name, base_color: factor, texture });
+                    material_ids.insert(key, materials.len() as u32 - 1);
+                    materials.len() as u32 - 1
                 }
-                _ => any_untextured = true,
-            }
-            let factor = Vec3::from_slice(&pbr.base_color_factor()[..3]);
-            let vcol: Option<Vec<Vec3>> =
-                reader.read_colors(0).map(|c| c.into_rgb_f32().map(|c| Vec3::from(c) * factor).collect());
-            colors.resize(base as usize, Vec3::splat(0.7));
-            match vcol {
-                Some(c) if c.len() == n => colors.extend(c),
-                _ => colors.extend(std::iter::repeat_n(factor, n)),
-            }
+            };
+            let colors: Option<Vec<Vec3>> = reader
+                .read_colors(0)
+                .map(|c| c.into_rgb_f32().map(|c| Vec3::from(c).clamp(Vec3::ZERO, Vec3::ONE)).collect::<Vec<_>>())
+                .filter(|c| c.len() == n);
             positions.extend(local);
             let flip = world.determinant() < 0.0;
             let mut push = |a: u32, b: u32, c: u32| {
@@ -469,6 +687,7 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                     return Err(gerr(format!("primitive index {} past its {n} vertices", a.max(b).max(c))));
                 }
                 triangles.push(if flip { [base + a, base + c, base + b] } else { [base + a, base + b, base + c] });
+                triangle_materials.push(id);
                 Ok(())
             };
             match reader.read_indices() {
@@ -484,35 +703,62 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                     }
                 }
             }
+            prims.push(Prim { base, n, uv: prim_uv.filter(|_| sampled), colors, material: id });
         }
     }
-    let texture = match texture_index {
-        Some(i) => {
-            let image = document.images().nth(i).ok_or_else(|| gerr(format!("image {i} does not exist")))?;
-            let data = gltf::image::Data::from_source(image.source(), Some(dir), &buffers).map_err(|e| {
-                MeshIoError::Texture { path: path.to_path_buf(), texture: format!("image {i}"), message: e.to_string() }
-            })?;
-            Some(gltf_image_to_rgb(&data).ok_or_else(|| MeshIoError::Texture {
-                path: path.to_path_buf(),
-                texture: format!("image {i}"),
-                message: format!("unsupported pixel format {:?}", data.format),
-            })?)
-        }
-        None => None,
-    };
+    let nv = positions.len();
     let mut mesh = TriMesh::new(positions, triangles);
-    if texture.is_some() {
-        uvs.resize(mesh.positions.len(), Vec2::ZERO);
-        mesh.uvs = uvs;
-        if any_untextured {
-            // Mixed primitives: keep per-vertex colours too so untextured parts keep their base colour.
-            mesh.colors = colors;
+    if prims.iter().any(|p| p.uv.is_some()) {
+        mesh.uvs = vec![Vec2::ZERO; nv];
+        for p in &prims {
+            if let Some(uv) = &p.uv {
+                mesh.uvs[p.base as usize..p.base as usize + p.n].copy_from_slice(uv);
+            }
         }
-    } else {
-        mesh.colors = colors;
     }
-    check_mesh(path, &mesh)?;
-    Ok(TexturedMesh { mesh, texture })
+    if prims.iter().any(|p| p.colors.is_some()) {
+        mesh.colors = vec![Vec3::ONE; nv];
+        for p in &prims {
+            if let Some(c) = &p.colors {
+                mesh.colors[p.base as usize..p.base as usize + p.n].copy_from_slice(c);
+            }
+        }
+    }
+    debug_assert!(prims.iter().all(|p| (p.material as usize) < materials.len()));
+    let several = materials.len() > 1;
+    let out =
+        TexturedMesh { mesh, materials, triangle_materials: if several { triangle_materials } else { Vec::new() } };
+    check_mesh(path, &out)?;
+    Ok(out)
+}
+
+/// Decodes glTF image `i` (embedded or external) to 8-bit sRGB RGB.
+fn decode_gltf_image(
+    document: &gltf::Document,
+    i: usize,
+    dir: &Path,
+    buffers: &[gltf::buffer::Data],
+    path: &Path,
+) -> Result<image::RgbImage, MeshIoError> {
+    let terr =
+        |message: String| MeshIoError::Texture { path: path.to_path_buf(), texture: format!("image {i}"), message };
+    let image = document.images().nth(i).ok_or_else(|| terr("does not exist".into()))?;
+    // External files go through `load_texture` (every format it reads, bounded size); embedded ones through the
+    // glTF importer.
+    match image.source() {
+        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
+            return load_texture(dir, &percent_decode(uri), path).map(|t| (*t).clone());
+        }
+        gltf::image::Source::View { view, mime_type } => {
+            let data = buffers.get(view.buffer().index()).map(|d| &d.0[..]).unwrap_or(&[]);
+            let bytes = data.get(view.offset()..view.offset().saturating_add(view.length()));
+            let bytes = bytes.ok_or_else(|| terr("its buffer view is past the end of the buffer".into()))?;
+            return decode_texture(bytes, image::ImageFormat::from_mime_type(mime_type)).map_err(terr);
+        }
+        _ => {}
+    }
+    let data = gltf::image::Data::from_source(image.source(), Some(dir), buffers).map_err(|e| terr(e.to_string()))?;
+    gltf_image_to_rgb(&data).ok_or_else(|| terr(format!("unsupported pixel format {:?}", data.format)))
 }
 
 fn percent_decode(uri: &str) -> String {
@@ -550,10 +796,12 @@ fn gltf_image_to_rgb(data: &gltf::image::Data) -> Option<image::RgbImage> {
     (rgb.len() == n * 3).then(|| image::RgbImage::from_raw(w, h, rgb)).flatten()
 }
 
-/// Encodes a mesh as glTF 2.0 binary: positions, normals, `TEXCOORD_0` and an embedded PNG base-colour texture
-/// when present (else `COLOR_0` when per-vertex colours are present), `u32` indices, and an unlit material
-/// (`KHR_materials_unlit`, so viewers show the albedo as the ground truth sees it). `name` labels the file in
-/// errors.
+/// Encodes a mesh as glTF 2.0 binary: positions, normals, `TEXCOORD_0` (when a material is textured), `COLOR_0`
+/// (when the mesh has vertex colours), `u32` indices, one primitive per material (sharing the vertex attributes)
+/// with its base colour factor and its texture embedded as PNG (each image once), all unlit
+/// (`KHR_materials_unlit`, so viewers show the albedo as the ground truth sees it). A mesh without materials gets
+/// one of [`DEFAULT_ALBEDO`] grey when it has no vertex colours, white otherwise, so reading it back gives the same
+/// albedo. `name` labels the file in errors.
 pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoError> {
     let enc = |message: String| MeshIoError::Encode { path: name.to_path_buf(), message };
     let m = &mesh.mesh;
@@ -561,7 +809,7 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     if m.is_empty() {
         return Err(MeshIoError::Empty { path: name.to_path_buf() });
     }
-    m.validate().map_err(enc)?;
+    mesh.validate().map_err(enc)?;
     if u32::try_from(nv).is_err() {
         return Err(enc("too many vertices for 32-bit indices".into()));
     }
@@ -572,8 +820,16 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
         c.compute_normals();
         c.normals
     };
-    let textured = mesh.texture.is_some() && m.uvs.len() == nv;
-    let colored = !textured && m.colors.len() == nv;
+    let colored = m.colors.len() == nv;
+    let default_material;
+    let materials: &[Material] = if mesh.materials.is_empty() {
+        let grey = if colored { Vec3::ONE } else { Vec3::splat(DEFAULT_ALBEDO) };
+        default_material = [Material::color("albedo", grey)];
+        &default_material
+    } else {
+        &mesh.materials
+    };
+    let textured = m.uvs.len() == nv && materials.iter().any(|mat| mat.texture.is_some());
 
     let mut bin: Vec<u8> = Vec::new();
     let mut views = Vec::new();
@@ -606,53 +862,82 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
         let v = push_view(&mut bin, &f32_bytes(&flat), Some(34962));
         accessors.push(json!({"bufferView": v, "componentType": 5126, "count": nv, "type": "VEC2"}));
         attributes["TEXCOORD_0"] = json!(accessors.len() - 1);
-    } else if colored {
+    }
+    if colored {
         let flat: Vec<f32> = m.colors.iter().flat_map(|c| c.clamp(Vec3::ZERO, Vec3::ONE).to_array()).collect();
         let v = push_view(&mut bin, &f32_bytes(&flat), Some(34962));
         accessors.push(json!({"bufferView": v, "componentType": 5126, "count": nv, "type": "VEC3"}));
         attributes["COLOR_0"] = json!(accessors.len() - 1);
     }
-    let idx: Vec<u8> = m.triangles.iter().flatten().flat_map(|i| i.to_le_bytes()).collect();
-    let v = push_view(&mut bin, &idx, Some(34963));
-    accessors.push(json!({"bufferView": v, "componentType": 5125, "count": m.triangles.len() * 3, "type": "SCALAR"}));
-    let indices = accessors.len() - 1;
-
+    // One primitive per material that has triangles, in material order.
+    let mut per_material: Vec<Vec<u8>> = vec![Vec::new(); materials.len()];
+    for (t, tri) in m.triangles.iter().enumerate() {
+        let k = mesh.triangle_materials.get(t).map_or(0, |&k| k as usize);
+        per_material[k].extend(tri.iter().flat_map(|i| i.to_le_bytes()));
+    }
+    let mut primitives = Vec::new();
+    for (k, idx) in per_material.iter().enumerate() {
+        if idx.is_empty() {
+            continue;
+        }
+        let v = push_view(&mut bin, idx, Some(34963));
+        accessors.push(json!({"bufferView": v, "componentType": 5125, "count": idx.len() / 4, "type": "SCALAR"}));
+        primitives.push(json!({"attributes": attributes, "indices": accessors.len() - 1, "material": k, "mode": 4}));
+    }
+    // Images: each distinct texture once, as PNG.
+    let mut images: Vec<(Arc<image::RgbImage>, usize)> = Vec::new();
+    let mut json_materials = Vec::new();
+    for mat in materials {
+        let c = mat.base_color;
+        let factor = if c.is_finite() { c.max(Vec3::ZERO) } else { Vec3::ONE };
+        let mut material = json!({
+            "name": mat.name,
+            "pbrMetallicRoughness": {"baseColorFactor": [factor.x, factor.y, factor.z, 1.0],
+                "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            "extensions": {"KHR_materials_unlit": {}},
+        });
+        if let (Some(tex), true) = (&mat.texture, textured) {
+            let image_index = match images.iter().position(|(t, _)| Arc::ptr_eq(t, tex) || **t == **tex) {
+                Some(i) => i,
+                None => {
+                    let mut png = Vec::new();
+                    let encoder = image::codecs::png::PngEncoder::new_with_quality(
+                        &mut png,
+                        image::codecs::png::CompressionType::Fast,
+                        image::codecs::png::FilterType::Adaptive,
+                    );
+                    image::ImageEncoder::write_image(
+                        encoder,
+                        tex.as_raw(),
+                        tex.width(),
+                        tex.height(),
+                        image::ExtendedColorType::Rgb8,
+                    )
+                    .map_err(|e| enc(format!("texture PNG: {e}")))?;
+                    let v = push_view(&mut bin, &png, None);
+                    images.push((Arc::clone(tex), v));
+                    images.len() - 1
+                }
+            };
+            material["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": image_index});
+        }
+        json_materials.push(material);
+    }
     let mut root = json!({
         "asset": {"version": "2.0", "generator": "r2human"},
         "extensionsUsed": ["KHR_materials_unlit"],
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "subject"}],
-        "meshes": [{"primitives": [{"attributes": attributes, "indices": indices, "material": 0, "mode": 4}]}],
+        "meshes": [{"primitives": primitives}],
+        "materials": json_materials,
     });
-    let mut material = json!({
-        "name": "albedo",
-        "pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0},
-        "extensions": {"KHR_materials_unlit": {}},
-    });
-    if textured {
-        let tex = mesh.texture.as_ref().ok_or_else(|| enc("texture vanished".into()))?;
-        let mut png = Vec::new();
-        let encoder = image::codecs::png::PngEncoder::new_with_quality(
-            &mut png,
-            image::codecs::png::CompressionType::Fast,
-            image::codecs::png::FilterType::Adaptive,
-        );
-        image::ImageEncoder::write_image(
-            encoder,
-            tex.as_raw(),
-            tex.width(),
-            tex.height(),
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(|e| enc(format!("texture PNG: {e}")))?;
-        let v = push_view(&mut bin, &png, None);
-        root["images"] = json!([{"bufferView": v, "mimeType": "image/png"}]);
+    if !images.is_empty() {
+        root["images"] =
+            json!(images.iter().map(|(_, v)| json!({"bufferView": v, "mimeType": "image/png"})).collect::<Vec<_>>());
         root["samplers"] = json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]);
-        root["textures"] = json!([{"sampler": 0, "source": 0}]);
-        material["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": 0});
+        root["textures"] = json!((0..images.len()).map(|i| json!({"sampler": 0, "source": i})).collect::<Vec<_>>());
     }
-    root["materials"] = json!([material]);
     while bin.len() % 4 != 0 {
         bin.push(0);
     }

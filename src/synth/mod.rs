@@ -214,7 +214,7 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
     mesh.uvs = assets.base.uvs.clone();
     mesh.validate().map_err(fail)?;
     let texture = texture::bake(&assets.base, &assets.parts, &assets.landmarks, &params.appearance, texture_size);
-    Ok(Subject { params: params.clone(), mesh: TexturedMesh { mesh, texture: Some(texture) }, normalization })
+    Ok(Subject { params: params.clone(), mesh: TexturedMesh::textured(mesh, texture), normalization })
 }
 
 /// The subject of a seed with the shared assets and the default texture size.
