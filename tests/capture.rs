@@ -178,8 +178,10 @@ fn segment_method_parse_and_auto() {
     let p = params();
     let mut src = WalkerSource::new(p, 0, true);
     let SourceEvent::Frame(f) = src.next_frame().unwrap() else { panic!("no frame") };
-    let seg = SegmentMethod::Auto.build(Some(&f)).unwrap();
+    let mut seg = SegmentMethod::Auto.build(Some(&f)).unwrap();
+    let mask = seg.segment(&f).unwrap();
     assert_eq!(seg.name(), "alpha");
+    assert_eq!(&mask, f.alpha.as_ref().unwrap());
     // The alpha path on a frame without alpha: a clear, recoverable message.
     let no_alpha = Frame { alpha: None, ..f };
     let err = AlphaSegmenter.segment(&no_alpha).unwrap_err();

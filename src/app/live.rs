@@ -69,6 +69,10 @@ pub trait FrameProcessor: Send + 'static {
     type Output: Send + Sync + 'static;
     /// Processes one frame with its (smoothed) mask; records its own stage timings in `stats`.
     fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<Self::Output, String>;
+
+    /// Forgets what earlier frames left behind (temporal smoothing): the next frame starts a new shot, e.g. a photo
+    /// of another size in a folder.
+    fn reset(&mut self) {}
 }
 
 /// The processor available on every build: normalisation of the person into the body cube (stage "normalise").
@@ -121,6 +125,10 @@ impl FrameProcessor for PrepareProcessor {
         }
         Ok(prepared)
     }
+
+    fn reset(&mut self) {
+        self.fof_smoother.reset();
+    }
 }
 
 /// One completed live frame for the views: the prepared input and, with the neural renderer, the encoder's
@@ -172,6 +180,9 @@ impl FrameProcessor for EncodeProcessor {
                 Ok(LiveFrame { input, neural: None })
             }
         }
+    }
+    fn reset(&mut self) {
+        self.prepare.reset();
     }
 }
 
@@ -502,6 +513,7 @@ fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, 
     let mut segmenter: Option<Box<dyn Segmenter>> = None;
     let mut smoother = MaskSmoother::new(options.mask_alpha, options.mask_reset_iou);
     let mut sequence = 0u64;
+    let mut last_size = None;
     loop {
         let (frame, arrived) = {
             let mut slot = shared.mailbox.lock().unwrap_or_else(|p| p.into_inner());
@@ -529,6 +541,11 @@ fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, 
             }
         }
         let Some(seg) = segmenter.as_mut() else { continue };
+        if last_size.replace((frame.width(), frame.height())).is_some_and(|s| s != (frame.width(), frame.height())) {
+            // A frame of another size (a folder of photos) is a new shot: no smoothing across it.
+            smoother.reset();
+            processor.reset();
+        }
         let mut local = StageStats::new(1);
         let t = Instant::now();
         let mask = seg.segment(&frame);
@@ -570,6 +587,52 @@ fn merge_stats<T>(shared: &Shared<T>, local: &StageStats, completed_at: Option<I
     }
 }
 
+/// What happened to one input frame in [`render_video`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameOutcome {
+    /// Position in the source (`u64::MAX` for a source error not tied to a frame).
+    pub index: u64,
+    /// The source's name for it (a folder's file name), when it has one.
+    pub name: Option<String>,
+    /// Width and height, when the frame was read.
+    pub size: Option<(usize, usize)>,
+    /// The PNG written, or why the frame was skipped.
+    pub result: Result<PathBuf, String>,
+    /// Which segmentation made its mask ("alpha", "onnx", "clean-plate"), when it got one.
+    pub segmented_by: Option<&'static str>,
+    /// Its size differs from the frame before it, so it was processed on its own (no temporal smoothing across).
+    pub new_size: bool,
+}
+
+impl std::fmt::Display for FrameOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.index == u64::MAX {
+            write!(f, "source")?;
+        } else {
+            write!(f, "frame {}", self.index)?;
+        }
+        match (&self.name, self.size) {
+            (Some(n), Some((w, h))) => write!(f, " ({n}, {w}x{h})")?,
+            (Some(n), None) => write!(f, " ({n})")?,
+            (None, Some((w, h))) => write!(f, " ({w}x{h})")?,
+            (None, None) => {}
+        }
+        match &self.result {
+            Ok(path) => {
+                write!(f, ": wrote {}", path.display())?;
+                if let Some(s) = self.segmented_by {
+                    write!(f, ", mask from {s}")?;
+                }
+                if self.new_size {
+                    write!(f, ", a new size: processed on its own")?;
+                }
+                Ok(())
+            }
+            Err(reason) => write!(f, ": skipped: {reason}"),
+        }
+    }
+}
+
 /// What [`render_video`] did.
 #[derive(Clone, Debug, Default)]
 pub struct RenderReport {
@@ -577,6 +640,8 @@ pub struct RenderReport {
     pub written: Vec<PathBuf>,
     /// Frames skipped, with the reason.
     pub skipped: Vec<(u64, String)>,
+    /// Every frame in source order: written or skipped, and how.
+    pub frames: Vec<FrameOutcome>,
     /// Per-stage medians over the whole run ("segment", "smooth", processor stages, "render", "write").
     pub stages: Vec<StageSummary>,
 }
@@ -601,28 +666,54 @@ pub fn render_video<P: FrameProcessor>(
     let mut segmenter: Option<Box<dyn Segmenter>> = None;
     let mut smoother = MaskSmoother::new(options.mask_alpha, options.mask_reset_iou);
     let mut sequence = 0;
-    let mut skip = |report: &mut RenderReport, index: u64, reason: String| {
+    let mut last_size = None;
+    let mut skip = |report: &mut RenderReport, outcome: FrameOutcome, reason: String| {
         on_message(&reason);
-        report.skipped.push((index, reason));
+        report.skipped.push((outcome.index, reason.clone()));
+        report.frames.push(FrameOutcome { result: Err(reason), ..outcome });
     };
     loop {
         let frame = match source.next_frame() {
             Ok(SourceEvent::Frame(f)) => f,
             Ok(SourceEvent::End) => break,
-            Err(e) if e.is_recoverable() => {
+            Err(e) => {
                 let index = match &e {
-                    CaptureError::CorruptFrame { index, .. } | CaptureError::SizeMismatch { index, .. } => *index,
+                    CaptureError::CorruptFrame { index, .. } => *index,
                     _ => u64::MAX,
                 };
-                skip(&mut report, index, e.to_string());
-                continue;
-            }
-            Err(e) => {
-                skip(&mut report, u64::MAX, e.to_string());
+                let name = source.frame_name(index);
+                let outcome = FrameOutcome {
+                    index,
+                    name,
+                    size: None,
+                    result: Err(String::new()),
+                    segmented_by: None,
+                    new_size: false,
+                };
+                let recoverable = e.is_recoverable();
+                skip(&mut report, outcome, e.to_string());
+                if recoverable {
+                    continue;
+                }
                 break;
             }
         };
         let started = Instant::now();
+        let size = (frame.width(), frame.height());
+        let new_size = last_size.replace(size).is_some_and(|s| s != size);
+        let mut outcome = FrameOutcome {
+            index: frame.index,
+            name: source.frame_name(frame.index),
+            size: Some(size),
+            result: Err(String::new()),
+            segmented_by: None,
+            new_size,
+        };
+        if new_size {
+            // A photo of another size in a folder is a new shot: no temporal smoothing across it.
+            smoother.reset();
+            processor.reset();
+        }
         if segmenter.is_none() {
             segmenter = Some(method.build(Some(&frame))?);
         }
@@ -630,15 +721,16 @@ pub fn render_video<P: FrameProcessor>(
         let mask = match stats.time("segment", || seg.segment(&frame)) {
             Ok(m) => m,
             Err(e) => {
-                skip(&mut report, frame.index, format!("frame {}: {e}", frame.index));
+                skip(&mut report, outcome, format!("frame {}: {e}", frame.index));
                 continue;
             }
         };
+        outcome.segmented_by = Some(seg.name());
         let mask = stats.time("smooth", || smoother.update(&mask));
         let output = match processor.process(&frame, &mask, &mut stats) {
             Ok(o) => o,
             Err(reason) => {
-                skip(&mut report, frame.index, LiveError::Stage { index: frame.index, reason }.to_string());
+                skip(&mut report, outcome, LiveError::Stage { index: frame.index, reason }.to_string());
                 continue;
             }
         };
@@ -654,7 +746,7 @@ pub fn render_video<P: FrameProcessor>(
         let image = match stats.time("render", || render(&done)) {
             Ok(i) => i,
             Err(reason) => {
-                skip(&mut report, frame.index, LiveError::Stage { index: frame.index, reason }.to_string());
+                skip(&mut report, outcome, LiveError::Stage { index: frame.index, reason }.to_string());
                 continue;
             }
         };
@@ -663,7 +755,8 @@ pub fn render_video<P: FrameProcessor>(
             .time("write", || crate::io::image_io::save_rgba_png(&path, &image))
             .map_err(|e| LiveError::Output { path: path.clone(), reason: e.to_string() })?;
         stats.record("frame", started.elapsed());
-        report.written.push(path);
+        report.written.push(path.clone());
+        report.frames.push(FrameOutcome { result: Ok(path), ..outcome });
     }
     report.stages = stats.summary();
     if report.written.is_empty() {

@@ -425,9 +425,9 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
         tracing::info!("live input: {}", pipeline.describe());
         PersonInput::Live(Box::new(LiveInput::new(pipeline, opts.camera.is_some(), encodes)))
     } else {
-        let (photo, mask) = image_io::load_person(&opts.image, opts.mask.as_deref())?;
-        tracing::info!("preparing the input (segmentation mask, geometry, mesh)");
-        still = PreparedInput::prepare(&photo.rgb, &mask, &prepare)?;
+        let person = crate::capture::segment::segment_photo(&opts.image, opts.mask.as_deref(), &opts.segment)?;
+        tracing::info!("preparing the input (geometry, mesh)");
+        still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)?;
         PersonInput::Still(&still)
     };
     let mut engine = Engine::new(input, &env, opts.backend, neural);

@@ -19,7 +19,6 @@ use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
 use crate::capture::{CameraRequest, SegmentMethod, SourceFactory};
 use crate::compose::Mode;
 use crate::io::environment::Environment;
-use crate::io::image_io;
 use crate::pipeline::{PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural};
 use crate::xr::{SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
 
@@ -30,8 +29,10 @@ pub enum XrInput {
     Image {
         /// The photo.
         path: PathBuf,
-        /// Person mask (white = person), same size as the image.
+        /// Person mask (white = person), same size as the image; wins over `segment`.
         mask: Option<PathBuf>,
+        /// Person segmentation of the photo without `mask` ([`crate::capture::segment::segment_photo`]).
+        segment: SegmentMethod,
     },
     /// A video file or a folder of frames, played at `fps` (frame folders) through the live pipeline.
     Video {
@@ -75,7 +76,7 @@ pub struct XrOptions {
 impl Default for XrOptions {
     fn default() -> Self {
         Self {
-            input: XrInput::Image { path: PathBuf::new(), mask: None },
+            input: XrInput::Image { path: PathBuf::new(), mask: None, segment: SegmentMethod::Auto },
             env: None,
             mode: Mode::Vr,
             frames: None,
@@ -172,9 +173,9 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     }
     let neural = load_interactive(&opts.neural)?;
     let feed: Box<dyn SceneFeed> = match &opts.input {
-        XrInput::Image { path, mask } => {
-            let (photo, mask) = image_io::load_person(path, mask.as_deref())?;
-            let prepared = PreparedInput::prepare(&photo.rgb, &mask, &PrepareOptions::default())
+        XrInput::Image { path, mask, segment } => {
+            let person = crate::capture::segment::segment_photo(path, mask.as_deref(), segment)?;
+            let prepared = PreparedInput::prepare(&person.photo.rgb, &person.mask, &PrepareOptions::default())
                 .with_context(|| format!("preparing {}", path.display()))?;
             // The encoder runs once for a photo; the eyes run only the decoder.
             let eye_neural = match &neural.renderer {
@@ -251,7 +252,7 @@ mod tests {
 
     #[test]
     fn bad_options_are_refused_with_a_sentence() {
-        let image = |p: &str| XrInput::Image { path: p.into(), mask: None };
+        let image = |p: &str| XrInput::Image { path: p.into(), mask: None, segment: SegmentMethod::Auto };
         let opts = XrOptions { input: image("missing.png"), eye_size: 8, ..Default::default() };
         assert!(run_xr_session(&opts).unwrap_err().to_string().contains("eye size 8"));
         let opts = XrOptions { input: image("missing.png"), frames: Some(0), ..Default::default() };

@@ -65,22 +65,6 @@ pub enum CaptureError {
         /// The decoder's message.
         reason: String,
     },
-    /// A frame whose size differs from the stream's first frame: skipped.
-    #[error("frame {index} (`{path}`) is {got_w}x{got_h} but the stream is {want_w}x{want_h}; it was skipped")]
-    SizeMismatch {
-        /// Position of the frame in its source.
-        index: u64,
-        /// The file the frame came from.
-        path: PathBuf,
-        /// Size of the offending frame.
-        got_w: usize,
-        /// Size of the offending frame.
-        got_h: usize,
-        /// Size of the stream.
-        want_w: usize,
-        /// Size of the stream.
-        want_h: usize,
-    },
     /// A video stream ended early (truncated file, decoder died): what was read is kept.
     #[error("the video stream from `{path}` stopped after frame {index}: {reason}")]
     StreamLost {
@@ -160,7 +144,6 @@ impl CaptureError {
         matches!(
             self,
             CaptureError::CorruptFrame { .. }
-                | CaptureError::SizeMismatch { .. }
                 | CaptureError::StreamLost { .. }
                 | CaptureError::CameraLost { .. }
                 | CaptureError::Segment { .. }
@@ -216,6 +199,11 @@ pub trait FrameSource {
     /// True for real-time sources (cameras): they deliver at their own pace and must never be waited for.
     fn is_live(&self) -> bool {
         false
+    }
+    /// What frame `index` is called for a summary (a folder's file name), when the source knows.
+    fn frame_name(&self, index: u64) -> Option<String> {
+        let _ = index;
+        None
     }
 }
 

@@ -29,32 +29,51 @@ use crate::neural::{ExecutionProvider, RuntimeOptions};
 /// synthetic walker: peak output 0.33 at 256). The MediaPipe model ignores it (fixed 256).
 pub const DEFAULT_INPUT_SIZE: usize = 512;
 
-/// File names of the installed models under `.tools/models/`, in order of preference.
+/// File names of the installed models under `.tools/models/`, in order of preference for live frames (the pose
+/// model: fast, and it tracks the person from frame to frame).
 pub const MODEL_FILES: &[&str] = &["pose_landmark_full.onnx", "isnet_seg.onnx"];
 
-/// The segmentation model: `explicit`, else `R2HUMAN_SEG_MODEL`, else the first of [`MODEL_FILES`] installed in
-/// `.tools/models/`.
+/// The same models in order of preference for still photos: ISNet first. The pose model expects a crop around a
+/// whole body and misses most of a head-and-shoulders portrait (on the bundled grace_hopper.jpg it keeps the face
+/// but loses the cap, the shoulders and most of the dark uniform, even on a second pass over the crop it found);
+/// ISNet outlines the whole person in a few seconds, which a still photo can afford. See the README.
+pub const STILL_MODEL_FILES: &[&str] = &["isnet_seg.onnx", "pose_landmark_full.onnx"];
+
+/// ISNet's input side for still photos: its native 1024 (the live default is [`DEFAULT_INPUT_SIZE`]).
+pub const STILL_INPUT_SIZE: usize = 1024;
+
+/// The segmentation model for live frames: `explicit`, else `R2HUMAN_SEG_MODEL`, else the first of
+/// [`MODEL_FILES`] installed in `.tools/models/`.
 pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, CaptureError> {
+    model_path_from(explicit, MODEL_FILES)
+}
+
+/// [`model_path`] with the installed models tried in the order of `files`.
+pub fn model_path_from(explicit: Option<&Path>, files: &[&str]) -> Result<PathBuf, CaptureError> {
+    let missing = |p: &Path, from: &str| {
+        CaptureError::Model(format!(
+            "`{}`{from} does not exist; install the models with `bash scripts/setup.d/live.sh`, or give --mask \
+             FILE (white = person)",
+            p.display()
+        ))
+    };
     if let Some(p) = explicit {
-        return if p.is_file() {
-            Ok(p.into())
-        } else {
-            Err(CaptureError::Model(format!("model file `{}` does not exist", p.display())))
-        };
+        return if p.is_file() { Ok(p.into()) } else { Err(missing(p, "")) };
     }
     if let Some(p) = std::env::var_os("R2HUMAN_SEG_MODEL").filter(|p| !p.is_empty()) {
-        return model_path(Some(Path::new(&p)));
+        let p = PathBuf::from(p);
+        return if p.is_file() { Ok(p) } else { Err(missing(&p, " (named by R2HUMAN_SEG_MODEL)")) };
     }
     let roots = crate::neural::project_roots();
-    MODEL_FILES
+    files
         .iter()
         .flat_map(|f| roots.iter().map(move |r| r.join(".tools/models").join(f)))
         .find(|p| p.is_file())
         .ok_or_else(|| {
             CaptureError::Model(format!(
-                "no segmentation model is installed (.tools/models/{}); run scripts/setup.d/live.sh, \
-                 or use --segment alpha / --segment plate",
-                MODEL_FILES[0]
+                "none is installed (.tools/models/{}); install it with `bash scripts/setup.d/live.sh`, or give \
+                 --mask FILE (white = person)",
+                files.join(" or ")
             ))
         })
 }
@@ -99,7 +118,16 @@ impl OnnxSegmenter {
     /// Loads the model (see [`model_path`]). `input_size` is used by ISNet (rounded to a multiple of 32, at least
     /// 64); the MediaPipe model has a fixed 256x256 input.
     pub fn load(model: Option<&Path>, input_size: usize) -> Result<Self, CaptureError> {
-        let path = model_path(model)?;
+        Self::load_file(model_path(model)?, input_size)
+    }
+
+    /// Loads the model for still photos: `model`, else `R2HUMAN_SEG_MODEL`, else the first installed of
+    /// [`STILL_MODEL_FILES`]; ISNet runs at [`STILL_INPUT_SIZE`].
+    pub fn load_still(model: Option<&Path>) -> Result<Self, CaptureError> {
+        Self::load_file(model_path_from(model, STILL_MODEL_FILES)?, STILL_INPUT_SIZE)
+    }
+
+    fn load_file(path: PathBuf, input_size: usize) -> Result<Self, CaptureError> {
         let fail = |e: String| CaptureError::Model(format!("cannot load `{}`: {e}", path.display()));
         let options = RuntimeOptions {
             ep: ExecutionProvider::Cpu,
@@ -121,6 +149,25 @@ impl OnnxSegmenter {
     /// Which network this is.
     pub fn kind(&self) -> SegmentationModel {
         self.kind
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Segments a still photo: like [`Segmenter::segment`], but with the pose model the photo is run twice, the
+    /// second time on the square around the person that the first pass found (the model is trained on such
+    /// crops; the first pass sees the whole photo letterboxed). Tracking state from earlier frames is ignored.
+    pub fn segment_still(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        self.track = None;
+        let first = self.segment(frame)?;
+        if self.kind != SegmentationModel::MediapipePose || self.track.is_none() {
+            return Ok(first);
+        }
+        let second = self.segment(frame)?;
+        // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
+        Ok(if second.data.iter().any(|&v| v >= 0.5) { second } else { first })
     }
 
     /// Network input side.

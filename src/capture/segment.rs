@@ -6,7 +6,7 @@
 //!
 //! Every segmenter returns a soft mask in `[0, 1]` at the frame's size.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
@@ -42,7 +42,8 @@ pub enum SegmentMethod {
         /// Network input side (a multiple of 32).
         input_size: usize,
     },
-    /// Alpha when the first frame has a non-trivial one, else the ONNX model.
+    /// Per frame: the frame's alpha when it has a real one ([`has_useful_alpha`]), else the ONNX model (loaded
+    /// when first needed).
     Auto,
 }
 
@@ -58,7 +59,29 @@ impl SegmentMethod {
         }
     }
 
-    /// Builds the segmenter; `first` (the first frame) resolves [`SegmentMethod::Auto`].
+    /// The names `--segment` accepts, for messages.
+    pub const NAMES: &'static str = "auto, alpha, onnx or plate";
+
+    /// Parses `--segment`, or a sentence naming the accepted values.
+    pub fn from_arg(s: &str) -> Result<Self, CaptureError> {
+        Self::parse(s).ok_or_else(|| CaptureError::Segment {
+            method: "--segment",
+            reason: format!("`{s}` is not known: use {}", Self::NAMES),
+        })
+    }
+
+    /// This method with the clean plate taken from `plate` (a picture of the empty scene) when given.
+    pub fn with_plate(self, plate: Option<&Path>) -> Self {
+        match (self, plate) {
+            (Self::CleanPlate { plate_frames, .. }, Some(p)) => {
+                Self::CleanPlate { plate: Some(p.into()), plate_frames }
+            }
+            (m, _) => m,
+        }
+    }
+
+    /// Builds the segmenter. With [`SegmentMethod::Auto`] a first frame that has a real alpha channel starts
+    /// with the alpha path without loading the model; the choice is then made per frame ([`AutoSegmenter`]).
     pub fn build(&self, first: Option<&Frame>) -> Result<Box<dyn Segmenter>, CaptureError> {
         match self {
             Self::Alpha => Ok(Box::new(AlphaSegmenter)),
@@ -73,12 +96,188 @@ impl SegmentMethod {
             Self::Onnx { model, input_size } => {
                 Ok(Box::new(super::onnx::OnnxSegmenter::load(model.as_deref(), *input_size)?))
             }
-            Self::Auto => match first {
-                Some(f) if has_useful_alpha(f) => Ok(Box::new(AlphaSegmenter)),
-                _ => Self::Onnx { model: None, input_size: super::onnx::DEFAULT_INPUT_SIZE }.build(first),
-            },
+            Self::Auto => {
+                let mut auto = AutoSegmenter::default();
+                if !first.is_some_and(has_useful_alpha) {
+                    auto.model = Some(super::onnx::OnnxSegmenter::load(None, super::onnx::DEFAULT_INPUT_SIZE)?);
+                }
+                Ok(Box::new(auto))
+            }
         }
     }
+}
+
+/// `--segment auto` per frame: the frame's alpha when it has a real one, else the ONNX model (loaded on the first
+/// frame that needs it). Logs each change of path.
+#[derive(Default)]
+pub struct AutoSegmenter {
+    model: Option<super::onnx::OnnxSegmenter>,
+    last: Option<&'static str>,
+}
+
+impl Segmenter for AutoSegmenter {
+    fn name(&self) -> &'static str {
+        self.last.unwrap_or("auto")
+    }
+
+    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        let (name, mask) = if has_useful_alpha(frame) {
+            ("alpha", AlphaSegmenter.segment(frame)?)
+        } else {
+            let model = match &mut self.model {
+                Some(m) => m,
+                None => self.model.insert(super::onnx::OnnxSegmenter::load(None, super::onnx::DEFAULT_INPUT_SIZE)?),
+            };
+            ("onnx", model.segment(frame)?)
+        };
+        if self.last != Some(name) {
+            match name {
+                "alpha" => {
+                    tracing::info!("segmentation: frame {} has an alpha channel; using it as the mask", frame.index)
+                }
+                _ => tracing::info!(
+                    "segmentation: frame {} has no alpha channel; using the segmentation model",
+                    frame.index
+                ),
+            }
+            self.last = Some(name);
+        }
+        Ok(mask)
+    }
+}
+
+/// Where the person mask of a still photo came from ([`segment_photo`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum MaskOrigin {
+    /// A mask file (`--mask`), which wins over every `--segment` method.
+    File(PathBuf),
+    /// The photo's own alpha channel.
+    Alpha,
+    /// The ONNX segmentation model in this file.
+    Model(PathBuf),
+    /// Clean-plate subtraction against this picture of the empty scene.
+    Plate(PathBuf),
+}
+
+impl MaskOrigin {
+    /// A short label for tables: `alpha`, `mask`, `plate`, or the model's file stem (`isnet_seg`).
+    pub fn short_name(&self) -> String {
+        match self {
+            Self::File(_) => "mask".into(),
+            Self::Alpha => "alpha".into(),
+            Self::Model(p) => p.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+            Self::Plate(_) => "plate".into(),
+        }
+    }
+}
+
+impl std::fmt::Display for MaskOrigin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::File(p) => write!(f, "the mask file {}", p.display()),
+            Self::Alpha => write!(f, "the photo's alpha channel"),
+            Self::Model(p) => write!(f, "the segmentation model {}", p.display()),
+            Self::Plate(p) => write!(f, "clean-plate subtraction against {}", p.display()),
+        }
+    }
+}
+
+/// A still photo of a person with its mask.
+#[derive(Clone, Debug)]
+pub struct SegmentedPhoto {
+    /// The decoded photo (linear RGB, alpha when the file has one).
+    pub photo: crate::io::image_io::LoadedImage,
+    /// The person mask in `[0, 1]`, the photo's size.
+    pub mask: GrayImage,
+    /// Where the mask came from.
+    pub origin: MaskOrigin,
+}
+
+/// Errors of [`segment_photo`].
+#[derive(Debug, thiserror::Error)]
+pub enum PhotoError {
+    /// The photo or the mask file cannot be read.
+    #[error(transparent)]
+    Io(#[from] crate::io::image_io::IoError),
+    /// `--segment alpha` on a photo without a real alpha channel.
+    #[error(
+        "{} has no alpha channel that separates the person (it is missing or fully opaque), so --segment alpha          cannot be used: use --segment auto or onnx (the segmentation model), or give --mask FILE (white = person)",
+        .0.display()
+    )]
+    NoAlpha(PathBuf),
+    /// `--segment plate` on a still photo without a picture of the empty scene.
+    #[error(
+        "--segment plate on the still photo {} needs --plate FILE, a photo of the same scene without the person          taken from the same place",
+        .0.display()
+    )]
+    NoPlate(PathBuf),
+    /// The segmentation model cannot be found, loaded or run.
+    #[error("{} has no alpha channel that separates the person, so it needs the {source}", path.display())]
+    Model {
+        /// The photo.
+        path: PathBuf,
+        /// What went wrong with the model (names the install script when it is missing).
+        source: CaptureError,
+    },
+    /// The segmentation model ran but marked no pixel as a person.
+    #[error(
+        "the segmentation model found no person in {}: give --mask FILE (white = person), or a photo in which the \
+         person stands out from the background",
+        .0.display()
+    )]
+    NoPerson(PathBuf),
+    /// Clean-plate segmentation failed (sizes differ, unreadable plate).
+    #[error("{0}")]
+    Plate(CaptureError),
+}
+
+/// Loads a still photo and finds the person in it (`--image` with `--mask` / `--segment`). A `mask` file wins;
+/// otherwise `method`: `alpha` = the photo's alpha (an error when it has no real one), `onnx` = the segmentation
+/// model ([`super::onnx::OnnxSegmenter::segment_still`]), `plate` = subtraction against the picture in
+/// [`SegmentMethod::CleanPlate::plate`], `auto` = the alpha when the photo has a real one (not fully opaque),
+/// else the model. The choice is logged.
+pub fn segment_photo(image: &Path, mask: Option<&Path>, method: &SegmentMethod) -> Result<SegmentedPhoto, PhotoError> {
+    let photo = crate::io::image_io::load_image(image)?;
+    let frame =
+        Frame { index: 0, timestamp: std::time::Duration::ZERO, rgb: photo.rgb.clone(), alpha: photo.alpha.clone() };
+    let done = |mask: GrayImage, origin: MaskOrigin| {
+        tracing::info!("person mask of {}: {origin}", image.display());
+        Ok(SegmentedPhoto { photo: photo.clone(), mask, origin })
+    };
+    if let Some(m) = mask {
+        let loaded = crate::io::image_io::load_mask(m, photo.rgb.width, photo.rgb.height)?;
+        return done(loaded, MaskOrigin::File(m.into()));
+    }
+    // A still's alpha is real unless it is fully opaque (an all-transparent one says there is no one: the pipeline
+    // then reports an empty mask rather than a model guessing at hidden colours).
+    let alpha = frame.alpha.as_ref().is_some_and(|a| a.data.iter().any(|&v| v < 0.5));
+    match method {
+        SegmentMethod::Alpha | SegmentMethod::Auto if alpha => {
+            done(AlphaSegmenter.segment(&frame).map_err(PhotoError::Plate)?, MaskOrigin::Alpha)
+        }
+        SegmentMethod::Alpha => Err(PhotoError::NoAlpha(image.into())),
+        SegmentMethod::CleanPlate { plate: None, .. } => Err(PhotoError::NoPlate(image.into())),
+        SegmentMethod::CleanPlate { plate: Some(p), .. } => {
+            let seg = SegmentMethod::CleanPlate { plate: Some(p.clone()), plate_frames: 1 }
+                .build(None)
+                .map_err(PhotoError::Plate)?;
+            let mut seg = seg;
+            done(seg.segment(&frame).map_err(PhotoError::Plate)?, MaskOrigin::Plate(p.clone()))
+        }
+        SegmentMethod::Onnx { model, .. } => still_model(image, &frame, model.as_deref()).and_then(|(m, o)| done(m, o)),
+        SegmentMethod::Auto => still_model(image, &frame, None).and_then(|(m, o)| done(m, o)),
+    }
+}
+
+/// The segmentation model's mask of a still photo ([`super::onnx::OnnxSegmenter::load_still`]).
+fn still_model(image: &Path, frame: &Frame, model: Option<&Path>) -> Result<(GrayImage, MaskOrigin), PhotoError> {
+    let err = |source| PhotoError::Model { path: image.into(), source };
+    let mut seg = super::onnx::OnnxSegmenter::load_still(model).map_err(err)?;
+    let mask = seg.segment_still(frame).map_err(err)?;
+    if !mask.data.iter().any(|&v| v >= 0.5) {
+        return Err(PhotoError::NoPerson(image.into()));
+    }
+    Ok((mask, MaskOrigin::Model(seg.path().to_path_buf())))
 }
 
 /// True when the frame has an alpha channel that is neither all opaque nor all transparent.

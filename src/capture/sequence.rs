@@ -63,14 +63,14 @@ pub fn list_frames(dir: &Path) -> Result<Vec<PathBuf>, CaptureError> {
 
 /// A folder of frames, read one file per `next_frame`, at a nominal rate for timestamps.
 ///
-/// The size of the first readable frame fixes the stream size; a frame of another size, or one that cannot be
-/// decoded (or has vanished since the folder was listed) is a recoverable error and is skipped.
+/// Each frame keeps its own size: a folder of photos need not share one (the consumers treat a change of size as
+/// a cut and process that frame on its own, see `app::live`). A file that cannot be decoded (or has vanished
+/// since the folder was listed) is a recoverable error and is skipped.
 pub struct ImageSequenceSource {
     dir: PathBuf,
     files: Vec<PathBuf>,
     next: usize,
     fps: f32,
-    size: Option<(usize, usize)>,
 }
 
 impl ImageSequenceSource {
@@ -78,7 +78,7 @@ impl ImageSequenceSource {
     pub fn open(dir: &Path, fps: f32) -> Result<Self, CaptureError> {
         let files = list_frames(dir)?;
         let fps = if fps.is_finite() { fps.clamp(0.1, 1000.0) } else { 30.0 };
-        Ok(Self { dir: dir.into(), files, next: 0, fps, size: None })
+        Ok(Self { dir: dir.into(), files, next: 0, fps })
     }
 
     /// Number of files in the sequence.
@@ -113,20 +113,17 @@ impl FrameSource for ImageSequenceSource {
             path: path.clone(),
             reason,
         })?;
-        let (w, h) = (rgb.width, rgb.height);
-        match self.size {
-            Some((sw, sh)) if (sw, sh) != (w, h) => {
-                return Err(CaptureError::SizeMismatch { index, path, got_w: w, got_h: h, want_w: sw, want_h: sh })
-            }
-            None => self.size = Some((w, h)),
-            _ => {}
-        }
         let timestamp = Duration::from_secs_f64(index as f64 / self.fps as f64);
         Ok(SourceEvent::Frame(Frame { index, timestamp, rgb, alpha }))
     }
 
     fn nominal_fps(&self) -> Option<f32> {
         Some(self.fps)
+    }
+
+    fn frame_name(&self, index: u64) -> Option<String> {
+        let file = self.files.get(usize::try_from(index).ok()?)?;
+        Some(file.file_name().unwrap_or_default().to_string_lossy().into_owned())
     }
 }
 

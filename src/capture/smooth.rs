@@ -78,6 +78,11 @@ impl VecSmoother {
         Self { alpha, reset_change, state: None, resets: 0 }
     }
 
+    /// Forgets the state (the next vector passes through), e.g. at a cut.
+    pub fn reset(&mut self) {
+        self.state = None;
+    }
+
     /// Smooths `v` in place (non-finite entries count as 0).
     pub fn update(&mut self, v: &mut [f32]) {
         // FOF vectors have millions of entries (8M at 512² with N = 32): every pass runs in parallel chunks.

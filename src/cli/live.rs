@@ -7,16 +7,16 @@ use clap::Args;
 
 use crate::app::mirror::{self, Backend};
 use crate::app::xr_session::{self, XrInput, XrOptions};
-use crate::cli::render::NeuralArgs;
+use crate::cli::render::{NeuralArgs, SegmentArgs};
 use crate::compose::Mode;
 
 /// Arguments of `view`.
 #[derive(Args, Debug)]
 pub struct ViewArgs {
-    /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless --mask is given.
+    /// Photo of a person (PNG/JPEG); the person is found by --mask or --segment.
     #[arg(long, required_unless_present_any = ["video", "camera"], conflicts_with_all = ["video", "camera"])]
     pub image: Option<PathBuf>,
-    /// Person mask (white = person), same size as the image.
+    /// Person mask (white = person), same size as the image; wins over --segment.
     #[arg(long)]
     pub mask: Option<PathBuf>,
     /// Live input from a video file or a folder of frames (played at --fps); the window shows the latest
@@ -26,9 +26,9 @@ pub struct ViewArgs {
     /// Live input from camera N (`r2human devices` lists them).
     #[arg(long)]
     pub camera: Option<u32>,
-    /// Person segmentation of live frames: alpha, plate (the first frames show the empty scene), onnx or auto.
-    #[arg(long, default_value = "auto")]
-    pub segment: String,
+    /// How the person is found.
+    #[command(flatten)]
+    pub segment: SegmentArgs,
     /// Frame rate of an image folder given to --video.
     #[arg(long, default_value_t = 25.0)]
     pub fps: f32,
@@ -72,10 +72,10 @@ pub struct XrArgs {
     /// Print the OpenXR runtime, its extensions, blend modes and view configuration, then exit.
     #[arg(long)]
     pub check: bool,
-    /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless --mask is given.
+    /// Photo of a person (PNG/JPEG); the person is found by --mask or --segment.
     #[arg(long, required_unless_present_any = ["check", "video", "camera"], conflicts_with_all = ["video", "camera"])]
     pub image: Option<PathBuf>,
-    /// Person mask (white = person), same size as the image.
+    /// Person mask (white = person), same size as the image; wins over --segment.
     #[arg(long, requires = "image")]
     pub mask: Option<PathBuf>,
     /// A video file or a folder of frames instead of --image: the person follows the frames (the session keeps
@@ -88,10 +88,9 @@ pub struct XrArgs {
     /// Frame rate of a --video folder of frames.
     #[arg(long, default_value_t = 25.0)]
     pub fps: f32,
-    /// Person segmentation for --video/--camera: alpha (the frames' own), plate (clean plate: the first frames
-    /// show the empty scene), onnx (segmentation model installed by scripts/setup.sh) or auto.
-    #[arg(long, default_value = "auto")]
-    pub segment: String,
+    /// How the person is found.
+    #[command(flatten)]
+    pub segment: SegmentArgs,
     /// Panorama around the viewer in VR.
     #[arg(long)]
     pub env: Option<PathBuf>,
@@ -114,9 +113,7 @@ pub struct XrArgs {
 
 /// `r2human view`.
 pub fn run_view(args: &ViewArgs) -> Result<()> {
-    let Some(segment) = crate::capture::SegmentMethod::parse(&args.segment) else {
-        anyhow::bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
-    };
+    let segment = args.segment.method()?;
     let frames = args.frames;
     let stats = mirror::run_view_with_stats(mirror::ViewOptions {
         image: args.image.clone().unwrap_or_default(),
@@ -162,17 +159,13 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
     if args.check {
         return xr_session::run_check();
     }
-    let segment = || {
-        crate::capture::SegmentMethod::parse(&args.segment)
-            .ok_or_else(|| anyhow::anyhow!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment))
-    };
+    let segment = args.segment.method()?;
     let input = match (&args.image, &args.video, args.camera) {
-        (_, Some(path), _) => XrInput::Video { path: path.clone(), fps: args.fps, segment: segment()? },
-        (_, None, Some(index)) => XrInput::Camera {
-            request: crate::capture::CameraRequest { index, ..Default::default() },
-            segment: segment()?,
-        },
-        (Some(path), None, None) => XrInput::Image { path: path.clone(), mask: args.mask.clone() },
+        (_, Some(path), _) => XrInput::Video { path: path.clone(), fps: args.fps, segment },
+        (_, None, Some(index)) => {
+            XrInput::Camera { request: crate::capture::CameraRequest { index, ..Default::default() }, segment }
+        }
+        (Some(path), None, None) => XrInput::Image { path: path.clone(), mask: args.mask.clone(), segment },
         (None, None, None) => anyhow::bail!("give --image, --video or --camera (or --check)"),
     };
     xr_session::run_xr(XrOptions {

@@ -23,6 +23,9 @@ pub struct Cli {
 pub enum Command {
     /// Render novel views of the person in a photo: one view (--yaw/--pitch) or an orbit (--orbit N).
     Render(render::RenderArgs),
+    /// Write the person in a photo as a textured glTF 2.0 binary (.glb) in metres, for Blender, game engines, web
+    /// viewers and other XR apps.
+    Export(render::ExportArgs),
     /// Run the whole pipeline on the embedded default person and panorama; writes an orbit (PNGs, GIF, contact
     /// sheet).
     Demo(render::DemoArgs),
@@ -46,6 +49,7 @@ pub fn main() -> ExitCode {
     init_logging();
     let result = match cli.command {
         Command::Render(args) => render::run_render(&args),
+        Command::Export(args) => render::run_export(&args),
         Command::Demo(args) => render::run_demo(&args),
         Command::Dataset(args) => data::run_dataset(&args),
         Command::Synth(args) => data::run_synth(&args),

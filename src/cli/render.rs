@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::app::mirror::{orbit_cameras, render_on_backend, Backend};
 use crate::buffer::GrayImage;
+use crate::capture::segment::segment_photo;
 use crate::compose::Mode;
 use crate::geometry::Camera;
 use crate::io::environment::Environment;
@@ -103,6 +104,26 @@ impl NeuralArgs {
     }
 }
 
+/// `--segment` and `--plate`: how the person is told from the background in photos and frames (`--mask` wins).
+#[derive(Args, Debug, Clone)]
+pub struct SegmentArgs {
+    /// Person segmentation: auto (the photo's or frame's alpha when it has a real one, else the segmentation
+    /// model), alpha, onnx (the model installed by scripts/setup.d/live.sh) or plate (clean plate: --plate FILE,
+    /// or the first frames of a video showing the empty scene). --mask FILE wins over all of them.
+    #[arg(long, default_value = "auto")]
+    pub segment: String,
+    /// A picture of the empty scene (same camera, same place) for --segment plate.
+    #[arg(long)]
+    pub plate: Option<PathBuf>,
+}
+
+impl SegmentArgs {
+    /// The segmentation method the options name.
+    pub fn method(&self) -> Result<crate::capture::SegmentMethod> {
+        Ok(crate::capture::SegmentMethod::from_arg(&self.segment)?.with_plate(self.plate.as_deref()))
+    }
+}
+
 /// Loads the neural renderer the options ask for (`None`: geometric).
 fn neural_for(view: &ViewOptions) -> Result<Option<SharedNeural>> {
     let setup = view.neural.setup();
@@ -121,18 +142,18 @@ fn report_fallbacks(renderer: &ViewRenderer<'_>) {
 /// Arguments of `render`.
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// Photo of a person (PNG/JPEG). Its alpha channel is the person mask unless --mask is given.
+    /// Photo of a person (PNG/JPEG); the person is found by --mask or --segment.
     #[arg(long, required_unless_present = "video")]
     pub image: Option<PathBuf>,
-    /// A video file or a folder of frames instead of --image: writes one PNG per input frame into --out.
+    /// A video file or a folder of frames (photos of any sizes) instead of --image: writes one PNG per input
+    /// frame into --out.
     #[arg(long, conflicts_with_all = ["image", "orbit"])]
     pub video: Option<PathBuf>,
-    /// Person segmentation for --video: alpha (the frames' own), plate (clean plate: the first frames show the
-    /// empty scene), onnx (segmentation model installed by scripts/setup.sh) or auto.
-    #[arg(long, default_value = "auto")]
-    pub segment: String,
-    /// Person mask (white = person), same size as the image.
-    #[arg(long)]
+    /// How the person is found.
+    #[command(flatten)]
+    pub segment: SegmentArgs,
+    /// Person mask (white = person), same size as the image; wins over --segment.
+    #[arg(long, conflicts_with = "video")]
     pub mask: Option<PathBuf>,
     /// Camera yaw in degrees around the person (0 = the photo's viewpoint, 180 = from behind).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
@@ -217,10 +238,10 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
         return run_render_video(args, video);
     }
     let image = args.image.as_deref().context("--image or --video is required")?;
-    let (photo, mask) = image_io::load_person(image, args.mask.as_deref())?;
+    let person = segment_photo(image, args.mask.as_deref(), &args.segment.method()?)?;
     let env = load_environment(&args.view)?;
     let neural = neural_for(&args.view)?;
-    let prepared = prepare(&photo, &mask, &args.view)?;
+    let prepared = prepare(&person.photo, &person.mask, &args.view)?;
     let (n, fill) = (args.orbit.unwrap_or(1), args.view.fill.into());
     let cams = orbit_cameras(n, args.yaw, args.view.pitch, args.view.size);
     if (1..=720).contains(&n) {
@@ -260,10 +281,8 @@ pub fn run_render(args: &RenderArgs) -> Result<()> {
 /// `render --video`: one PNG per input frame (frames that cannot be used are skipped with a message).
 fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
     use crate::app::live::{render_video_views, LiveOptions};
-    use crate::capture::{open_video_path, SegmentMethod};
-    let Some(segment) = SegmentMethod::parse(&args.segment) else {
-        bail!("--segment {} is not known: use alpha, plate, onnx or auto", args.segment);
-    };
+    use crate::capture::open_video_path;
+    let segment = args.segment.method()?;
     let mut source = open_video_path(video, 25.0)?;
     let neural = neural_for(&args.view)?;
     let live = LiveOptions { segment: segment.clone(), ..Default::default() };
@@ -275,6 +294,9 @@ fn run_render_video(args: &RenderArgs, video: &Path) -> Result<()> {
             eprintln!("warning: {m}")
         })?;
     let renderer = if neural.is_some() { "neural" } else { "geometric" };
+    for frame in &report.frames {
+        println!("{frame}");
+    }
     println!(
         "wrote {} frames to {} with the {renderer} renderer ({} skipped)",
         report.written.len(),
@@ -327,6 +349,63 @@ pub fn write_orbit(dir: &Path, frames: &[Frame]) -> Result<()> {
     let columns = (frames.len() as f64).sqrt().ceil() as usize;
     sequence::write_contact_sheet(&dir.join("contact_sheet.png"), frames, columns, 160)?;
     println!("wrote {} views, orbit.gif and contact_sheet.png to {}", frames.len(), dir.display());
+    Ok(())
+}
+
+/// Arguments of `export`.
+#[derive(Args, Debug)]
+pub struct ExportArgs {
+    /// Photo of a person (PNG/JPEG); the person is found by --mask or --segment.
+    #[arg(long)]
+    pub image: PathBuf,
+    /// Person mask (white = person), same size as the image; wins over --segment.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// How the person is found.
+    #[command(flatten)]
+    pub segment: SegmentArgs,
+    /// Output file (glTF 2.0 binary, .glb).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Simplify the mesh to about this many triangles (meshoptimizer), e.g. 20000 for a web viewer.
+    #[arg(long)]
+    pub decimate: Option<usize>,
+    /// The person's standing height in metres; a photo showing only the top of the person is scaled by its neck.
+    #[arg(long, default_value_t = crate::pipeline::export::DEFAULT_HEIGHT_M)]
+    pub height: f32,
+    /// Where the geometry comes from (as for render).
+    #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]
+    pub geometry: GeometryMode,
+    /// How surfaces the photo does not show are coloured (as for render).
+    #[arg(long, value_enum, default_value_t = FillArg::MirroredFront)]
+    pub fill: FillArg,
+    /// Number of Fourier occupancy coefficients (FOF-X N).
+    #[arg(long, default_value_t = 32)]
+    pub fof_order: usize,
+    /// Model folder of the FOF network (fof.onnx) for --geometry fofnet|auto; default: the project's models/tiny.
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+}
+
+/// `r2human export`.
+pub fn run_export(args: &ExportArgs) -> Result<()> {
+    if !(2..=256).contains(&args.fof_order) {
+        bail!("--fof-order {} is out of range: use 2 to 256 (32 is the reference's choice)", args.fof_order);
+    }
+    let opts = crate::pipeline::export::ExportOptions {
+        height_m: args.height,
+        fill: args.fill.into(),
+        decimate: args.decimate,
+    };
+    opts.validate()?;
+    let person = segment_photo(&args.image, args.mask.as_deref(), &args.segment.method()?)?;
+    let runtime = RuntimeOptions::default();
+    let fof_net = load_fof_net(args.geometry, args.models.as_deref(), args.fof_order, &runtime)?;
+    let prepare = PrepareOptions { fof_order: args.fof_order, geometry: args.geometry, fof_net, ..Default::default() };
+    let prepared = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)
+        .with_context(|| format!("reconstructing the person in {}", args.image.display()))?;
+    let report = crate::pipeline::export::person_glb(&args.out, &prepared, &person.mask, &opts)?;
+    println!("wrote {}: {report}", args.out.display());
     Ok(())
 }
 

@@ -26,7 +26,6 @@ use super::EvalError;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::capture::morph::{dilate, largest_component, BinaryMask};
 use crate::capture::segment::SegmentMethod;
-use crate::capture::Frame;
 use crate::geometry::camera::Camera;
 use crate::geometry::fof::{CosineTable, Fof};
 use crate::geometry::inflate::inflate_to_fof;
@@ -169,14 +168,13 @@ pub fn photo_files(dir: &Path) -> Result<Vec<PathBuf>, EvalError> {
     Ok(files)
 }
 
-/// A photo and its person mask under `method` (linear straight RGB, mask in `[0, 1]`), and the segmenter's name.
+/// A photo and its person mask under `method` (linear straight RGB, mask in `[0, 1]`), and where the mask came
+/// from ([`crate::capture::segment::MaskOrigin::short_name`]): the still-photo policy of `--image`
+/// ([`crate::capture::segment::segment_photo`]).
 pub fn segment_photo(path: &Path, method: &SegmentMethod) -> Result<(RgbImage, GrayImage, String), EvalError> {
-    let img = crate::io::image_io::load_image(path).map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
-    let frame = Frame { index: 0, timestamp: Default::default(), rgb: img.rgb, alpha: img.alpha };
-    let seg_err = |e: crate::capture::CaptureError| EvalError::io(path, std::io::Error::other(e.to_string()));
-    let mut segmenter = method.build(Some(&frame)).map_err(seg_err)?;
-    let mask = segmenter.segment(&frame).map_err(seg_err)?;
-    Ok((frame.rgb, mask, segmenter.name().to_string()))
+    let p = crate::capture::segment::segment_photo(path, None, method)
+        .map_err(|e| EvalError::io(path, std::io::Error::other(e.to_string())))?;
+    Ok((p.photo.rgb, p.mask, p.origin.short_name()))
 }
 
 /// The rendered mask's area outside its largest component, as a fraction of the mask's pixels (0 for an empty

@@ -120,6 +120,33 @@ impl TriMesh {
         Self::new(positions, triangles)
     }
 
+    /// The mesh simplified to at most about `target_triangles` triangles by meshoptimizer's edge-collapse
+    /// simplifier (`meshopt`, quadric error; positions only, so call it before UVs or colours are assigned),
+    /// with unused vertices dropped and normals recomputed. Returns the mesh and the simplifier's error relative
+    /// to the mesh extent. A mesh already at or under the target is returned unchanged with error 0. The result
+    /// can stay above the target when topology forbids further collapses.
+    pub fn simplified(&self, target_triangles: usize) -> (TriMesh, f32) {
+        if self.triangles.len() <= target_triangles || self.positions.is_empty() {
+            return (self.clone(), 0.0);
+        }
+        let positions: Vec<[f32; 3]> = self.positions.iter().map(|p| p.to_array()).collect();
+        let indices: Vec<u32> = self.triangles.iter().flatten().copied().collect();
+        let mut error = 0.0f32;
+        // Target error 1 (the whole extent): the triangle count is the only limit.
+        let mut kept = meshopt::simplify_decoder(
+            &indices,
+            &positions,
+            target_triangles.max(1) * 3,
+            1.0,
+            meshopt::SimplifyOptions::None,
+            Some(&mut error),
+        );
+        let compact = meshopt::optimize_vertex_fetch(&mut kept, &self.positions);
+        let used = kept.iter().copied().max().map_or(0, |m| m as usize + 1);
+        let triangles = kept.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        (TriMesh::new(compact[..used.min(compact.len())].to_vec(), triangles), error)
+    }
+
     /// Signed volume (positive for a closed outward-facing mesh).
     pub fn signed_volume(&self) -> f32 {
         self.triangles
@@ -147,5 +174,24 @@ mod tests {
         // Outward normals: the top vertex of the sphere points up.
         assert!(s.normals[0].y > 0.99);
         assert!(s.validate().is_ok());
+    }
+
+    #[test]
+    fn simplified_keeps_the_shape_with_fewer_triangles() {
+        let s = TriMesh::uv_sphere(Vec3::ZERO, 0.5, 48, 96);
+        let n = s.triangle_count();
+        let (d, error) = s.simplified(n / 10);
+        assert!(d.triangle_count() <= n / 10 && d.triangle_count() > n / 40, "{} of {n}", d.triangle_count());
+        assert!(d.validate().is_ok());
+        assert!(d.positions.len() < s.positions.len() / 5, "unused vertices dropped");
+        // Volume within 3 % of the sphere's, every vertex still on it, error small against the extent.
+        let exact = 4.0 / 3.0 * std::f32::consts::PI * 0.125;
+        assert!((d.signed_volume() - exact).abs() / exact < 0.03, "{}", d.signed_volume());
+        assert!(d.positions.iter().all(|p| (p.length() - 0.5).abs() < 1e-4));
+        assert!((0.0..0.05).contains(&error), "{error}");
+        // Already small enough: unchanged.
+        let (same, e) = s.simplified(n);
+        assert_eq!(same, s);
+        assert_eq!(e, 0.0);
     }
 }

@@ -58,12 +58,6 @@ pub enum IoError {
         /// Image height.
         image_h: usize,
     },
-    /// A photo without alpha was given and no mask file.
-    #[error("{} has no alpha channel, so the person cannot be told from the background: give --mask FILE (white = person) or a PNG with transparency around the person", path.display())]
-    NoMask {
-        /// The photo.
-        path: PathBuf,
-    },
     /// Writing an output failed; nothing was left at the destination.
     #[error("cannot write {path}: {reason}")]
     Write {
@@ -160,17 +154,6 @@ pub fn load_mask(path: &Path, expect_w: usize, expect_h: usize) -> Result<GrayIm
         let v = if use_alpha { px[i + 3] } else { (px[i] + px[i + 1] + px[i + 2]) / 3.0 };
         v.clamp(0.0, 1.0)
     }))
-}
-
-/// Loads a photo of a person and its mask: the `mask` file when given, else the photo's alpha channel.
-pub fn load_person(image: &Path, mask: Option<&Path>) -> Result<(LoadedImage, GrayImage), IoError> {
-    let photo = load_image(image)?;
-    let mask = match (mask, &photo.alpha) {
-        (Some(m), _) => load_mask(m, photo.rgb.width, photo.rgb.height)?,
-        (None, Some(a)) => a.clone(),
-        (None, None) => return Err(IoError::NoMask { path: image.to_owned() }),
-    };
-    Ok((photo, mask))
 }
 
 /// Encodes a linear RGB image as 8-bit sRGB.

@@ -134,6 +134,8 @@ fn try_session(
     // (raster, colour lookup, packing the decoder's inputs) run right before and after on the same cores, and
     // the spinning threads take their time.
     builder = builder.with_intra_op_spinning(false).map_err(|e| Attempt::Session(e.to_string()))?;
+    // ONNX Runtime warns about every unused initializer of some graphs (ISNet: dozens of lines); errors stay.
+    builder = builder.with_log_level(ort::logging::LogLevel::Error).map_err(|e| Attempt::Session(e.to_string()))?;
     match provider {
         ActiveProvider::Cpu => {}
         ActiveProvider::Cuda => {

@@ -11,6 +11,7 @@
 //! fusion applies to both. A decoder failure or non-finite output on a view logs a warning and that view is drawn
 //! by the geometric renderer: never a black frame.
 
+pub mod export;
 pub mod fusion;
 pub mod input;
 pub mod person;

@@ -199,7 +199,7 @@ fn mean_masked(rgb: &RgbImage, mask: &GrayImage) -> Option<Vec3> {
 /// outside the box of known pixels is exactly zero (zero weights add nothing), so each level is pulled only over
 /// that box; and a push only touches the box that the next finer level's needed box reads (its footprint halved
 /// and grown by one bilinear tap). The finest level is never materialised: it is read from `color`/`known`.
-fn push_pull(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usize, h: usize) {
+pub fn push_pull(color: &mut [Vec3], known: &[bool], needed: Option<&[bool]>, w: usize, h: usize) {
     let Some(known_box) = PixelBox::of(known, w, h) else { return };
     let needed_box = match needed {
         Some(m) => match PixelBox::of(m, w, h) {
