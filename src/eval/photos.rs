@@ -10,7 +10,7 @@
 //!   closer than one pixel (diagonal neighbours) are one component ([`detached_fraction`]);
 //! - **doubled surfaces**: source columns where the decoded occupancy has more separate intervals than a reference
 //!   occupancy explains (the silhouette-inflation prior: one interval per column), as a fraction of the person's
-//!   pixels ([`doubled_fraction`]). A face or torso drawn as two shells, one behind the other, shows here. An arm
+//!   pixels ([`crate::geometry::shells::doubled_fraction`]). A face or torso drawn as two shells, one behind the other, shows here. An arm
 //!   really in front of the torso also has two intervals; the inflation prior cannot explain it, so read the figure
 //!   as an upper bound where the photo shows crossed limbs.
 //!
@@ -27,22 +27,14 @@ use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::capture::morph::{dilate, largest_component, BinaryMask};
 use crate::capture::segment::SegmentMethod;
 use crate::geometry::camera::Camera;
-use crate::geometry::fof::{CosineTable, Fof};
 use crate::geometry::inflate::inflate_to_fof;
+use crate::geometry::shells::{doubled_fraction, INTERVAL_SAMPLES, MIN_RUN_SAMPLES};
 use crate::io::npy::write_atomic;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, SharedFofNet, SharedNeural, ViewRenderer};
 
 /// The yaws every photo is rendered at (degrees; pitch 0).
 pub const PHOTO_YAWS: [f32; 6] = [0.0, 30.0, 60.0, 90.0, 135.0, 180.0];
-
-/// Depth samples per column when counting occupancy intervals.
-const INTERVAL_SAMPLES: usize = 128;
-
-/// Occupancy intervals separated by a gap shorter than this many depth samples are one interval, and runs shorter
-/// than this are ignored (at 128 samples over the cube's depth of 2: 0.031 body-cube units, under 3 cm at a body
-/// height of 1.8 units = 1.75 m).
-const MIN_RUN_SAMPLES: usize = 2;
 
 /// The area outside the largest component above which a view counts as having a detached fragment (fraction of
 /// the person's pixels).
@@ -121,6 +113,9 @@ pub struct PhotoRow {
     pub doubled: f32,
     /// Per-input milliseconds (normalise, geometry, mesh, source raster, encoder when neural).
     pub ms_per_input: f32,
+    /// True when the geometry's network output was rejected by the pipeline's guard
+    /// ([`crate::pipeline::guard`]) and the prior it refined was used instead.
+    pub guard_fallback: bool,
 }
 
 impl PhotoRow {
@@ -190,66 +185,6 @@ pub fn detached_fraction(mask: &BinaryMask) -> f32 {
     outside as f32 / total as f32
 }
 
-/// The occupancy intervals of one decoded column: runs at or above `level`, runs separated by fewer than
-/// [`MIN_RUN_SAMPLES`] empty samples merged, runs shorter than [`MIN_RUN_SAMPLES`] ignored.
-pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
-    let mut runs: Vec<(usize, usize)> = Vec::new();
-    let mut start = None;
-    for (i, &o) in occupancy.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
-        match (o >= level, start) {
-            (true, None) => start = Some(i),
-            (false, Some(s)) => {
-                match runs.last_mut() {
-                    Some(last) if s - last.1 < MIN_RUN_SAMPLES => last.1 = i,
-                    _ => runs.push((s, i)),
-                }
-                start = None;
-            }
-            _ => {}
-        }
-    }
-    runs.iter().filter(|(s, e)| e - s >= MIN_RUN_SAMPLES).count()
-}
-
-/// Fraction of the person's columns (`mask` at least 0.5) where `fof` decodes to more occupancy intervals than
-/// `reference` does: surfaces the reference (e.g. the silhouette-inflation prior, one shell per column) cannot
-/// explain. Both FOFs must share the mask's grid; 0 for an empty mask.
-pub fn doubled_fraction(fof: &Fof, reference: &Fof, mask: &GrayImage) -> f32 {
-    use rayon::prelude::*;
-    if (fof.width, fof.height) != (mask.width, mask.height)
-        || (reference.width, reference.height) != (fof.width, fof.height)
-    {
-        return f32::NAN;
-    }
-    let level = crate::geometry::marching::ISO_LEVEL;
-    let table = CosineTable::new(fof.n, INTERVAL_SAMPLES);
-    let reference_table = CosineTable::new(reference.n, INTERVAL_SAMPLES);
-    let (doubled, person) = (0..fof.height)
-        .into_par_iter()
-        .map(|row| {
-            let (mut a, mut b) = (vec![0.0f32; INTERVAL_SAMPLES], vec![0.0f32; INTERVAL_SAMPLES]);
-            let (mut doubled, mut person) = (0usize, 0usize);
-            for col in 0..fof.width {
-                if *mask.get(col, row) < 0.5 {
-                    continue;
-                }
-                person += 1;
-                fof.decode_column_with(&table, col, row, &mut a);
-                reference.decode_column_with(&reference_table, col, row, &mut b);
-                if count_intervals(&a, level) > count_intervals(&b, level).max(1) {
-                    doubled += 1;
-                }
-            }
-            (doubled, person)
-        })
-        .reduce(|| (0, 0), |p, q| (p.0 + q.0, p.1 + q.1));
-    if person == 0 {
-        0.0
-    } else {
-        doubled as f32 / person as f32
-    }
-}
-
 /// Runs one method on a segmented photo: returns its row and its views (yaw 0 first, as in [`PHOTO_YAWS`]).
 fn run_method(
     name: &str,
@@ -294,6 +229,7 @@ fn run_method(
     let prior =
         inflate_to_fof(&input.normalised.mask, input.fof.n, &prepare.inflate).map_err(|e| fail(e.to_string()))?;
     let doubled = doubled_fraction(&input.fof, &prior, &input.normalised.mask);
+    let guard_fallback = method.geometry != GeometryMode::Inflate && input.fof == prior;
     let row = PhotoRow {
         photo: name.to_string(),
         method: method.label.clone(),
@@ -302,6 +238,7 @@ fn run_method(
         detached,
         doubled,
         ms_per_input,
+        guard_fallback,
     };
     Ok((row, views))
 }
@@ -406,11 +343,14 @@ pub fn run_photo_eval_with(
 
 fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &PhotoReport) -> Result<(), EvalError> {
     let yaw_cols: Vec<String> = PHOTO_YAWS.iter().map(|y| format!("detached_yaw{}", *y as i32)).collect();
-    let mut csv = format!("photo,method,segmentation,input_psnr,doubled,{},ms_per_input,passes\n", yaw_cols.join(","));
+    let mut csv = format!(
+        "photo,method,segmentation,input_psnr,doubled,{},ms_per_input,passes,guard_fallback\n",
+        yaw_cols.join(",")
+    );
     for r in &rep.rows {
         let detached: Vec<String> = r.detached.iter().map(|d| format!("{d:.5}")).collect();
         csv.push_str(&format!(
-            "{},{},{},{:.3},{:.5},{},{:.1},{}\n",
+            "{},{},{},{:.3},{:.5},{},{:.1},{},{}\n",
             r.photo,
             r.method,
             r.segmentation,
@@ -418,7 +358,8 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
             r.doubled,
             detached.join(","),
             r.ms_per_input,
-            r.passes()
+            r.passes(),
+            r.guard_fallback
         ));
     }
     let p = opts.out.join("photos.csv");
@@ -433,9 +374,11 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
          - **doubled**: the fraction of the person's source columns whose decoded occupancy has more intervals \
          (runs over {} depth samples, gaps under {} samples merged) than the silhouette-inflation prior; a geometry \
          counts as doubled above {:.0} %. An arm really in front of the torso counts too, so this is an upper \
-         bound on photos with crossed limbs.\n\n\
-         | photo | method | segmentation | input PSNR | detached (worst yaw) | doubled | ms/input | checks |\n\
-         |---|---|---|---|---|---|---|---|\n",
+         bound on photos with crossed limbs.\n\
+         - **guard**: `prior` where the pipeline's guard rejected the network's geometry (doubled shells or detached \
+         volume, `pipeline::guard`) and the method drew the prior it refined instead.\n\n\
+         | photo | method | segmentation | input PSNR | detached (worst yaw) | doubled | guard | ms/input | checks |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
         rep.sheets.len(),
         opts.dir.display(),
         opts.size,
@@ -454,7 +397,7 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
                 .enumerate()
                 .fold((0, 0.0f32), |best, (i, d)| if d > best.1 { (i, d) } else { best });
         md.push_str(&format!(
-            "| {} | {} | {} | {:.2} | {:.2} % (yaw {}) | {:.2} % | {:.0} | {} |\n",
+            "| {} | {} | {} | {:.2} | {:.2} % (yaw {}) | {:.2} % | {} | {:.0} | {} |\n",
             r.photo,
             r.method,
             r.segmentation,
@@ -462,6 +405,7 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
             worst * 100.0,
             PHOTO_YAWS[worst_i],
             r.doubled * 100.0,
+            if r.guard_fallback { "prior" } else { "-" },
             r.ms_per_input,
             if r.passes() { "pass" } else { "FAIL" }
         ));
@@ -492,7 +436,6 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::mesh::TriMesh;
 
     fn mask_from(rows: &[&str]) -> BinaryMask {
         let (w, h) = (rows[0].len(), rows.len());
@@ -514,72 +457,5 @@ mod tests {
         // 8 body pixels, 2 fragment pixels three columns away: 2 / 10.
         let m = mask_from(&["####....##", "####......"]);
         assert!((detached_fraction(&m) - 0.2).abs() < 1e-6);
-    }
-
-    #[test]
-    fn intervals_are_counted_with_small_gaps_merged_and_specks_ignored() {
-        let occ = |s: &str| s.chars().map(|c| if c == '#' { 1.0 } else { 0.0 }).collect::<Vec<f32>>();
-        assert_eq!(count_intervals(&occ("....####...."), 0.5), 1);
-        assert_eq!(count_intervals(&occ("..###...###."), 0.5), 2);
-        assert_eq!(count_intervals(&occ("..###.###..."), 0.5), 1, "a one-sample gap is one interval");
-        assert_eq!(count_intervals(&occ("..###....#.."), 0.5), 1, "a one-sample speck is ignored");
-        assert_eq!(count_intervals(&occ("############"), 0.5), 1);
-        assert_eq!(count_intervals(&occ("............"), 0.5), 0);
-        assert_eq!(count_intervals(&occ("##........##"), 0.5), 2, "runs touching both ends");
-    }
-
-    /// An axis-aligned box mesh (outward faces) from `lo` to `hi`.
-    fn cuboid(lo: Vec3, hi: Vec3) -> TriMesh {
-        let p = |i: usize| {
-            Vec3::new(
-                if i & 1 == 0 { lo.x } else { hi.x },
-                if i & 2 == 0 { lo.y } else { hi.y },
-                if i & 4 == 0 { lo.z } else { hi.z },
-            )
-        };
-        let positions = (0..8).map(p).collect();
-        let faces = [
-            [0, 2, 3, 1], // -z
-            [4, 5, 7, 6], // +z
-            [0, 1, 5, 4], // -y
-            [2, 6, 7, 3], // +y
-            [0, 4, 6, 2], // -x
-            [1, 3, 7, 5], // +x
-        ];
-        let triangles = faces.iter().flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]]).collect();
-        TriMesh::new(positions, triangles)
-    }
-
-    fn merged(a: TriMesh, b: TriMesh) -> TriMesh {
-        let offset = a.positions.len() as u32;
-        let mut positions = a.positions;
-        positions.extend(b.positions);
-        let mut triangles = a.triangles;
-        triangles.extend(b.triangles.iter().map(|t| t.map(|i| i + offset)));
-        TriMesh::new(positions, triangles)
-    }
-
-    #[test]
-    fn two_shells_count_as_doubled_and_one_does_not() {
-        let res = 32;
-        let slab = cuboid(Vec3::new(-0.5, -0.5, -0.1), Vec3::new(0.5, 0.5, 0.1));
-        let one = Fof::from_mesh(&slab, res, 32).unwrap();
-        // A second shell behind the first, over the left half of the silhouette only.
-        let back = cuboid(Vec3::new(-0.5, -0.5, -0.7), Vec3::new(0.0, 0.5, -0.5));
-        let two = Fof::from_mesh(&merged(slab.clone(), back), res, 32).unwrap();
-        let mask = Image::from_fn(res, res, |c, r| {
-            let x = (c as f32 + 0.5) / (res as f32 / 2.0) - 1.0;
-            let y = 1.0 - (r as f32 + 0.5) / (res as f32 / 2.0);
-            if x.abs() < 0.5 && y.abs() < 0.5 {
-                1.0
-            } else {
-                0.0
-            }
-        });
-        assert_eq!(doubled_fraction(&one, &one, &mask), 0.0);
-        let d = doubled_fraction(&two, &one, &mask);
-        assert!((d - 0.5).abs() < 0.1, "half the columns have a second shell: {d}");
-        // The same second shell is explained when the reference has it too.
-        assert_eq!(doubled_fraction(&two, &two, &mask), 0.0);
     }
 }

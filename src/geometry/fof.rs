@@ -129,7 +129,7 @@ fn check_order(n: usize) -> Result<(), FofError> {
 /// Adds the FOF coefficients of one interval `[z_lo, z_hi]` (z in `[-1, 1]`) to `out` (length N).
 ///
 /// `sin(k theta)` comes from the Chebyshev recurrence in f64, exact to ~1e-14 for any N used here.
-fn accumulate_interval(z_lo: f32, z_hi: f32, out: &mut [f32]) {
+pub fn accumulate_interval(z_lo: f32, z_hi: f32, out: &mut [f32]) {
     let lo = (z_lo.clamp(-1.0, 1.0) as f64) + 1.0;
     let hi = (z_hi.clamp(-1.0, 1.0) as f64) + 1.0;
     if hi <= lo {

@@ -8,6 +8,7 @@ pub mod inflate;
 pub mod marching;
 pub mod mesh;
 pub mod raster;
+pub mod shells;
 pub mod zmap;
 
 pub use camera::{Camera, Fov, Projection, Ray, RayGrid, SOURCE_RESOLUTION};

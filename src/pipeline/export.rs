@@ -366,7 +366,7 @@ pub fn person_mesh(
         texture: texture.dimensions(),
         back_triangles,
     };
-    Ok((TexturedMesh { mesh: out, texture: Some(texture) }, report))
+    Ok((TexturedMesh::textured(out, texture), report))
 }
 
 /// [`person_mesh`] written to `path` as glTF 2.0 binary (atomically: a temporary file, then a rename).

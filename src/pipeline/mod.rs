@@ -13,11 +13,13 @@
 
 pub mod export;
 pub mod fusion;
+pub mod guard;
 pub mod input;
 pub mod person;
 pub mod warp;
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -303,18 +305,35 @@ pub fn compute_geometry(
         net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).refine(&normalised.rgb, &normalised.mask, &prior)
     });
     match (refined, opts.geometry) {
-        (Ok(fof), _) => Ok(fof),
-        (Err(e), GeometryMode::Auto) => {
-            // Once per process at warning level (a video would repeat it every frame), then at debug level.
-            static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-            if !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
-                tracing::warn!("the FOF net failed on this input, using the inflation prior: {e}");
-            } else {
-                tracing::debug!("the FOF net failed again, using the inflation prior: {e}");
+        (Ok(fof), _) => {
+            let (fof, rejected) = timings.time("geometry (guard)", || {
+                guard::guarded(fof, prior, &normalised.mask, &guard::GuardLimits::default())
+            });
+            if let Some(why) = rejected {
+                static WARNED: AtomicBool = AtomicBool::new(false);
+                warn_once(
+                    &WARNED,
+                    &format!("the FOF net's geometry is not one plausible person ({why}); using the prior it refined"),
+                );
             }
+            Ok(fof)
+        }
+        (Err(e), GeometryMode::Auto) => {
+            static WARNED: AtomicBool = AtomicBool::new(false);
+            warn_once(&WARNED, &format!("the FOF net failed on this input, using the inflation prior: {e}"));
             Ok(prior)
         }
         (Err(e), _) => Err(PipelineError::FofNetFailed(e)),
+    }
+}
+
+/// Logs `message` at warning level the first time `flag` is seen, at debug level afterwards (a video would repeat
+/// it every frame).
+fn warn_once(flag: &AtomicBool, message: &str) {
+    if !flag.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        tracing::warn!("{message}");
+    } else {
+        tracing::debug!("{message}");
     }
 }
 

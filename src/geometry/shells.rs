@@ -1,0 +1,399 @@
+//! Plausibility checks of a decoded FOF that need no ground truth: how many separate shells a column crosses
+//! ([`count_intervals`], [`doubled_fraction`]) and how much of the occupied volume floats apart from the body
+//! ([`detached_volume_fraction`]). A person is one connected body whose every column crosses as many shells as
+//! its silhouette and pose explain; a face drawn twice, one shell behind the other, or a sliver of arm floating
+//! beside the body break that, and a viewer notices them at once from the side.
+//!
+//! Used by the real-photo checks of `r2human eval --photos` and by the guard on predicted FOFs in the pipeline.
+
+use rayon::prelude::*;
+
+use super::fof::{accumulate_interval, CosineTable, Fof};
+use super::marching::ISO_LEVEL;
+use crate::buffer::GrayImage;
+
+/// Occupancy intervals separated by a gap shorter than this many depth samples are one interval, and runs shorter
+/// than this are ignored.
+pub const MIN_RUN_SAMPLES: usize = 2;
+
+/// Depth samples per column for [`doubled_fraction`] (at 128 over the cube's depth of 2, [`MIN_RUN_SAMPLES`] is
+/// 0.031 body-cube units: under 3 cm at a body height of 1.8 units = 1.75 m).
+pub const INTERVAL_SAMPLES: usize = 128;
+
+/// The occupancy intervals of one decoded column: runs at or above `level`, runs separated by fewer than
+/// [`MIN_RUN_SAMPLES`] empty samples merged, runs shorter than [`MIN_RUN_SAMPLES`] ignored.
+pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut start = None;
+    for (i, &o) in occupancy.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
+        match (o >= level, start) {
+            (true, None) => start = Some(i),
+            (false, Some(s)) => {
+                match runs.last_mut() {
+                    Some(last) if s - last.1 < MIN_RUN_SAMPLES => last.1 = i,
+                    _ => runs.push((s, i)),
+                }
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    runs.iter().filter(|(s, e)| e - s >= MIN_RUN_SAMPLES).count()
+}
+
+/// Fraction of the person's columns (`mask` at least 0.5) where `fof` decodes to more occupancy intervals than
+/// `reference` does (at least one is always explained): surfaces the reference (the silhouette-inflation prior,
+/// one shell per column, or a fitted body) cannot explain. Every column is tested; [`doubled_fraction_sampled`]
+/// tests a sparser grid. NaN when the grids differ; 0 for an empty mask.
+pub fn doubled_fraction(fof: &Fof, reference: &Fof, mask: &GrayImage) -> f32 {
+    doubled_fraction_sampled(fof, reference, mask, 1)
+}
+
+/// [`doubled_fraction`] over every `step`-th column and row only (`step` 4: a sixteenth of the work, for checks
+/// on the per-input path).
+pub fn doubled_fraction_sampled(fof: &Fof, reference: &Fof, mask: &GrayImage, step: usize) -> f32 {
+    let step = step.max(1);
+    if (fof.width, fof.height) != (mask.width, mask.height)
+        || (reference.width, reference.height) != (fof.width, fof.height)
+    {
+        return f32::NAN;
+    }
+    let table = CosineTable::new(fof.n, INTERVAL_SAMPLES);
+    let reference_table = CosineTable::new(reference.n, INTERVAL_SAMPLES);
+    let (doubled, person) = (0..fof.height)
+        .into_par_iter()
+        .step_by(step)
+        .map(|row| {
+            let (mut a, mut b) = (vec![0.0f32; INTERVAL_SAMPLES], vec![0.0f32; INTERVAL_SAMPLES]);
+            let (mut doubled, mut person) = (0usize, 0usize);
+            for col in (0..fof.width).step_by(step) {
+                if *mask.get(col, row) < 0.5 {
+                    continue;
+                }
+                person += 1;
+                fof.decode_column_with(&table, col, row, &mut a);
+                reference.decode_column_with(&reference_table, col, row, &mut b);
+                if count_intervals(&a, ISO_LEVEL) > count_intervals(&b, ISO_LEVEL).max(1) {
+                    doubled += 1;
+                }
+            }
+            (doubled, person)
+        })
+        .reduce(|| (0, 0), |p, q| (p.0 + q.0, p.1 + q.1));
+    if person == 0 {
+        0.0
+    } else {
+        doubled as f32 / person as f32
+    }
+}
+
+/// The occupied voxels of a FOF on a coarse grid, labelled by connected piece.
+struct Pieces {
+    /// Voxels a side in x and y, and depth samples.
+    w: usize,
+    h: usize,
+    d: usize,
+    /// Column and row step from the FOF's grid to this one.
+    step: usize,
+    /// Piece per voxel at `(y * w + x) * d + z`: 0 empty, else 1-based.
+    labels: Vec<u32>,
+    /// The largest piece's label (0 when empty).
+    largest: u32,
+    /// Occupied voxels, and those in the largest piece.
+    total: usize,
+    largest_size: usize,
+}
+
+impl Pieces {
+    /// Decodes every `step`-th column and row of `fof` at `width / step` depth samples (cubic voxels), occupancy at
+    /// the marching-cubes level, and labels the pieces connected through faces, edges and corners.
+    fn of(fof: &Fof, step: usize) -> Self {
+        let step = step.max(1);
+        let (w, h) = (fof.width.div_ceil(step), fof.height.div_ceil(step));
+        let d = (fof.width / step).max(1);
+        let table = CosineTable::new(fof.n, d);
+        let occupied: Vec<bool> = (0..h)
+            .into_par_iter()
+            .flat_map_iter(|y| {
+                let mut col = vec![0.0f32; d];
+                let mut out = vec![false; w * d];
+                for x in 0..w {
+                    let (c, r) = (x * step, y * step);
+                    if fof.is_empty_column(c, r) {
+                        continue;
+                    }
+                    fof.decode_column_with(&table, c, r, &mut col);
+                    for (z, &o) in col.iter().enumerate() {
+                        out[x * d + z] = o >= ISO_LEVEL;
+                    }
+                }
+                out
+            })
+            .collect();
+        let mut labels = vec![0u32; occupied.len()];
+        let (mut next, mut largest, mut largest_size, mut total) = (0u32, 0u32, 0usize, 0usize);
+        let mut stack = Vec::new();
+        for start in 0..occupied.len() {
+            if !occupied[start] || labels[start] != 0 {
+                continue;
+            }
+            next += 1;
+            labels[start] = next;
+            stack.push(start);
+            let mut size = 0usize;
+            while let Some(i) = stack.pop() {
+                size += 1;
+                let (z, xy) = (i % d, i / d);
+                let (x, y) = (xy % w, xy / w);
+                for j in neighbours26(x, y, z, w, h, d) {
+                    if occupied[j] && labels[j] == 0 {
+                        labels[j] = next;
+                        stack.push(j);
+                    }
+                }
+            }
+            total += size;
+            if size > largest_size {
+                (largest, largest_size) = (next, size);
+            }
+        }
+        Self { w, h, d, step, labels, largest, total, largest_size }
+    }
+
+    /// Where a run of full-resolution column `(col, row)` over depth samples `[s, e)` of `d * step` belongs:
+    /// `Some(true)` when a voxel of the largest piece lies in or next to it, `Some(false)` when only other pieces
+    /// do, `None` when the coarse grid saw nothing there (a structure thinner than its voxels).
+    fn run_in_largest(&self, col: usize, row: usize, s: usize, e: usize) -> Option<bool> {
+        let (x, y) = ((col / self.step).min(self.w - 1), (row / self.step).min(self.h - 1));
+        let mut other = false;
+        let (z0, z1) = (s / self.step, (e.saturating_sub(1) / self.step).min(self.d - 1));
+        for z in z0..=z1 {
+            let centre = (y * self.w + x) * self.d + z;
+            for j in std::iter::once(centre).chain(neighbours26(x, y, z, self.w, self.h, self.d)) {
+                match self.labels[j] {
+                    0 => {}
+                    l if l == self.largest => return Some(true),
+                    _ => other = true,
+                }
+            }
+        }
+        other.then_some(false)
+    }
+}
+
+/// The in-bounds 26-neighbourhood of voxel `(x, y, z)` as indices `(y * w + x) * d + z`.
+fn neighbours26(x: usize, y: usize, z: usize, w: usize, h: usize, d: usize) -> impl Iterator<Item = usize> {
+    (-1i64..=1).flat_map(move |dy| {
+        (-1i64..=1).flat_map(move |dx| {
+            (-1i64..=1).filter_map(move |dz| {
+                let (nx, ny, nz) = (x as i64 + dx, y as i64 + dy, z as i64 + dz);
+                let inside = nx >= 0 && ny >= 0 && nz >= 0 && nx < w as i64 && ny < h as i64 && nz < d as i64;
+                (inside && (dx, dy, dz) != (0, 0, 0)).then(|| ((ny as usize * w) + nx as usize) * d + nz as usize)
+            })
+        })
+    })
+}
+
+/// Fraction of the occupied volume outside the largest connected piece: the FOF decoded on a voxel grid of every
+/// `step`-th column and row (`width / step` depth samples, so voxels are cubes), occupancy at the marching-cubes
+/// level, voxels connected through faces, edges and corners (26-neighbourhood). 0 for an empty field.
+pub fn detached_volume_fraction(fof: &Fof, step: usize) -> f32 {
+    let p = Pieces::of(fof, step);
+    if p.total == 0 {
+        0.0
+    } else {
+        (p.total - p.largest_size) as f32 / p.total as f32
+    }
+}
+
+/// The FOF with every piece but the largest removed (pieces found as in [`detached_volume_fraction`]): each
+/// column's occupancy runs (at `width` depth samples) that lie only in other pieces are dropped and the column is
+/// re-encoded from the runs it keeps ([`crate::geometry::fof::accumulate_interval`]); columns with nothing to drop
+/// keep their coefficients exactly. Runs thinner than the coarse grid's voxels stay. Returns the field and the
+/// number of columns changed.
+pub fn keep_largest_piece(fof: &Fof, step: usize) -> (Fof, usize) {
+    let pieces = Pieces::of(fof, step);
+    if pieces.total == pieces.largest_size {
+        return (fof.clone(), 0);
+    }
+    // Columns whose coarse neighbourhood holds a voxel of another piece: only these can change.
+    let (w, h, d) = (pieces.w, pieces.h, pieces.d);
+    let mut other_near = vec![false; w * h];
+    for (i, &l) in pieces.labels.iter().enumerate() {
+        if l != 0 && l != pieces.largest {
+            let (x, y) = ((i / d) % w, (i / d) / w);
+            for ny in y.saturating_sub(1)..(y + 2).min(h) {
+                for nx in x.saturating_sub(1)..(x + 2).min(w) {
+                    other_near[ny * w + nx] = true;
+                }
+            }
+        }
+    }
+    let samples = pieces.d * pieces.step;
+    let table = CosineTable::new(fof.n, samples);
+    let mut out = fof.clone();
+    let changed: usize = out
+        .coeffs
+        .par_chunks_mut(fof.n * fof.width)
+        .enumerate()
+        .map(|(row, coeffs)| {
+            let mut occ = vec![0.0f32; samples];
+            let mut changed = 0;
+            for col in 0..fof.width {
+                let coarse = ((row / pieces.step).min(h - 1)) * w + (col / pieces.step).min(w - 1);
+                if !other_near[coarse] || fof.is_empty_column(col, row) {
+                    continue;
+                }
+                fof.decode_column_with(&table, col, row, &mut occ);
+                let mut kept = Vec::new();
+                let mut dropped = false;
+                let mut start = None;
+                for (i, &o) in occ.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
+                    match (o >= ISO_LEVEL, start) {
+                        (true, None) => start = Some(i),
+                        (false, Some(s)) => {
+                            start = None;
+                            if pieces.run_in_largest(col, row, s, i) == Some(false) {
+                                dropped = true;
+                            } else {
+                                kept.push((s, i));
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+                if dropped {
+                    let c = &mut coeffs[col * fof.n..(col + 1) * fof.n];
+                    c.fill(0.0);
+                    let z = |i: usize| 2.0 * i as f32 / samples as f32 - 1.0;
+                    for (s, e) in kept {
+                        accumulate_interval(z(s), z(e), c);
+                    }
+                    changed += 1;
+                }
+            }
+            changed
+        })
+        .sum();
+    (out, changed)
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::buffer::Image;
+    use crate::geometry::mesh::TriMesh;
+
+    /// An axis-aligned box mesh (outward faces) from `lo` to `hi`.
+    pub(crate) fn cuboid(lo: Vec3, hi: Vec3) -> TriMesh {
+        let p = |i: usize| {
+            Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            )
+        };
+        let positions = (0..8).map(p).collect();
+        let faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+        let triangles = faces.iter().flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]]).collect();
+        TriMesh::new(positions, triangles)
+    }
+
+    fn merged(a: TriMesh, b: TriMesh) -> TriMesh {
+        let offset = a.positions.len() as u32;
+        let mut positions = a.positions;
+        positions.extend(b.positions);
+        let mut triangles = a.triangles;
+        triangles.extend(b.triangles.iter().map(|t| t.map(|i| i + offset)));
+        TriMesh::new(positions, triangles)
+    }
+
+    #[test]
+    fn intervals_are_counted_with_small_gaps_merged_and_specks_ignored() {
+        let occ = |s: &str| s.chars().map(|c| if c == '#' { 1.0 } else { 0.0 }).collect::<Vec<f32>>();
+        assert_eq!(count_intervals(&occ("....####...."), 0.5), 1);
+        assert_eq!(count_intervals(&occ("..###...###."), 0.5), 2);
+        assert_eq!(count_intervals(&occ("..###.###..."), 0.5), 1, "a one-sample gap is one interval");
+        assert_eq!(count_intervals(&occ("..###....#.."), 0.5), 1, "a one-sample speck is ignored");
+        assert_eq!(count_intervals(&occ("############"), 0.5), 1);
+        assert_eq!(count_intervals(&occ("............"), 0.5), 0);
+        assert_eq!(count_intervals(&occ("##........##"), 0.5), 2, "runs touching both ends");
+    }
+
+    #[test]
+    fn two_shells_count_as_doubled_and_one_does_not() {
+        let res = 32;
+        let slab = cuboid(Vec3::new(-0.5, -0.5, -0.1), Vec3::new(0.5, 0.5, 0.1));
+        let one = Fof::from_mesh(&slab, res, 32).unwrap();
+        // A second shell behind the first, over the left half of the silhouette only.
+        let back = cuboid(Vec3::new(-0.5, -0.5, -0.7), Vec3::new(0.0, 0.5, -0.5));
+        let two = Fof::from_mesh(&merged(slab.clone(), back), res, 32).unwrap();
+        let mask = Image::from_fn(res, res, |c, r| {
+            let x = (c as f32 + 0.5) / (res as f32 / 2.0) - 1.0;
+            let y = 1.0 - (r as f32 + 0.5) / (res as f32 / 2.0);
+            if x.abs() < 0.5 && y.abs() < 0.5 {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        assert_eq!(doubled_fraction(&one, &one, &mask), 0.0);
+        let d = doubled_fraction(&two, &one, &mask);
+        assert!((d - 0.5).abs() < 0.1, "half the columns have a second shell: {d}");
+        // The same second shell is explained when the reference has it too.
+        assert_eq!(doubled_fraction(&two, &two, &mask), 0.0);
+        // Grids that differ are not comparable.
+        assert!(doubled_fraction(&one, &Fof::zeros(32, 16, 16).unwrap(), &mask).is_nan());
+    }
+
+    #[test]
+    fn a_floating_block_is_its_share_of_the_volume() {
+        let res = 64;
+        let body = cuboid(Vec3::new(-0.5, -0.5, -0.25), Vec3::new(0.0, 0.5, 0.25));
+        let whole = Fof::from_mesh(&body, res, 32).unwrap();
+        assert!(detached_volume_fraction(&whole, 2) < 1e-3, "one block is one body");
+        // A block of an eighth of the body's volume, well apart from it.
+        let fragment = cuboid(Vec3::new(0.5, -0.25, -0.125), Vec3::new(0.75, 0.25, 0.125));
+        let two = Fof::from_mesh(&merged(body.clone(), fragment), res, 32).unwrap();
+        let f = detached_volume_fraction(&two, 2);
+        let expected = 1.0 / 9.0;
+        assert!((f - expected).abs() < 0.04, "{f} vs {expected}");
+        // A block touching the body is part of it.
+        let touching = cuboid(Vec3::new(0.0, -0.25, -0.125), Vec3::new(0.25, 0.25, 0.125));
+        let joined = Fof::from_mesh(&merged(body, touching), res, 32).unwrap();
+        assert!(detached_volume_fraction(&joined, 2) < 1e-3);
+        assert_eq!(detached_volume_fraction(&Fof::zeros(32, 16, 16).unwrap(), 1), 0.0, "empty field");
+    }
+
+    #[test]
+    fn keeping_the_largest_piece_removes_the_fragment_only() {
+        let res = 64;
+        let body = cuboid(Vec3::new(-0.5, -0.5, -0.25), Vec3::new(0.0, 0.5, 0.25));
+        let whole = Fof::from_mesh(&body, res, 32).unwrap();
+        let (same, changed) = keep_largest_piece(&whole, 2);
+        assert_eq!(changed, 0);
+        assert!(same == whole, "nothing to remove: coefficients unchanged");
+        // A fragment beside the body, and one behind it in the same columns (a doubled shell).
+        let beside = cuboid(Vec3::new(0.5, -0.25, -0.125), Vec3::new(0.75, 0.25, 0.125));
+        let behind = cuboid(Vec3::new(-0.4, 0.1, -0.8), Vec3::new(-0.1, 0.4, -0.6));
+        let broken = Fof::from_mesh(&merged(merged(body, beside), behind), res, 32).unwrap();
+        assert!(detached_volume_fraction(&broken, 2) > 0.1);
+        let (fixed, changed) = keep_largest_piece(&broken, 2);
+        assert!(changed > 0);
+        assert!(detached_volume_fraction(&fixed, 2) < 1e-3, "{}", detached_volume_fraction(&fixed, 2));
+        // The body's own columns keep their volume: the columns with the shell behind now decode like the body.
+        let mut a = vec![0.0; 64];
+        let mut b = vec![0.0; 64];
+        broken.decode_column(20, 20, 64, &mut a);
+        assert_eq!(count_intervals(&a, ISO_LEVEL), 2, "the test column crosses the body and the shell");
+        let (col, row) = (20, 20); // x = -0.36, y = 0.36: inside the body and the shell behind it
+        fixed.decode_column(col, row, 64, &mut a);
+        whole.decode_column(col, row, 64, &mut b);
+        let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert!(diff < 0.2, "re-encoded column matches the body's: {diff}");
+        assert_eq!(count_intervals(&a, ISO_LEVEL), 1);
+        assert!(fixed.coeffs.iter().all(|c| c.is_finite()));
+    }
+}
