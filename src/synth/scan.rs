@@ -257,8 +257,9 @@ pub struct DetectedOrientation {
 /// Detects a standing person's up axis and facing from their vertices (file coordinates).
 ///
 /// - Up: the axis (Y or Z) along which the vertices spread most is the height (10-90 % percentile range: legs,
-///   torso and head spread along it; a T-pose's arms are too few vertices to count): Z when its spread is over
-///   1.3 times Y's, else Y.
+///   torso and head spread along it, a body is far less deep) when one spread is over 1.3 times the other.
+///   Otherwise the other axis is a T-pose's arm span (detailed hands can hold many vertices): the height is the
+///   axis whose vertex histogram is less mirror-symmetric (a body is left-right symmetric, head and feet differ).
 /// - Facing axis: at shoulder height (55-80 % of the height, arms included) a person is wider across the body
 ///   than deep, so they face along the narrower of x and z (when one is at least 1.2 times the other; else
 ///   +z is kept).
@@ -276,11 +277,36 @@ pub fn detect_orientation(points: &[Vec3]) -> DetectedOrientation {
         v.sort_by(f32::total_cmp);
         v[v.len() * 9 / 10] - v[v.len() / 10]
     };
+    // Mirror asymmetry of the vertex histogram along an axis: about 0 across a body (left-right symmetric),
+    // large along its height (feet and head differ).
+    let asymmetry = |axis: usize| {
+        const BINS: usize = 32;
+        let (lo, hi) = points
+            .iter()
+            .map(|p| p[axis])
+            .filter(|v| v.is_finite())
+            .fold((f32::MAX, f32::MIN), |(a, b), v| (a.min(v), b.max(v)));
+        if hi <= lo {
+            return 0.0;
+        }
+        let mut h = [0usize; BINS];
+        for v in points.iter().map(|p| p[axis]).filter(|v| v.is_finite()) {
+            h[(((v - lo) / (hi - lo)) * BINS as f32).clamp(0.0, BINS as f32 - 1.0) as usize] += 1;
+        }
+        let total: usize = h.iter().sum();
+        let diff: usize = (0..BINS / 2).map(|i| h[i].abs_diff(h[BINS - 1 - i])).sum();
+        diff as f32 / total.max(1) as f32
+    };
     let (sy, sz) = (spread(1), spread(2));
     let (up, up_reason) = if sz > 1.3 * sy {
         (UpAxis::Z, format!("the 10-90 % spread along z {sz:.3} is {:.1}x that along y", sz / sy.max(1e-12)))
+    } else if sy > 1.3 * sz {
+        (UpAxis::Y, format!("the 10-90 % spread along y {sy:.3} is {:.1}x that along z", sy / sz.max(1e-12)))
     } else {
-        (UpAxis::Y, format!("10-90 % spread along y {sy:.3}, along z {sz:.3}"))
+        // Similar spreads: one of them is a T-pose's arm span, which is mirror-symmetric; the height is not.
+        let (ay, az) = (asymmetry(1), asymmetry(2));
+        let why = format!("similar spreads (y {sy:.3}, z {sz:.3}); mirror asymmetry y {ay:.2}, z {az:.2}");
+        (if az > ay { UpAxis::Z } else { UpAxis::Y }, why)
     };
     let q = up.to_y_up();
     let up_pts: Vec<Vec3> = points.iter().map(|p| q * *p).collect();
@@ -383,9 +409,9 @@ mod tests {
                 p.push(side * s + front * (i as f32 / 20.0 * 0.25 - 0.05) + Vec3::Y * 0.02);
             }
         }
-        // Arms.
-        for i in 0..=40 {
-            let t = i as f32 / 40.0 * 0.75;
+        // Arms, densely meshed (detailed hands): as many vertices as the torso.
+        for i in 0..=400 {
+            let t = i as f32 / 400.0 * 0.75;
             for s in [-1.0f32, 1.0] {
                 p.push(if t_pose {
                     Vec3::Y * 1.4 + side * s * (0.17 + t)
@@ -399,6 +425,7 @@ mod tests {
 
     #[test]
     fn orientation_is_detected_for_every_up_and_facing() {
+        let mut by_symmetry = 0;
         for t_pose in [false, true] {
             for (front, want) in [
                 (Vec3::Z, Facing::PlusZ),
@@ -413,11 +440,14 @@ mod tests {
                 let z_up: Vec<Vec3> = pts.iter().map(|p| UpAxis::Z.to_y_up().inverse() * *p).collect();
                 let d = detect_orientation(&z_up);
                 assert_eq!((d.up, d.facing), (UpAxis::Z, want), "z-up {front} t-pose {t_pose}: {d:?}");
+                by_symmetry += d.up_reason.contains("mirror") as usize;
                 // Turning by the detected facing puts the front at +z.
                 let turned = want.to_plus_z() * front;
                 assert!((turned - Vec3::Z).length() < 1e-5, "{front} -> {turned}");
             }
         }
+        // The T-pose facing along x in a Z-up file has similar spreads along y (arms) and z (height).
+        assert!(by_symmetry >= 1);
     }
 
     #[test]
