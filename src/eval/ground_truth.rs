@@ -107,11 +107,13 @@ pub fn write_contact_sheet(
     yaws: &[f32],
     size: usize,
 ) -> Result<(), super::EvalError> {
-    let frames: Vec<crate::io::sequence::Frame> = meshes
+    let frames: Vec<crate::io::sequence::RenderedFrame> = meshes
         .iter()
         .flat_map(|m| {
             yaws.iter().map(move |&yaw| {
-                crate::io::sequence::Frame::Ar(render_ground_truth(m, &Camera::orbit(yaw, 0.0, size, size)).shaded())
+                crate::io::sequence::RenderedFrame::Ar(
+                    render_ground_truth(m, &Camera::orbit(yaw, 0.0, size, size)).shaded(),
+                )
             })
         })
         .collect();
