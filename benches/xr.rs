@@ -34,7 +34,7 @@ use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{
     NeuralInput, NeuralRenderer, PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural, SourceView,
 };
-use r2human::xr::{run_session, Placement, SessionConfig, StaticScene, XrMode};
+use r2human::xr::{run_session, Placement, SessionConfig, StaticScene};
 
 /// Eye image size cap used in all paths (the CLI default).
 const EYE_SIDE: u32 = 384;
@@ -46,7 +46,7 @@ fn prepared() -> PreparedInput {
 
 fn config(frames: u64) -> SessionConfig {
     SessionConfig {
-        mode: XrMode::Vr,
+        mode: Mode::Vr,
         max_person_frames: Some(frames.max(1)),
         max_duration: Some(Duration::from_secs(120)),
         eye_max_side: EYE_SIDE,

@@ -6,13 +6,16 @@
 //! paper Eq. 4, warps the source appearance, fuses with the previous view (Eq. 8) and composites the person
 //! into a panorama (VR) or a premultiplied alpha layer (AR).
 //!
-//! Layers (dependencies point downward only):
+//! Layers (dependencies point downward only; the README's architecture table is the reference, and
+//! `tests/layers.rs` checks the imports against it):
 //! - [`cli`]: command-line commands; no algorithm lives there.
-//! - [`app`]: live loops (desktop mirror, XR session, capture) that schedule the pipeline.
-//! - [`xr`], [`gpu`], [`window`]: OpenXR client, the Vulkan renderer and the desktop window.
-//! - [`pipeline`]: the stages as plain functions over images, with the CPU reference for each.
-//! - [`neural`], [`geometry`], [`compose`], [`io`], [`eval`], [`synth`], [`capture`]: the building blocks.
-//! - [`body`] (beside [`geometry`]): the MakeHuman body model the synthetic subjects and the body prior share.
+//! - [`app`]: the use cases (offline render, the `view` window, the XR session, live capture).
+//! - [`xr`], [`window`], [`gpu`]: the OpenXR client, the XR desktop mirror window, and the one Vulkan platform
+//!   (device, presentation, the renderer).
+//! - [`eval`]: error against run time per method.
+//! - [`pipeline`], [`synth`]: the stages as plain functions over images, with the CPU reference for each, and the
+//!   person-renderer seam; procedural subjects.
+//! - [`body`], [`capture`], [`compose`], then [`io`], [`neural`], then [`geometry`]: the building blocks.
 //! - [`buffer`]: the 2-D image buffer every stage passes around.
 
 pub mod app;

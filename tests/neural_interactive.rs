@@ -17,8 +17,9 @@ use std::time::Duration;
 
 use glam::Vec4;
 use r2human::app::live::{render_video_views, EncodeProcessor, LiveOptions, LivePipeline};
-use r2human::app::mirror::{Backend, Drawn, Engine, Shading};
 use r2human::app::neural::NeuralAvailability;
+use r2human::app::window::{Drawn, Engine, Shading};
+use r2human::app::Backend;
 use r2human::buffer::RgbaImage;
 use r2human::capture::synthetic::{WalkerParams, WalkerSource};
 use r2human::capture::{FrameSource, SegmentMethod};
@@ -27,7 +28,7 @@ use r2human::geometry::Camera;
 use r2human::gpu::{Context, GpuError, Renderer};
 use r2human::io::environment::Environment;
 use r2human::io::image_io;
-use r2human::io::sequence::Frame;
+use r2human::io::sequence::RenderedFrame;
 use r2human::neural::{ExecutionProvider, RuntimeOptions};
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{NeuralRenderer, PrepareOptions, PreparedInput, ViewRenderer};
@@ -72,20 +73,20 @@ fn renderer(size: usize) -> Option<Renderer> {
     }
 }
 
-fn rgb_of(frame: &Frame) -> Vec<glam::Vec3> {
+fn rgb_of(frame: &RenderedFrame) -> Vec<glam::Vec3> {
     match frame {
-        Frame::Vr(img) => img.data.clone(),
-        Frame::Ar(img) => img.data.iter().map(|p| p.truncate()).collect(),
+        RenderedFrame::Vr(img) => img.data.clone(),
+        RenderedFrame::Ar(img) => img.data.iter().map(|p| p.truncate()).collect(),
     }
 }
 
-fn mean_abs_diff(a: &Frame, b: &Frame) -> f32 {
+fn mean_abs_diff(a: &RenderedFrame, b: &RenderedFrame) -> f32 {
     let (a, b) = (rgb_of(a), rgb_of(b));
     assert_eq!(a.len(), b.len());
     a.iter().zip(&b).map(|(x, y)| (*x - *y).abs().element_sum() / 3.0).sum::<f32>() / a.len() as f32
 }
 
-fn psnr(a: &Frame, b: &Frame) -> f64 {
+fn psnr(a: &RenderedFrame, b: &RenderedFrame) -> f64 {
     let (a, b) = (rgb_of(a), rgb_of(b));
     let mse: f64 =
         a.iter().zip(&b).map(|(x, y)| f64::from((*x - *y).length_squared()) / 3.0).sum::<f64>() / a.len() as f64;
@@ -93,12 +94,12 @@ fn psnr(a: &Frame, b: &Frame) -> f64 {
 }
 
 /// Share of pixels of an AR layer covered by the person.
-fn coverage(frame: &Frame) -> f32 {
-    let Frame::Ar(img) = frame else { panic!("an AR frame") };
+fn coverage(frame: &RenderedFrame) -> f32 {
+    let RenderedFrame::Ar(img) = frame else { panic!("an AR frame") };
     img.data.iter().filter(|p| p.w > 0.5).count() as f32 / img.data.len() as f32
 }
 
-fn draw(engine: &mut Engine<'_>, gpu: &mut Renderer, cam: &Camera, mode: Mode) -> Frame {
+fn draw(engine: &mut Engine<'_>, gpu: &mut Renderer, cam: &Camera, mode: Mode) -> RenderedFrame {
     engine.frame(gpu, cam, mode, None, true).unwrap().expect("a frame was asked for")
 }
 
@@ -359,7 +360,7 @@ fn render_backend_vulkan_draws_neural_views() {
         assert!(o.status.success(), "render --backend {backend} --renderer {renderer}: {text}");
         assert!(!text.contains("failed on"), "no view may fall back: {text}");
         let img = image::open(&out).unwrap().to_rgb8();
-        Frame::Vr(r2human::buffer::RgbImage::from_fn(96, 96, |c, r| {
+        RenderedFrame::Vr(r2human::buffer::RgbImage::from_fn(96, 96, |c, r| {
             let p = img.get_pixel(c as u32, r as u32).0;
             glam::Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / 255.0
         }))

@@ -10,7 +10,7 @@ use r2human::compose::Mode;
 use r2human::geometry::{Camera, Fov};
 use r2human::io::environment::Environment;
 use r2human::io::image_io;
-use r2human::io::sequence::Frame;
+use r2human::io::sequence::RenderedFrame;
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
 
@@ -24,13 +24,13 @@ fn figure() -> (r2human::buffer::RgbImage, r2human::buffer::GrayImage) {
     (photo.rgb, mask)
 }
 
-fn assert_frame_ok(frame: &Frame, what: &str) {
+fn assert_frame_ok(frame: &RenderedFrame, what: &str) {
     match frame {
-        Frame::Vr(img) => assert!(
+        RenderedFrame::Vr(img) => assert!(
             img.data.iter().all(|v| v.is_finite() && v.min_element() >= 0.0 && v.max_element() <= 1.0 + 1e-5),
             "{what}: VR frame out of range"
         ),
-        Frame::Ar(img) => assert!(
+        RenderedFrame::Ar(img) => assert!(
             img.data
                 .iter()
                 .all(|v| v.is_finite() && v.w >= 0.0 && v.w <= 1.0 && v.truncate().max_element() <= v.w + 1e-5),
@@ -52,7 +52,7 @@ fn extreme_views_are_finite_and_bounded() {
                 let cam = Camera::orbit(yaw, pitch, 64, 64);
                 let frame = renderer.render_frame(&cam, mode, &env).unwrap();
                 assert_frame_ok(&frame, &format!("yaw {yaw} pitch {pitch} {mode:?}"));
-                if let Frame::Ar(img) = &frame {
+                if let RenderedFrame::Ar(img) = &frame {
                     person_pixels.push(img.data.iter().filter(|p| p.w > 0.5).count());
                 }
             }

@@ -11,8 +11,9 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use r2human::app::mirror::{run_view_with_stats, Backend, Drawn, ScriptAction, ScriptStep, ViewOptions, ViewStats};
 use r2human::app::neural::NeuralSetup;
+use r2human::app::window::{run_view_with_stats, Drawn, ScriptAction, ScriptStep, ViewStats, WindowOptions};
+use r2human::app::Backend;
 use r2human::capture::synthetic::{walker, WalkerParams};
 use r2human::capture::SegmentMethod;
 use r2human::compose::Mode;
@@ -106,7 +107,7 @@ fn in_window_child(name: &str, body: impl FnOnce()) {
     assert!(text.contains("1 passed"), "the child did not run {name}");
 }
 
-fn run(opts: ViewOptions) -> ViewStats {
+fn run(opts: WindowOptions) -> ViewStats {
     let stats = match run_view_with_stats(opts) {
         Ok(s) => s,
         Err(e) => panic!("the mirror failed: {e:#}"),
@@ -176,7 +177,7 @@ fn mirror_window_renders_frames_and_screenshots_the_person() {
     in_window_child("mirror_window_renders_frames_and_screenshots_the_person", || {
         let (dir, person, shot) = person_in_tempdir("shot.png");
         let presented = dir.path().join("presented.png");
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             image: person,
             mode: Mode::Vr,
             backend: Backend::Vulkan,
@@ -186,7 +187,7 @@ fn mirror_window_renders_frames_and_screenshots_the_person() {
             screenshot_on_exit: Some(shot.clone()),
             presented_on_exit: Some(presented.clone()),
             resolution: 128,
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         keep("still", &[&shot, &presented]);
         assert_eq!(stats.frames, 6);
@@ -238,7 +239,7 @@ fn auto_backend_follows_the_device_type() {
     in_window_child("auto_backend_follows_the_device_type", || {
         let software = r2human::gpu::Context::headless().expect("a Vulkan device").is_software();
         let (dir, person, shot) = person_in_tempdir("shot.png");
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             image: person,
             mode: Mode::Vr,
             backend: Backend::Auto,
@@ -247,7 +248,7 @@ fn auto_backend_follows_the_device_type() {
             screenshot_dir: dir.path().to_path_buf(),
             screenshot_on_exit: Some(shot.clone()),
             resolution: 128,
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         let expected = if software { Backend::Cpu } else { Backend::Vulkan };
         assert_eq!(stats.backend, expected, "device {} (software: {software})", stats.device);
@@ -288,7 +289,7 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
         write_walker_folder(&frames, 6, 2);
         let shot = dir.path().join("live.png");
         let presented = dir.path().join("presented.png");
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             video: Some(frames),
             segment: SegmentMethod::Alpha,
             fps: 30.0,
@@ -299,7 +300,7 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
             screenshot_on_exit: Some(shot.clone()),
             presented_on_exit: Some(presented.clone()),
             resolution: 128,
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         keep("live", &[&shot, &presented]);
         let live = stats.live.clone().expect("live statistics");
@@ -333,7 +334,7 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
 fn resize_recreates_the_swapchain_on_the_cpu_backend() {
     in_window_child("resize_recreates_the_swapchain_on_the_cpu_backend", || {
         let (_dir, person, shot) = person_in_tempdir("resized.png");
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             image: person,
             mode: Mode::Vr,
             backend: Backend::Cpu,
@@ -346,7 +347,7 @@ fn resize_recreates_the_swapchain_on_the_cpu_backend() {
                 ScriptStep { at_frame: 3, action: ScriptAction::Drag(-50.0, 0.0) },
             ],
             resolution: 96,
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         keep("resized", &[&shot]);
         assert_eq!(stats.frames, 8);
@@ -374,7 +375,7 @@ fn neural_view_renders_the_person_and_g_n_switch() {
     in_window_child("neural_view_renders_the_person_and_g_n_switch", || {
         let (dir, person, shot) = person_in_tempdir("neural.png");
         let presented = dir.path().join("presented.png");
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             image: person,
             mode: Mode::Vr,
             backend: Backend::Vulkan,
@@ -388,7 +389,7 @@ fn neural_view_renders_the_person_and_g_n_switch() {
             ],
             resolution: 128,
             neural: neural_setup(RendererChoice::Neural, None),
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         keep("neural", &[&shot, &presented]);
         eprintln!("neural: {:?}", stats.neural);
@@ -423,7 +424,7 @@ fn n_without_models_shows_why_in_the_overlay() {
         write_person(&person);
         let empty = dir.path().join("no-models");
         std::fs::create_dir_all(&empty).unwrap();
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             image: person,
             backend: Backend::Vulkan,
             frames: Some(4),
@@ -431,7 +432,7 @@ fn n_without_models_shows_why_in_the_overlay() {
             script: vec![ScriptStep { at_frame: 1, action: ScriptAction::Key('n') }],
             resolution: 96,
             neural: neural_setup(RendererChoice::Auto, Some(empty)),
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         assert_eq!(stats.frames, 4);
         assert_eq!(stats.renderer, Drawn::Geometric);
@@ -453,7 +454,7 @@ fn live_folder_with_the_neural_renderer_encodes_once_per_frame() {
         std::fs::create_dir_all(&frames).unwrap();
         write_walker_folder(&frames, 4, usize::MAX);
         let shot = dir.path().join("live-neural.png");
-        let stats = run(ViewOptions {
+        let stats = run(WindowOptions {
             video: Some(frames),
             segment: SegmentMethod::Alpha,
             fps: 30.0,
@@ -464,7 +465,7 @@ fn live_folder_with_the_neural_renderer_encodes_once_per_frame() {
             screenshot_on_exit: Some(shot.clone()),
             resolution: 96,
             neural: neural_setup(RendererChoice::Neural, None),
-            ..ViewOptions::default()
+            ..WindowOptions::default()
         });
         keep("live-neural", &[&shot]);
         let live = stats.live.clone().expect("live statistics");
@@ -507,5 +508,5 @@ fn view_input_errors_are_sentences_before_any_window_opens() {
     let none = run(&[]);
     assert!(none.contains("--image"), "{none}");
     let seg = run(&["--video", "a", "--segment", "magic"]);
-    assert!(seg.contains("--segment magic is not known"), "{seg}");
+    assert!(seg.contains("--segment") && seg.contains("`magic` is not known"), "{seg}");
 }

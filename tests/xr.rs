@@ -18,12 +18,13 @@ use std::time::{Duration, Instant};
 
 use glam::{Vec3, Vec4};
 use r2human::buffer::{GrayImage, RgbImage, RgbaImage};
+use r2human::compose::Mode;
 use r2human::geometry::raster::rasterize;
 use r2human::geometry::{Camera, TriMesh};
 use r2human::io::environment::Environment;
 use r2human::pipeline::Scene;
 use r2human::xr::session::{EndReason, SessionReport};
-use r2human::xr::{check_runtime, run_session, SceneFeed, SessionConfig, StaticScene, XrError, XrMode};
+use r2human::xr::{check_runtime, run_session, SceneFeed, SessionConfig, StaticScene, XrError};
 
 const IGNORE_REASON: &str = "needs a running OpenXR runtime; run via xr_suite_in_monado_root";
 
@@ -166,7 +167,7 @@ fn vr_env() -> Option<Environment> {
     Some(Environment::default_embedded())
 }
 
-fn config(mode: XrMode, frames: u64) -> SessionConfig {
+fn config(mode: Mode, frames: u64) -> SessionConfig {
     SessionConfig {
         mode,
         max_person_frames: Some(frames),
@@ -230,7 +231,7 @@ fn vr_session_shows_the_person_where_the_eye_pose_says() {
     let _ = IGNORE_REASON;
     assert_validation_layers_present();
     let env = Environment::default_embedded();
-    let report = run_session(&config(XrMode::Vr, 30), box_feed(), vr_env()).expect("session runs");
+    let report = run_session(&config(Mode::Vr, 30), box_feed(), vr_env()).expect("session runs");
     assert_clean_session(&report, 30);
     assert_eq!(report.blend.blend, openxr::EnvironmentBlendMode::OPAQUE);
     assert!(report.blend.notice.is_none());
@@ -289,7 +290,7 @@ use r2human::xr::Placement;
 #[ignore = "needs a running OpenXR runtime; run via xr_suite_in_monado_root"]
 fn ar_session_falls_back_to_opaque_and_keeps_the_alpha_layer() {
     assert_validation_layers_present();
-    let report = run_session(&config(XrMode::Ar, 20), box_feed(), None).expect("session runs");
+    let report = run_session(&config(Mode::Ar, 20), box_feed(), None).expect("session runs");
     assert_clean_session(&report, 20);
     // Monado's simulated HMD offers OPAQUE only and no XR_FB_passthrough: the fallback with its notice.
     assert_eq!(report.blend.blend, openxr::EnvironmentBlendMode::OPAQUE);
@@ -388,7 +389,7 @@ fn child_session_until_the_runtime_dies() {
         return;
     }
     let cfg =
-        SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(15)), ..config(XrMode::Vr, 0) };
+        SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(15)), ..config(Mode::Vr, 0) };
     let report = run_session(&cfg, box_feed(), vr_env()).expect("session starts");
     println!("{report}");
     assert!(report.reached(openxr::SessionState::FOCUSED));
@@ -403,7 +404,7 @@ fn child_session_until_the_runtime_dies() {
 #[test]
 #[ignore = "run via xr_suite_in_monado_root with --no-runtime"]
 fn no_runtime_running_is_a_clear_error() {
-    let err = run_session(&config(XrMode::Vr, 1), box_feed(), vr_env()).expect_err("no runtime is running");
+    let err = run_session(&config(Mode::Vr, 1), box_feed(), vr_env()).expect_err("no runtime is running");
     println!("{err}");
     assert!(matches!(err, XrError::RuntimeNotRunning(_) | XrError::RuntimeUnavailable), "{err:?}");
     let err = check_runtime().expect_err("no runtime is running");
@@ -494,7 +495,7 @@ fn xvfb_mirror_window_shows_both_eyes() {
         mirror: true,
         max_person_frames: None,
         max_duration: Some(Duration::from_secs(6)),
-        ..config(XrMode::Ar, 0)
+        ..config(Mode::Ar, 0)
     };
     let report = run_session(&cfg, box_feed(), None).expect("session runs");
     println!("{report}");
@@ -561,7 +562,7 @@ fn pipeline_person_appears_where_the_eye_pose_says() {
     let (rgb, mask) = xr_support::figure(512);
     let input = PreparedInput::prepare(&rgb, &mask, &PrepareOptions::default()).expect("prepare");
     let feed = Box::new(StaticScene::new(Scene::from_prepared(&input, None)));
-    let report = run_session(&config(XrMode::Ar, 10), feed, None).expect("session runs");
+    let report = run_session(&config(Mode::Ar, 10), feed, None).expect("session runs");
     assert_clean_session(&report, 10);
     for cap in &report.captures {
         let (w, h) = (cap.image.width, cap.image.height);
@@ -602,7 +603,7 @@ fn neural_eyes_show_the_person_where_the_eye_pose_says() {
     let renderer = Arc::new(Mutex::new(neural));
     let encoded = renderer.lock().unwrap().encode(&input).expect("encoder");
     let scene = Scene::from_prepared(&input, Some(SceneNeural { renderer, encoded }));
-    let report = run_session(&config(XrMode::Ar, 6), Box::new(StaticScene::new(scene)), None).expect("session runs");
+    let report = run_session(&config(Mode::Ar, 6), Box::new(StaticScene::new(scene)), None).expect("session runs");
     assert_clean_session(&report, 6);
     println!("neural eyes: {:?}", report.neural);
     assert!(report.person_renderer.starts_with("neural"), "{}", report.person_renderer);
@@ -663,7 +664,7 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
         LiveFeed::start(video_source(dir.path(), 8.0), SegmentMethod::Alpha, PrepareOptions::default(), &geometric)
             .expect("live source starts");
     let cfg =
-        SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(8)), ..config(XrMode::Ar, 0) };
+        SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(8)), ..config(Mode::Ar, 0) };
     let report = run_session(&cfg, Box::new(feed), None).expect("session runs");
     println!("{report}");
     assert_eq!(report.end, EndReason::TimeLimit, "the session must outlive its source");

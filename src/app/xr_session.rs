@@ -20,7 +20,7 @@ use crate::capture::{CameraRequest, SegmentMethod, SourceFactory};
 use crate::compose::Mode;
 use crate::io::environment::Environment;
 use crate::pipeline::{PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural};
-use crate::xr::{SceneFeed, SessionConfig, SessionReport, StaticScene, XrMode};
+use crate::xr::{SceneFeed, SessionConfig, SessionReport, StaticScene};
 
 /// Where the person comes from.
 #[derive(Clone, Debug)]
@@ -213,10 +213,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
         (Mode::Vr, None) => Some(Environment::default_embedded()),
     };
     let config = SessionConfig {
-        mode: match opts.mode {
-            Mode::Vr => XrMode::Vr,
-            Mode::Ar => XrMode::Ar,
-        },
+        mode: opts.mode,
         max_person_frames: opts.frames,
         max_duration: opts.duration,
         eye_max_side: opts.eye_size,

@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use crate::app::mirror::{self, Backend};
+use crate::app::window;
 use crate::app::xr_session::{self, XrInput, XrOptions};
+use crate::app::Backend;
 use crate::cli::render::{NeuralArgs, SegmentArgs};
 use crate::compose::Mode;
 
@@ -115,7 +116,7 @@ pub struct XrArgs {
 pub fn run_view(args: &ViewArgs) -> Result<()> {
     let segment = args.segment.method()?;
     let frames = args.frames;
-    let stats = mirror::run_view_with_stats(mirror::ViewOptions {
+    let stats = window::run_view_with_stats(window::WindowOptions {
         image: args.image.clone().unwrap_or_default(),
         mask: args.mask.clone(),
         video: args.video.clone(),

@@ -6,14 +6,15 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::app::mirror::{orbit_cameras, render_on_backend, Backend};
+use crate::app::offline::{orbit_cameras, render_on_backend};
+use crate::app::Backend;
 use crate::buffer::GrayImage;
 use crate::capture::segment::segment_photo;
 use crate::compose::Mode;
 use crate::geometry::Camera;
 use crate::io::environment::Environment;
 use crate::io::image_io::{self, LoadedImage};
-use crate::io::sequence::{self, Frame};
+use crate::io::sequence::{self, RenderedFrame};
 use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
@@ -319,7 +320,7 @@ pub fn render_orbit(
     n: usize,
     start_yaw: f32,
     neural: Option<&SharedNeural>,
-) -> Result<Vec<Frame>> {
+) -> Result<Vec<RenderedFrame>> {
     let mut renderer = ViewRenderer::for_renderer(prepared, view.fill.into(), true, neural);
     let bar = ProgressBar::new(n as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} views ({elapsed})").expect("valid template"),
@@ -338,7 +339,7 @@ pub fn render_orbit(
 }
 
 /// Writes `DIR/view_000.png` ..., `DIR/orbit.gif` and `DIR/contact_sheet.png`.
-pub fn write_orbit(dir: &Path, frames: &[Frame]) -> Result<()> {
+pub fn write_orbit(dir: &Path, frames: &[RenderedFrame]) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating output folder {}", dir.display()))?;
     for (i, f) in frames.iter().enumerate() {
         f.save_png(&dir.join(format!("view_{i:03}.png")))?;

@@ -10,7 +10,7 @@ use super::{Context, GpuError, GpuView, Renderer};
 use crate::compose::Mode;
 use crate::geometry::Camera;
 use crate::io::environment::Environment;
-use crate::io::sequence::Frame;
+use crate::io::sequence::RenderedFrame;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralCounters, NeuralPolicy, NeuralRequest, SourceView};
 
@@ -53,7 +53,7 @@ pub fn render_views(
     env: &Environment,
     cameras: &[Camera],
     settings: ViewSettings,
-) -> Result<(Vec<Frame>, NeuralCounters), GpuError> {
+) -> Result<(Vec<RenderedFrame>, NeuralCounters), GpuError> {
     let Some(first) = cameras.first() else { return Ok((Vec::new(), NeuralCounters::default())) };
     let (w, h) = (first.width, first.height);
     if let Some(c) = cameras.iter().find(|c| (c.width, c.height) != (w, h)) {

@@ -26,7 +26,7 @@ use crate::geometry::raster::{GBuffer, BACKGROUND_DEPTH};
 use crate::geometry::zmap::{FlowZ, FLOW_OUTSIDE, VISIBILITY_LAMBDA};
 use crate::geometry::{Camera, Projection, TriMesh};
 use crate::io::environment::Environment;
-use crate::io::sequence::Frame;
+use crate::io::sequence::RenderedFrame;
 use crate::pipeline::fusion::previous_weight;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::SourceView;
@@ -1099,15 +1099,15 @@ impl Renderer {
 
     /// Shows a frame rendered elsewhere (e.g. by the CPU reference) in a window: uploads it as the output, encodes
     /// it to 8-bit sRGB and copies it into the swapchain image of `target` (AR layers are shown over grey).
-    pub fn present_frame(&mut self, frame: &Frame, target: PresentTarget) -> Result<(), GpuError> {
+    pub fn present_frame(&mut self, frame: &RenderedFrame, target: PresentTarget) -> Result<(), GpuError> {
         match frame {
-            Frame::Vr(img) => {
+            RenderedFrame::Vr(img) => {
                 self.check_image(img.width, img.height)?;
                 let data: Vec<Vec4> = img.data.iter().map(|c| c.extend(1.0)).collect();
                 self.out.write(&data);
                 self.uniforms.output_format[1] = 0;
             }
-            Frame::Ar(img) => {
+            RenderedFrame::Ar(img) => {
                 self.check_image(img.width, img.height)?;
                 self.out.write(&img.data);
                 self.uniforms.output_format[1] = 1;
@@ -1117,10 +1117,10 @@ impl Renderer {
     }
 
     /// Reads the current output back (the last frame rendered or presented), e.g. for a screenshot.
-    pub fn read_output(&self, mode: Mode) -> Frame {
+    pub fn read_output(&self, mode: Mode) -> RenderedFrame {
         match mode {
-            Mode::Vr => Frame::Vr(self.read_rgb(&self.out)),
-            Mode::Ar => Frame::Ar(self.read_rgba(&self.out)),
+            Mode::Vr => RenderedFrame::Vr(self.read_rgb(&self.out)),
+            Mode::Ar => RenderedFrame::Ar(self.read_rgba(&self.out)),
         }
     }
 

@@ -9,43 +9,43 @@ use crate::io::image_io::{self, IoError};
 
 /// One rendered output frame: a VR composite (opaque linear RGB) or an AR layer (premultiplied linear RGBA).
 #[derive(Clone, Debug)]
-pub enum Frame {
+pub enum RenderedFrame {
     /// Person over the panorama.
     Vr(RgbImage),
     /// Person alone, premultiplied alpha.
     Ar(RgbaImage),
 }
 
-impl Frame {
+impl RenderedFrame {
     /// Width in pixels.
     pub fn width(&self) -> usize {
         match self {
-            Frame::Vr(i) => i.width,
-            Frame::Ar(i) => i.width,
+            RenderedFrame::Vr(i) => i.width,
+            RenderedFrame::Ar(i) => i.width,
         }
     }
 
     /// Height in pixels.
     pub fn height(&self) -> usize {
         match self {
-            Frame::Vr(i) => i.height,
-            Frame::Ar(i) => i.height,
+            RenderedFrame::Vr(i) => i.height,
+            RenderedFrame::Ar(i) => i.height,
         }
     }
 
     /// Saves the frame as PNG (AR keeps its alpha, stored straight as PNG requires), atomically.
     pub fn save_png(&self, path: &Path) -> Result<(), IoError> {
         match self {
-            Frame::Vr(img) => image_io::save_rgb_png(path, img),
-            Frame::Ar(img) => image_io::save_rgba_png(path, img),
+            RenderedFrame::Vr(img) => image_io::save_rgb_png(path, img),
+            RenderedFrame::Ar(img) => image_io::save_rgba_png(path, img),
         }
     }
 
     /// An opaque preview: VR as is, AR over a grey checkerboard (what "transparent" looks like in viewers).
     pub fn preview(&self) -> RgbImage {
         match self {
-            Frame::Vr(img) => img.clone(),
-            Frame::Ar(img) => Image::from_fn(img.width, img.height, |c, r| {
+            RenderedFrame::Vr(img) => img.clone(),
+            RenderedFrame::Ar(img) => Image::from_fn(img.width, img.height, |c, r| {
                 let p: Vec4 = *img.get(c, r);
                 let check = if ((c / 16) + (r / 16)) % 2 == 0 { 0.35 } else { 0.6 };
                 p.truncate() + Vec3::splat(check) * (1.0 - p.w)
@@ -55,7 +55,7 @@ impl Frame {
 }
 
 /// Writes an animated GIF of the frames' previews (looping, `delay_ms` per frame), atomically.
-pub fn write_gif(path: &Path, frames: &[Frame], delay_ms: u32) -> Result<(), IoError> {
+pub fn write_gif(path: &Path, frames: &[RenderedFrame], delay_ms: u32) -> Result<(), IoError> {
     let images: Vec<image::RgbaImage> =
         frames.iter().map(|f| image::DynamicImage::ImageRgb8(image_io::to_srgb8(&f.preview())).into_rgba8()).collect();
     image_io::write_atomic(path, |file| {
@@ -71,7 +71,7 @@ pub fn write_gif(path: &Path, frames: &[Frame], delay_ms: u32) -> Result<(), IoE
 
 /// Lays the frames' previews out in a grid (`columns` wide, each scaled to `thumb` pixels high) and writes a
 /// PNG, atomically.
-pub fn write_contact_sheet(path: &Path, frames: &[Frame], columns: usize, thumb: usize) -> Result<(), IoError> {
+pub fn write_contact_sheet(path: &Path, frames: &[RenderedFrame], columns: usize, thumb: usize) -> Result<(), IoError> {
     let columns = columns.max(1);
     let rows = frames.len().div_ceil(columns).max(1);
     let (fw, fh) = frames.first().map(|f| (f.width(), f.height())).unwrap_or((1, 1));
@@ -107,13 +107,15 @@ mod tests {
     #[test]
     fn gif_and_sheet_are_readable() {
         let dir = tempfile::tempdir().unwrap();
-        let frames: Vec<Frame> = (0..5)
+        let frames: Vec<RenderedFrame> = (0..5)
             .map(|i| {
-                Frame::Ar(Image::from_fn(
-                    32,
-                    32,
-                    |c, _| if c < 6 * i { Vec4::new(0.5, 0.1, 0.1, 1.0) } else { Vec4::ZERO },
-                ))
+                RenderedFrame::Ar(Image::from_fn(32, 32, |c, _| {
+                    if c < 6 * i {
+                        Vec4::new(0.5, 0.1, 0.1, 1.0)
+                    } else {
+                        Vec4::ZERO
+                    }
+                }))
             })
             .collect();
         let gif = dir.path().join("o.gif");

@@ -36,7 +36,7 @@ use crate::geometry::raster::{self, GBuffer};
 use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
-use crate::io::sequence::Frame;
+use crate::io::sequence::RenderedFrame;
 use crate::neural::{Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError, NeuralRuntime, RuntimeOptions};
 
 use fusion::SpatialFusion;
@@ -738,16 +738,16 @@ impl<'a> ViewRenderer<'a> {
         camera: &Camera,
         mode: Mode,
         environment: &Environment,
-    ) -> Result<Frame, PipelineError> {
+    ) -> Result<RenderedFrame, PipelineError> {
         let person = self.render_person(camera)?;
         Ok(match mode {
             Mode::Vr => {
                 let start = Instant::now();
                 let out = compose::compose_vr(&person, environment, camera);
                 self.timings.0.push(("compose (panorama)", start.elapsed()));
-                Frame::Vr(out)
+                RenderedFrame::Vr(out)
             }
-            Mode::Ar => Frame::Ar(compose::compose_ar(&person)),
+            Mode::Ar => RenderedFrame::Ar(compose::compose_ar(&person)),
         })
     }
 }

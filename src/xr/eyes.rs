@@ -21,11 +21,10 @@ use glam::Vec4;
 
 use super::pacing::{EyeRenderer, EyeRequest};
 use super::placement::Placement;
-use super::session::XrMode;
 use crate::compose::Mode;
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
-use crate::io::sequence::Frame;
+use crate::io::sequence::RenderedFrame;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralCounters, NeuralPolicy, Scene};
 
@@ -132,14 +131,10 @@ impl GpuEyes {
         session: Arc<gpu::Context>,
         render: Arc<gpu::Context>,
         sizes: &[(usize, usize)],
-        mode: XrMode,
+        mode: Mode,
         environment: Option<Environment>,
         feed: Box<dyn SceneFeed>,
     ) -> Result<Self, gpu::GpuError> {
-        let mode = match mode {
-            XrMode::Vr => Mode::Vr,
-            XrMode::Ar => Mode::Ar,
-        };
         if mode == Mode::Vr && environment.is_none() {
             return Err(gpu::GpuError::Invalid("VR needs a panorama to show around the person".into()));
         }
@@ -253,8 +248,8 @@ impl EyeRenderer for GpuEyes {
             // rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
             Some(buffer) => {
                 let data: Vec<Vec4> = match r.read_output(mode) {
-                    Frame::Vr(img) => img.data.iter().map(|c| c.extend(1.0)).collect(),
-                    Frame::Ar(img) => img.data,
+                    RenderedFrame::Vr(img) => img.data.iter().map(|c| c.extend(1.0)).collect(),
+                    RenderedFrame::Ar(img) => img.data,
                 };
                 buffer.write(&data);
                 Ok(buffer.buffer)

@@ -23,7 +23,7 @@ pub use check::{check_runtime, RuntimeReport};
 pub use eyes::{GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
 pub use pacing::{EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
-pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport, XrMode};
+pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport};
 
 use openxr as xr;
 

@@ -1,7 +1,7 @@
 //! Frame pacing: the display loop never waits on the person renderer.
 //!
 //! The display loop posts a [`RenderRequest`] every frame (the latest predicted eye poses; an older request not
-//! yet started is simply replaced) and picks up the newest finished [`RenderedFrame`] whenever there is one. The
+//! yet started is simply replaced) and picks up the newest finished [`RenderedEyes`] whenever there is one. The
 //! render thread renders both eyes for the newest request it finds, on the GPU: a finished frame is a set of
 //! device buffers, which the display loop copies into the swapchain images with one small GPU submission (no
 //! pixels pass through the CPU). The render thread must not overwrite those buffers before that copy has run, so
@@ -78,7 +78,7 @@ pub trait EyeRenderer: Send {
 
 /// Both eyes rendered for one request.
 #[derive(Debug)]
-pub struct RenderedFrame {
+pub struct RenderedEyes {
     /// The request this answers.
     pub request: RenderRequest,
     /// Per-eye cameras used (body-cube coordinates).
@@ -93,7 +93,7 @@ pub struct RenderedFrame {
 struct Slots {
     pending: Option<RenderRequest>,
     shutdown: bool,
-    latest: Option<Arc<RenderedFrame>>,
+    latest: Option<Arc<RenderedEyes>>,
     /// The newest frame whose copy was submitted, with the fence of that copy.
     consumed: Option<(u64, vk::Fence)>,
     error: Option<String>,
@@ -129,7 +129,7 @@ impl RenderMailbox {
     }
 
     /// The newest finished frame, if any.
-    pub fn latest(&self) -> Option<Arc<RenderedFrame>> {
+    pub fn latest(&self) -> Option<Arc<RenderedEyes>> {
         self.lock().latest.clone()
     }
 
@@ -200,7 +200,7 @@ impl RenderMailbox {
                     s = self.wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
-            let result = (|| -> Result<Option<RenderedFrame>, String> {
+            let result = (|| -> Result<Option<RenderedEyes>, String> {
                 if let Some(fence) = copy_fence {
                     renderer.wait_copied(fence)?;
                 }
@@ -232,7 +232,7 @@ impl RenderMailbox {
 }
 
 /// Renders both eyes of one request.
-pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -> Result<RenderedFrame, String> {
+pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -> Result<RenderedEyes, String> {
     let mut cameras = Vec::with_capacity(request.views.len());
     let mut outputs = Vec::with_capacity(request.views.len());
     let mut eye_times = Vec::with_capacity(request.views.len());
@@ -244,7 +244,7 @@ pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -
         eye_times.push(start.elapsed());
         cameras.push(body_camera);
     }
-    Ok(RenderedFrame { request: request.clone(), cameras, outputs, eye_times })
+    Ok(RenderedEyes { request: request.clone(), cameras, outputs, eye_times })
 }
 
 /// Per-frame pacing measurements of the person layer.

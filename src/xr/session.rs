@@ -21,11 +21,12 @@ use super::check::{blend_mode_name, extension_names};
 use super::device::{create_device, renderer_shares_queue, SESSION_QUEUE};
 use super::diag::{ValidationLog, XrMessenger};
 use super::eyes::{GpuEyes, NeuralEyeStats, SceneFeed};
-use super::pacing::{median_ms, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedFrame};
+use super::pacing::{median_ms, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedEyes};
 use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
 use super::swapchain::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat};
 use super::{load_entry, XrContext, XrError};
 use crate::buffer::RgbaImage;
+use crate::compose::Mode;
 use crate::geometry::camera::{Camera, Fov};
 use crate::gpu;
 use crate::io::environment::Environment;
@@ -33,20 +34,11 @@ use crate::window::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 
 const VIEW_TYPE: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_STEREO;
 
-/// VR (the person in a panorama, opaque) or AR (the person as an alpha layer over the room).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum XrMode {
-    /// Opaque: the eye images are complete (panorama behind the person).
-    Vr,
-    /// See-through: the eye images are the person as a premultiplied alpha layer.
-    Ar,
-}
-
 /// How the session is run.
 #[derive(Clone, Debug)]
 pub struct SessionConfig {
     /// VR or AR.
-    pub mode: XrMode,
+    pub mode: Mode,
     /// Request exit after this many frames showing the person (`None`: run until the runtime ends the session).
     pub max_person_frames: Option<u64>,
     /// Request exit after this much time in the session loop (a safety net for unattended runs).
@@ -64,7 +56,7 @@ pub struct SessionConfig {
 impl Default for SessionConfig {
     fn default() -> Self {
         Self {
-            mode: XrMode::Vr,
+            mode: Mode::Vr,
             max_person_frames: None,
             max_duration: None,
             eye_max_side: 512,
@@ -88,15 +80,15 @@ pub struct BlendChoice {
 /// Picks the blend mode: VR wants OPAQUE; AR wants ALPHA_BLEND, then ADDITIVE, then XR_FB_passthrough over
 /// OPAQUE, and finally plain OPAQUE with a notice (the person over black). `offered` is in the runtime's order of
 /// preference; an empty list is treated as OPAQUE (every runtime must support some mode).
-pub fn choose_blend(mode: XrMode, offered: &[xr::EnvironmentBlendMode], fb_passthrough: bool) -> BlendChoice {
+pub fn choose_blend(mode: Mode, offered: &[xr::EnvironmentBlendMode], fb_passthrough: bool) -> BlendChoice {
     use xr::EnvironmentBlendMode as B;
     let has = |m: B| offered.contains(&m);
     let first = offered.first().copied().unwrap_or(B::OPAQUE);
     match mode {
-        XrMode::Vr if has(B::OPAQUE) || offered.is_empty() => {
+        Mode::Vr if has(B::OPAQUE) || offered.is_empty() => {
             BlendChoice { blend: B::OPAQUE, passthrough_fb: false, notice: None }
         }
-        XrMode::Vr => BlendChoice {
+        Mode::Vr => BlendChoice {
             blend: first,
             passthrough_fb: false,
             notice: Some(format!(
@@ -104,14 +96,14 @@ pub fn choose_blend(mode: XrMode, offered: &[xr::EnvironmentBlendMode], fb_passt
                 blend_mode_name(first)
             )),
         },
-        XrMode::Ar if has(B::ALPHA_BLEND) => BlendChoice { blend: B::ALPHA_BLEND, passthrough_fb: false, notice: None },
-        XrMode::Ar if has(B::ADDITIVE) => BlendChoice { blend: B::ADDITIVE, passthrough_fb: false, notice: None },
-        XrMode::Ar if fb_passthrough => BlendChoice {
+        Mode::Ar if has(B::ALPHA_BLEND) => BlendChoice { blend: B::ALPHA_BLEND, passthrough_fb: false, notice: None },
+        Mode::Ar if has(B::ADDITIVE) => BlendChoice { blend: B::ADDITIVE, passthrough_fb: false, notice: None },
+        Mode::Ar if fb_passthrough => BlendChoice {
             blend: if has(B::OPAQUE) || offered.is_empty() { B::OPAQUE } else { first },
             passthrough_fb: true,
             notice: None,
         },
-        XrMode::Ar => BlendChoice {
+        Mode::Ar => BlendChoice {
             blend: if has(B::OPAQUE) || offered.is_empty() { B::OPAQUE } else { first },
             passthrough_fb: false,
             notice: Some(
@@ -483,7 +475,7 @@ pub fn run_session(
     feed: Box<dyn SceneFeed>,
     environment: Option<Environment>,
 ) -> Result<SessionReport, XrError> {
-    if config.mode == XrMode::Vr && environment.is_none() {
+    if config.mode == Mode::Vr && environment.is_none() {
         return Err(XrError::Render("VR needs a panorama to show around the person".into()));
     }
     let entry = load_entry()?;
@@ -495,7 +487,7 @@ pub fn run_session(
     exts.khr_vulkan_enable2 = true;
     exts.khr_convert_timespec_time = available.khr_convert_timespec_time;
     exts.ext_debug_utils = available.ext_debug_utils;
-    exts.fb_passthrough = config.mode == XrMode::Ar && available.fb_passthrough;
+    exts.fb_passthrough = config.mode == Mode::Ar && available.fb_passthrough;
     tracing::debug!("enabling OpenXR extensions: {:?}", extension_names(&exts));
     let instance = entry
         .create_instance(
@@ -783,7 +775,7 @@ struct LoopState {
     placement: Option<Placement>,
     captures: Vec<EyeCapture>,
     /// The frame whose eye images are being read back (capture), with its request.
-    capture_of: Option<std::sync::Arc<RenderedFrame>>,
+    capture_of: Option<std::sync::Arc<RenderedEyes>>,
     /// Per frame: time spent waiting for the shared queue lock.
     queue_waits: Vec<Duration>,
     mirror_loop: Option<MirrorEventLoop>,
@@ -831,7 +823,7 @@ fn frame_loop(
     let mut events = xr::EventDataBuffer::new();
     let mut exit_requested: Option<(Instant, EndReason)> = None;
     let mut last_uploaded: Option<u64> = None;
-    let mut shown: Option<std::sync::Arc<super::pacing::RenderedFrame>> = None;
+    let mut shown: Option<std::sync::Arc<super::pacing::RenderedEyes>> = None;
     let mut request_seq = 0u64;
     let mut last_frame_time: Option<Instant> = None;
     let started = Instant::now();
@@ -1018,7 +1010,7 @@ fn frame_loop(
                             )
                         })
                         .collect();
-                    let flags = if ctx.config.mode == XrMode::Ar {
+                    let flags = if ctx.config.mode == Mode::Ar {
                         // Premultiplied alpha (no UNPREMULTIPLIED_ALPHA flag): what the pipeline produces.
                         xr::CompositionLayerFlags::BLEND_TEXTURE_SOURCE_ALPHA
                     } else {
@@ -1085,22 +1077,22 @@ mod tests {
 
     #[test]
     fn blend_choice_follows_the_preference_order() {
-        let c = choose_blend(XrMode::Ar, &[B::OPAQUE, B::ADDITIVE, B::ALPHA_BLEND], true);
+        let c = choose_blend(Mode::Ar, &[B::OPAQUE, B::ADDITIVE, B::ALPHA_BLEND], true);
         assert_eq!((c.blend, c.passthrough_fb, c.notice.is_none()), (B::ALPHA_BLEND, false, true));
-        let c = choose_blend(XrMode::Ar, &[B::OPAQUE, B::ADDITIVE], true);
+        let c = choose_blend(Mode::Ar, &[B::OPAQUE, B::ADDITIVE], true);
         assert_eq!((c.blend, c.passthrough_fb), (B::ADDITIVE, false));
-        let c = choose_blend(XrMode::Ar, &[B::OPAQUE], true);
+        let c = choose_blend(Mode::Ar, &[B::OPAQUE], true);
         assert_eq!((c.blend, c.passthrough_fb, c.notice.is_none()), (B::OPAQUE, true, true));
         // Monado's simulated HMD: OPAQUE only, no passthrough -> OPAQUE with a notice.
-        let c = choose_blend(XrMode::Ar, &[B::OPAQUE], false);
+        let c = choose_blend(Mode::Ar, &[B::OPAQUE], false);
         assert_eq!((c.blend, c.passthrough_fb), (B::OPAQUE, false));
         assert!(c.notice.unwrap().contains("over black"));
-        let c = choose_blend(XrMode::Vr, &[B::ADDITIVE, B::OPAQUE], false);
+        let c = choose_blend(Mode::Vr, &[B::ADDITIVE, B::OPAQUE], false);
         assert_eq!((c.blend, c.notice), (B::OPAQUE, None));
-        let c = choose_blend(XrMode::Vr, &[B::ADDITIVE], false);
+        let c = choose_blend(Mode::Vr, &[B::ADDITIVE], false);
         assert_eq!(c.blend, B::ADDITIVE);
         assert!(c.notice.is_some());
-        assert_eq!(choose_blend(XrMode::Vr, &[], false).blend, B::OPAQUE);
+        assert_eq!(choose_blend(Mode::Vr, &[], false).blend, B::OPAQUE);
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! The desktop mirror: `r2human view`. A winit window shows the person from an orbit camera, rendered by the
+//! The desktop window: `r2human view`. A winit window shows the person from an orbit camera, rendered by the
 //! Vulkan per-view passes or by the CPU reference (then only presented through Vulkan), with the geometric or the
 //! neural renderer.
 //!
@@ -40,6 +40,7 @@ use crate::app::live::{
     self, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline, LiveStats,
 };
 use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
+use crate::app::{log_software_device, Backend};
 use crate::buffer::Image;
 use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
@@ -47,38 +48,12 @@ use crate::geometry::Camera;
 use crate::gpu::{offline, Acquired, Context, GpuError, GpuView, OverlayMask, PresentTarget, Renderer, Swapchain};
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::io::sequence::Frame;
+use crate::io::sequence::RenderedFrame;
 use crate::pipeline::warp::OcclusionFill;
 pub use crate::pipeline::{Drawn, NeuralCounters};
 use crate::pipeline::{
-    Neural, NeuralInput, NeuralPolicy, NeuralRequest, PrepareOptions, PreparedInput, SharedNeural, SourceView,
-    ViewRenderer,
+    Neural, NeuralInput, NeuralPolicy, NeuralRequest, PrepareOptions, PreparedInput, SourceView, ViewRenderer,
 };
-
-/// Which engine computes the person.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Backend {
-    /// The CPU reference pipeline (the window still presents through Vulkan).
-    Cpu,
-    /// The Vulkan per-view passes.
-    #[default]
-    Vulkan,
-    /// The Vulkan passes on a GPU; the CPU reference when the only Vulkan device is a software rasteriser
-    /// (lavapipe), where the Vulkan passes share the CPU's cores and run several times slower than the reference.
-    Auto,
-}
-
-impl Backend {
-    /// The backend to run on a device (`software`: [`crate::gpu::Context::is_software`]): `Auto` becomes `Cpu`
-    /// on a software rasteriser and `Vulkan` on a GPU; `Cpu` and `Vulkan` stay as asked.
-    pub fn resolve(self, software: bool) -> Backend {
-        match self {
-            Backend::Auto if software => Backend::Cpu,
-            Backend::Auto => Backend::Vulkan,
-            other => other,
-        }
-    }
-}
 
 /// Which renderer the user asked for (`G`/`N`): the geometric warp or the neural decoder.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -117,7 +92,7 @@ pub struct ScriptStep {
 
 /// Options of [`run_view`].
 #[derive(Clone, Debug)]
-pub struct ViewOptions {
+pub struct WindowOptions {
     /// Photo of a person (PNG/JPEG); its alpha channel is the person mask unless `mask` is given. Leave empty
     /// with `video` or `camera`.
     pub image: PathBuf,
@@ -162,7 +137,7 @@ pub struct ViewOptions {
     pub spin: f32,
 }
 
-impl Default for ViewOptions {
+impl Default for WindowOptions {
     fn default() -> Self {
         Self {
             image: PathBuf::new(),
@@ -274,103 +249,14 @@ impl Orbit {
     }
 }
 
-/// `render --backend`: renders one frame per camera on the chosen backend, with the neural renderer when `neural`
-/// is given (through the host-memory seam; views the decoder fails on are drawn geometrically, with a warning).
-/// `Ok(None)` means "use the CPU path": the CPU was asked for, `auto` found a software rasteriser or no device
-/// (logged), or Vulkan was asked for but no device is usable (the reason is printed once on stderr, with the
-/// fallback). Other GPU failures are errors.
-#[allow(clippy::too_many_arguments)]
-pub fn render_on_backend(
-    backend: Backend,
-    input: &PreparedInput,
-    env: &Environment,
-    cameras: &[Camera],
-    mode: Mode,
-    fill: OcclusionFill,
-    fusion: bool,
-    neural: Option<&SharedNeural>,
-) -> anyhow::Result<Option<Vec<Frame>>> {
-    if backend == Backend::Cpu {
-        return Ok(None);
-    }
-    // One headless device for the probe of `auto` and for the views.
-    let ctx = match Context::headless() {
-        Ok(ctx) => ctx,
-        Err(e) if backend == Backend::Auto => {
-            tracing::info!("no usable Vulkan device ({e}): rendering on the CPU reference");
-            return Ok(None);
-        }
-        Err(e) => return cpu_without_device(e),
-    };
-    if backend.resolve(ctx.is_software()) == Backend::Cpu {
-        log_software_device(ctx.device_name());
-        return Ok(None);
-    }
-    let ctx = Arc::new(ctx);
-    let encoded = match neural {
-        Some(shared) => match shared.lock().unwrap_or_else(|p| p.into_inner()).encode(input) {
-            Ok(e) => Some(e),
-            Err(e) => {
-                tracing::warn!("the neural encoder failed on this input ({e}); rendering geometrically");
-                None
-            }
-        },
-        None => None,
-    };
-    // An input the encoder failed on is drawn geometrically (said above), not counted per view.
-    let request = match encoded.as_ref() {
-        Some(e) => NeuralRequest::from_parts(neural, Some(e)),
-        None => NeuralRequest::Off,
-    };
-    let settings = offline::ViewSettings { mode, fill, fusion };
-    match offline::render_views(ctx, SourceView::of(input), request, env, cameras, settings) {
-        Ok((frames, counters)) => {
-            if counters.fallbacks > 0 {
-                tracing::warn!(
-                    "the neural decoder failed on {} view(s); the geometric renderer drew them",
-                    counters.fallbacks
-                );
-            }
-            Ok(Some(frames))
-        }
-        Err(e) => cpu_without_device(e),
-    }
-}
-
-/// `render --backend vulkan` without a usable device: the reason and the CPU fallback on stderr, `Ok(None)` (the
-/// CPU path); any other GPU failure is an error.
-fn cpu_without_device(e: GpuError) -> anyhow::Result<Option<Vec<Frame>>> {
-    match e {
-        GpuError::NoVulkan(_) | GpuError::NoDevice(_) => {
-            eprintln!("warning: {e}\nwarning: rendering on the CPU instead (--backend cpu)");
-            Ok(None)
-        }
-        e => Err(anyhow::Error::new(e).context("the Vulkan backend failed")),
-    }
-}
-
-/// Says that `--backend auto` chose the CPU reference on a software rasteriser.
-fn log_software_device(device: &str) {
-    tracing::info!(
-        "`{device}` is a software rasteriser: rendering the person with the CPU reference, which is faster on it \
-         (--backend vulkan forces the Vulkan passes)"
-    );
-}
-
-/// The cameras of an orbit: `n` views evenly spaced in yaw from `start_yaw`, at `pitch`, `size x size` (the
-/// same views as `r2human render --orbit`).
-pub fn orbit_cameras(n: usize, start_yaw: f32, pitch: f32, size: usize) -> Vec<Camera> {
-    (0..n).map(|i| Camera::orbit(start_yaw + 360.0 * i as f32 / n.max(1) as f32, pitch, size, size)).collect()
-}
-
 /// Turns a loop error into the message the user sees: a lost device or surface ends the window cleanly with
 /// a sentence that says so; anything else is passed through.
 pub fn describe_fault(e: anyhow::Error) -> anyhow::Error {
     match e.downcast::<GpuError>() {
         Ok(GpuError::DeviceLost) => {
-            anyhow!("the Vulkan device was lost (driver reset or GPU fault); the mirror window closed — start it again")
+            anyhow!("the Vulkan device was lost (driver reset or GPU fault); the window closed — start it again")
         }
-        Ok(GpuError::Surface(s)) => anyhow!("the window surface was lost ({s}); the mirror window closed"),
+        Ok(GpuError::Surface(s)) => anyhow!("the window surface was lost ({s}); the window closed"),
         Ok(other) => anyhow::Error::new(other),
         Err(e) => e,
     }
@@ -382,13 +268,13 @@ pub fn drawable(width: u32, height: u32) -> bool {
     width > 0 && height > 0
 }
 
-/// Opens the mirror window for a photo and runs until closed (or for `opts.frames` frames).
-pub fn run_view(opts: ViewOptions) -> anyhow::Result<()> {
+/// Opens the `view` window for a photo and runs until closed (or for `opts.frames` frames).
+pub fn run_view(opts: WindowOptions) -> anyhow::Result<()> {
     run_view_with_stats(opts).map(|_| ())
 }
 
 /// [`run_view`], returning what the loop measured (frames, median frame time, screenshots, validation).
-pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
+pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
     if !(64..=1024).contains(&opts.resolution) {
         bail!("source resolution {} is out of range: use 64 to 1024 (512 is the reference's)", opts.resolution);
     }
@@ -436,7 +322,7 @@ pub fn run_view_with_stats(opts: ViewOptions) -> anyhow::Result<ViewStats> {
     Ok(stats)
 }
 
-fn run_window(engine: &mut Engine<'_>, opts: &ViewOptions) -> anyhow::Result<ViewStats> {
+fn run_window(engine: &mut Engine<'_>, opts: &WindowOptions) -> anyhow::Result<ViewStats> {
     if opts.size < 16 || opts.size > 4096 {
         bail!("window size {} is out of range: use 16 to 4096 pixels", opts.size);
     }
@@ -543,7 +429,7 @@ pub struct Engine<'a> {
     uploaded: Option<u64>,
     uploads: u64,
     /// Shown until a live source has completed its first frame.
-    blank: Option<Frame>,
+    blank: Option<RenderedFrame>,
     neural: NeuralAvailability,
     /// The encoder's output for a photo (once).
     still_encoded: Option<NeuralInput>,
@@ -682,7 +568,7 @@ impl<'a> Engine<'a> {
             }
         }
         let (w, h) = renderer.size();
-        self.blank = Some(Frame::Vr(Image::new(w, h, Vec3::splat(0.05))));
+        self.blank = Some(RenderedFrame::Vr(Image::new(w, h, Vec3::splat(0.05))));
         self.uploaded = None;
         self.policy.forget_layer();
         if self.backend == Backend::Vulkan {
@@ -759,7 +645,7 @@ impl<'a> Engine<'a> {
         mode: Mode,
         target: Option<PresentTarget>,
         want_frame: bool,
-    ) -> anyhow::Result<Option<Frame>> {
+    ) -> anyhow::Result<Option<RenderedFrame>> {
         if let PersonInput::Live(live) = &mut self.input {
             if live.finished {
                 live.frames_after_end += 1;
@@ -914,7 +800,7 @@ struct Graphics {
 
 struct App<'a, 'e> {
     engine: &'a mut Engine<'e>,
-    opts: &'a ViewOptions,
+    opts: &'a WindowOptions,
     mode: Mode,
     orbit: Orbit,
     // Declared before `window`: the swapchain's surface must go before the window.
@@ -1161,7 +1047,7 @@ impl App<'_, '_> {
 }
 
 /// Will the loop end after the frame about to be rendered (`presented` and `person_frames` so far)?
-fn is_last_frame(opts: &ViewOptions, engine: &Engine<'_>, presented: u64, person_frames: u64) -> bool {
+fn is_last_frame(opts: &WindowOptions, engine: &Engine<'_>, presented: u64, person_frames: u64) -> bool {
     let Some(n) = opts.frames else { return false };
     match engine.live_done() {
         None => presented + 1 >= n,
@@ -1169,10 +1055,10 @@ fn is_last_frame(opts: &ViewOptions, engine: &Engine<'_>, presented: u64, person
     }
 }
 
-fn save_frame(path: &std::path::Path, frame: &Frame) -> anyhow::Result<()> {
+fn save_frame(path: &std::path::Path, frame: &RenderedFrame) -> anyhow::Result<()> {
     match frame {
-        Frame::Vr(img) => image_io::save_rgb_png(path, img)?,
-        Frame::Ar(img) => image_io::save_rgba_png(path, img)?,
+        RenderedFrame::Vr(img) => image_io::save_rgb_png(path, img)?,
+        RenderedFrame::Ar(img) => image_io::save_rgba_png(path, img)?,
     }
     tracing::info!("screenshot: {}", path.display());
     Ok(())
@@ -1251,16 +1137,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn auto_backend_is_the_cpu_on_a_software_rasteriser_only() {
-        assert_eq!(Backend::Auto.resolve(true), Backend::Cpu);
-        assert_eq!(Backend::Auto.resolve(false), Backend::Vulkan);
-        for software in [true, false] {
-            assert_eq!(Backend::Cpu.resolve(software), Backend::Cpu);
-            assert_eq!(Backend::Vulkan.resolve(software), Backend::Vulkan);
-        }
-    }
-
-    #[test]
     fn a_minimised_window_is_not_drawn() {
         assert!(!drawable(0, 0));
         assert!(!drawable(0, 480));
@@ -1279,16 +1155,6 @@ mod tests {
         // The Vulkan result codes map to those variants.
         assert!(matches!(GpuError::vk("present")(ash::vk::Result::ERROR_DEVICE_LOST), GpuError::DeviceLost));
         assert!(matches!(GpuError::vk("present")(ash::vk::Result::ERROR_SURFACE_LOST_KHR), GpuError::Surface(_)));
-    }
-
-    #[test]
-    fn orbit_cameras_match_the_render_orbit_spacing() {
-        let cams = orbit_cameras(4, 10.0, -5.0, 32);
-        assert_eq!(cams.len(), 4);
-        for (i, cam) in cams.iter().enumerate() {
-            assert_eq!(*cam, Camera::orbit(10.0 + 90.0 * i as f32, -5.0, 32, 32));
-        }
-        assert!(orbit_cameras(0, 0.0, 0.0, 32).is_empty());
     }
 
     #[test]

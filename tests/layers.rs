@@ -1,0 +1,169 @@
+//! The README's architecture table is the law of the imports: every top-level module of `src/` is in exactly one
+//! row, and a module may use (`crate::…`) only modules of the rows below its own. This test reads the table from
+//! README.md and the imports from the sources, so the two cannot drift apart: a new dependency that points up fails
+//! here with the file and line that adds it.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The rows of the README's "Architecture" table, top (highest layer) first: the backticked module names of each
+/// row's first cell.
+fn layer_rows(readme: &str) -> Vec<Vec<String>> {
+    let section = readme.split("\n## Architecture").nth(1).expect("README has an `## Architecture` section");
+    let section = section.split("\n## ").next().unwrap_or(section);
+    section
+        .lines()
+        .filter(|l| l.starts_with('|'))
+        .skip(2) // header and separator
+        .map(|l| {
+            let first = l.trim_start_matches('|').split('|').next().unwrap_or("");
+            first.split('`').skip(1).step_by(2).map(str::to_string).collect::<Vec<_>>()
+        })
+        .filter(|r| !r.is_empty())
+        .collect()
+}
+
+/// Top-level modules named by `crate::` paths in code (`crate::a::x`, `crate::{a::x, b}`, groups over several
+/// lines included), each with the byte offset of its `crate::`.
+fn crate_refs_at(text: &str) -> Vec<(String, usize)> {
+    let mut out = Vec::new();
+    let mut rest = text;
+    while let Some(i) = rest.find("crate::") {
+        let before = rest[..i].chars().last();
+        let at = text.len() - rest.len() + i;
+        rest = &rest[i + "crate::".len()..];
+        // `r2human_crate::`, `some_crate::` are not this crate.
+        if before.is_some_and(|c| c.is_alphanumeric() || c == '_') {
+            continue;
+        }
+        if let Some(group) = rest.strip_prefix('{') {
+            // Top-level names of the brace group (nested groups belong to their parent name).
+            let mut depth = 0;
+            let mut name = String::new();
+            let mut at_start = true;
+            for c in group.chars() {
+                match c {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => break,
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => at_start = true,
+                    c if depth == 0 && at_start && (c.is_alphanumeric() || c == '_') => name.push(c),
+                    _ if depth == 0 && at_start && !name.is_empty() => {
+                        out.push((std::mem::take(&mut name), at));
+                        at_start = false;
+                    }
+                    _ => {}
+                }
+            }
+            if !name.is_empty() {
+                out.push((name, at));
+            }
+        } else {
+            let name: String = rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+            if !name.is_empty() {
+                out.push((name, at));
+            }
+        }
+    }
+    out
+}
+
+/// The distinct top-level modules of [`crate_refs_at`].
+fn crate_refs(text: &str) -> BTreeSet<String> {
+    crate_refs_at(text).into_iter().map(|(name, _)| name).collect()
+}
+
+/// The code of a line without its `//` comment (doc comments included: they may link anywhere).
+fn code(line: &str) -> &str {
+    line.find("//").map_or(line, |i| &line[..i])
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for e in entries.flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// The top-level modules of `src/` (folders with a `mod.rs` and single files), without `lib` and `main`.
+fn top_modules(src: &Path) -> BTreeMap<String, PathBuf> {
+    let mut out = BTreeMap::new();
+    for e in std::fs::read_dir(src).expect("src/").flatten() {
+        let p = e.path();
+        let name = p.file_stem().and_then(|s| s.to_str()).unwrap_or("").to_string();
+        if p.is_dir() || (p.extension().is_some_and(|x| x == "rs") && name != "lib" && name != "main") {
+            out.insert(name, p);
+        }
+    }
+    out
+}
+
+#[test]
+fn crate_paths_are_read_from_plain_and_grouped_uses() {
+    let refs = |s: &str| crate_refs(s).into_iter().collect::<Vec<_>>();
+    assert_eq!(refs("use crate::gpu::{self, Context};"), ["gpu"]);
+    assert_eq!(refs("use crate::{buffer::Image, geometry::{Camera, TriMesh}, io};"), ["buffer", "geometry", "io"]);
+    assert_eq!(refs("let x = crate::neural::environment(&o); crate::pipeline::f()"), ["neural", "pipeline"]);
+    assert_eq!(refs("use other_crate::gpu; // crate::xr in a comment is cut by `code`"), ["xr"]);
+    assert_eq!(refs(code("use other_crate::gpu; // crate::xr")), Vec::<String>::new());
+    assert_eq!(refs("use crate::{\n    capture::Frame,\n    gpu::{self, Context},\n};"), ["capture", "gpu"]);
+    let rows = layer_rows("x\n## Architecture (y)\n\n| layer | contents |\n|---|---|\n| `cli` | a |\n| `io`, `neural` | b |\n\n## Next\n| `z` | c |\n");
+    assert_eq!(rows, [vec!["cli".to_string()], vec!["io".to_string(), "neural".to_string()]]);
+}
+
+#[test]
+fn lower_layers_never_import_higher_ones() {
+    let readme = std::fs::read_to_string(root().join("README.md")).expect("README.md");
+    let rows = layer_rows(&readme);
+    let mut rank: BTreeMap<String, usize> = BTreeMap::new();
+    for (i, row) in rows.iter().enumerate() {
+        for m in row {
+            // Rows are listed top first: a higher rank is a lower layer.
+            assert!(rank.insert(m.clone(), i).is_none(), "`{m}` is in two rows of the README's architecture table");
+        }
+    }
+    let modules = top_modules(&root().join("src"));
+    let unlisted: Vec<&String> = modules.keys().filter(|m| !rank.contains_key(*m)).collect();
+    assert!(
+        unlisted.is_empty(),
+        "src/ modules missing from the README's architecture table (add each to the row of its layer): {unlisted:?}"
+    );
+    let mut violations = Vec::new();
+    for (module, path) in &modules {
+        let mut files = Vec::new();
+        if path.is_dir() {
+            rust_files(path, &mut files);
+        } else {
+            files.push(path.clone());
+        }
+        for file in files {
+            let text = std::fs::read_to_string(&file).expect("a readable source file");
+            let code_only: String = text.lines().map(|l| format!("{}\n", code(l))).collect();
+            for (used, at) in crate_refs_at(&code_only) {
+                let (Some(&own), Some(&theirs)) = (rank.get(module), rank.get(&used)) else { continue };
+                if used != *module && theirs <= own {
+                    violations.push(format!(
+                        "{}:{}: `{module}` uses `{used}`, which is not below it in the README's table",
+                        file.strip_prefix(root()).unwrap_or(&file).display(),
+                        code_only[..at].matches('\n').count() + 1
+                    ));
+                }
+            }
+        }
+    }
+    assert!(
+        violations.is_empty(),
+        "imports that point up or sideways (move the code down, or — if the dependency is meant and acyclic — \
+         move the rows of README.md's architecture table):\n{}",
+        violations.join("\n")
+    );
+}
