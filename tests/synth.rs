@@ -230,6 +230,7 @@ mod dataset {
             fof_n: 8,
             texture_size: 128,
             progress: false,
+            framing: Default::default(),
         }
     }
 
@@ -403,10 +404,10 @@ mod eval_run {
         let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
         assert!(csv.starts_with("method,group,psnr,ssim,"));
         assert!(csv.contains("ms_per_view,ms_per_input"));
-        assert!(csv.lines().next().unwrap().ends_with(",peak_mib,psnr_frame,ssim_frame,inputs"));
+        assert!(csv.lines().next().unwrap().ends_with(",peak_mib,psnr_frame,ssim_frame,inputs,framing"));
         // The paper's whole-frame metrics: the background both agree on counts, so they exceed the union's.
         for r in &rep.rows {
-            assert_eq!(r.inputs, "synthetic");
+            assert_eq!((r.inputs.as_str(), r.framing.as_str()), ("synthetic/full", "full"));
             assert!(r.psnr_frame > r.psnr && r.ssim_frame > r.ssim && r.ssim_frame <= 1.0, "{r:?}");
         }
         // Memory per method (exact values belong to tests/eval_memory.rs: tests here run in parallel threads).
@@ -424,5 +425,199 @@ mod eval_run {
         let differing = gt.pixels().zip(bb.pixels()).filter(|(a, b)| a != b).count();
         assert!(differing * 200 < gt.len() / 3, "{differing} of {} pixels differ", gt.len() / 3);
         assert!(views.join("yaw180_geometric_gt-fof.png").exists());
+    }
+}
+
+mod clothes {
+    use super::*;
+    use r2human::geometry::camera::Camera;
+    use r2human::geometry::fof::Fof;
+    use r2human::synth::framing::{crop, Framing};
+    use r2human::synth::garment::{self, BagKind, HairKind, LowerKind, UpperKind};
+
+    /// Signed distance of `q` from the body surface near it (positive outside): along the normal of the nearest
+    /// body vertex.
+    fn outside(s: &Subject, q: Vec3) -> f32 {
+        let body_n = s.garments.first().map_or(s.mesh.mesh.positions.len(), |g| g.vertices.start);
+        let (p, n) = (&s.mesh.mesh.positions, &s.mesh.mesh.normals);
+        let b = (0..body_n).min_by(|&a, &b| p[a].distance_squared(q).total_cmp(&p[b].distance_squared(q))).unwrap();
+        (q - p[b]).dot(n[b])
+    }
+
+    fn dressed(seed: u64, upper: UpperKind, lower: LowerKind) -> SubjectParams {
+        let mut p = SubjectParams::sample(seed);
+        p.outfit.upper = upper;
+        p.outfit.lower = lower;
+        p
+    }
+
+    #[test]
+    fn a_posed_arm_moves_its_sleeve_and_nothing_else() {
+        let a = assets();
+        let params = dressed(4, UpperKind::LongSleeve, LowerKind::Skirt);
+        let sleeves = |pose: &PoseParams| {
+            let posed = pose_body(a, &params.shape, pose).unwrap();
+            let body = garment::BodyRest {
+                positions: &posed.rest[..BODY_VERTEX_COUNT],
+                parts: &a.parts,
+                rig: &a.rig,
+                heads: &posed.heads,
+            };
+            let g = garment::build(&body, &params.outfit, [0.1; 3], [0.2; 3], [0.9; 3]);
+            let p = garment::pose_garments(&g, &posed.transforms, &posed.body, &a.parts);
+            let wrist = a.rig.bone("wrist.L").unwrap();
+            let posed_wrist = posed.transforms[wrist].transform_point3(posed.heads[wrist]);
+            let get = |label: &str| p[g.iter().position(|x| x.label == label).unwrap()].clone();
+            (get("sleeve.L"), get("sleeve.R"), posed_wrist)
+        };
+        let rest = PoseParams::rest();
+        let mut bent = PoseParams::rest();
+        bent.arms[0].elbow = 90.0;
+        let (l0, r0, w0) = sleeves(&rest);
+        let (l1, r1, w1) = sleeves(&bent);
+        // The cuff (last rows) follows the wrist: it moves by decimetres and keeps its distance to the wrist.
+        let cuff0 = l0[l0.len() - 25..].iter().sum::<Vec3>() / 25.0;
+        let cuff1 = l1[l1.len() - 25..].iter().sum::<Vec3>() / 25.0;
+        assert!(cuff0.distance(cuff1) > 1.0, "cuff moved {} dm", cuff0.distance(cuff1));
+        assert!(
+            (cuff0.distance(w0) - cuff1.distance(w1)).abs() < 0.1,
+            "{} vs {}",
+            cuff0.distance(w0),
+            cuff1.distance(w1)
+        );
+        // The other sleeve does not move.
+        let still = r0.iter().zip(&r1).map(|(x, y)| x.distance(*y)).fold(0.0f32, f32::max);
+        assert!(still < 1e-4, "right sleeve moved {still} dm");
+    }
+
+    #[test]
+    fn garments_stand_off_the_body_and_some_are_open() {
+        let (mut open, mut closed) = (0, 0);
+        for seed in 0..6u64 {
+            let s = small(seed);
+            for g in &s.garments {
+                if g.closed {
+                    closed += 1;
+                } else {
+                    open += 1;
+                }
+                if !["top", "dress", "skirt", "hips", "leg.L", "leg.R"].contains(&g.label.as_str()) {
+                    continue;
+                }
+                let d: Vec<f32> =
+                    g.vertices.clone().step_by(7).map(|v| outside(&s, s.mesh.mesh.positions[v])).collect();
+                let inside = d.iter().filter(|&&x| x < -0.002).count() as f32 / d.len() as f32;
+                let mut sorted = d.clone();
+                sorted.sort_by(f32::total_cmp);
+                let median = sorted[sorted.len() / 2];
+                // Folds at the hems and the waist may dip in; the cloth itself stands off the skin.
+                assert!(inside < 0.2, "seed {seed} {}: {inside} of the vertices inside the body", g.label);
+                assert!(median > 0.004, "seed {seed} {}: median distance {median}", g.label);
+            }
+        }
+        assert!(open >= 6 && closed >= 6, "{open} open, {closed} closed pieces");
+        // Open pieces have free edges; closed ones none (edges keyed by position: UV seams duplicate vertices).
+        let s = small(0);
+        let key = |p: Vec3| (p * 1e5).round().as_ivec3().to_array();
+        for g in &s.garments {
+            let mut edges: HashMap<([i32; 3], [i32; 3]), i32> = HashMap::new();
+            for t in s.mesh.mesh.triangles.iter().filter(|t| g.vertices.contains(&(t[0] as usize))) {
+                for k in 0..3 {
+                    let (a, b) = (
+                        key(s.mesh.mesh.positions[t[k] as usize]),
+                        key(s.mesh.mesh.positions[t[(k + 1) % 3] as usize]),
+                    );
+                    if a != b {
+                        *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+                    }
+                }
+            }
+            let free = edges.values().filter(|&&c| c == 1).count();
+            assert_eq!(free == 0, g.closed, "{}: {free} free edges", g.label);
+        }
+    }
+
+    #[test]
+    fn clothed_fof_contains_the_skirt_between_the_legs() {
+        let a = assets();
+        let mut params = dressed(2, UpperKind::Tee, LowerKind::Skirt);
+        params.pose = PoseParams::rest();
+        params.outfit.lower_hem = -4.5;
+        params.outfit.flare = 1.0;
+        (params.outfit.bag, params.outfit.hair) = (BagKind::None, HairKind::Short);
+        let s = generate(a, &params, 64).unwrap();
+        let skirt = s.garments.iter().find(|g| g.label == "skirt").unwrap();
+        let body_only = r2human::geometry::mesh::TriMesh::new(
+            s.mesh.mesh.positions[..s.garments[0].vertices.start].to_vec(),
+            s.mesh.mesh.triangles.iter().filter(|t| (t[0] as usize) < s.garments[0].vertices.start).copied().collect(),
+        );
+        let res = 128;
+        let clothed = Fof::from_mesh(&s.mesh.mesh, res, 32).unwrap();
+        let naked = Fof::from_mesh(&body_only, res, 32).unwrap();
+        // Just above the skirt's hem, on the body's axis: between the legs, inside the skirt.
+        let hem_y = s.mesh.mesh.positions[skirt.vertices.clone()].iter().map(|p| p.y).fold(f32::MAX, f32::min);
+        let row = ((1.0 - (hem_y + 0.08)) * res as f32 / 2.0) as usize;
+        let col = res / 2;
+        let mut occ = vec![0.0f32; 128];
+        clothed.decode_column(col, row, 128, &mut occ);
+        let inside_skirt = occ.iter().filter(|&&o| o >= 0.5).count();
+        naked.decode_column(col, row, 128, &mut occ);
+        let inside_body = occ.iter().filter(|&&o| o >= 0.5).count();
+        assert!(inside_skirt > 20 && inside_body == 0, "skirt {inside_skirt} vs body {inside_body} of 128 samples");
+        // The source view sees the garments: more pixels than the body alone, none fewer.
+        let cam = Camera::source(res);
+        let (c, b) = (
+            r2human::geometry::raster::rasterize(&s.mesh.mesh, &cam),
+            r2human::geometry::raster::rasterize(&body_only, &cam),
+        );
+        assert!(b.mask.iter().zip(&c.mask).all(|(&b, &c)| !b || c));
+        assert!(c.mask.iter().filter(|&&m| m).count() > b.mask.iter().filter(|&&m| m).count() * 11 / 10);
+    }
+
+    #[test]
+    fn framings_cut_where_they_should_in_the_pipeline_frame() {
+        let a = assets();
+        let mut seen = Vec::new();
+        for seed in 0..5u64 {
+            let full = small(seed);
+            for framing in [Framing::ThreeQuarter, Framing::Upper] {
+                let c = crop(&full, framing, &a.rig).unwrap();
+                assert_eq!(c.crop.requested, framing);
+                seen.push(c.crop.framing);
+                if c.crop.framing == Framing::Full {
+                    continue; // no crop fitted the cube: the full subject, recorded as such
+                }
+                let y = |name: &str| full.joints[a.rig.bone(name).unwrap()].y;
+                let (hip, knee, shoulder) = (
+                    y("upperleg01.L").min(y("upperleg01.R")),
+                    y("lowerleg01.L").max(y("lowerleg01.R")),
+                    y("upperarm01.L"),
+                );
+                match c.crop.framing {
+                    Framing::ThreeQuarter => assert!(c.crop.cut_y < hip && c.crop.cut_y > knee, "{:?}", c.crop),
+                    _ => assert!(c.crop.cut_y > hip && c.crop.cut_y < shoulder, "{:?}", c.crop),
+                }
+                // Nothing below the cut; inside the cube; 1.8 high or 1.96 wide, centred like a photo.
+                let (lo, hi) = c.mesh.mesh.bounds().unwrap();
+                assert!(lo.min_element() >= -1.0 && hi.max_element() <= 1.0, "{lo} {hi}");
+                let (h, w) = (hi.y - lo.y, hi.x - lo.x);
+                assert!((h - 1.8).abs() < 1e-3 || (w - 1.96).abs() < 1e-3, "{h} x {w}");
+                assert!((lo.y + hi.y).abs() < 1e-3 && (lo.x + hi.x).abs() < 1e-3);
+                // The pipeline normalises the cropped source image into (nearly) the same frame.
+                let gt = r2human::eval::ground_truth::render_ground_truth(&c.mesh, &Camera::source(256));
+                let rgb = gt.to_linear_rgba().map(|p| p.truncate());
+                let mask = r2human::buffer::Image {
+                    width: 256,
+                    height: 256,
+                    data: gt.mask.iter().map(|&m| m as u8 as f32).collect(),
+                };
+                let n = r2human::pipeline::input::normalise(&rgb, &mask, 256).unwrap();
+                assert!((n.transform.scale - 1.0).abs() < 0.012, "scale {}", n.transform.scale);
+                assert!(n.transform.offset.abs().max_element() < 1.6, "offset {}", n.transform.offset);
+                // Reproducible.
+                assert_eq!(crop(&full, framing, &a.rig).unwrap().mesh, c.mesh);
+            }
+        }
+        assert!(seen.contains(&Framing::ThreeQuarter) && seen.contains(&Framing::Upper), "{seen:?}");
     }
 }

@@ -75,12 +75,12 @@ pub fn render_on_backend(
     }
 }
 
-/// `render --backend vulkan` without a usable device: the reason and the CPU fallback on stderr, `Ok(None)` (the
-/// CPU path); any other GPU failure is an error.
+/// `render --backend vulkan` without a usable device: one warning (the reason and the CPU fallback), `Ok(None)`
+/// (the CPU path); any other GPU failure is an error.
 fn cpu_without_device(e: GpuError) -> anyhow::Result<Option<Vec<RenderedFrame>>> {
     match e {
         GpuError::NoVulkan(_) | GpuError::NoDevice(_) => {
-            eprintln!("warning: {e}\nwarning: rendering on the CPU instead (--backend cpu)");
+            tracing::warn!("{e}; rendering on the CPU instead (--backend cpu)");
             Ok(None)
         }
         e => Err(anyhow::Error::new(e).context("the Vulkan backend failed")),

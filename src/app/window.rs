@@ -850,7 +850,7 @@ impl App<'_, '_> {
             Renderer::new(ctx.clone(), swapchain.extent.width as usize, swapchain.extent.height as usize)?;
         if let Err(e) = self.engine.attach(&mut renderer) {
             if self.engine.backend == Backend::Vulkan {
-                eprintln!("warning: the Vulkan passes cannot run ({e:#}); rendering the person on the CPU instead");
+                tracing::warn!("the Vulkan passes cannot run ({e:#}); rendering the person on the CPU instead");
                 self.engine.fall_back_to_cpu();
                 self.engine.attach(&mut renderer)?;
             } else {

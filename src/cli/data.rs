@@ -25,6 +25,9 @@ pub struct DatasetArgs {
     /// Image side in pixels.
     #[arg(long, default_value_t = 512)]
     pub size: usize,
+    /// Framing of each subject: mixed (full, three-quarter and upper in turn), full, three-quarter or upper.
+    #[arg(long, default_value = "mixed", value_parser = parse_framing_choice)]
+    pub framing: crate::synth::framing::FramingChoice,
 }
 
 /// Arguments of `synth`.
@@ -36,6 +39,23 @@ pub struct SynthArgs {
     /// Output glTF binary (.glb).
     #[arg(long)]
     pub out: PathBuf,
+    /// Framing: full body, three-quarter (cut at the thighs) or upper body (cut at the chest or waist).
+    #[arg(long, default_value = "full", value_parser = parse_framing)]
+    pub framing: crate::synth::Framing,
+    /// Also write a contact sheet of the subject seen at yaw 0, 90 and 180 degrees (shaded, 512 px per view).
+    #[arg(long)]
+    pub sheet: Option<PathBuf>,
+}
+
+/// Parses `mixed`, `full`, `three-quarter` or `upper`.
+pub fn parse_framing_choice(s: &str) -> Result<crate::synth::framing::FramingChoice, String> {
+    crate::synth::framing::FramingChoice::parse(s)
+        .ok_or_else(|| format!("unknown framing {s:?}: use mixed, full, three-quarter or upper"))
+}
+
+/// Parses `full`, `three-quarter` or `upper`.
+pub fn parse_framing(s: &str) -> Result<crate::synth::Framing, String> {
+    crate::synth::Framing::parse(s).ok_or_else(|| format!("unknown framing {s:?}: use full, three-quarter or upper"))
 }
 
 /// `r2human dataset`.
@@ -55,6 +75,7 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
         out: args.out.clone(),
         views: args.views,
         size: args.size,
+        framing: args.framing,
         ..Default::default()
     };
     let summary = dataset::write_dataset(&opts)?;
@@ -70,8 +91,23 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
 
 /// `r2human synth`.
 pub fn run_synth(args: &SynthArgs) -> Result<()> {
-    let subject = crate::synth::write_subject_glb(args.seed, &args.out)?;
-    println!("wrote {} ({} triangles)", args.out.display(), subject.mesh.mesh.triangle_count());
+    let subject = crate::synth::write_subject_glb(args.seed, args.framing, &args.out)?;
+    println!(
+        "wrote {} ({} triangles; {} framing{}; garments: {})",
+        args.out.display(),
+        subject.mesh.mesh.triangle_count(),
+        subject.crop.framing.label(),
+        if subject.crop.at == "none" { String::new() } else { format!(", cut at the {}", subject.crop.at) },
+        if subject.garments.is_empty() {
+            "none".to_string()
+        } else {
+            subject.garments.iter().map(|g| g.label.as_str()).collect::<Vec<_>>().join(", ")
+        }
+    );
+    if let Some(sheet) = &args.sheet {
+        crate::eval::ground_truth::write_contact_sheet(sheet, &[&subject.mesh], &[0.0, 90.0, 180.0], 512)?;
+        println!("wrote {}", sheet.display());
+    }
     Ok(())
 }
 
@@ -109,6 +145,10 @@ pub struct EvalArgs {
     /// Image side in pixels.
     #[arg(long, default_value_t = 512)]
     pub size: usize,
+    /// Framing of the synthetic subjects: mixed (full, three-quarter and upper in turn; each framing is its own
+    /// group in the report), full, three-quarter or upper.
+    #[arg(long, default_value = "mixed", value_parser = parse_framing_choice)]
+    pub framing: crate::synth::framing::FramingChoice,
     /// Also write every view's ground truth and each method's rendering as PNGs (DIR/views/...), to look at.
     #[arg(long)]
     pub save_views: bool,
@@ -143,6 +183,7 @@ pub fn run_eval(args: &EvalArgs) -> Result<()> {
             scan_orientation: crate::synth::scan::ScanOrientation { up: args.up, facing: args.facing },
             size: args.size,
             save_views: args.save_views,
+            framing: args.framing,
             ..Default::default()
         };
         let report = crate::eval::runner::run_eval_with(&opts, &neural)?;

@@ -23,6 +23,7 @@ use crate::geometry::fof::Fof;
 use crate::geometry::inflate::{inflate_to_fof, InflateParams};
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::{write_atomic, NpyArray, NpyData};
+use crate::synth::framing::{self, FramingChoice};
 use crate::synth::{self, Rng, SubjectParams, SynthAssets};
 
 /// Options of [`write_dataset`] (the CLI's `r2human dataset` flags).
@@ -44,6 +45,8 @@ pub struct DatasetOptions {
     pub texture_size: usize,
     /// Show a progress bar on stderr.
     pub progress: bool,
+    /// Framing of each subject (`--framing`; mixed: full, three-quarter and upper in turn).
+    pub framing: FramingChoice,
 }
 
 impl Default for DatasetOptions {
@@ -57,6 +60,7 @@ impl Default for DatasetOptions {
             fof_n: 32,
             texture_size: synth::DEFAULT_TEXTURE_SIZE,
             progress: true,
+            framing: FramingChoice::Mixed,
         }
     }
 }
@@ -134,7 +138,7 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
     } else {
         indicatif::ProgressBar::hidden()
     };
-    let results: Vec<(String, Result<(), EvalError>)> = (0..opts.subjects)
+    let results: Vec<(String, Result<Written, EvalError>)> = (0..opts.subjects)
         .into_par_iter()
         .map(|i| {
             let name = format!("subject_{i:04}");
@@ -149,9 +153,15 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
     bar.finish_and_clear();
     let mut written = Vec::new();
     let mut failed = Vec::new();
+    let mut framings = serde_json::Map::new();
+    let mut sheet = Vec::new();
     for (name, r) in results {
         match r {
-            Ok(()) => written.push(name),
+            Ok(w) => {
+                framings.insert(name.clone(), json!(w.framing.label()));
+                sheet.extend(w.mesh);
+                written.push(name);
+            }
             Err(e) => failed.push((name, e.to_string())),
         }
     }
@@ -169,19 +179,38 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
         "seed": opts.seed,
         "subjects": written,
         "views_per_subject": opts.views,
+        "framing": opts.framing.label(),
+        "framings": framings,
+        "contact_sheet": "contact_sheet.png",
         "split": {"train": train, "test": test},
         "failed": failed.iter().map(|(n, e)| json!({"subject": n, "error": e})).collect::<Vec<_>>(),
     });
     let path = opts.out.join("dataset.json");
     let text = serde_json::to_vec_pretty(&manifest).map_err(|e| EvalError::io(&path, std::io::Error::other(e)))?;
     write_atomic(&path, &text).map_err(|e| EvalError::io(&path, e))?;
+    let meshes: Vec<&TexturedMesh> = sheet.iter().collect();
+    super::ground_truth::write_contact_sheet(&opts.out.join("contact_sheet.png"), &meshes, &SHEET_YAWS, SHEET_SIZE)?;
     Ok(DatasetSummary { written, failed, seconds: start.elapsed().as_secs_f64() })
 }
 
-fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name: &str) -> Result<(), EvalError> {
+/// Subjects shown in `contact_sheet.png` (the first ones), the yaws and the view size of the sheet.
+pub const SHEET_SUBJECTS: usize = 6;
+/// See [`SHEET_SUBJECTS`].
+pub const SHEET_YAWS: [f32; 3] = [0.0, 90.0, 180.0];
+/// See [`SHEET_SUBJECTS`].
+pub const SHEET_SIZE: usize = 256;
+
+/// What [`write_subject`] returns: the framing used and, for the first [`SHEET_SUBJECTS`], the mesh for the sheet.
+struct Written {
+    framing: synth::Framing,
+    mesh: Option<TexturedMesh>,
+}
+
+fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name: &str) -> Result<Written, EvalError> {
     let seed = subject_seed(opts.seed, index);
     let params = SubjectParams::sample(seed);
     let subject = synth::generate(assets, &params, opts.texture_size)?;
+    let subject = framing::crop(&subject, opts.framing.of(index), &assets.rig)?;
     let dest = opts.out.join(name);
     // Everything goes into a hidden temporary folder first; it is removed on drop unless renamed into place.
     let tmp = tempfile::Builder::new()
@@ -200,11 +229,13 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
         "seed": seed,
         "params": params,
         "normalization": {
-            "description": "p_cube = scale * (p_makehuman_dm - center); MakeHuman units are decimetres, +Y up, +Z forward",
+            "description": "p_cube = scale * (p_makehuman_dm - center); MakeHuman units are decimetres, +Y up, +Z forward; a cropped subject's includes its crop",
             "scale": subject.normalization.scale,
             "center": subject.normalization.center,
             "xz_radius": subject.normalization.xz_radius,
         },
+        "framing": subject.crop,
+        "garments": subject.garments,
         "mesh": {
             "vertices": subject.mesh.mesh.positions.len(),
             "triangles": subject.mesh.mesh.triangles.len(),
@@ -248,7 +279,7 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
         let _ = std::fs::remove_dir_all(&tmp_path);
         EvalError::io(&dest, e)
     })?;
-    Ok(())
+    Ok(Written { framing: subject.crop.framing, mesh: (index < SHEET_SUBJECTS).then_some(subject.mesh) })
 }
 
 /// The silhouette-inflation prior of a subject's source view as the FOF net sees it at inference

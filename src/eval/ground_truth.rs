@@ -82,3 +82,41 @@ pub fn render_ground_truth(mesh: &TexturedMesh, camera: &Camera) -> GroundTruthV
     }
     GroundTruthView { width: g.width, height: g.height, albedo, mask: g.mask, depth, normal }
 }
+
+impl GroundTruthView {
+    /// A shaded preview for looking at shapes (not ground truth: the data is unlit albedo): albedo times
+    /// `0.4 + 0.6 max(0, n . l)` for a light above-right of the camera, premultiplied linear RGBA.
+    pub fn shaded(&self) -> RgbaImage {
+        let light = Vec3::new(0.35, 0.5, 0.8).normalize();
+        RgbaImage::from_fn(self.width, self.height, |c, r| {
+            let i = r * self.width + c;
+            if self.mask[i] {
+                premultiply(self.albedo[i] * (0.4 + 0.6 * self.normal[i].dot(light).max(0.0)), 1.0)
+            } else {
+                Vec4::ZERO
+            }
+        })
+    }
+}
+
+/// Writes a contact sheet of subjects (atomically): one row per mesh, one shaded view per yaw (pitch 0), each
+/// `size` pixels square, for looking at what the generator makes.
+pub fn write_contact_sheet(
+    path: &std::path::Path,
+    meshes: &[&TexturedMesh],
+    yaws: &[f32],
+    size: usize,
+) -> Result<(), super::EvalError> {
+    let frames: Vec<crate::io::sequence::RenderedFrame> = meshes
+        .iter()
+        .flat_map(|m| {
+            yaws.iter().map(move |&yaw| {
+                crate::io::sequence::RenderedFrame::Ar(
+                    render_ground_truth(m, &Camera::orbit(yaw, 0.0, size, size)).shaded(),
+                )
+            })
+        })
+        .collect();
+    crate::io::sequence::write_contact_sheet(path, &frames, yaws.len().max(1), size)
+        .map_err(|e| super::EvalError::io(path, std::io::Error::other(e)))
+}

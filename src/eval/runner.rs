@@ -50,6 +50,7 @@ use crate::pipeline::{
     compute_geometry, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
     SharedFofNet, SharedNeural, StageTimings, ViewRenderer,
 };
+use crate::synth::framing::{self, Framing, FramingChoice};
 use crate::synth::{self, SubjectParams, SynthAssets};
 
 /// Options of [`run_eval`] (the CLI's `r2human eval` flags).
@@ -75,6 +76,9 @@ pub struct EvalOptions {
     /// Write each view's ground truth and every method's rendering to `out/views/<subject>/` (sRGB PNGs over
     /// black, as scored).
     pub save_views: bool,
+    /// Framing of the synthetic subjects (`--framing`; mixed: full, three-quarter and upper in turn). Each framing
+    /// is its own input set in the report (`synthetic/full`, `synthetic/three-quarter`, `synthetic/upper`).
+    pub framing: FramingChoice,
 }
 
 /// How [`run_eval_with`] runs the network methods (5, 6: the neural renderer; 7, 8: the FOF net).
@@ -100,6 +104,7 @@ impl Default for EvalOptions {
             yaws: vec![20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
             texture_size: 1024,
             save_views: false,
+            framing: FramingChoice::Mixed,
         }
     }
 }
@@ -126,8 +131,11 @@ const IOU_DEPTH_SAMPLES: usize = 128;
 /// One row of the report: a method on a view group.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ReportRow {
-    /// The inputs averaged: `synthetic` (every synthetic subject) or a scan's name (its file stem).
+    /// The inputs averaged: `synthetic/<framing>` (the synthetic subjects of one framing) or a scan's name (its
+    /// file stem).
     pub inputs: String,
+    /// The inputs' framing: `full`, `three-quarter` or `upper` (scans are whole characters: `full`).
+    pub framing: String,
     /// Method name (see [`METHODS`]).
     pub method: String,
     /// `close` (<= 45 deg) or `divergent` (>= 90 deg).
@@ -665,22 +673,29 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         Ok(())
     };
     if opts.subjects > 0 {
-        sets.push(("synthetic".to_string(), Default::default()));
-        let acc = &mut sets[0].1;
+        // One input set per framing actually used (a crop that does not fit the cube falls back to a wider one).
         let assets = SynthAssets::shared()?;
         for i in 0..opts.subjects {
             let name = format!("subject_{i:04}");
             let seed = super::dataset::subject_seed(opts.seed, i);
             let r = synth::generate(assets, &SubjectParams::sample(seed), opts.texture_size)
+                .and_then(|s| framing::crop(&s, opts.framing.of(i), &assets.rig))
                 .map_err(EvalError::from)
                 .and_then(|s| {
-                    eval_subject(&name, &s.mesh, opts, nets, acc, &mut geometry_iou, &mut fallbacks)?;
+                    let set = format!("synthetic/{}", s.crop.framing.label());
+                    let k = sets.iter().position(|x| x.0 == set).unwrap_or_else(|| {
+                        sets.push((set, Default::default()));
+                        sets.len() - 1
+                    });
+                    eval_subject(&name, &s.mesh, opts, nets, &mut sets[k].1, &mut geometry_iou, &mut fallbacks)?;
                     probe_once(&mut memory, &s.mesh)
                 });
             if let Err(e) = r {
                 failed.push((name, e.to_string()));
             }
         }
+        let order = |set: &str| Framing::ALL.iter().position(|f| set.ends_with(f.label()));
+        sets.sort_by_key(|(set, _)| order(set));
     }
     for scan in &opts.scans {
         let stem = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
@@ -711,6 +726,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             }
             rows.push(ReportRow {
                 inputs: set.clone(),
+                framing: set.strip_prefix("synthetic/").unwrap_or(Framing::Full.label()).to_string(),
                 method: name.to_string(),
                 group: group.to_string(),
                 psnr: mean(&a.psnr),
@@ -752,12 +768,12 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
 fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(), EvalError> {
     let mut csv = String::from(
         "method,group,psnr,ssim,lpips,mask_iou,depth_l1,ms_per_view,ms_per_input,views,psnr_overlap,peak_mib,\
-         psnr_frame,ssim_frame,inputs\n",
+         psnr_frame,ssim_frame,inputs,framing\n",
     );
     let mib = |r: &ReportRow| r.peak_mib.map(|m| format!("{m:.0}")).unwrap_or_default();
     for r in &rep.rows {
         csv.push_str(&format!(
-            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3},{},{:.3},{:.4},\"{}\"\n",
+            "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3},{},{:.3},{:.4},\"{}\",{}\n",
             r.method,
             r.group,
             r.psnr,
@@ -771,7 +787,8 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             mib(r),
             r.psnr_frame,
             r.ssim_frame,
-            r.inputs.replace('"', "\"\"")
+            r.inputs.replace('"', "\"\""),
+            r.framing
         ));
     }
     let p = out.join("report.csv");
@@ -806,7 +823,9 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
     }
     for set in sets {
         let title = match set {
-            "synthetic" => format!("Synthetic subjects ({})", opts.subjects),
+            set if set.starts_with("synthetic/") => {
+                format!("Synthetic subjects, {} framing", set.trim_start_matches("synthetic/"))
+            }
             scan => format!("Scan: {scan}"),
         };
         md.push_str(&format!(
@@ -874,7 +893,21 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         let perr = |e: String| EvalError::io(path, std::io::Error::other(e));
         root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
-        let pts: Vec<&ReportRow> = rep.rows.iter().filter(|r| r.psnr.is_finite()).collect();
+        // The synthetic framings are merged into one point per method and view group (view-weighted means).
+        let mut merged: Vec<ReportRow> = Vec::new();
+        for r in rep.rows.iter().filter(|r| r.psnr.is_finite()) {
+            let inputs = if r.inputs.starts_with("synthetic/") { "synthetic" } else { r.inputs.as_str() };
+            match merged.iter_mut().find(|m| m.inputs == inputs && m.method == r.method && m.group == r.group) {
+                Some(m) => {
+                    let (a, b) = (m.views as f32, r.views as f32);
+                    m.psnr = (m.psnr * a + r.psnr * b) / (a + b);
+                    m.ms_per_view = (m.ms_per_view * a + r.ms_per_view * b) / (a + b);
+                    m.views += r.views;
+                }
+                None => merged.push(ReportRow { inputs: inputs.to_string(), ..r.clone() }),
+            }
+        }
+        let pts: Vec<&ReportRow> = merged.iter().collect();
         let xmax = pts.iter().map(|r| r.ms_per_view).fold(1.0f32, f32::max) * 1.2;
         let (ymin, ymax) = pts.iter().fold((f32::MAX, f32::MIN), |(a, b), r| (a.min(r.psnr), b.max(r.psnr)));
         let (ymin, ymax) = if ymin <= ymax { (ymin - 1.0, ymax + 1.0) } else { (0.0, 40.0) };

@@ -2,13 +2,17 @@
 //!
 //! A subject is the MakeHuman base mesh (body only, [`base`]) shaped by MakeHuman macro morph targets
 //! ([`morph`]), posed by linear blend skinning on the MPFB2 rig ([`rig`], [`pose`]), dressed by a procedural
-//! texture ([`texture`]) and normalised into the body cube like the reference ([`normalize`]). Everything is
-//! reproducible from one seed. [`scan`] reads textured OBJ/glTF scans and normalises them the same way.
+//! texture ([`texture`]), clothed in garments, hair, hats, shoes and bags that are surfaces skinned with the body
+//! ([`garment`]), normalised into the body cube like the reference ([`normalize`]) and optionally cropped to a
+//! three-quarter or upper-body framing ([`framing`]). Everything is reproducible from one seed. [`scan`] reads
+//! textured OBJ/glTF scans and normalises them the same way.
 //!
 //! Run-time data: the base mesh is compiled in (`assets/makehuman/`, CC0); the morph targets and the rig come
 //! from PyPI packages that `scripts/setup.d/synth.sh` unpacks into `.tools/` (override with
 //! `R2HUMAN_TOOLS_DIR`). Missing data is a clear [`SynthError::Asset`], never a silent fallback.
 
+pub mod framing;
+pub mod garment;
 pub mod normalize;
 pub mod pose;
 pub mod scan;
@@ -19,7 +23,7 @@ use std::sync::OnceLock;
 
 use crate::body::BodyError;
 
-use glam::Vec3;
+use glam::{Affine3A, Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::mesh::TriMesh;
@@ -27,6 +31,8 @@ use crate::io::mesh_io::{MeshIoError, TexturedMesh};
 
 /// The body model lives in [`crate::body`]; these re-exports keep the `synth::{base, morph, rig}` paths.
 pub use crate::body::{base, morph, rig, tools_dir};
+pub use framing::{Crop, Framing};
+pub use garment::Outfit;
 pub use morph::MacroParams;
 pub use normalize::Normalization;
 pub use pose::PoseParams;
@@ -154,8 +160,10 @@ pub struct SubjectParams {
     pub shape: MacroParams,
     /// Pose.
     pub pose: PoseParams,
-    /// Clothing and colours.
+    /// Painted clothing and colours.
     pub appearance: Appearance,
+    /// Garments, hair, hats, shoes and bags as surfaces.
+    pub outfit: Outfit,
 }
 
 impl SubjectParams {
@@ -174,7 +182,8 @@ impl SubjectParams {
         .sanitized();
         let pose = PoseParams::sample(&mut rng);
         let appearance = Appearance::sample(&mut rng);
-        Self { seed, shape, pose, appearance }
+        let outfit = Outfit::sample(&mut rng, &appearance.top_fabric, &appearance.bottom_fabric);
+        Self { seed, shape, pose, appearance, outfit }
     }
 }
 
@@ -183,49 +192,141 @@ impl SubjectParams {
 pub struct Subject {
     /// Its parameters.
     pub params: SubjectParams,
-    /// The textured mesh (body cube units, UVs per vertex, texture attached).
+    /// The textured mesh: body and garments (body cube units, UVs per vertex, one texture: the body's UV layout
+    /// in the left half of the atlas, the garments in the right half when there are any).
     pub mesh: TexturedMesh,
     /// The transform from MakeHuman units (decimetres, posed) into the body cube.
     pub normalization: Normalization,
+    /// Posed bone heads in the body cube, indexed like [`rig::Rig::bones`].
+    pub joints: Vec<Vec3>,
+    /// The garment pieces on the subject (`top`, `sleeve.L`, `skirt`, `hair`...), in mesh order after the body.
+    pub garments: Vec<GarmentPiece>,
+    /// How the subject is framed (full body unless [`framing::crop`] cut it).
+    pub crop: Crop,
 }
 
-/// The body shaped and posed, in MakeHuman units (decimetres), over the split (UV) vertices.
-pub fn shaped_and_posed(assets: &SynthAssets, shape: &MacroParams, pose: &PoseParams) -> Result<Vec<Vec3>, SynthError> {
-    let mut full = assets.base.full_positions.clone();
-    assets.morphs.apply_macros(shape, &mut full)?;
-    let heads = assets.rig.heads(&full);
-    let tails = assets.rig.tails(&full);
+/// Where a garment piece sits in a subject's mesh.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GarmentPiece {
+    /// Name (`top`, `sleeve.L`, `skirt`, `hair`...).
+    pub label: String,
+    /// Its vertices in [`Subject::mesh`] (the body comes first).
+    pub vertices: std::ops::Range<usize>,
+    /// Whether it is a closed (watertight) volume; open pieces are single sheets with free edges.
+    pub closed: bool,
+}
+
+/// The body shaped and posed: rest shape, bone heads, skinning transforms and the posed body.
+#[derive(Clone, Debug)]
+pub struct PosedBody {
+    /// Shaped rest positions of the full base mesh (decimetres).
+    pub rest: Vec<Vec3>,
+    /// Shaped rest bone heads.
+    pub heads: Vec<Vec3>,
+    /// Global skinning transforms of the pose.
+    pub transforms: Vec<Affine3A>,
+    /// Posed body vertices, indexed like the base mesh's body vertices (unsplit).
+    pub body: Vec<Vec3>,
+}
+
+/// Shapes and poses the body (MakeHuman units, decimetres).
+pub fn pose_body(assets: &SynthAssets, shape: &MacroParams, pose: &PoseParams) -> Result<PosedBody, SynthError> {
+    let mut rest = assets.base.full_positions.clone();
+    assets.morphs.apply_macros(shape, &mut rest)?;
+    let heads = assets.rig.heads(&rest);
+    let tails = assets.rig.tails(&rest);
     let rotations = pose.rotations(&assets.rig, &heads, &tails);
     let transforms = assets.rig.skinning_transforms(&heads, &rotations);
-    let posed_body = assets.rig.skin(&full[..base::BODY_VERTEX_COUNT], &transforms);
-    Ok(assets.base.body_positions(&posed_body))
+    let body = assets.rig.skin(&rest[..base::BODY_VERTEX_COUNT], &transforms);
+    Ok(PosedBody { rest, heads, transforms, body })
 }
 
-/// Builds a subject from parameters: morph, pose, bake the texture (`texture_size`^2), normalise.
+/// Builds a full-body subject from parameters: morph, pose, dress (garments skinned with the body), bake the
+/// texture atlas (`texture_size` high; twice as wide when there are garments), normalise.
 pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usize) -> Result<Subject, SynthError> {
     let fail = |message: String| SynthError::Generation { seed: params.seed, message };
-    let positions = shaped_and_posed(assets, &params.shape, &params.pose)?;
+    let posed = pose_body(assets, &params.shape, &params.pose)?;
+    let rest_body = &posed.rest[..base::BODY_VERTEX_COUNT];
+    let body = garment::BodyRest { positions: rest_body, parts: &assets.parts, rig: &assets.rig, heads: &posed.heads };
+    let a = &params.appearance;
+    let garments = garment::build(&body, &params.outfit, a.hair, a.shoes, a.soles);
+    let posed_garments = garment::pose_garments(&garments, &posed.transforms, &posed.body, &assets.parts);
+
+    let mut positions = assets.base.body_positions(&posed.body);
+    let mut triangles = assets.base.triangles.clone();
+    let dressed = !garments.is_empty();
+    let body_uvs: Vec<Vec2> =
+        assets.base.uvs.iter().map(|uv| if dressed { Vec2::new(0.5 * uv.x, uv.y) } else { *uv }).collect();
+    let mut uvs = body_uvs.clone();
+    let size = texture_size.max(16);
+    let gutter = 3.0 / size as f32;
+    let rects = garment::pack_atlas(&garments.iter().map(|g| g.extent).collect::<Vec<_>>(), gutter);
+    let mut garment_uvs = Vec::with_capacity(garments.len());
+    let mut pieces = Vec::with_capacity(garments.len());
+    for ((g, p), &(origin, extent)) in garments.iter().zip(&posed_garments).zip(&rects) {
+        let offset = positions.len() as u32;
+        pieces.push(GarmentPiece {
+            label: g.label.clone(),
+            vertices: positions.len()..positions.len() + p.len(),
+            closed: g.closed,
+        });
+        positions.extend_from_slice(p);
+        triangles.extend(g.triangles.iter().map(|t| t.map(|i| i + offset)));
+        // The right half of the atlas, inset half a texel so bilinear lookups stay inside the piece.
+        let inset = Vec2::splat(0.5 / size as f32);
+        let g_uv: Vec<Vec2> =
+            g.uv.iter()
+                .map(|uv| {
+                    let q = origin + inset + *uv * (extent - 2.0 * inset).max(Vec2::ZERO);
+                    Vec2::new(0.5 + 0.5 * q.x, q.y)
+                })
+                .collect();
+        uvs.extend_from_slice(&g_uv);
+        garment_uvs.push(g_uv);
+    }
     let normalization = normalize::compute(&positions).ok_or_else(|| fail("degenerate posed mesh".into()))?;
-    let positions: Vec<Vec3> = positions.iter().map(|&p| normalization.apply(p)).collect();
     if normalization.xz_radius > 1.0 {
         return Err(fail(format!("pose leaves the body cube (xz radius {:.3})", normalization.xz_radius)));
     }
-    let mut mesh = TriMesh::new(positions, assets.base.triangles.clone());
-    mesh.uvs = assets.base.uvs.clone();
+    let positions: Vec<Vec3> = positions.iter().map(|&p| normalization.apply(p)).collect();
+    let mut mesh = TriMesh::new(positions, triangles);
+    mesh.uvs = uvs;
     mesh.validate().map_err(fail)?;
-    let texture = texture::bake(&assets.base, &assets.parts, &assets.landmarks, &params.appearance, texture_size);
-    Ok(Subject { params: params.clone(), mesh: TexturedMesh::textured(mesh, texture), normalization })
+
+    let mut canvas = texture::Canvas::new(if dressed { 2 * size } else { size }, size);
+    texture::paint_body(&mut canvas, &assets.base, &body_uvs, &assets.parts, &assets.landmarks, a);
+    for (g, g_uv) in garments.iter().zip(&garment_uvs) {
+        canvas.paint(&g.triangles, g_uv, |t, w| {
+            let tri = g.triangles[t].map(|i| i as usize);
+            let p = w[0] * g.rest[tri[0]] + w[1] * g.rest[tri[1]] + w[2] * g.rest[tri[2]];
+            let tint = w[0] * g.tint[tri[0]] + w[1] * g.tint[tri[1]] + w[2] * g.tint[tri[2]];
+            garment::look_color(&g.look, p, tint)
+        });
+    }
+    let texture = canvas.finish(Vec3::from(a.skin));
+    let joints =
+        posed.heads.iter().zip(&posed.transforms).map(|(&h, t)| normalization.apply(t.transform_point3(h))).collect();
+    Ok(Subject {
+        params: params.clone(),
+        mesh: TexturedMesh::textured(mesh, texture),
+        normalization,
+        joints,
+        garments: pieces,
+        crop: Crop::full(),
+    })
 }
 
-/// The subject of a seed with the shared assets and the default texture size.
-pub fn generate_subject(seed: u64) -> Result<Subject, SynthError> {
-    generate(SynthAssets::shared()?, &SubjectParams::sample(seed), DEFAULT_TEXTURE_SIZE)
+/// The subject of a seed with the shared assets and the default texture size, in `framing`.
+pub fn generate_subject(seed: u64, framing: Framing) -> Result<Subject, SynthError> {
+    let assets = SynthAssets::shared()?;
+    let subject = generate(assets, &SubjectParams::sample(seed), DEFAULT_TEXTURE_SIZE)?;
+    framing::crop(&subject, framing, &assets.rig)
 }
 
-/// `r2human synth --seed S --out subject.glb`: generates the subject of `seed` and writes it as a textured GLB
-/// (atomically). Returns the subject.
-pub fn write_subject_glb(seed: u64, out: &Path) -> Result<Subject, SynthError> {
-    let subject = generate_subject(seed)?;
+/// `r2human synth --seed S [--framing F] --out subject.glb`: generates the subject of `seed` in `framing` and
+/// writes it as a textured GLB (atomically). Returns the subject.
+pub fn write_subject_glb(seed: u64, framing: Framing, out: &Path) -> Result<Subject, SynthError> {
+    let subject = generate_subject(seed, framing)?;
     crate::io::mesh_io::write_glb(out, &subject.mesh)?;
     Ok(subject)
 }

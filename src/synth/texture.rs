@@ -159,7 +159,8 @@ fn hsv(h: f32, s: f32, v: f32) -> [f32; 3] {
     lin([r + m, g + m, b + m])
 }
 
-fn random_fabric(rng: &mut Rng, denim_like: bool) -> Fabric {
+/// A random garment fabric (`denim_like`: blue denim tones are likelier).
+pub(crate) fn random_fabric(rng: &mut Rng, denim_like: bool) -> Fabric {
     let base = if denim_like && rng.uniform() < 0.4 {
         hsv(rng.range(0.58, 0.64), rng.range(0.4, 0.7), rng.range(0.25, 0.6))
     } else {
@@ -302,7 +303,7 @@ fn hash3(seed: u64, i: i32, j: i32, k: i32) -> f32 {
 }
 
 /// Smooth 3-D value noise in `[0, 1]`.
-fn value_noise(seed: u64, p: Vec3) -> f32 {
+pub(crate) fn value_noise(seed: u64, p: Vec3) -> f32 {
     let f = p.floor();
     let t = p - f;
     let s = t * t * (Vec3::splat(3.0) - 2.0 * t);
@@ -326,10 +327,11 @@ fn fbm(seed: u64, p: Vec3) -> f32 {
 }
 
 /// Evaluates a fabric at a rest-pose position.
-fn fabric_color(f: &Fabric, p: Vec3) -> Vec3 {
+pub(crate) fn fabric_color(f: &Fabric, p: Vec3) -> Vec3 {
     let base = Vec3::from(f.base);
     let accent = Vec3::from(f.accent);
-    let around = p.x.atan2(p.z.max(-0.2) + 0.5) * 1.6; // arc length around the body axis (decimetres)
+    // Arc length around the body axis (decimetres); the one seam is the back's centre line.
+    let around = p.x.atan2(p.z + 0.3) * 1.6;
     let per = f.period.max(0.05);
     let c = match f.pattern {
         Pattern::Solid => base,
@@ -514,72 +516,112 @@ pub fn texel_color(a: &Appearance, lm: &Landmarks, p: Vec3, part: usize) -> Vec3
     }
 }
 
-/// Bakes the appearance into a `size x size` sRGB texture over the base mesh UVs. `parts` is
-/// [`part_weights`]; positions are the unmorphed rest pose, so the pattern does not depend on shape or pose.
+/// A texture being painted: triangles are rasterised in UV space (glTF UVs as fractions of the whole canvas) and
+/// each covered texel is coloured by a callback; [`Canvas::finish`] dilates the colours into the empty gutters (so
+/// bilinear lookups at UV seams never see the background) and encodes sRGB.
+pub struct Canvas {
+    width: usize,
+    height: usize,
+    colors: Vec<Option<Vec3>>,
+}
+
+impl Canvas {
+    /// An empty `width x height` canvas.
+    pub fn new(width: usize, height: usize) -> Self {
+        let (width, height) = (width.max(4), height.max(4));
+        Self { width, height, colors: vec![None; width * height] }
+    }
+
+    /// Paints `triangles` (indices into `uvs`): every texel whose centre a triangle covers gets
+    /// `color(triangle, barycentrics)` (linear RGB).
+    pub fn paint(&mut self, triangles: &[[u32; 3]], uvs: &[Vec2], color: impl Fn(usize, [f32; 3]) -> Vec3 + Sync) {
+        let (w, h) = (self.width, self.height);
+        let scale = Vec2::new(w as f32, h as f32);
+        // Which triangle covers each texel (+ barycentrics): rasterise the UV layout.
+        let mut owner: Vec<(u32, u32, [f32; 3])> = Vec::new();
+        for (t, tri) in triangles.iter().enumerate() {
+            let uv = tri.map(|i| uvs[i as usize] * scale);
+            let area = (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]);
+            if area.abs() < 1e-12 || !area.is_finite() {
+                continue;
+            }
+            let lo = uv[0].min(uv[1]).min(uv[2]).floor().max(Vec2::ZERO);
+            let hi = uv[0].max(uv[1]).max(uv[2]).ceil().min(scale);
+            for y in lo.y as usize..hi.y as usize {
+                for x in lo.x as usize..hi.x as usize {
+                    let c = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+                    let w0 = (uv[2] - uv[1]).perp_dot(c - uv[1]) / area;
+                    let w1 = (uv[0] - uv[2]).perp_dot(c - uv[2]) / area;
+                    let w2 = 1.0 - w0 - w1;
+                    if w0 >= -1e-4 && w1 >= -1e-4 && w2 >= -1e-4 {
+                        owner.push(((y * w + x) as u32, t as u32, [w0, w1, w2]));
+                    }
+                }
+            }
+        }
+        // A later triangle wins a shared texel, as before.
+        let painted: Vec<(u32, Vec3)> = owner.par_iter().map(|&(i, t, b)| (i, color(t as usize, b))).collect();
+        for (i, c) in painted {
+            self.colors[i as usize] = Some(c);
+        }
+    }
+
+    /// Dilates into the gutters (4 texels), fills what is left with `fill` and encodes 8-bit sRGB.
+    pub fn finish(mut self, fill: Vec3) -> image::RgbImage {
+        let (w, h) = (self.width, self.height);
+        let colors = &mut self.colors;
+        let mut empty: Vec<usize> = (0..colors.len()).filter(|&i| colors[i].is_none()).collect();
+        for _ in 0..4 {
+            let fills: Vec<Option<Vec3>> = empty
+                .iter()
+                .map(|&i| {
+                    let (sum, n) = neighbours4(i, w, h)
+                        .filter_map(|j| colors[j])
+                        .fold((Vec3::ZERO, 0), |(sum, n), c| (sum + c, n + 1));
+                    (n > 0).then(|| sum / n as f32)
+                })
+                .collect();
+            for (&i, f) in empty.iter().zip(&fills) {
+                colors[i] = *f;
+            }
+            empty.retain(|&i| colors[i].is_none());
+        }
+        let raw: Vec<u8> = colors.iter().flat_map(|c| linear_to_srgb8(c.unwrap_or(fill))).collect();
+        image::RgbImage::from_raw(w as u32, h as u32, raw).unwrap_or_else(|| image::RgbImage::new(w as u32, h as u32))
+    }
+}
+
+/// Paints the body's appearance over the base mesh triangles with the given UVs (the base UVs, or the base UVs
+/// mapped into part of an atlas). `parts` is [`part_weights`]; positions are the unmorphed rest pose, so the
+/// pattern does not depend on shape or pose.
+pub fn paint_body(
+    canvas: &mut Canvas,
+    base: &BaseMesh,
+    uvs: &[Vec2],
+    parts: &[[f32; 10]],
+    lm: &Landmarks,
+    a: &Appearance,
+) {
+    canvas.paint(&base.triangles, uvs, |t, w| {
+        let tri = base.triangles[t];
+        let src = tri.map(|i| base.source_vertex[i as usize] as usize);
+        let p = w[0] * base.full_positions[src[0]]
+            + w[1] * base.full_positions[src[1]]
+            + w[2] * base.full_positions[src[2]];
+        let mut pw = [0.0f32; 10];
+        for k in 0..3 {
+            for (acc, x) in pw.iter_mut().zip(&parts[src[k]]) {
+                *acc += w[k] * x;
+            }
+        }
+        let part = pw.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map(|x| x.0).unwrap_or(0);
+        texel_color(a, lm, p, part)
+    });
+}
+
+/// Bakes the appearance into a `size x size` sRGB texture over the base mesh UVs (the unclothed body alone).
 pub fn bake(base: &BaseMesh, parts: &[[f32; 10]], lm: &Landmarks, a: &Appearance, size: usize) -> image::RgbImage {
-    let size = size.max(4);
-    // Which triangle covers each texel (+ barycentrics): rasterise the UV layout.
-    let mut owner: Vec<(u32, [f32; 3])> = vec![(u32::MAX, [0.0; 3]); size * size];
-    for (t, tri) in base.triangles.iter().enumerate() {
-        let uv = tri.map(|i| base.uvs[i as usize] * size as f32);
-        let area = (uv[1] - uv[0]).perp_dot(uv[2] - uv[0]);
-        if area.abs() < 1e-12 {
-            continue;
-        }
-        let lo = uv[0].min(uv[1]).min(uv[2]).floor().max(Vec2::ZERO);
-        let hi = uv[0].max(uv[1]).max(uv[2]).ceil().min(Vec2::splat(size as f32));
-        for y in lo.y as usize..hi.y as usize {
-            for x in lo.x as usize..hi.x as usize {
-                let c = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
-                let w0 = (uv[2] - uv[1]).perp_dot(c - uv[1]) / area;
-                let w1 = (uv[0] - uv[2]).perp_dot(c - uv[2]) / area;
-                let w2 = 1.0 - w0 - w1;
-                if w0 >= -1e-4 && w1 >= -1e-4 && w2 >= -1e-4 {
-                    owner[y * size + x] = (t as u32, [w0, w1, w2]);
-                }
-            }
-        }
-    }
-    let mut colors: Vec<Option<Vec3>> = owner
-        .par_iter()
-        .map(|&(t, w)| {
-            if t == u32::MAX {
-                return None;
-            }
-            let tri = base.triangles[t as usize];
-            let src = tri.map(|i| base.source_vertex[i as usize] as usize);
-            let p = w[0] * base.full_positions[src[0]]
-                + w[1] * base.full_positions[src[1]]
-                + w[2] * base.full_positions[src[2]];
-            let mut pw = [0.0f32; 10];
-            for k in 0..3 {
-                for (acc, x) in pw.iter_mut().zip(&parts[src[k]]) {
-                    *acc += w[k] * x;
-                }
-            }
-            let part = pw.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map(|x| x.0).unwrap_or(0);
-            Some(texel_color(a, lm, p, part))
-        })
-        .collect();
-    // Dilate into the gutters so bilinear and mip lookups at UV seams never see the empty background.
-    let mut empty: Vec<usize> = (0..colors.len()).filter(|&i| colors[i].is_none()).collect();
-    for _ in 0..4 {
-        let fills: Vec<Option<Vec3>> = empty
-            .iter()
-            .map(|&i| {
-                let (sum, n) = neighbours4(i, size, size)
-                    .filter_map(|j| colors[j])
-                    .fold((Vec3::ZERO, 0), |(sum, n), c| (sum + c, n + 1));
-                (n > 0).then(|| sum / n as f32)
-            })
-            .collect();
-        for (&i, f) in empty.iter().zip(&fills) {
-            colors[i] = *f;
-        }
-        empty.retain(|&i| colors[i].is_none());
-    }
-    let fill = Vec3::from(a.skin);
-    let raw: Vec<u8> = colors.iter().flat_map(|c| linear_to_srgb8(c.unwrap_or(fill))).collect();
-    image::RgbImage::from_raw(size as u32, size as u32, raw)
-        .unwrap_or_else(|| image::RgbImage::new(size as u32, size as u32))
+    let mut canvas = Canvas::new(size, size);
+    paint_body(&mut canvas, base, &base.uvs, parts, lm, a);
+    canvas.finish(Vec3::from(a.skin))
 }
