@@ -101,9 +101,10 @@ pub struct PrepareProcessor {
 
 impl PrepareProcessor {
     /// A processor with FOF smoothing weight 0.6 (new frame) and a reset when the coefficients change by more
-    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change.
+    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change. The body
+    /// prior (`--geometry body`) warm-starts each frame from the previous one ([`PrepareOptions::warm_start`]).
     pub fn new(options: PrepareOptions) -> Self {
-        Self { options, fof_smoother: VecSmoother::new(0.6, 0.5) }
+        Self { options: PrepareOptions { warm_start: true, ..options }, fof_smoother: VecSmoother::new(0.6, 0.5) }
     }
 }
 
