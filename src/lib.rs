@@ -17,6 +17,7 @@
 //!   person-renderer seam; procedural subjects.
 //! - [`body`], [`capture`], [`compose`], then [`io`], [`neural`], then [`geometry`]: the building blocks.
 //! - [`buffer`]: the 2-D image buffer every stage passes around.
+//! - `fuzzing` (hidden): the loaders' fuzz targets, shared by `tests/fuzz.rs` and the `cargo fuzz` crate in `fuzz/`.
 
 pub mod app;
 pub mod body;
@@ -25,6 +26,8 @@ pub mod capture;
 pub mod cli;
 pub mod compose;
 pub mod eval;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod geometry;
 pub mod gpu;
 pub mod io;

@@ -314,7 +314,8 @@ fn eval_scores_the_fof_net_rows_and_notes_when_they_are_skipped() {
         assert_eq!(neural.mask_iou, get("neural+inflation", g).unwrap().mask_iou);
     }
     let ious: Vec<&str> = rep.geometry_iou.iter().map(|(n, _)| n.as_str()).collect();
-    assert_eq!(ious, ["inflation", "fofnet"]);
+    // The body prior's row follows when the pose model is installed (tests/body.rs covers it).
+    assert_eq!(ious[..2], ["inflation", "fofnet"]);
     assert_eq!(rep.geometry_iou[0].1, rep.geometry_iou[1].1);
     assert!(rep.geometry_iou[0].1 > 0.01 && rep.geometry_iou[0].1 < 1.0, "{:?}", rep.geometry_iou);
     let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();

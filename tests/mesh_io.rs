@@ -477,3 +477,45 @@ fn z_up_scan_is_detected_or_told_and_turned_to_face_the_camera() {
     let e = load_scan_with(&p, &ScanOrientation { up: Some(UpAxis::Y), facing: Some(Facing::PlusZ) }).unwrap_err();
     assert!(e.to_string().contains("--up"), "{e}");
 }
+
+#[test]
+fn eval_scan_alone_reports_the_scan_rows() {
+    use r2human::eval::runner::{run_eval_with, EvalOptions, NeuralEvalOptions};
+    let dir = tempfile::tempdir().unwrap();
+    // A multi-material Z-up person: body and head in two materials (a texture and a colour), arms out.
+    solid(dir.path(), "body.tga", GREEN);
+    write(dir.path(), "p.mtl", "newmtl body\nmap_Kd body.tga\nnewmtl head\nKd 0.9 0.6 0.5\n");
+    let mut obj = String::from("mtllib p.mtl\nvt 0.5 0.5\nusemtl body\n");
+    let mut k = 0;
+    for (part, (lo, hi)) in [
+        ("body", (Vec3::new(-0.2, -0.12, 0.0), Vec3::new(0.2, 0.12, 1.45))),
+        ("body", (Vec3::new(-0.9, -0.05, 1.3), Vec3::new(0.9, 0.05, 1.4))),
+        ("head", (Vec3::new(-0.1, -0.1, 1.45), Vec3::new(0.1, 0.1, 1.7))),
+    ] {
+        let m = TriMesh::cuboid(lo, hi);
+        obj.push_str(&format!("usemtl {part}\n"));
+        for p in &m.positions {
+            obj.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+        }
+        for t in &m.triangles {
+            obj.push_str(&format!("f {}/1 {}/1 {}/1\n", t[0] + k + 1, t[1] + k + 1, t[2] + k + 1));
+        }
+        k += 8;
+    }
+    let scan = write(dir.path(), "person.obj", &obj);
+    let opts = EvalOptions {
+        subjects: 0,
+        out: dir.path().join("eval"),
+        scans: vec![scan],
+        size: 64,
+        yaws: vec![30.0, 90.0, 180.0],
+        ..EvalOptions::default()
+    };
+    let rep = run_eval_with(&opts, &NeuralEvalOptions { skip: true, ..Default::default() }).unwrap();
+    assert!(rep.failed.is_empty(), "{:?}", rep.failed);
+    assert!(!rep.rows.is_empty() && rep.rows.iter().all(|r| r.inputs == "person"), "{:?}", rep.rows);
+    let get = |m: &str| rep.rows.iter().find(|r| r.method == m && r.group == "divergent").unwrap();
+    assert!(get("geometric+gt-fof").mask_iou > get("billboard").mask_iou + 0.2);
+    let md = std::fs::read_to_string(opts.out.join("report.md")).unwrap();
+    assert!(md.contains("## Scan: person") && !md.contains("## Synthetic"), "{md}");
+}

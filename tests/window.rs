@@ -330,6 +330,61 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
     });
 }
 
+/// The short soak of issue 16 (scripts/soak.sh runs the long one): the live synthetic source stalls for 2 s, is
+/// gone for 2 s (errors), sends half-resolution frames for 3 s and comes back; the window keeps presenting
+/// through all of it (no frame waits for the source), reports the outage, shows frames of both sizes and new
+/// frames after each fault, with validation on and no message.
+#[test]
+fn faulty_live_source_stalls_vanishes_resizes_and_the_window_recovers() {
+    in_window_child("faulty_live_source_stalls_vanishes_resizes_and_the_window_recovers", || {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("frames.csv");
+        let stats = run(WindowOptions {
+            video: Some("synthetic:160x120@15+faults".into()),
+            segment: SegmentMethod::Alpha,
+            backend: Backend::Cpu,
+            size: 128,
+            resolution: 128,
+            frame_log: Some(log.clone()),
+            // One fault cycle (12 s) and the return to full size, plus the first frame's latency.
+            duration: Some(Duration::from_secs(15)),
+            ..WindowOptions::default()
+        });
+        let live = stats.live.clone().expect("live statistics");
+        eprintln!("live: {live:?}\nmessages: {:?}", stats.messages);
+        assert!(!stats.source_finished, "a live source never ends");
+        assert!(live.errors >= 1 && stats.messages.iter().any(|m| m.contains("gone")), "{:?}", stats.messages);
+        // (start ms, live sequence, source width) per presented frame.
+        let rows: Vec<(f64, u64, usize)> = std::fs::read_to_string(&log)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (f[0].parse().unwrap(), f[2].parse().unwrap(), f[3].parse().unwrap())
+            })
+            .collect();
+        assert_eq!(rows.len() as u64, stats.frames);
+        // The display loop never waited for the source: no gap between frames near the 2 s outages.
+        let gap = rows.windows(2).map(|w| w[1].0 - w[0].0).fold(0.0, f64::max);
+        assert!(gap < 1500.0, "the window stalled for {gap:.0} ms");
+        // New live frames: full size, then half size, then full size again, each after a pause of over 1.5 s
+        // without a new frame (the stall or the outage) followed by more new frames.
+        let mut new_frames: Vec<(f64, usize)> = Vec::new();
+        for w in rows.windows(2) {
+            if w[1].1 != w[0].1 {
+                new_frames.push((w[1].0, w[1].2));
+            }
+        }
+        let sizes: Vec<usize> = new_frames.iter().map(|f| f.1).collect();
+        let half = sizes.iter().position(|&w| w == 80).expect("frames of the resized source were shown");
+        assert!(sizes[..half].contains(&160) && sizes[half..].contains(&160), "sizes shown: {sizes:?}");
+        let pauses = new_frames.windows(2).filter(|w| w[1].0 - w[0].0 > 1500.0).count();
+        assert!(pauses >= 1, "no outage seen in {new_frames:?}");
+        assert!(stats.live_uploads as usize == new_frames.len() + 1, "{} uploads", stats.live_uploads);
+    });
+}
+
 #[test]
 fn resize_recreates_the_swapchain_on_the_cpu_backend() {
     in_window_child("resize_recreates_the_swapchain_on_the_cpu_backend", || {

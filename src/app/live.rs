@@ -101,9 +101,10 @@ pub struct PrepareProcessor {
 
 impl PrepareProcessor {
     /// A processor with FOF smoothing weight 0.6 (new frame) and a reset when the coefficients change by more
-    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change.
+    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change. The body
+    /// prior (`--geometry body`) warm-starts each frame from the previous one ([`PrepareOptions::warm_start`]).
     pub fn new(options: PrepareOptions) -> Self {
-        Self { options, fof_smoother: VecSmoother::new(0.6, 0.5) }
+        Self { options: PrepareOptions { warm_start: true, ..options }, fof_smoother: VecSmoother::new(0.6, 0.5) }
     }
 }
 
@@ -340,6 +341,7 @@ impl<T> Shared<T> {
 pub struct LivePipeline<T: Send + Sync + 'static> {
     shared: Arc<Shared<T>>,
     description: String,
+    live: bool,
     threads: Vec<JoinHandle<()>>,
 }
 
@@ -365,14 +367,14 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
             source_done: AtomicBool::new(false),
             worker_done: AtomicBool::new(false),
         });
-        let (opened_tx, opened_rx) = mpsc::channel::<Result<String, CaptureError>>();
+        let (opened_tx, opened_rx) = mpsc::channel::<Result<(String, bool), CaptureError>>();
         let cap_shared = Arc::clone(&shared);
         let pace = options.pace;
         let capture = std::thread::Builder::new()
             .name("r2human-capture".into())
             .spawn(move || match factory() {
                 Ok(mut source) => {
-                    let _ = opened_tx.send(Ok(source.describe()));
+                    let _ = opened_tx.send(Ok((source.describe(), source.is_live())));
                     capture_loop(source.as_mut(), &cap_shared, pace);
                 }
                 Err(e) => {
@@ -381,7 +383,7 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
                 }
             })
             .map_err(|e| LiveError::Thread(e.to_string()))?;
-        let description = match opened_rx.recv() {
+        let (description, live) = match opened_rx.recv() {
             Ok(Ok(d)) => d,
             Ok(Err(e)) => {
                 let _ = capture.join();
@@ -400,12 +402,17 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
                 work_shared.worker_done.store(true, Ordering::SeqCst);
             })
             .map_err(|e| LiveError::Thread(e.to_string()))?;
-        Ok(Self { shared, description, threads: vec![capture, worker] })
+        Ok(Self { shared, description, live, threads: vec![capture, worker] })
     }
 
     /// The source's description.
     pub fn describe(&self) -> &str {
         &self.description
+    }
+
+    /// Is the source real-time (a camera, the live synthetic source), one that never ends by itself?
+    pub fn is_live(&self) -> bool {
+        self.live
     }
 
     /// A non-blocking reader of the latest completed frame, for the display loop.

@@ -42,6 +42,7 @@ use crate::app::live::{
 use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
 use crate::app::{log_software_device, Backend};
 use crate::buffer::Image;
+use crate::capture::stats::DurationHistogram;
 use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
 use crate::geometry::Camera;
@@ -135,6 +136,11 @@ pub struct WindowOptions {
     /// Turntable: degrees the orbit turns before every frame (0 = still; demos and benchmarks, where an unmoved
     /// view would reuse the last person layer).
     pub spin: f32,
+    /// Write one CSV line per presented frame here (`start_ms,frame_ms,live_sequence,source_w,source_h`),
+    /// streamed (constant memory) into a temporary file renamed at the end: the timeline of a soak run.
+    pub frame_log: Option<PathBuf>,
+    /// Close the window after this long (soak runs), whatever `frames` says.
+    pub duration: Option<Duration>,
 }
 
 impl Default for WindowOptions {
@@ -159,7 +165,49 @@ impl Default for WindowOptions {
             resolution: crate::geometry::SOURCE_RESOLUTION,
             neural: NeuralSetup::default(),
             spin: 0.0,
+            frame_log: None,
+            duration: None,
         }
+    }
+}
+
+/// The per-frame CSV of [`WindowOptions::frame_log`].
+struct FrameLog {
+    path: PathBuf,
+    file: std::io::BufWriter<tempfile::NamedTempFile>,
+    origin: Option<Instant>,
+}
+
+impl FrameLog {
+    fn create(path: &std::path::Path) -> anyhow::Result<Self> {
+        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+        let tmp = tempfile::Builder::new()
+            .prefix(".r2human-")
+            .suffix(".part")
+            .tempfile_in(dir)
+            .with_context(|| format!("cannot create the frame log {}", path.display()))?;
+        let mut file = std::io::BufWriter::new(tmp);
+        std::io::Write::write_all(&mut file, b"start_ms,frame_ms,live_sequence,source_w,source_h\n")?;
+        Ok(Self { path: path.to_path_buf(), file, origin: None })
+    }
+
+    fn record(&mut self, start: Instant, time: Duration, live: Option<(u64, usize, usize)>) -> anyhow::Result<()> {
+        let origin = *self.origin.get_or_insert(start);
+        let (seq, w, h) = live.unwrap_or((0, 0, 0));
+        let line = format!(
+            "{:.3},{:.3},{seq},{w},{h}\n",
+            start.duration_since(origin).as_secs_f64() * 1e3,
+            time.as_secs_f64() * 1e3
+        );
+        std::io::Write::write_all(&mut self.file, line.as_bytes())
+            .with_context(|| format!("writing the frame log {}", self.path.display()))
+    }
+
+    fn finish(self) -> anyhow::Result<()> {
+        let tmp = self.file.into_inner().map_err(|e| anyhow!("writing the frame log {}: {e}", self.path.display()))?;
+        crate::io::npy::set_readable(tmp.as_file())?;
+        tmp.persist(&self.path).map_err(|e| anyhow!("writing the frame log {}: {}", self.path.display(), e.error))?;
+        Ok(())
     }
 }
 
@@ -170,8 +218,10 @@ pub struct ViewStats {
     pub frames: u64,
     /// Frames presented that showed a person (all of them for a photo; live input starts without one).
     pub person_frames: u64,
-    /// Median frame time (render + present) over the presented frames.
+    /// Median frame time (render + present) over the presented frames (to within 50 µs).
     pub median_frame: Duration,
+    /// Every presented frame's time (render + present), in fixed memory.
+    pub frame_histogram: DurationHistogram,
     /// Screenshots written (rendered views, no overlay).
     pub screenshots: Vec<PathBuf>,
     /// Validation-layer errors + warnings seen (0 unless validation is on).
@@ -309,7 +359,8 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         let encodes = processor.encode_counter();
         let pipeline = LivePipeline::start(factory, processor, live_opts)?;
         tracing::info!("live input: {}", pipeline.describe());
-        PersonInput::Live(Box::new(LiveInput::new(pipeline, opts.camera.is_some(), encodes)))
+        let live_source = opts.camera.is_some() || pipeline.is_live();
+        PersonInput::Live(Box::new(LiveInput::new(pipeline, live_source, encodes)))
     } else {
         let person = crate::capture::segment::segment_photo(&opts.image, opts.mask.as_deref(), &opts.segment)?;
         tracing::info!("preparing the input (geometry, mesh)");
@@ -346,7 +397,10 @@ fn run_window(engine: &mut Engine<'_>, opts: &WindowOptions) -> anyhow::Result<V
         window: None,
         drag: None,
         cursor: (0.0, 0.0),
-        frame_times: Vec::with_capacity(4096),
+        frame_hist: DurationHistogram::default(),
+        recent_frames: std::collections::VecDeque::with_capacity(31),
+        frame_log: opts.frame_log.as_deref().map(FrameLog::create).transpose()?,
+        first_frame: None,
         last_status: None,
         overlay_lines: Vec::new(),
         overlay_uploaded: false,
@@ -361,9 +415,11 @@ fn run_window(engine: &mut Engine<'_>, opts: &WindowOptions) -> anyhow::Result<V
     if let Some(e) = app.error {
         return Err(e);
     }
-    let mut times = app.frame_times.clone();
-    times.sort();
-    app.stats.median_frame = times.get(times.len() / 2).copied().unwrap_or_default();
+    app.stats.median_frame = app.frame_hist.median();
+    app.stats.frame_histogram = app.frame_hist.clone();
+    if let Some(log) = app.frame_log.take() {
+        log.finish()?;
+    }
     app.stats.frames = app.presented;
     app.stats.overlay = app.overlay_lines.clone();
     app.stats.backend = app.engine.backend;
@@ -604,6 +660,15 @@ impl<'a> Engine<'a> {
         Ok(())
     }
 
+    /// Live input: the completion sequence and source frame size of the person shown (`None` before the first
+    /// completed frame and for a photo).
+    fn shown_live(&self) -> Option<(u64, usize, usize)> {
+        match &self.input {
+            PersonInput::Live(live) => live.current.as_ref().map(|c| (c.sequence, c.mask.width, c.mask.height)),
+            PersonInput::Still(_) => None,
+        }
+    }
+
     /// Is there a person to show?
     fn has_person(&self) -> bool {
         match &self.input {
@@ -808,7 +873,12 @@ struct App<'a, 'e> {
     window: Option<Window>,
     drag: Option<(f64, f64)>,
     cursor: (f64, f64),
-    frame_times: Vec<Duration>,
+    /// All frame times (fixed memory, for the median and the histogram) and the last 30 (overlay).
+    frame_hist: DurationHistogram,
+    recent_frames: std::collections::VecDeque<Duration>,
+    frame_log: Option<FrameLog>,
+    /// When the first frame started (for `duration`).
+    first_frame: Option<Instant>,
     last_status: Option<Instant>,
     overlay_lines: Vec<String>,
     overlay_uploaded: bool,
@@ -921,7 +991,9 @@ impl App<'_, '_> {
             self.orbit.drag(-self.opts.spin / Orbit::DEGREES_PER_PIXEL, 0.0);
         }
         let camera = self.orbit.camera(w, h);
-        let last = is_last_frame(self.opts, self.engine, self.presented, self.stats.person_frames);
+        let running = self.first_frame.get_or_insert(start).elapsed();
+        let last = self.opts.duration.is_some_and(|d| running >= d)
+            || is_last_frame(self.opts, self.engine, self.presented, self.stats.person_frames);
         self.finished = last;
         let want = self.screenshot_requested || (last && self.opts.screenshot_on_exit.is_some());
         let target = PresentTarget { image, wait: ready, signal: rendered, bgra: gfx.swapchain.is_bgra() };
@@ -935,7 +1007,15 @@ impl App<'_, '_> {
             self.stats.person_frames += 1;
         }
         self.stats.final_size = (w as u32, h as u32);
-        self.frame_times.push(start.elapsed());
+        let frame_time = start.elapsed();
+        self.frame_hist.record(frame_time);
+        if self.recent_frames.len() == 30 {
+            self.recent_frames.pop_front();
+        }
+        self.recent_frames.push_back(frame_time);
+        if let Some(log) = self.frame_log.as_mut() {
+            log.record(start, frame_time, self.engine.shown_live())?;
+        }
         if last {
             if let Some(path) = &self.opts.presented_on_exit {
                 image_io::write_encoded(path, image::DynamicImage::ImageRgb8(gfx.renderer.read_presented()))?;
@@ -967,8 +1047,7 @@ impl App<'_, '_> {
             return;
         }
         self.last_status = Some(Instant::now());
-        let recent = &self.frame_times[self.frame_times.len().saturating_sub(30)..];
-        let mut sorted = recent.to_vec();
+        let mut sorted: Vec<Duration> = self.recent_frames.iter().copied().collect();
         sorted.sort();
         let median = sorted.get(sorted.len() / 2).copied().unwrap_or_default();
         let ms = median.as_secs_f64() * 1e3;

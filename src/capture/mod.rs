@@ -223,7 +223,14 @@ pub fn is_image_path(path: &Path) -> bool {
 
 /// Opens `--video PATH`: a folder is an image sequence, an image file a still image, anything else a video file
 /// (decoded by ffmpeg). `fps` is the rate assumed for folders (they have none of their own).
+///
+/// `synthetic:[WxH][@FPS][+faults]` opens the live synthetic walker instead ([`synthetic::LiveSpec`]): a camera
+/// stand-in for soak runs, optionally stalling, vanishing and changing resolution on a fixed cycle.
 pub fn open_video_path(path: &Path, fps: f32) -> Result<Box<dyn FrameSource>, CaptureError> {
+    if let Some(spec) = path.to_str().and_then(synthetic::LiveSpec::parse) {
+        let spec = spec.map_err(|reason| CaptureError::Open { path: path.into(), reason })?;
+        return Ok(Box::new(synthetic::LiveWalkerSource::new(spec)));
+    }
     let meta = std::fs::metadata(path).map_err(|e| CaptureError::Open { path: path.into(), reason: e.to_string() })?;
     if meta.is_dir() {
         Ok(Box::new(ImageSequenceSource::open(path, fps)?))

@@ -18,6 +18,129 @@ pub fn median(values: &[Duration]) -> Duration {
     }
 }
 
+/// A histogram of durations in fixed memory (50 µs bins up to 2 s, one overflow bin): the frame times of a
+/// display loop that runs for hours without its bookkeeping growing.
+#[derive(Clone, Debug)]
+pub struct DurationHistogram {
+    counts: Vec<u32>,
+    overflow: u64,
+    count: u64,
+    sum: Duration,
+    max: Duration,
+}
+
+impl Default for DurationHistogram {
+    fn default() -> Self {
+        Self { counts: vec![0; Self::BINS], overflow: 0, count: 0, sum: Duration::ZERO, max: Duration::ZERO }
+    }
+}
+
+impl DurationHistogram {
+    /// Bin width.
+    pub const BIN: Duration = Duration::from_micros(50);
+    /// Bins below the overflow (2 s).
+    pub const BINS: usize = 40_000;
+
+    /// Counts one duration.
+    pub fn record(&mut self, d: Duration) {
+        let bin = (d.as_nanos() / Self::BIN.as_nanos()) as usize;
+        match self.counts.get_mut(bin) {
+            Some(c) => *c = c.saturating_add(1),
+            None => self.overflow += 1,
+        }
+        self.count += 1;
+        self.sum += d;
+        self.max = self.max.max(d);
+    }
+
+    /// Durations recorded.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// The longest duration recorded.
+    pub fn max(&self) -> Duration {
+        self.max
+    }
+
+    /// The mean (`ZERO` when empty).
+    pub fn mean(&self) -> Duration {
+        if self.count == 0 {
+            Duration::ZERO
+        } else {
+            Duration::from_secs_f64(self.sum.as_secs_f64() / self.count as f64)
+        }
+    }
+
+    /// The `q` quantile (`0..=1`) to within one bin: the centre of the bin holding it (the maximum when it lies
+    /// in the overflow bin; `ZERO` when empty).
+    pub fn quantile(&self, q: f64) -> Duration {
+        if self.count == 0 {
+            return Duration::ZERO;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * self.count as f64).ceil() as u64).max(1);
+        let mut seen = 0u64;
+        for (i, &c) in self.counts.iter().enumerate() {
+            seen += c as u64;
+            if seen >= rank {
+                return Self::BIN * i as u32 + Self::BIN / 2;
+            }
+        }
+        self.max
+    }
+
+    /// The median ([`Self::quantile`] 0.5).
+    pub fn median(&self) -> Duration {
+        self.quantile(0.5)
+    }
+
+    /// Counts per range: `edges` in milliseconds, ascending; ranges `[e_i, e_i+1)` and a last one from the last
+    /// edge up. Each duration lands in the range holding its 50 µs bin's start.
+    pub fn ranges(&self, edges_ms: &[f64]) -> Vec<(f64, Option<f64>, u64)> {
+        let mut out: Vec<(f64, Option<f64>, u64)> =
+            edges_ms.iter().enumerate().map(|(i, &lo)| (lo, edges_ms.get(i + 1).copied(), 0)).collect();
+        let place = |ms: f64, out: &mut Vec<(f64, Option<f64>, u64)>, n: u64| {
+            if let Some(r) = out.iter_mut().rev().find(|r| ms >= r.0) {
+                r.2 += n;
+            }
+        };
+        for (i, &c) in self.counts.iter().enumerate().filter(|(_, &c)| c > 0) {
+            place((Self::BIN * i as u32).as_secs_f64() * 1e3, &mut out, c as u64);
+        }
+        if self.overflow > 0 {
+            place((Self::BIN * Self::BINS as u32).as_secs_f64() * 1e3, &mut out, self.overflow);
+        }
+        out
+    }
+
+    /// A CSV of the non-empty bins: `from_ms,to_ms,frames` (the overflow bin's upper end is the maximum).
+    pub fn to_csv(&self) -> String {
+        let mut s = String::from("from_ms,to_ms,frames\n");
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        for (i, &c) in self.counts.iter().enumerate().filter(|(_, &c)| c > 0) {
+            s.push_str(&format!("{:.2},{:.2},{c}\n", ms(Self::BIN * i as u32), ms(Self::BIN * (i as u32 + 1))));
+        }
+        if self.overflow > 0 {
+            s.push_str(&format!("{:.2},{:.2},{}\n", ms(Self::BIN * Self::BINS as u32), ms(self.max), self.overflow));
+        }
+        s
+    }
+}
+
+/// Least-squares line through `(x, y)` points: `(slope, intercept)`; `None` with fewer than two distinct `x`
+/// (or a non-finite result). Soak runs fit resident memory against time with it.
+pub fn linear_fit(points: &[(f64, f64)]) -> Option<(f64, f64)> {
+    let n = points.len() as f64;
+    if points.len() < 2 {
+        return None;
+    }
+    let (mx, my) = points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x / n, b + y / n));
+    let (sxy, sxx) =
+        points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + (x - mx) * (y - my), b + (x - mx) * (x - mx)));
+    let slope = sxy / sxx;
+    (sxx > 0.0 && slope.is_finite()).then_some((slope, my - slope * mx))
+}
+
 /// The summary of one stage.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StageSummary {
@@ -118,6 +241,42 @@ impl StageStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn linear_fit_closed_forms() {
+        // Exact line: y = 2x + 1.
+        let (m, c) = linear_fit(&[(0.0, 1.0), (1.0, 3.0), (2.0, 5.0)]).unwrap();
+        assert!((m - 2.0).abs() < 1e-12 && (c - 1.0).abs() < 1e-12);
+        // Symmetric noise around y = 0.5x: (0,0) (1,1) (2,1) (3,2) -> slope 0.6, intercept 0.1.
+        let (m, c) = linear_fit(&[(0.0, 0.0), (1.0, 1.0), (2.0, 1.0), (3.0, 2.0)]).unwrap();
+        assert!((m - 0.6).abs() < 1e-12 && (c - 0.1).abs() < 1e-12, "{m} {c}");
+        assert_eq!(linear_fit(&[(1.0, 2.0)]), None);
+        assert_eq!(linear_fit(&[(1.0, 2.0), (1.0, 3.0)]), None, "no spread in x");
+        // Large offsets (seconds since the epoch, bytes) stay exact enough: centred sums.
+        let pts: Vec<(f64, f64)> = (0..1000).map(|i| (1.7e9 + i as f64, 5e8 + 3.0 * i as f64)).collect();
+        assert!((linear_fit(&pts).unwrap().0 - 3.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn histogram_quantiles_and_ranges() {
+        let mut h = DurationHistogram::default();
+        assert_eq!(h.median(), Duration::ZERO);
+        for ms in 1..=100u64 {
+            h.record(Duration::from_millis(ms));
+        }
+        h.record(Duration::from_secs(5)); // overflow
+        assert_eq!(h.count(), 101);
+        assert_eq!(h.max(), Duration::from_secs(5));
+        // The 51st of 101 values is 51 ms: the bin [51, 51.05) ms, reported at its centre.
+        assert_eq!(h.median(), Duration::from_micros(51_025));
+        assert_eq!(h.quantile(1.0), Duration::from_secs(5));
+        let r = h.ranges(&[0.0, 10.0, 50.0, 1000.0]);
+        assert_eq!(r, vec![(0.0, Some(10.0), 9), (10.0, Some(50.0), 40), (50.0, Some(1000.0), 51), (1000.0, None, 1)]);
+        let csv = h.to_csv();
+        assert!(csv.starts_with("from_ms,to_ms,frames\n1.00,1.05,1\n"), "{csv}");
+        assert!(csv.ends_with("2000.00,5000.00,1\n"), "{csv}");
+        assert_eq!(csv.lines().count(), 102);
+    }
 
     #[test]
     fn medians_and_window() {

@@ -5,6 +5,8 @@
 //! frame and swings its limbs with the walk phase. Colours are linear RGB. The background is a smooth wall with a
 //! few darker panels (static, so a clean plate of it is exact up to the added noise).
 
+use std::time::{Duration, Instant};
+
 use glam::{Vec2, Vec3};
 
 use super::{Frame, FrameSource, SourceEvent};
@@ -195,7 +197,7 @@ impl FrameSource for WalkerSource {
         } else {
             composite(&self.params, k - self.plate_frames)
         };
-        let timestamp = std::time::Duration::from_secs_f64(k as f64 / self.params.fps.max(0.1) as f64);
+        let timestamp = Duration::from_secs_f64(k as f64 / self.params.fps.max(0.1) as f64);
         Ok(SourceEvent::Frame(Frame { index: k as u64, timestamp, rgb, alpha: self.with_alpha.then_some(alpha) }))
     }
 
@@ -204,9 +206,236 @@ impl FrameSource for WalkerSource {
     }
 }
 
+/// The prefix of a synthetic live source given to `--video`: `synthetic:[WxH][@FPS][+faults]`.
+pub const LIVE_PREFIX: &str = "synthetic:";
+
+/// A parsed `--video synthetic:…` request.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LiveSpec {
+    /// Frame size (default 320x240).
+    pub width: usize,
+    /// Frame size.
+    pub height: usize,
+    /// Frames per second delivered in real time (default 30).
+    pub fps: f32,
+    /// Run the fault script ([`FaultScript`]) over and over.
+    pub faults: bool,
+}
+
+impl LiveSpec {
+    /// Parses `synthetic:[WxH][@FPS][+faults]` (e.g. `synthetic:`, `synthetic:640x480@30`,
+    /// `synthetic:320x240+faults`); `None` when `spec` does not start with [`LIVE_PREFIX`].
+    pub fn parse(spec: &str) -> Option<Result<LiveSpec, String>> {
+        let rest = spec.strip_prefix(LIVE_PREFIX)?;
+        let bad = |why: &str| {
+            Err(format!("{spec:?}: {why}; expected synthetic:[WxH][@FPS][+faults], e.g. synthetic:320x240@30+faults"))
+        };
+        let (rest, faults) = match rest.strip_suffix("+faults") {
+            Some(r) => (r, true),
+            None => (rest, false),
+        };
+        let (size, fps) = match rest.split_once('@') {
+            Some((s, f)) => (s, Some(f)),
+            None => (rest, None),
+        };
+        let (width, height) = if size.is_empty() {
+            (320, 240)
+        } else {
+            match size.split_once('x').map(|(w, h)| (w.parse::<usize>(), h.parse::<usize>())) {
+                Some((Ok(w), Ok(h))) if (16..=4096).contains(&w) && (16..=4096).contains(&h) => (w, h),
+                _ => return Some(bad("the size must be WxH with sides of 16 to 4096 pixels")),
+            }
+        };
+        let fps = match fps.map(str::parse::<f32>) {
+            None => 30.0,
+            Some(Ok(f)) if (0.5..=240.0).contains(&f) => f,
+            Some(_) => return Some(bad("the rate must be 0.5 to 240 frames per second")),
+        };
+        Some(Ok(LiveSpec { width, height, fps, faults }))
+    }
+}
+
+/// What a faulty synthetic source does at a moment of its cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultPhase {
+    /// Frames at the requested size.
+    Normal,
+    /// No frame at all: `next_frame` blocks until the phase ends (a frozen camera or network stream).
+    Stall,
+    /// The source is gone: `next_frame` fails (a recoverable error) every 0.25 s until the phase ends.
+    Gone,
+    /// Frames at half the requested width and height (a camera that switched modes).
+    Resized,
+}
+
+/// The fault cycle of `synthetic:…+faults`, repeating every [`FaultScript::CYCLE`]: 3 s normal, 2 s stalled,
+/// 2 s normal, 2 s gone, 3 s at half resolution, then normal again.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FaultScript;
+
+impl FaultScript {
+    /// Phases and their lengths, in order.
+    pub const PHASES: [(FaultPhase, Duration); 5] = [
+        (FaultPhase::Normal, Duration::from_secs(3)),
+        (FaultPhase::Stall, Duration::from_secs(2)),
+        (FaultPhase::Normal, Duration::from_secs(2)),
+        (FaultPhase::Gone, Duration::from_secs(2)),
+        (FaultPhase::Resized, Duration::from_secs(3)),
+    ];
+    /// Length of one cycle.
+    pub const CYCLE: Duration = Duration::from_secs(12);
+
+    /// The phase at time `t` since the source opened, and the time left in it.
+    pub fn phase_at(t: Duration) -> (FaultPhase, Duration) {
+        let mut in_cycle = Duration::from_nanos((t.as_nanos() % Self::CYCLE.as_nanos()) as u64);
+        for (phase, len) in Self::PHASES {
+            if in_cycle < len {
+                return (phase, len - in_cycle);
+            }
+            in_cycle -= len;
+        }
+        (FaultPhase::Normal, Duration::ZERO)
+    }
+}
+
+/// The walker as a live source (a camera stand-in for soak runs, `--video synthetic:…`): frames with their
+/// ground-truth alpha delivered in real time at the nominal rate, forever (the walk loops every 4 s), optionally
+/// misbehaving on the [`FaultScript`].
+pub struct LiveWalkerSource {
+    spec: LiveSpec,
+    start: Instant,
+    next: u64,
+    background: (usize, usize, RgbImage),
+}
+
+impl LiveWalkerSource {
+    /// A source for `spec`; its clock starts now.
+    pub fn new(spec: LiveSpec) -> Self {
+        let bg = background(spec.width, spec.height);
+        Self { background: (spec.width, spec.height, bg), spec, start: Instant::now(), next: 0 }
+    }
+
+    fn frame(&mut self, index: u64, width: usize, height: usize) -> Frame {
+        let frames = (self.spec.fps * 4.0).round().max(1.0) as usize;
+        let params = WalkerParams { width, height, frames, fps: self.spec.fps, noise: 0.01 };
+        if (self.background.0, self.background.1) != (width, height) {
+            self.background = (width, height, background(width, height));
+        }
+        let (fg, cov) = walker(&params, index as usize % frames);
+        let bg = &self.background.2;
+        let data = bg.data.iter().zip(&fg.data).zip(&cov.data).map(|((&b, &f), &a)| f * a + b * (1.0 - a)).collect();
+        let rgb = Image { width, height, data };
+        let timestamp = Duration::from_secs_f64(index as f64 / self.spec.fps as f64);
+        Frame { index, timestamp, rgb, alpha: Some(cov) }
+    }
+}
+
+impl FrameSource for LiveWalkerSource {
+    fn describe(&self) -> String {
+        let s = &self.spec;
+        let faults = if s.faults { ", fault script: stall, gone, half resolution every 12 s" } else { "" };
+        format!("synthetic live walker {}x{} at {} fps{faults}", s.width, s.height, s.fps)
+    }
+
+    fn next_frame(&mut self) -> Result<SourceEvent, super::CaptureError> {
+        // Real time: frame k is due at k / fps after the start (a late reader gets the next one at once).
+        let period = Duration::from_secs_f64(1.0 / self.spec.fps as f64);
+        loop {
+            let due = period.mul_f64(self.next as f64);
+            let now = self.start.elapsed();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+            let phase = if self.spec.faults {
+                FaultScript::phase_at(self.start.elapsed())
+            } else {
+                (FaultPhase::Normal, Duration::ZERO)
+            };
+            match phase {
+                (FaultPhase::Stall, left) => {
+                    // Frames that would have come during the stall are lost, as with a frozen stream.
+                    std::thread::sleep(left);
+                    self.next = (self.start.elapsed().as_secs_f64() * self.spec.fps as f64).ceil() as u64;
+                    continue;
+                }
+                (FaultPhase::Gone, left) => {
+                    std::thread::sleep(left.min(Duration::from_millis(250)));
+                    self.next = (self.start.elapsed().as_secs_f64() * self.spec.fps as f64).ceil() as u64;
+                    return Err(super::CaptureError::StreamLost {
+                        path: format!("{LIVE_PREFIX}{}x{}", self.spec.width, self.spec.height).into(),
+                        index: self.next.saturating_sub(1),
+                        reason: "the synthetic source is gone (fault script); waiting for it to come back".into(),
+                    });
+                }
+                (FaultPhase::Resized, _) => {
+                    let index = self.next;
+                    self.next += 1;
+                    let (w, h) = ((self.spec.width / 2).max(16), (self.spec.height / 2).max(16));
+                    return Ok(SourceEvent::Frame(self.frame(index, w, h)));
+                }
+                (FaultPhase::Normal, _) => {
+                    let index = self.next;
+                    self.next += 1;
+                    let (w, h) = (self.spec.width, self.spec.height);
+                    return Ok(SourceEvent::Frame(self.frame(index, w, h)));
+                }
+            }
+        }
+    }
+
+    fn nominal_fps(&self) -> Option<f32> {
+        Some(self.spec.fps)
+    }
+
+    fn is_live(&self) -> bool {
+        true
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn live_specs_parse() {
+        assert_eq!(LiveSpec::parse("clip.mp4"), None);
+        let d = LiveSpec::parse("synthetic:").unwrap().unwrap();
+        assert_eq!((d.width, d.height, d.fps, d.faults), (320, 240, 30.0, false));
+        let s = LiveSpec::parse("synthetic:160x120@15+faults").unwrap().unwrap();
+        assert_eq!((s.width, s.height, s.fps, s.faults), (160, 120, 15.0, true));
+        for bad in ["synthetic:0x5", "synthetic:100", "synthetic:64x64@0", "synthetic:64x64@x", "synthetic:+fault"] {
+            let e = LiveSpec::parse(bad).unwrap().unwrap_err();
+            assert!(e.contains(bad) && e.contains("synthetic:[WxH]"), "{e}");
+        }
+    }
+
+    #[test]
+    fn fault_script_phases() {
+        let at = |s: f64| FaultScript::phase_at(Duration::from_secs_f64(s));
+        assert_eq!(at(0.0).0, FaultPhase::Normal);
+        assert_eq!(at(3.5), (FaultPhase::Stall, Duration::from_secs_f64(1.5)));
+        assert_eq!(at(6.0).0, FaultPhase::Normal);
+        assert_eq!(at(7.0).0, FaultPhase::Gone);
+        assert_eq!(at(9.0).0, FaultPhase::Resized);
+        assert_eq!(at(12.5).0, FaultPhase::Normal, "the cycle repeats");
+        let total: Duration = FaultScript::PHASES.iter().map(|p| p.1).sum();
+        assert_eq!(total, FaultScript::CYCLE);
+    }
+
+    #[test]
+    fn live_walker_is_paced() {
+        let mut src = LiveWalkerSource::new(LiveSpec { width: 48, height: 32, fps: 300.0, faults: false });
+        assert!(src.is_live());
+        let t = std::time::Instant::now();
+        for k in 0..300u64 {
+            let SourceEvent::Frame(f) = src.next_frame().unwrap() else { panic!("a live source never ends") };
+            assert_eq!((f.index, f.width(), f.height()), (k, 48, 32));
+            assert!(f.alpha.as_ref().is_some_and(|a| a.data.iter().any(|&v| v > 0.5)));
+            assert_eq!(f.timestamp, Duration::from_secs_f64(k as f64 / 300.0));
+        }
+        // 300 frames at 300 fps take about 1 s (real time, not as fast as possible).
+        assert!(t.elapsed() >= Duration::from_millis(990), "{:?}", t.elapsed());
+    }
 
     #[test]
     fn walker_is_bounded_and_moves() {

@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::{frame_from_srgb8, CaptureError, Frame, FrameSource, SourceEvent};
+use crate::io::image_io::MAX_INPUT_SIDE;
 
 /// What ffprobe says about the first video stream.
 #[derive(Clone, Debug, PartialEq)]
@@ -26,6 +27,20 @@ pub struct VideoInfo {
 }
 
 impl VideoInfo {
+    /// Channels the reader requests from ffmpeg: 4 (RGBA) with an alpha plane, else 3 (RGB).
+    pub fn channels(&self) -> usize {
+        if self.has_alpha() {
+            4
+        } else {
+            3
+        }
+    }
+
+    /// Bytes of one decoded frame as the reader requests it from ffmpeg.
+    pub fn frame_bytes(&self) -> usize {
+        self.width * self.height * self.channels()
+    }
+
     /// True for pixel formats with an alpha plane (`rgba`, `yuva420p`, `gbrap`, `ya8`, …).
     pub fn has_alpha(&self) -> bool {
         let f = self.pix_fmt.as_str();
@@ -49,15 +64,27 @@ pub fn parse_rate(s: &str) -> Option<f32> {
 pub fn parse_ffprobe_json(json: &str) -> Result<VideoInfo, String> {
     let v: serde_json::Value = serde_json::from_str(json).map_err(|e| format!("unreadable ffprobe output: {e}"))?;
     let s = v.get("streams").and_then(|s| s.get(0)).ok_or("no video stream")?;
-    let dim = |k: &str| s.get(k).and_then(|x| x.as_u64()).filter(|&x| x > 0 && x <= 16384).map(|x| x as usize);
+    let dim = |k: &str| s.get(k).and_then(|x| x.as_u64()).filter(|&x| x > 0);
     let (width, height) = match (dim("width"), dim("height")) {
         (Some(w), Some(h)) => (w, h),
         _ => return Err("the video stream has no valid size".into()),
     };
+    // The same limit as photos: a frame buffer is allocated from this size before any frame is decoded.
+    let max = MAX_INPUT_SIDE as u64;
+    if width > max || height > max {
+        return Err(format!("the video is {width}x{height} pixels; the limit is {max}x{max}: downscale it first"));
+    }
+    let (width, height) = (width as usize, height as usize);
     let rate = |k: &str| s.get(k).and_then(|x| x.as_str()).and_then(parse_rate);
     let fps = rate("avg_frame_rate").or_else(|| rate("r_frame_rate")).unwrap_or(30.0).clamp(0.1, 1000.0);
     let pix_fmt = s.get("pix_fmt").and_then(|x| x.as_str()).unwrap_or("unknown").to_string();
     Ok(VideoInfo { width, height, fps, pix_fmt })
+}
+
+/// The stream description of `path` from ffprobe's JSON output (`stdout`); errors name the file.
+pub fn info_from_ffprobe(path: &Path, stdout: &[u8]) -> Result<VideoInfo, CaptureError> {
+    parse_ffprobe_json(&String::from_utf8_lossy(stdout))
+        .map_err(|reason| CaptureError::NoVideoStream { path: path.into(), reason })
 }
 
 /// Runs ffprobe on `path`.
@@ -77,8 +104,7 @@ pub fn probe(path: &Path) -> Result<VideoInfo, CaptureError> {
         let reason = String::from_utf8_lossy(&out.stderr).trim().to_string();
         return Err(CaptureError::NoVideoStream { path: path.into(), reason });
     }
-    parse_ffprobe_json(&String::from_utf8_lossy(&out.stdout))
-        .map_err(|reason| CaptureError::NoVideoStream { path: path.into(), reason })
+    info_from_ffprobe(path, &out.stdout)
 }
 
 /// A video file decoded by an `ffmpeg` subprocess.
@@ -102,7 +128,7 @@ impl VideoFileSource {
             return Err(CaptureError::Open { path: path.into(), reason: "not a file".into() });
         }
         let info = probe(path)?;
-        let channels = if info.has_alpha() { 4 } else { 3 };
+        let channels = info.channels();
         let mut child = Command::new("ffmpeg")
             // -noautorotate keeps the frame size equal to what ffprobe reported.
             .args(["-nostdin", "-v", "error", "-noautorotate", "-i"])
@@ -129,7 +155,7 @@ impl VideoFileSource {
             })
         });
         let stdout = child.stdout.take();
-        let buf = vec![0u8; info.width * info.height * channels];
+        let buf = vec![0u8; info.frame_bytes()];
         Ok(Self { path: path.into(), info, channels, child, stdout, stderr, stderr_reader, buf, next: 0 })
     }
 
@@ -239,6 +265,12 @@ mod tests {
         assert!(i.has_alpha());
         assert!(parse_ffprobe_json(r#"{"streams":[]}"#).is_err());
         assert!(parse_ffprobe_json(r#"{"streams":[{"width":0,"height":4}]}"#).is_err());
+        // A declared size past the photo limit is refused before any frame buffer exists.
+        let huge = parse_ffprobe_json(r#"{"streams":[{"width":8193,"height":4}]}"#).unwrap_err();
+        assert!(huge.contains("8193x4"), "{huge}");
+        let named = info_from_ffprobe(Path::new("dir/clip.mp4"), b"{").unwrap_err().to_string();
+        assert!(named.contains("dir/clip.mp4"), "{named}");
+        assert_eq!(parse_ffprobe_json(j).unwrap().frame_bytes(), 640 * 480 * 4);
         let yuv = VideoInfo { width: 1, height: 1, fps: 1.0, pix_fmt: "yuv420p".into() };
         assert!(!yuv.has_alpha());
     }

@@ -62,6 +62,13 @@ pub struct ViewArgs {
     /// unmoved view would reuse the last person layer).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub spin: f32,
+    /// Write one CSV line per presented frame to this file (start and frame time in ms, the live frame shown and
+    /// its size): the timeline of a soak run (`scripts/soak.sh`).
+    #[arg(long)]
+    pub frame_log: Option<PathBuf>,
+    /// Close the window after this many seconds (soak runs; with or without --frames).
+    #[arg(long)]
+    pub seconds: Option<f64>,
     /// Which renderer draws the person (G/N switch while running).
     #[command(flatten)]
     pub neural: NeuralArgs,
@@ -133,9 +140,15 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         screenshot_on_exit: args.screenshot_on_exit.clone(),
         neural: args.neural.setup(),
         spin: args.spin,
+        frame_log: args.frame_log.clone(),
+        duration: match args.seconds.map(std::time::Duration::try_from_secs_f64) {
+            Some(Ok(d)) if !d.is_zero() => Some(d),
+            Some(_) => anyhow::bail!("--seconds: give a positive number of seconds"),
+            None => None,
+        },
         ..Default::default()
     })?;
-    if frames.is_some() {
+    if frames.is_some() || args.seconds.is_some() {
         // A scripted run (tests, benchmarks) says what it measured.
         let n = stats.neural;
         println!(
@@ -151,8 +164,35 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
             stats.encodes,
             n.fallbacks
         );
+        println!("{}", frame_time_summary(&stats.frame_histogram));
+        if let Some(live) = &stats.live {
+            println!(
+                "live: {} frames read, {} completed, {} dropped, {} errors, {} uploaded; validation messages {}",
+                live.read, live.completed, live.dropped, live.errors, stats.live_uploads, stats.validation_messages
+            );
+        }
     }
     Ok(())
+}
+
+/// Frame-time quantiles and a coarse histogram, one line.
+fn frame_time_summary(h: &crate::capture::stats::DurationHistogram) -> String {
+    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    let ranges = h.ranges(&[0.0, 10.0, 20.0, 33.3, 50.0, 100.0, 250.0, 1000.0]);
+    let bars: Vec<String> = ranges
+        .iter()
+        .map(|(lo, hi, n)| match hi {
+            Some(hi) => format!("[{lo},{hi}) {n}"),
+            None => format!("{lo}+ {n}"),
+        })
+        .collect();
+    format!(
+        "frame times (ms): median {:.2}, p99 {:.2}, max {:.2}; histogram {}",
+        ms(h.median()),
+        ms(h.quantile(0.99)),
+        ms(h.max()),
+        bars.join(", ")
+    )
 }
 
 /// `r2human xr`.

@@ -31,7 +31,9 @@ use crate::geometry::inflate::inflate_to_fof;
 use crate::geometry::shells::{doubled_fraction, INTERVAL_SAMPLES, MIN_RUN_SAMPLES};
 use crate::io::npy::write_atomic;
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{GeometryMode, PrepareOptions, PreparedInput, SharedFofNet, SharedNeural, ViewRenderer};
+use crate::pipeline::{
+    GeometryMode, PrepareOptions, PreparedInput, SharedBody, SharedFofNet, SharedNeural, ViewRenderer,
+};
 
 /// The yaws every photo is rendered at (degrees; pitch 0).
 pub const PHOTO_YAWS: [f32; 6] = [0.0, 30.0, 60.0, 90.0, 135.0, 180.0];
@@ -74,6 +76,8 @@ pub struct PhotoNets<'a> {
     pub neural: Option<&'a SharedNeural>,
     /// The FOF net.
     pub fof_net: Option<&'a SharedFofNet>,
+    /// The body prior (pose network and fitter).
+    pub body: Option<&'a SharedBody>,
 }
 
 /// The methods that can run with `nets`: geometric and neural renderers on every geometry whose model loaded.
@@ -81,6 +85,9 @@ pub fn photo_methods(nets: PhotoNets<'_>) -> Vec<PhotoMethod> {
     let mut geometries = vec![(GeometryMode::Inflate, "inflation")];
     if nets.fof_net.is_some() {
         geometries.push((GeometryMode::FofNet, "fofnet"));
+    }
+    if nets.body.is_some() {
+        geometries.push((GeometryMode::Body, "body"));
     }
     let mut out = Vec::new();
     for neural in [false, true] {
@@ -201,6 +208,7 @@ fn run_method(
         depth_samples: opts.size,
         geometry: method.geometry,
         fof_net: nets.fof_net.cloned(),
+        body: nets.body.cloned(),
         ..Default::default()
     };
     let t = Instant::now();
@@ -334,7 +342,16 @@ pub fn run_photo_eval_with(
     }
     let mut notes = Vec::new();
     let (neural, fof_net) = super::runner::load_networks(nopts, &mut notes);
-    let nets = PhotoNets { neural: neural.as_ref(), fof_net: fof_net.as_ref() };
+    let options = crate::neural::RuntimeOptions { ep: nopts.ep, ..Default::default() };
+    let body = match crate::pipeline::load_body(GeometryMode::Body, &options) {
+        Ok(body) => body,
+        Err(e) => {
+            tracing::warn!("the body-prior rows are skipped: {e}");
+            notes.push(format!("The body-prior rows are skipped: {e}"));
+            None
+        }
+    };
+    let nets = PhotoNets { neural: neural.as_ref(), fof_net: fof_net.as_ref(), body: body.as_ref() };
     let mut report = evaluate_photos(opts, nets)?;
     report.notes = notes;
     write_photo_reports(opts, &photo_methods(nets), &report)?;

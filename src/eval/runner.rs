@@ -47,8 +47,8 @@ use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::input::NormalisedInput;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    compute_geometry, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
-    SharedFofNet, SharedNeural, StageTimings, ViewRenderer,
+    compute_geometry, load_body, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput,
+    RendererChoice, SharedBody, SharedFofNet, SharedNeural, StageTimings, ViewRenderer,
 };
 use crate::synth::framing::{self, Framing, FramingChoice};
 use crate::synth::{self, SubjectParams, SynthAssets};
@@ -110,7 +110,7 @@ impl Default for EvalOptions {
 }
 
 /// The methods compared.
-pub const METHODS: [&str; 8] = [
+pub const METHODS: [&str; 10] = [
     "billboard",
     "2.5d",
     "geometric+inflation",
@@ -119,11 +119,14 @@ pub const METHODS: [&str; 8] = [
     "neural+gt-fof",
     "geometric+fofnet",
     "neural+fofnet",
+    "geometric+body",
+    "neural+body",
 ];
 
 /// The renderer-based methods (indices into [`METHODS`] from 2 on): which prepared geometry they draw (0 inflation,
-/// 1 ground-truth FOF, 2 FOF net) and whether with the neural renderer.
-const RENDERED: [(usize, bool); 6] = [(0, false), (1, false), (0, true), (1, true), (2, false), (2, true)];
+/// 1 ground-truth FOF, 2 FOF net, 3 body prior) and whether with the neural renderer.
+const RENDERED: [(usize, bool); 8] =
+    [(0, false), (1, false), (0, true), (1, true), (2, false), (2, true), (3, false), (3, true)];
 
 /// Depth samples per column for the volumetric geometry IoU of the report.
 const IOU_DEPTH_SAMPLES: usize = 128;
@@ -351,6 +354,7 @@ type MethodAcc = [[Acc; 2]; METHODS.len()];
 struct Nets<'a> {
     neural: Option<&'a SharedNeural>,
     fof_net: Option<&'a SharedFofNet>,
+    body: Option<&'a SharedBody>,
 }
 
 /// A subject's source view as every method receives it (ground-truth render, already in the body cube).
@@ -373,15 +377,18 @@ impl SubjectSource {
         NormalisedInput::in_source_view(self.rgb.clone(), self.mask.clone())
     }
 
-    /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net); `None` for the FOF net when
-    /// it is not loaded or fails on this input (logged: its rows skip the subject, never replaced by the prior).
+    /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net, 3 body prior); `None` for the
+    /// FOF net when it is not loaded or fails on this input (logged: its rows skip the subject, never replaced by
+    /// the prior), and for the body prior when it is not loaded (an input where it finds no pose falls back to the
+    /// inflation prior, as `--geometry body` does).
     fn geometry(
         &self,
         kind: usize,
         mesh: &TexturedMesh,
-        fof_net: Option<&SharedFofNet>,
+        nets: Nets<'_>,
         name: &str,
     ) -> Result<Option<PreparedInput>, EvalError> {
+        let fof_net = nets.fof_net;
         let popts = &self.prepare;
         let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
         let fof = match kind {
@@ -389,6 +396,18 @@ impl SubjectSource {
                 .map_err(|e| EvalError::Fof(e.to_string()))?,
             1 => Fof::from_mesh(&mesh.mesh, self.mask.width, popts.fof_order)
                 .map_err(|e| EvalError::Fof(e.to_string()))?,
+            3 => {
+                let Some(body) = nets.body else { return Ok(None) };
+                let o = PrepareOptions {
+                    geometry: GeometryMode::Body,
+                    body: Some(std::sync::Arc::clone(body)),
+                    ..popts.clone()
+                };
+                let mut timings = StageTimings::default();
+                let built = compute_geometry(&self.normalised(), &o, &mut timings)
+                    .and_then(|fof| PreparedInput::from_fof(self.normalised(), fof, &o, timings));
+                return Ok(built.map_err(|e| tracing::warn!("{name}: the body rows skip this subject: {e}")).ok());
+            }
             _ => {
                 let Some(net) = fof_net else { return Ok(None) };
                 let o = PrepareOptions {
@@ -446,7 +465,7 @@ fn method_memory(
                 true
             }
             1 => {
-                let p = src.geometry(0, mesh, None, "memory probe")?.expect("the inflation prior always exists");
+                let p = src.geometry(0, mesh, nets, "memory probe")?.expect("the inflation prior always exists");
                 let g = &p.source_gbuffer;
                 let front = depth_mesh(&g.depth, &g.mask, &src.rgb, &src.mask, 0.03);
                 std::hint::black_box(raster_prediction(&front, &cam));
@@ -454,7 +473,7 @@ fn method_memory(
             }
             _ => {
                 let (kind, is_neural) = RENDERED[m - 2];
-                match src.geometry(kind, mesh, nets.fof_net, "memory probe")? {
+                match src.geometry(kind, mesh, nets, "memory probe")? {
                     Some(p) => match method_renderer(&p, is_neural, nets.neural) {
                         Some(mut r) => r.render_person(&cam).map(std::hint::black_box).is_ok(),
                         None => false,
@@ -476,7 +495,7 @@ fn eval_subject(
     opts: &EvalOptions,
     nets: Nets<'_>,
     acc: &mut MethodAcc,
-    geometry_iou: &mut [Vec<f32>; 2],
+    geometry_iou: &mut [Vec<f32>; 3],
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
@@ -486,32 +505,39 @@ fn eval_subject(
 
     // Per-input work, timed per method.
     let t = Instant::now();
-    let inflated = src.geometry(0, mesh, None, name)?.expect("the inflation prior always exists");
+    let inflated = src.geometry(0, mesh, nets, name)?.expect("the inflation prior always exists");
     let ms_inflate = t.elapsed().as_secs_f32() * 1e3;
     let t = Instant::now();
     let g = &inflated.source_gbuffer;
     let front = depth_mesh(&g.depth, &g.mask, rgb, mask, 0.03);
     let ms_25d = ms_inflate + t.elapsed().as_secs_f32() * 1e3;
     let t = Instant::now();
-    let oracle = src.geometry(1, mesh, None, name)?.expect("the ground-truth FOF always exists");
+    let oracle = src.geometry(1, mesh, nets, name)?.expect("the ground-truth FOF always exists");
     let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
     // The FOF net's geometry (explicit mode: a network failure on this input is an error of this subject's FOF
     // rows, reported in the log, never silently replaced by the prior).
     let t = Instant::now();
-    let with_net = src.geometry(2, mesh, nets.fof_net, name)?;
+    let with_net = src.geometry(2, mesh, nets, name)?;
     let ms_fofnet = t.elapsed().as_secs_f32() * 1e3;
+    // The body prior's geometry (pose landmarks, fit, body FOF).
+    let t = Instant::now();
+    let with_body = src.geometry(3, mesh, nets, name)?;
+    let ms_body = t.elapsed().as_secs_f32() * 1e3;
     geometry_iou[0].push(fof_occupancy_iou(&inflated.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
-    if let Some(p) = &with_net {
-        geometry_iou[1].push(fof_occupancy_iou(&p.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
+    for (slot, p) in [(1, &with_net), (2, &with_body)] {
+        if let Some(p) = p {
+            geometry_iou[slot].push(fof_occupancy_iou(&p.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
+        }
     }
-    // Methods 3..8: geometric and neural renderers on the inflation, oracle and FOF-net geometry.
-    let prepared: [Option<&PreparedInput>; 3] = [Some(&inflated), Some(&oracle), with_net.as_ref()];
+    // Methods 3..10: geometric and neural renderers on the inflation, oracle, FOF-net and body-prior geometry.
+    let prepared: [Option<&PreparedInput>; 4] = [Some(&inflated), Some(&oracle), with_net.as_ref(), with_body.as_ref()];
     let mut renderers: Vec<Option<ViewRenderer<'_>>> = RENDERED
         .iter()
         .map(|&(k, is_neural)| prepared[k].and_then(|p| method_renderer(p, is_neural, nets.neural)))
         .collect();
     let encode_ms = |k: usize| renderers[k].as_ref().and_then(|r| r.encode_time()).map(|d| d.as_secs_f32() * 1e3);
     let fofnet_ms = with_net.as_ref().map(|_| ms_fofnet);
+    let body_ms = with_body.as_ref().map(|_| ms_body);
     let per_input = [
         Some(0.0),
         Some(ms_25d),
@@ -521,6 +547,8 @@ fn eval_subject(
         encode_ms(3).map(|e| ms_oracle + e),
         fofnet_ms,
         encode_ms(5).and_then(|e| fofnet_ms.map(|f| f + e)),
+        body_ms,
+        encode_ms(7).and_then(|e| body_ms.map(|f| f + e)),
     ];
     for (a, ms) in acc.iter_mut().zip(per_input) {
         for g in a.iter_mut() {
@@ -636,6 +664,23 @@ pub(super) fn load_networks(
     (neural, fof_net)
 }
 
+/// The body prior for the `geometric+body` and `neural+body` rows: the pose model through ONNX Runtime and the
+/// MakeHuman body data. Left out with `--no-neural` (it runs a network) or when it does not load (noted).
+fn load_body_prior(nopts: &NeuralEvalOptions, notes: &mut Vec<String>) -> Option<SharedBody> {
+    if nopts.skip {
+        return None;
+    }
+    let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
+    match load_body(GeometryMode::Body, &options) {
+        Ok(body) => body,
+        Err(e) => {
+            tracing::warn!("the body-prior rows (geometric+body, neural+body) are skipped: {e}");
+            notes.push(format!("The body-prior rows (geometric+body, neural+body) are skipped: {e}"));
+            None
+        }
+    }
+}
+
 /// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
 /// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
 /// project's `models/tiny` when they load ([`run_eval_with`] chooses).
@@ -654,12 +699,13 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
     // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
     let mut sets: Vec<(String, MethodAcc)> = Vec::new();
-    let mut geometry_iou: [Vec<f32>; 2] = Default::default();
+    let mut geometry_iou: [Vec<f32>; 3] = Default::default();
     let mut failed = Vec::new();
     let mut notes = Vec::new();
     let mut fallbacks = 0;
     let (neural, fof_net) = load_networks(nopts, &mut notes);
-    let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref() };
+    let body = load_body_prior(nopts, &mut notes);
+    let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref(), body: body.as_ref() };
     // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
     let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
         let off = |y: f32| (y.rem_euclid(360.0) - 180.0).abs();
@@ -747,7 +793,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         let first = failed.first().map(|f| format!("{}: {}", f.0, f.1)).unwrap_or_else(|| "no view in a group".into());
         return Err(EvalError::AllFailed(first));
     }
-    let geometry_iou = ["inflation", "fofnet"]
+    let geometry_iou = ["inflation", "fofnet", "body"]
         .iter()
         .zip(&geometry_iou)
         .filter(|(_, v)| !v.is_empty())

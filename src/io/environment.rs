@@ -7,7 +7,7 @@
 //! horizontally (no seam at the longitude wrap) and at the poles reads across the pole (the texel half a turn
 //! away), so there is no pinch artefact.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::Vec3;
 
@@ -244,17 +244,11 @@ pub fn uv_to_direction(u: f32, v: f32) -> Vec3 {
 /// log-average luminance becomes 0.18, then the Narkowicz ACES fit (as the shipped PNG versions were made).
 pub fn load_hdr(path: &Path) -> Result<RgbImage, IoError> {
     let file = std::fs::File::open(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
+    let len = file.metadata().map_err(|e| IoError::Read { path: path.to_owned(), source: e })?.len();
     let decoder = image::codecs::hdr::HdrDecoder::new(std::io::BufReader::new(file))
         .map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
     let meta = decoder.metadata();
-    if meta.width > image_io::MAX_INPUT_SIDE || meta.height > image_io::MAX_INPUT_SIDE {
-        return Err(IoError::TooLarge {
-            path: PathBuf::from(path),
-            width: meta.width,
-            height: meta.height,
-            max: image_io::MAX_INPUT_SIDE,
-        });
-    }
+    image_io::check_dimensions(path, Some(image::ImageFormat::Hdr), meta.width, meta.height, len)?;
     let img = image::DynamicImage::from_decoder(decoder)
         .map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?
         .into_rgb32f();

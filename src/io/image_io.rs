@@ -5,7 +5,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use glam::{Vec3, Vec4};
-use image::{ImageReader, Limits};
+use image::{ImageFormat, ImageReader, Limits};
 
 use crate::buffer::{linear_to_srgb, srgb_to_linear, unpremultiply, GrayImage, Image, RgbImage, RgbaImage};
 
@@ -77,44 +77,100 @@ pub struct LoadedImage {
     pub alpha: Option<GrayImage>,
 }
 
-fn open_reader(path: &Path) -> Result<ImageReader<std::io::BufReader<std::fs::File>>, IoError> {
-    let reader = ImageReader::open(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
-    let mut reader = reader.with_guessed_format().map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
-    let mut limits = Limits::default();
-    limits.max_image_width = Some(MAX_INPUT_SIDE);
-    limits.max_image_height = Some(MAX_INPUT_SIDE);
-    reader.limits(limits);
-    Ok(reader)
+/// The most pixels an image file of `len` bytes can describe, by format: the format's best compression of the
+/// simplest possible content. A header claiming more (a 40-byte PNG claiming 8000x8000 pixels) belongs to a
+/// truncated or forged file, refused before any pixel buffer is allocated.
+///
+/// - PNG: 1-bit pixels (8 per byte) after deflate's largest ratio, 1032:1.
+/// - JPEG: an 8x8 block of one channel takes at least 2 bits (a DC difference code and an end-of-block code).
+/// - Radiance HDR: old-style run-length markers of 4 bytes repeat the previous pixel up to 255 times, and
+///   consecutive markers multiply (a whole scanline in a few markers): counted as 1024 pixels per byte.
+/// - GIF: a 12-bit LZW code stands for at most 4096 pixels.
+/// - Other formats: no bound (`u64::MAX`); the side limit still applies.
+///
+/// A constant 4096 pixels are always allowed, so small valid images never hit the bound.
+pub fn max_plausible_pixels(format: Option<ImageFormat>, len: u64) -> u64 {
+    let per_byte: u64 = match format {
+        Some(ImageFormat::Png) => 8 * 1032,
+        Some(ImageFormat::Jpeg) => 8 * 64 / 2,
+        Some(ImageFormat::Hdr) => 1024,
+        Some(ImageFormat::Gif) => 4096 * 8 / 12,
+        _ => return u64::MAX,
+    };
+    len.saturating_mul(per_byte).saturating_add(4096)
 }
 
-fn check_size(path: &Path) -> Result<(), IoError> {
-    // Read the header first so an oversized image is refused before any pixel is decoded.
-    let reader = ImageReader::open(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
-    let reader = reader.with_guessed_format().map_err(|e| IoError::Read { path: path.to_owned(), source: e })?;
-    let (width, height) =
-        reader.into_dimensions().map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
+/// Checks an image's declared size before decoding: within [`MAX_INPUT_SIDE`], not empty, and plausible for a
+/// file of `len` bytes ([`max_plausible_pixels`]).
+pub fn check_dimensions(
+    path: &Path,
+    format: Option<ImageFormat>,
+    width: u32,
+    height: u32,
+    len: u64,
+) -> Result<(), IoError> {
     if width > MAX_INPUT_SIDE || height > MAX_INPUT_SIDE {
         return Err(IoError::TooLarge { path: path.to_owned(), width, height, max: MAX_INPUT_SIDE });
     }
     if width == 0 || height == 0 {
         return Err(IoError::Decode { path: path.to_owned(), reason: "the image has no pixels".into() });
     }
+    check_plausible(format, width, height, len).map_err(|reason| IoError::Decode { path: path.to_owned(), reason })
+}
+
+/// Checks only that `width x height` is plausible for `len` bytes of `format` ([`max_plausible_pixels`]); the
+/// error says why (for loaders with their own size limits, such as mesh textures).
+pub fn check_plausible(format: Option<ImageFormat>, width: u32, height: u32, len: u64) -> Result<(), String> {
+    if width as u64 * height as u64 > max_plausible_pixels(format, len) {
+        return Err(format!(
+            "its header claims {width}x{height} pixels, more than a {len}-byte {} file can hold: it is truncated or \
+             corrupt",
+            format.map(|f| format!("{f:?}").to_uppercase()).unwrap_or_default()
+        ));
+    }
     Ok(())
+}
+
+/// Decodes an image with the size checks of [`check_dimensions`] applied to its header first. `open` gives a
+/// fresh reader at the start of the data (it is called twice: header, then pixels); `len` is the data's size.
+fn decode_checked<R: std::io::BufRead + std::io::Seek>(
+    path: &Path,
+    len: u64,
+    open: impl Fn() -> std::io::Result<ImageReader<R>>,
+) -> Result<image::DynamicImage, IoError> {
+    let read_err = |e: std::io::Error| IoError::Read { path: path.to_owned(), source: e };
+    let decode_err = |e: image::ImageError| IoError::Decode { path: path.to_owned(), reason: e.to_string() };
+    let header = open().and_then(|r| r.with_guessed_format()).map_err(read_err)?;
+    let format = header.format();
+    let (width, height) = header.into_dimensions().map_err(decode_err)?;
+    check_dimensions(path, format, width, height, len)?;
+    let mut reader = open().and_then(|r| r.with_guessed_format()).map_err(read_err)?;
+    let mut limits = Limits::default();
+    limits.max_image_width = Some(MAX_INPUT_SIDE);
+    limits.max_image_height = Some(MAX_INPUT_SIDE);
+    reader.limits(limits);
+    reader.decode().map_err(decode_err)
+}
+
+/// Decodes an image file (PNG, JPEG, HDR, GIF) after checking its declared size ([`check_dimensions`]).
+pub fn decode_file(path: &Path) -> Result<image::DynamicImage, IoError> {
+    let len = std::fs::metadata(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?.len();
+    decode_checked(path, len, || ImageReader::open(path))
+}
+
+/// Decodes an in-memory image after checking its declared size; `name` labels it in errors.
+pub fn decode_bytes(bytes: &[u8], name: &Path) -> Result<image::DynamicImage, IoError> {
+    decode_checked(name, bytes.len() as u64, || Ok(ImageReader::new(std::io::Cursor::new(bytes))))
 }
 
 /// Decodes a PNG/JPEG photo into linear RGB plus alpha (when present). 8- and 16-bit files are accepted.
 pub fn load_image(path: &Path) -> Result<LoadedImage, IoError> {
-    check_size(path)?;
-    let img =
-        open_reader(path)?.decode().map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
-    Ok(from_dynamic(&img))
+    Ok(from_dynamic(&decode_file(path)?))
 }
 
 /// Decodes an in-memory encoded image (PNG/JPEG), e.g. an embedded asset.
 pub fn load_image_bytes(bytes: &[u8], name: &str) -> Result<LoadedImage, IoError> {
-    let img = image::load_from_memory(bytes)
-        .map_err(|e| IoError::Decode { path: PathBuf::from(name), reason: e.to_string() })?;
-    Ok(from_dynamic(&img))
+    Ok(from_dynamic(&decode_bytes(bytes, Path::new(name))?))
 }
 
 /// Converts a decoded image to linear RGB + optional alpha.
@@ -133,9 +189,7 @@ pub fn from_dynamic(img: &image::DynamicImage) -> LoadedImage {
 
 /// Loads a mask file: its alpha channel when it has one, else its luminance; values in `[0, 1]`.
 pub fn load_mask(path: &Path, expect_w: usize, expect_h: usize) -> Result<GrayImage, IoError> {
-    check_size(path)?;
-    let img =
-        open_reader(path)?.decode().map_err(|e| IoError::Decode { path: path.to_owned(), reason: e.to_string() })?;
+    let img = decode_file(path)?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     if (w, h) != (expect_w, expect_h) {
         return Err(IoError::MaskSize {
@@ -302,6 +356,23 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_header_larger_than_its_file_can_hold_is_refused() {
+        // Closed forms of the bound: 1-bit PNG at deflate's 1032:1, 2 bits per JPEG block, plus 4096 pixels.
+        assert_eq!(max_plausible_pixels(Some(ImageFormat::Png), 10), 10 * 8 * 1032 + 4096);
+        assert_eq!(max_plausible_pixels(Some(ImageFormat::Jpeg), 1000), 256_000 + 4096);
+        assert_eq!(max_plausible_pixels(Some(ImageFormat::Tiff), 1), u64::MAX);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("forged.png");
+        let mut png = Vec::new();
+        png_header_only(&mut png, 8000, 8000).flush().unwrap();
+        std::fs::write(&path, &png).unwrap();
+        let e = load_image(&path).unwrap_err().to_string();
+        assert!(e.contains("forged.png") && e.contains("8000x8000") && e.contains("truncated or corrupt"), "{e}");
+        // The same header on a file long enough to hold it passes the check (and then fails to decode).
+        assert!(check_dimensions(&path, Some(ImageFormat::Png), 8000, 8000, 64_000_000 / 8256 + 1).is_ok());
+    }
+
     /// Writes a PNG signature, an IHDR chunk and empty IDAT/IEND chunks: a header that claims a size, no pixels.
     fn png_header_only(out: &mut Vec<u8>, w: u32, h: u32) -> std::io::Cursor<&mut Vec<u8>> {
         out.extend_from_slice(&[0x89, b'P', b'N', b'G', 0x0D, 0x0A, 0x1A, 0x0A]);
@@ -312,23 +383,12 @@ mod tests {
         ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
         out.extend_from_slice(&13u32.to_be_bytes());
         out.extend_from_slice(&ihdr);
-        out.extend_from_slice(&crc32(&ihdr).to_be_bytes());
+        out.extend_from_slice(&crate::fuzzing::crc32(&ihdr).to_be_bytes());
         for chunk in [&b"IDAT"[..], &b"IEND"[..]] {
             out.extend_from_slice(&0u32.to_be_bytes());
             out.extend_from_slice(chunk);
-            out.extend_from_slice(&crc32(chunk).to_be_bytes());
+            out.extend_from_slice(&crate::fuzzing::crc32(chunk).to_be_bytes());
         }
         std::io::Cursor::new(out)
-    }
-
-    fn crc32(data: &[u8]) -> u32 {
-        let mut crc = 0xFFFF_FFFFu32;
-        for &b in data {
-            crc ^= b as u32;
-            for _ in 0..8 {
-                crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-            }
-        }
-        !crc
     }
 }

@@ -250,6 +250,14 @@ fn decode_texture(bytes: &[u8], hint: Option<image::ImageFormat>) -> Result<imag
     if let (None, Some(format)) = (reader.format(), hint) {
         reader.set_format(format);
     }
+    // A header claiming more pixels than the bytes can hold is refused before any pixel buffer exists.
+    let format = reader.format();
+    let mut header = image::ImageReader::new(std::io::Cursor::new(bytes));
+    if let Some(f) = format {
+        header.set_format(f);
+    }
+    let (w, h) = header.into_dimensions().map_err(|e| e.to_string())?;
+    crate::io::image_io::check_plausible(format, w, h, bytes.len() as u64)?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_TEXTURE_SIDE);
     limits.max_image_height = Some(MAX_TEXTURE_SIDE);
@@ -333,6 +341,9 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let mut materials: HashMap<String, ObjMaterial> = HashMap::new();
     // Material names in order of first use by a face; triangles index into it (None: no usemtl yet).
     let mut used: Vec<Option<String>> = Vec::new();
+    // Index of each name in `used` (a linear search per `usemtl` would be quadratic in hostile files).
+    let mut used_index: HashMap<Option<String>, usize> = HashMap::new();
+    let mut mtl_files: Vec<PathBuf> = Vec::new();
     let mut current: Option<usize> = None;
     let mut current_name: Option<String> = None;
     // Per triangle: corners as (position index, texcoord index or u32::MAX), and its index into `used`.
@@ -396,6 +407,7 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 }
                 let m = *current.get_or_insert_with(|| {
                     used.push(current_name.clone());
+                    used_index.insert(current_name.clone(), used.len() - 1);
                     used.len() - 1
                 });
                 for k in 1..poly.len() - 1 {
@@ -406,12 +418,22 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             "mtllib" => {
                 for name in split_file_list(rest) {
                     let mtl_path = dir.join(name.replace('\\', "/"));
-                    parse_mtl(&mtl_path, &mut materials)?;
+                    if mtl_files.contains(&mtl_path) {
+                        continue; // already read (only existing files get here, so the list stays short)
+                    }
+                    parse_mtl(&mtl_path, &mut materials).map_err(|e| match e {
+                        // A missing or unreadable library: say which OBJ line asked for it.
+                        MeshIoError::Io { path: mtl, source } => {
+                            obj_err(line, format!("mtllib: cannot read {}: {source}", mtl.display()))
+                        }
+                        other => other,
+                    })?;
+                    mtl_files.push(mtl_path);
                 }
             }
             "usemtl" => {
                 current_name = Some(rest.to_string());
-                current = used.iter().position(|u| u.as_deref() == Some(rest));
+                current = used_index.get(&current_name).copied();
             }
             _ => {}
         }
@@ -583,10 +605,13 @@ fn strip_map_options(rest: &str) -> String {
 pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let gerr = |message: String| MeshIoError::Gltf { path: path.to_path_buf(), message };
     let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| gerr(e.to_string()))?;
+    let raw = gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| gerr(e.to_string()))?;
+    check_gltf_references(raw.document.as_json()).map_err(gerr)?;
+    let document = gltf::Document::from_json(raw.document.into_json()).map_err(|e| gerr(e.to_string()))?;
+    let blob = raw.blob;
     let dir = path.parent().unwrap_or(Path::new("."));
     // Name a missing external texture or buffer before the importer fails with a generic message.
-    for image in gltf.images() {
+    for image in document.images() {
         if let gltf::image::Source::Uri { uri, .. } = image.source() {
             if !uri.starts_with("data:") && !dir.join(percent_decode(uri)).is_file() {
                 return Err(MeshIoError::Texture {
@@ -597,8 +622,6 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             }
         }
     }
-    let document = gltf.document;
-    let blob = gltf.blob;
     let buffers = gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(format!("buffers: {e}")))?;
 
     struct Prim {
@@ -622,10 +645,17 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
         Some(s) => s.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect(),
         None => document.nodes().map(|n| (n, Mat4::IDENTITY, 0)).collect(),
     };
+    // The node hierarchy must be a forest (glTF 2.0, 3.5.3): a node reached twice is a cycle or a shared child,
+    // which would loop forever or multiply the geometry exponentially (a chain of nodes each listing the next
+    // twice).
+    let mut visited = vec![false; document.nodes().len()];
     while let Some((node, parent, depth)) = stack.pop() {
-        // A node graph with cycles (invalid, but possible in a hostile file) must not loop forever.
+        match visited.get_mut(node.index()) {
+            Some(seen) if !*seen => *seen = true,
+            _ => return Err(gerr(format!("node {} appears twice in the node hierarchy (a cycle)", node.index()))),
+        }
         if depth > 256 {
-            return Err(gerr("the node hierarchy is deeper than 256 levels (a cycle?)".into()));
+            return Err(gerr("the node hierarchy is deeper than 256 levels".into()));
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
@@ -636,6 +666,7 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             if prim.mode() != gltf::mesh::Mode::Triangles {
                 continue;
             }
+            check_primitive_accessors(&prim).map_err(gerr)?;
             let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
             let Some(pos) = reader.read_positions() else { continue };
             let base = positions.len() as u32;
@@ -743,22 +774,131 @@ fn decode_gltf_image(
     let terr =
         |message: String| MeshIoError::Texture { path: path.to_path_buf(), texture: format!("image {i}"), message };
     let image = document.images().nth(i).ok_or_else(|| terr("does not exist".into()))?;
-    // External files go through `load_texture` (every format it reads, bounded size); embedded ones through the
-    // glTF importer.
+    // Every source goes through `decode_texture` (every format it reads, bounded size, header checked against the
+    // bytes): external files, buffer views and `data:` URIs (decoded here: the glTF importer's decoder has none of
+    // these checks).
     match image.source() {
-        gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => {
-            return load_texture(dir, &percent_decode(uri), path).map(|t| (*t).clone());
-        }
+        gltf::image::Source::Uri { uri, mime_type } => match uri.strip_prefix("data:") {
+            None => load_texture(dir, &percent_decode(uri), path).map(|t| (*t).clone()),
+            Some(data) => {
+                let (header, payload) =
+                    data.split_once(',').ok_or_else(|| terr("a data: URI without a comma".into()))?;
+                let bytes = if header.ends_with(";base64") {
+                    base64::decode(payload).map_err(|e| terr(format!("data: URI: {e}")))?
+                } else {
+                    percent_decode(payload).into_bytes()
+                };
+                let mime = mime_type.or_else(|| header.split(';').next());
+                decode_texture(&bytes, mime.and_then(image::ImageFormat::from_mime_type)).map_err(terr)
+            }
+        },
         gltf::image::Source::View { view, mime_type } => {
             let data = buffers.get(view.buffer().index()).map(|d| &d.0[..]).unwrap_or(&[]);
             let bytes = data.get(view.offset()..view.offset().saturating_add(view.length()));
             let bytes = bytes.ok_or_else(|| terr("its buffer view is past the end of the buffer".into()))?;
-            return decode_texture(bytes, image::ImageFormat::from_mime_type(mime_type)).map_err(terr);
+            decode_texture(bytes, image::ImageFormat::from_mime_type(mime_type)).map_err(terr)
         }
-        _ => {}
     }
-    let data = gltf::image::Data::from_source(image.source(), Some(dir), buffers).map_err(|e| terr(e.to_string()))?;
-    gltf_image_to_rgb(&data).ok_or_else(|| terr(format!("unsupported pixel format {:?}", data.format)))
+}
+
+/// Checks what `gltf` 1.4's validation does not but its reader relies on (each of these made it panic in
+/// `tests/fuzz.rs`; the inputs are in `tests/corpus/glb`, `tests/corpus/gltf`): before validation, that every
+/// primitive's accessors exist (validation indexes them) and that images say where their bytes are.
+fn check_gltf_references(root: &gltf::json::Root) -> Result<(), String> {
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            for index in prim.attributes.values().chain(prim.indices.iter()) {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {m} primitive {p} uses accessor {} but there are {}",
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    for (i, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.mime_type, &image.uri) {
+            (Some(_), None, _) => return Err(format!("image {i} is in a buffer view but has no mimeType")),
+            (None, _, None) => return Err(format!("image {i} has neither a uri nor a bufferView")),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// After validation: the accessors this reader reads (positions, the first UVs and colours, indices) have the
+/// component types and shapes the `gltf` reader handles (others reach an `unreachable!`) and lie inside their
+/// buffer views (so the number of elements read is bounded by the file's size).
+fn check_primitive_accessors(prim: &gltf::Primitive<'_>) -> Result<(), String> {
+    use gltf::accessor::{DataType as T, Dimensions as D};
+    use gltf::Semantic;
+    for (semantic, acc) in prim.attributes() {
+        let allowed: &[(T, D)] = match semantic {
+            Semantic::Positions => &[(T::F32, D::Vec3)],
+            Semantic::TexCoords(_) => &[(T::F32, D::Vec2), (T::U8, D::Vec2), (T::U16, D::Vec2)],
+            Semantic::Colors(_) => &[
+                (T::F32, D::Vec3),
+                (T::U8, D::Vec3),
+                (T::U16, D::Vec3),
+                (T::F32, D::Vec4),
+                (T::U8, D::Vec4),
+                (T::U16, D::Vec4),
+            ],
+            _ => continue,
+        };
+        check_accessor(&acc, &format!("{semantic:?}"), allowed)?;
+    }
+    if let Some(acc) = prim.indices() {
+        check_accessor(&acc, "indices", &[(T::U8, D::Scalar), (T::U16, D::Scalar), (T::U32, D::Scalar)])?;
+    }
+    Ok(())
+}
+
+fn check_accessor(
+    acc: &gltf::Accessor<'_>,
+    what: &str,
+    allowed: &[(gltf::accessor::DataType, gltf::accessor::Dimensions)],
+) -> Result<(), String> {
+    let kind = (acc.data_type(), acc.dimensions());
+    if !allowed.contains(&kind) {
+        return Err(format!(
+            "accessor {} ({what}) is {:?} {:?}, which this reader does not take",
+            acc.index(),
+            kind.0,
+            kind.1
+        ));
+    }
+    let out = |detail: String| format!("accessor {} ({what}) {detail}", acc.index());
+    // The byte range of `count` elements of `size` bytes at `stride` from `offset` must fit the view.
+    let fits = |view: &gltf::buffer::View<'_>, offset: usize, count: usize, size: usize| -> Result<(), String> {
+        let stride = view.stride().unwrap_or(size);
+        if stride < size {
+            return Err(out(format!("has a byte stride of {stride}, less than its {size}-byte elements")));
+        }
+        let end = match count {
+            0 => Some(offset),
+            n => stride.checked_mul(n - 1).and_then(|s| s.checked_add(offset)).and_then(|e| e.checked_add(size)),
+        };
+        let view_end = view.offset().checked_add(view.length());
+        match (end, view_end) {
+            (Some(e), Some(v)) if e <= view.length() && v <= view.buffer().length() => Ok(()),
+            _ => Err(out(format!("reads {count} elements past the end of buffer view {}", view.index()))),
+        }
+    };
+    if let Some(view) = acc.view() {
+        fits(&view, acc.offset(), acc.count(), acc.size())?;
+    }
+    if let Some(sparse) = acc.sparse() {
+        if acc.count() == 0 || sparse.count() == 0 {
+            return Err(out("is sparse with no elements".into()));
+        }
+        let indices = sparse.indices();
+        fits(&indices.view(), indices.offset(), sparse.count(), indices.index_type().size())?;
+        fits(&sparse.values().view(), sparse.values().offset(), sparse.count(), acc.size())?;
+    }
+    Ok(())
 }
 
 fn percent_decode(uri: &str) -> String {
@@ -777,23 +917,6 @@ fn percent_decode(uri: &str) -> String {
         i += 1;
     }
     String::from_utf8_lossy(&out).into_owned()
-}
-
-fn gltf_image_to_rgb(data: &gltf::image::Data) -> Option<image::RgbImage> {
-    use gltf::image::Format;
-    let (w, h) = (data.width, data.height);
-    let px = &data.pixels;
-    let n = (w * h) as usize;
-    let rgb: Vec<u8> = match data.format {
-        Format::R8 => px.iter().flat_map(|&v| [v, v, v]).collect(),
-        Format::R8G8 => px.chunks_exact(2).flat_map(|c| [c[0], c[0], c[0]]).collect(),
-        Format::R8G8B8 => px.clone(),
-        Format::R8G8B8A8 => px.chunks_exact(4).flat_map(|c| [c[0], c[1], c[2]]).collect(),
-        Format::R16G16B16 => px.chunks_exact(2).map(|c| c[1]).collect(),
-        Format::R16G16B16A16 => px.chunks_exact(8).flat_map(|c| [c[1], c[3], c[5]]).collect(),
-        _ => return None,
-    };
-    (rgb.len() == n * 3).then(|| image::RgbImage::from_raw(w, h, rgb)).flatten()
 }
 
 /// Encodes a mesh as glTF 2.0 binary: positions, normals, `TEXCOORD_0` (when a material is textured), `COLOR_0`

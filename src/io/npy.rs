@@ -23,6 +23,14 @@ pub enum NpyError {
     /// An I/O error.
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
+    /// Reading a file failed: which file, and why.
+    #[error("{path}: {source}")]
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The cause.
+        source: Box<NpyError>,
+    },
 }
 
 /// The element data of an array, by dtype.
@@ -171,9 +179,11 @@ impl NpyArray {
         Ok(())
     }
 
-    /// Reads an array from a file.
+    /// Reads an array from a file; errors name the file.
     pub fn read(path: &Path) -> Result<Self, NpyError> {
-        Self::from_bytes(&std::fs::read(path)?)
+        let in_file = |e: NpyError| NpyError::File { path: path.to_path_buf(), source: Box::new(e) };
+        let bytes = std::fs::read(path).map_err(|e| in_file(e.into()))?;
+        Self::from_bytes(&bytes).map_err(in_file)
     }
 }
 
@@ -273,6 +283,13 @@ mod tests {
         bytes[8] = 0xff; // header length past the end
         bytes[9] = 0xff;
         assert!(NpyArray::from_bytes(&bytes).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("short.npy");
+        std::fs::write(&p, b"\x93NUMPY").unwrap();
+        let e = NpyArray::read(&p).unwrap_err().to_string();
+        assert!(e.contains("short.npy") && e.contains("magic"), "{e}");
+        let e = NpyArray::read(&dir.path().join("gone.npy")).unwrap_err().to_string();
+        assert!(e.contains("gone.npy"), "{e}");
     }
 
     #[test]

@@ -20,6 +20,7 @@ use ash::vk;
 use glam::{Quat, Vec3};
 
 use super::placement::Placement;
+use crate::capture::stats::DurationHistogram;
 use crate::geometry::camera::{Camera, Fov};
 
 /// One eye's pose and field of view in the reference space (metres), as `XrView` gives them.
@@ -97,7 +98,8 @@ struct Slots {
     /// The newest frame whose copy was submitted, with the fence of that copy.
     consumed: Option<(u64, vk::Fence)>,
     error: Option<String>,
-    eye_times: Vec<Duration>,
+    /// Every per-eye render time, in fixed memory (sessions run for hours).
+    eye_times: DurationHistogram,
     uploads: u64,
     messages: Vec<String>,
 }
@@ -144,8 +146,8 @@ impl RenderMailbox {
         self.lock().error.clone()
     }
 
-    /// Every per-eye render time so far.
-    pub fn eye_times(&self) -> Vec<Duration> {
+    /// Every per-eye render time so far (a histogram: fixed memory however long the session).
+    pub fn eye_times(&self) -> DurationHistogram {
         self.lock().eye_times.clone()
     }
 
@@ -218,7 +220,9 @@ impl RenderMailbox {
                 Ok(Some(frame)) => {
                     awaiting_copy = Some(frame.request.seq);
                     let mut s = self.lock();
-                    s.eye_times.extend_from_slice(&frame.eye_times);
+                    for &t in &frame.eye_times {
+                        s.eye_times.record(t);
+                    }
                     s.latest = Some(Arc::new(frame));
                 }
                 Ok(None) => {}
@@ -254,8 +258,9 @@ pub struct PacingStats {
     pub person_frames: u64,
     /// Of those, frames that showed an image not shown before.
     pub fresh_frames: u64,
-    /// Motion-to-photon latency per person frame (pose sampling to predicted display), nanoseconds.
-    pub latencies_ns: Vec<i64>,
+    /// Motion-to-photon latency per person frame (pose sampling to predicted display; negative values count as
+    /// zero), in fixed memory.
+    pub latencies: DurationHistogram,
 }
 
 impl PacingStats {
@@ -267,7 +272,8 @@ impl PacingStats {
             self.fresh_frames += 1;
         }
         if let Some(t) = sampled_at {
-            self.latencies_ns.push(display_time.saturating_sub(t));
+            let ns = display_time.saturating_sub(t).max(0) as u64;
+            self.latencies.record(Duration::from_nanos(ns));
         }
     }
 
@@ -280,9 +286,9 @@ impl PacingStats {
         }
     }
 
-    /// Median motion-to-photon latency in milliseconds, if measured.
+    /// Median motion-to-photon latency in milliseconds (to within 50 µs), if measured.
     pub fn median_latency_ms(&self) -> Option<f64> {
-        median_i64(&self.latencies_ns).map(|ns| ns / 1e6)
+        (self.latencies.count() > 0).then(|| self.latencies.median().as_secs_f64() * 1e3)
     }
 }
 
@@ -380,7 +386,9 @@ mod tests {
         s.record(false, 150_000_000, None);
         s.record(true, 200_000_000, Some(170_000_000));
         assert!((s.fresh_share() - 0.5).abs() < 1e-12);
-        assert_eq!(s.median_latency_ms(), Some(40.0));
+        // Latencies 40, 90 and 30 ms: the median 40 ms, to within the histogram's 50 µs bins.
+        let m = s.median_latency_ms().unwrap();
+        assert!((m - 40.0).abs() <= 0.05, "{m}");
     }
 
     #[test]
@@ -442,7 +450,7 @@ mod tests {
                 wait_for(50);
                 assert_eq!(*waited.lock().unwrap(), vec![7], "the copy fence was not waited on");
             }
-            assert!(mailbox.eye_times().len() <= 4, "at most two requests rendered");
+            assert!(mailbox.eye_times().count() <= 4, "at most two requests rendered");
             assert_eq!(mailbox.uploads(), 1);
             assert_eq!(mailbox.messages(), vec!["first content".to_string()]);
             mailbox.shutdown();

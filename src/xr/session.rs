@@ -21,11 +21,12 @@ use super::check::{blend_mode_name, extension_names};
 use super::device::{create_device, renderer_shares_queue, SESSION_QUEUE};
 use super::diag::{ValidationLog, XrMessenger};
 use super::eyes::{GpuEyes, NeuralEyeStats, SceneFeed};
-use super::pacing::{median_ms, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedEyes};
+use super::pacing::{EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedEyes};
 use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
 use super::swapchain::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat};
 use super::{load_entry, XrContext, XrError};
 use crate::buffer::RgbaImage;
+use crate::capture::stats::DurationHistogram;
 use crate::compose::Mode;
 use crate::geometry::camera::{Camera, Fov};
 use crate::gpu;
@@ -267,6 +268,8 @@ pub struct SessionReport {
     pub neural: NeuralEyeStats,
     /// Time the frame loop waited for the shared queue per frame (ms): median and maximum.
     pub queue_wait_ms: (Option<f64>, f64),
+    /// Time between consecutive submitted frames: the display loop's frame times (fixed memory).
+    pub frame_intervals: DurationHistogram,
     /// Submitted frames per second while running.
     pub display_fps: f64,
     /// How the session ended.
@@ -334,6 +337,18 @@ impl fmt::Display for SessionReport {
                 f,
                 "frame loop wait for the session queue lock per frame: median {ms:.2} ms, max {:.1} ms",
                 self.queue_wait_ms.1
+            )?;
+        }
+        let h = &self.frame_intervals;
+        if h.count() > 0 {
+            let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+            writeln!(
+                f,
+                "frame interval (ms): median {:.2}, p99 {:.2}, max {:.2} over {} intervals",
+                ms(h.median()),
+                ms(h.quantile(0.99)),
+                ms(h.max()),
+                h.count()
             )?;
         }
         if self.scene_uploads > 1 {
@@ -636,7 +651,8 @@ pub fn run_session(
         placement: None,
         captures: Vec::new(),
         capture_of: None,
-        queue_waits: Vec::new(),
+        queue_waits: DurationHistogram::default(),
+        frame_intervals: DurationHistogram::default(),
         mirror_loop,
         mirror: None,
         mirror_presented: 0,
@@ -725,15 +741,16 @@ pub fn run_session(
         time_to_focused: loop_state.time_to_focused,
         frames_submitted: loop_state.frames_submitted,
         pacing: loop_state.pacing,
-        eye_render_ms: median_ms(&eye_times),
-        eye_renders: eye_times.len(),
+        eye_render_ms: (eye_times.count() > 0).then(|| eye_times.median().as_secs_f64() * 1e3),
+        eye_renders: eye_times.count() as usize,
         scene_uploads: mailbox.uploads(),
         source_messages: mailbox.messages(),
         renderer_shares_queue: renderer_shares_queue(&vk),
         queue_wait_ms: (
-            median_ms(&loop_state.queue_waits),
-            loop_state.queue_waits.iter().max().map_or(0.0, |d| d.as_secs_f64() * 1e3),
+            (loop_state.queue_waits.count() > 0).then(|| loop_state.queue_waits.median().as_secs_f64() * 1e3),
+            loop_state.queue_waits.max().as_secs_f64() * 1e3,
         ),
+        frame_intervals: loop_state.frame_intervals.clone(),
         display_fps,
         end,
         xr_messages: xr_log.messages(),
@@ -777,7 +794,9 @@ struct LoopState {
     /// The frame whose eye images are being read back (capture), with its request.
     capture_of: Option<std::sync::Arc<RenderedEyes>>,
     /// Per frame: time spent waiting for the shared queue lock.
-    queue_waits: Vec<Duration>,
+    queue_waits: DurationHistogram,
+    /// Time between consecutive submitted frames (the display loop's frame times).
+    frame_intervals: DurationHistogram,
     mirror_loop: Option<MirrorEventLoop>,
     mirror: Option<Mirror>,
     mirror_presented: u64,
@@ -1055,7 +1074,10 @@ fn frame_loop(
                 }
             }
             st.frames_submitted += 1;
-            st.queue_waits.push(waited);
+            st.queue_waits.record(waited);
+            if let Some(last) = st.last_frame {
+                st.frame_intervals.record(now.saturating_duration_since(last));
+            }
             st.first_frame.get_or_insert(now);
             st.last_frame = Some(now);
             Ok(())
