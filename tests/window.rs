@@ -187,10 +187,18 @@ fn mirror_window_renders_frames_and_screenshots_the_person() {
             screenshot_on_exit: Some(shot.clone()),
             presented_on_exit: Some(presented.clone()),
             resolution: 128,
+            export_dir: dir.path().join("exports"),
+            script: vec![ScriptStep { at_frame: 2, action: ScriptAction::Key('e') }],
             ..WindowOptions::default()
         });
         keep("still", &[&shot, &presented]);
         assert_eq!(stats.frames, 6);
+        // E wrote the person as glTF: it reads back, feet at y = 0, the photo's texture on it.
+        assert_eq!(stats.exports.len(), 1, "{:?}", stats.exports);
+        let glb = r2human::io::mesh_io::read_gltf(&stats.exports[0]).unwrap();
+        let (lo, hi) = glb.mesh.bounds().unwrap();
+        assert!(lo.y.abs() < 1e-4 && hi.y > 0.5, "{lo} {hi}");
+        assert!(glb.first_texture().is_some() && glb.mesh.triangle_count() > 1000);
         assert_eq!(stats.backend, Backend::Vulkan);
         assert_eq!(stats.screenshots, vec![shot.clone()]);
         let img = image::open(&shot).unwrap().to_rgb8();

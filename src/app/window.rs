@@ -41,7 +41,7 @@ use crate::app::live::{
 };
 use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
 use crate::app::{log_software_device, Backend};
-use crate::buffer::Image;
+use crate::buffer::{GrayImage, Image};
 use crate::capture::stats::DurationHistogram;
 use crate::capture::{CameraRequest, SegmentMethod};
 use crate::compose::Mode;
@@ -50,6 +50,7 @@ use crate::gpu::{offline, Acquired, Context, GpuError, GpuView, OverlayMask, Pre
 use crate::io::environment::Environment;
 use crate::io::image_io;
 use crate::io::sequence::RenderedFrame;
+use crate::pipeline::export::{person_glb, ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 pub use crate::pipeline::{Drawn, NeuralCounters};
 use crate::pipeline::{
@@ -120,6 +121,10 @@ pub struct WindowOptions {
     pub size: u32,
     /// Folder for `S` screenshots.
     pub screenshot_dir: PathBuf,
+    /// Folder for `E` exports (the person as glTF, `r2human-person-NNNNN.glb`).
+    pub export_dir: PathBuf,
+    /// How `E` exports (height, decimation; the fill is the window's).
+    pub export: ExportOptions,
     /// Write the last frame to this PNG when the loop ends (for tests and scripted runs). Like `S`
     /// screenshots, it is the rendered view without the text overlay.
     pub screenshot_on_exit: Option<PathBuf>,
@@ -158,6 +163,8 @@ impl Default for WindowOptions {
             frames: None,
             size: 512,
             screenshot_dir: PathBuf::from("."),
+            export_dir: PathBuf::from("."),
+            export: ExportOptions::default(),
             screenshot_on_exit: None,
             presented_on_exit: None,
             overlay: true,
@@ -224,6 +231,8 @@ pub struct ViewStats {
     pub frame_histogram: DurationHistogram,
     /// Screenshots written (rendered views, no overlay).
     pub screenshots: Vec<PathBuf>,
+    /// glTF files written by `E`.
+    pub exports: Vec<PathBuf>,
     /// Validation-layer errors + warnings seen (0 unless validation is on).
     pub validation_messages: u32,
     /// The Vulkan device that ran the window.
@@ -351,6 +360,7 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         (None, None) => None,
     };
     let still;
+    let mut still_mask = None;
     let input = if let Some(factory) = factory {
         let live_opts = LiveOptions { segment: opts.segment.clone(), ..LiveOptions::default() };
         // The worker encodes with its own instance of the models: the display's decoder never waits for it.
@@ -365,9 +375,11 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         let person = crate::capture::segment::segment_photo(&opts.image, opts.mask.as_deref(), &opts.segment)?;
         tracing::info!("preparing the input (geometry, mesh)");
         still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)?;
+        still_mask = Some(person.mask);
         PersonInput::Still(&still)
     };
     let mut engine = Engine::new(input, &env, opts.backend, neural);
+    engine.still_photo_mask = still_mask;
     let stats = run_window(&mut engine, &opts)?;
     tracing::info!("view: {} frames, median {:.2} ms", stats.frames, stats.median_frame.as_secs_f64() * 1e3);
     Ok(stats)
@@ -407,6 +419,7 @@ fn run_window(engine: &mut Engine<'_>, opts: &WindowOptions) -> anyhow::Result<V
         presented: 0,
         finished: false,
         screenshot_requested: false,
+        export_requested: false,
         resized: false,
         error: None,
         stats: ViewStats::default(),
@@ -499,6 +512,8 @@ pub struct Engine<'a> {
     cpu_counters: NeuralCounters,
     /// Encoder runs for a photo (live frames count theirs on the worker thread).
     encodes: u64,
+    /// The photo's person mask (a photo input; it sizes the `E` export, see [`crate::pipeline::export`]).
+    pub still_photo_mask: Option<GrayImage>,
 }
 
 impl<'a> Engine<'a> {
@@ -520,6 +535,7 @@ impl<'a> Engine<'a> {
             policy: NeuralPolicy::default(),
             cpu_counters: NeuralCounters::default(),
             encodes: 0,
+            still_photo_mask: None,
         };
         if let (PersonInput::Still(p), Some(shared)) = (&engine.input, &engine.neural.renderer) {
             let encoded = shared.lock().unwrap_or_else(|e| e.into_inner()).encode(p);
@@ -581,6 +597,28 @@ impl<'a> Engine<'a> {
     /// The one-line overlay message of the last refused switch (why the neural renderer is unavailable), if any.
     pub fn message(&self) -> Option<&str> {
         self.message.as_ref().map(|(m, _)| m.as_str())
+    }
+
+    /// Shows `text` as the overlay's message line.
+    pub fn set_message(&mut self, text: String) {
+        self.message = Some((text, Instant::now()));
+    }
+
+    /// Writes the person on screen as glTF 2.0 binary (the `E` key): the photo's reconstruction, or the latest
+    /// completed live frame's, with this window's occlusion fill ([`crate::pipeline::export::person_glb`]).
+    pub fn export_person(&self, path: &std::path::Path, opts: &ExportOptions) -> anyhow::Result<ExportReport> {
+        let opts = ExportOptions { fill: self.fill, ..opts.clone() };
+        let (input, mask) = match &self.input {
+            PersonInput::Still(p) => {
+                (*p, self.still_photo_mask.as_ref().context("the photo's person mask was not kept for export")?)
+            }
+            PersonInput::Live(live) => {
+                let c =
+                    live.current.as_ref().context("no person has been reconstructed yet: wait for the first frame")?;
+                (&c.output.input, &c.mask)
+            }
+        };
+        Ok(person_glb(path, input, mask, &opts)?)
     }
 
     /// Switches between the geometric and the neural renderer. Switching to neural without a neural renderer
@@ -886,6 +924,8 @@ struct App<'a, 'e> {
     /// The last requested frame (`--frames`) has been rendered.
     finished: bool,
     screenshot_requested: bool,
+    /// `E` was pressed: write the person as glTF after the next frame.
+    export_requested: bool,
     resized: bool,
     error: Option<anyhow::Error>,
     stats: ViewStats,
@@ -1035,6 +1075,21 @@ impl App<'_, '_> {
                 }
             }
         }
+        if std::mem::take(&mut self.export_requested) {
+            let path = self.opts.export_dir.join(format!("r2human-person-{:05}.glb", self.presented));
+            // A failed export is a message on screen, never the end of the session.
+            match self.engine.export_person(&path, &self.opts.export) {
+                Ok(report) => {
+                    self.engine.set_message(format!("EXPORTED {}", path.display()));
+                    tracing::info!("exported {}: {report}", path.display());
+                    self.stats.exports.push(path);
+                }
+                Err(e) => {
+                    tracing::warn!("export failed: {e}");
+                    self.engine.set_message(format!("EXPORT FAILED: {e}"));
+                }
+            }
+        }
         self.update_status();
         Ok(())
     }
@@ -1064,7 +1119,7 @@ impl App<'_, '_> {
         };
         let fps = if ms > 0.0 { 1e3 / ms } else { 0.0 };
         let title = format!(
-            "r2human | {mode} | {shading} | {backend} | {ms:.1} ms/frame ({fps:.0} fps) | drag: orbit, wheel: zoom, V/A, G/N, S: screenshot"
+            "r2human | {mode} | {shading} | {backend} | {ms:.1} ms/frame ({fps:.0} fps) | drag: orbit, wheel: zoom, V/A, G/N, S: screenshot, E: export glTF"
         );
         if let Some(w) = &self.window {
             w.set_title(&title);
@@ -1107,6 +1162,7 @@ impl App<'_, '_> {
                 let _ = self.engine.set_shading(Shading::Neural);
             }
             "s" => self.screenshot_requested = true,
+            "e" => self.export_requested = true,
             _ => {}
         }
     }

@@ -55,6 +55,9 @@ pub struct ViewArgs {
     /// Folder for screenshots (S key).
     #[arg(long, default_value = ".")]
     pub screenshot_dir: PathBuf,
+    /// How the E key exports the person as glTF.
+    #[command(flatten)]
+    pub export: ExportFlags,
     /// Write the last frame to this PNG when the window closes.
     #[arg(long)]
     pub screenshot_on_exit: Option<PathBuf>,
@@ -119,6 +122,33 @@ pub struct XrArgs {
     pub neural: NeuralArgs,
 }
 
+/// `--export-dir`, `--export-height`, `--export-decimate`: how `view` (E key) writes the person as glTF.
+#[derive(Args, Debug, Clone)]
+pub struct ExportFlags {
+    /// Folder for glTF exports of the person (E key): r2human-person-NNNNN.glb.
+    #[arg(long, default_value = ".")]
+    pub export_dir: PathBuf,
+    /// The person's standing height in metres for exports (see `r2human export --height`).
+    #[arg(long, default_value_t = crate::pipeline::export::DEFAULT_HEIGHT_M)]
+    pub export_height: f32,
+    /// Simplify exported meshes to about this many triangles.
+    #[arg(long)]
+    pub export_decimate: Option<usize>,
+}
+
+impl ExportFlags {
+    /// The export options (checked now, so a bad value fails before the window opens).
+    pub fn options(&self) -> Result<crate::pipeline::export::ExportOptions> {
+        let o = crate::pipeline::export::ExportOptions {
+            height_m: self.export_height,
+            decimate: self.export_decimate,
+            ..Default::default()
+        };
+        o.validate()?;
+        Ok(o)
+    }
+}
+
 /// `r2human view`.
 pub fn run_view(args: &ViewArgs) -> Result<()> {
     let segment = args.segment.method()?;
@@ -137,6 +167,8 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         frames: args.frames,
         size: args.size,
         screenshot_dir: args.screenshot_dir.clone(),
+        export_dir: args.export.export_dir.clone(),
+        export: args.export.options()?,
         screenshot_on_exit: args.screenshot_on_exit.clone(),
         neural: args.neural.setup(),
         spin: args.spin,

@@ -377,6 +377,9 @@ pub fn person_glb(
     opts: &ExportOptions,
 ) -> Result<ExportReport, ExportError> {
     let (mesh, report) = person_mesh(input, photo_mask, opts)?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|source| MeshIoError::Io { path: dir.to_path_buf(), source })?;
+    }
     write_glb(path, &mesh)?;
     tracing::info!("wrote {}: {report}", path.display());
     Ok(report)
