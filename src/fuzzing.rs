@@ -926,22 +926,10 @@ pub fn fix_png_crcs(data: &mut [u8]) {
     while at + 12 <= data.len() {
         let n = u32::from_be_bytes([data[at], data[at + 1], data[at + 2], data[at + 3]]) as usize;
         let Some(end) = at.checked_add(8 + n).filter(|&e| e + 4 <= data.len()) else { break };
-        let crc = crc32(&data[at + 4..end]);
+        let crc = crate::io::image_io::crc32(&data[at + 4..end]);
         data[end..end + 4].copy_from_slice(&crc.to_be_bytes());
         at = end + 4;
     }
-}
-
-/// CRC-32 (ISO-HDLC, the PNG chunk checksum).
-pub fn crc32(bytes: &[u8]) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
-    for &b in bytes {
-        crc ^= b as u32;
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
-        }
-    }
-    !crc
 }
 
 #[cfg(test)]
@@ -967,7 +955,7 @@ mod tests {
     #[test]
     fn crc_matches_the_png_standard() {
         // CRC-32 of "IEND" (every PNG ends with it): AE 42 60 82.
-        assert_eq!(crc32(b"IEND"), 0xAE42_6082);
+        assert_eq!(crate::io::image_io::crc32(b"IEND"), 0xAE42_6082);
         let mut p = png(rgb_pattern(4, 4), image::ExtendedColorType::Rgb8);
         let good = p.clone();
         p[29] ^= 0xFF; // the IHDR CRC

@@ -344,6 +344,7 @@ pub fn run_photo_eval_with(
     let (neural, fof_net) = super::runner::load_networks(nopts, &mut notes);
     let options = crate::neural::RuntimeOptions { ep: nopts.ep, ..Default::default() };
     let body = match crate::pipeline::load_body(GeometryMode::Body, &options) {
+        _ if nopts.skip => None,
         Ok(body) => body,
         Err(e) => {
             tracing::warn!("the body-prior rows are skipped: {e}");
