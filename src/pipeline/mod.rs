@@ -255,14 +255,8 @@ fn body_geometry(
             .map(Some),
         None => Ok(None),
     });
-    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-    let warn = |m: String| {
-        if !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed) {
-            tracing::warn!("{m}");
-        } else {
-            tracing::debug!("{m}");
-        }
-    };
+    static WARNED: AtomicBool = AtomicBool::new(false);
+    let warn = |m: String| warn_once(&WARNED, &m);
     match fof {
         Ok(Some(f)) => f,
         Ok(None) => {
