@@ -19,7 +19,7 @@ if [ "$(id -u)" != 0 ]; then
     exit 2
 fi
 mkdir -p "$(dirname "$ROOT")"
-ROOT=$(cd "$(dirname "$ROOT")" && pwd)/$(basename "$ROOT")
+ROOT=$(cd "$(dirname "$ROOT")" && pwd -P)/$(basename "$ROOT")
 STAMP="$ROOT/.r2human-xr-root"
 
 if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$STAMP_CONTENT" ]; then

@@ -43,7 +43,7 @@ if [ ! -f "$ROOT/.r2human-xr-root" ]; then
     echo "run-in-root.sh: $ROOT is not a finished XR root: run scripts/xr/make-root.sh first" >&2
     exit 2
 fi
-ROOT=$(cd "$ROOT" && pwd)
+ROOT=$(cd "$ROOT" && pwd -P)
 
 exec 9>"$ROOT.lock"
 flock 9
@@ -71,6 +71,12 @@ trap 'exit 130' INT TERM
 xr_mount_system "$ROOT"
 mkdir -p "$ROOT$CHECKOUT"
 mountpoint -q "$ROOT$CHECKOUT" || mount --bind "$CHECKOUT" "$ROOT$CHECKOUT"
+# A git worktree may link its .tools to another checkout's; the root only sees what is mounted into it.
+if [ -L "$CHECKOUT/.tools" ]; then
+    TOOLS_TARGET=$(readlink -f "$CHECKOUT/.tools")
+    mkdir -p "$ROOT$TOOLS_TARGET"
+    mountpoint -q "$ROOT$TOOLS_TARGET" || mount --bind "$TOOLS_TARGET" "$ROOT$TOOLS_TARGET"
+fi
 # Cargo's home (for `cargo run`-style paths) is not needed: binaries are run directly.
 mkdir -p "$ROOT$XDG_DIR" "$ROOT/tmp"
 chmod 700 "$ROOT$XDG_DIR"
