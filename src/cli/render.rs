@@ -399,7 +399,9 @@ pub fn run_export(args: &ExportArgs) -> Result<()> {
         decimate: args.decimate,
     };
     opts.validate()?;
+    let started = std::time::Instant::now();
     let person = segment_photo(&args.image, args.mask.as_deref(), &args.segment.method()?)?;
+    let segmented = started.elapsed();
     let runtime = RuntimeOptions::default();
     let fof_net = load_fof_net(args.geometry, args.models.as_deref(), args.fof_order, &runtime)?;
     let prepare = PrepareOptions { fof_order: args.fof_order, geometry: args.geometry, fof_net, ..Default::default() };
@@ -407,6 +409,14 @@ pub fn run_export(args: &ExportArgs) -> Result<()> {
         .with_context(|| format!("reconstructing the person in {}", args.image.display()))?;
     let report = crate::pipeline::export::person_glb(&args.out, &prepared, &person.mask, &opts)?;
     println!("wrote {}: {report}", args.out.display());
+    println!(
+        "stages: load + segment ({}) {:.1} ms, {}, {}; export {:.1} ms",
+        person.origin,
+        segmented.as_secs_f64() * 1e3,
+        prepared.timings.summary(),
+        report.timings.summary(),
+        report.timings.total().as_secs_f64() * 1e3
+    );
     Ok(())
 }
 
