@@ -367,22 +367,21 @@ fn person_figure(w: u32, h: u32) -> image::RgbaImage {
     })
 }
 
-/// `E` during a live stream (a folder of frames played at 6 fps) writes the person of the frame on screen: E is
-/// pressed every third presented frame, with a 250 ms pause before each press so the source moves on between
-/// them; a press before the first completed frame writes nothing (a message), every file written reads back, and
-/// its texture has the colour of the source frame that was on screen when E was pressed (each frame of the folder
-/// has its own colour). The presses hold more than one source frame.
+/// `E` during a live stream (a folder of 40 frames played at 8 fps, 5 s) writes the person of the frame on
+/// screen: E is pressed every third presented frame, with a 400 ms pause before each press so the source moves on
+/// between them; every file written reads back, and its texture has the colour of the source frame that was on
+/// screen when E was pressed (the frames cycle through six colours). The presses hold more than one source frame.
 #[test]
 fn e_during_a_live_stream_exports_the_person_on_screen() {
     in_window_child("e_during_a_live_stream_exports_the_person_on_screen", || {
         let dir = tempfile::tempdir().unwrap();
         let frames = dir.path().join("frames");
         std::fs::create_dir_all(&frames).unwrap();
-        write_coloured_folder(&frames, 6);
+        write_coloured_folder(&frames, 40);
         let stats = run(WindowOptions {
             video: Some(frames),
             segment: SegmentMethod::Alpha,
-            fps: 6.0,
+            fps: 8.0,
             mode: Mode::Ar,
             backend: Backend::Cpu,
             frames: Some(30),
@@ -391,7 +390,7 @@ fn e_during_a_live_stream_exports_the_person_on_screen() {
             export_dir: dir.path().join("exports"),
             script: (1..=8)
                 .flat_map(|k| {
-                    [ScriptAction::Wait(Duration::from_millis(250)), ScriptAction::Key('e')]
+                    [ScriptAction::Wait(Duration::from_millis(400)), ScriptAction::Key('e')]
                         .map(|action| ScriptStep { at_frame: 3 * k, action })
                 })
                 .collect(),

@@ -238,7 +238,10 @@ fn frame_time_summary(h: &crate::capture::stats::DurationHistogram) -> String {
 /// `r2human xr`.
 pub fn run_xr(args: &XrArgs) -> Result<()> {
     if args.check {
-        return xr_session::run_check();
+        // The runtime, its extensions, blend modes and view configuration, or (as the error) a sentence saying what
+        // to install or start when there is no runtime.
+        println!("{}", crate::xr::check_runtime()?);
+        return Ok(());
     }
     let segment = args.segment.method()?;
     let input = match (&args.image, &args.video, args.camera) {
@@ -249,7 +252,8 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         (Some(path), None, None) => XrInput::Image { path: path.clone(), mask: args.mask.clone(), segment },
         (None, None, None) => anyhow::bail!("give --image, --video or --camera (or --check)"),
     };
-    xr_session::run_xr(XrOptions {
+    // What happened: frame rate, fresh-render share, motion-to-photon latency of the person layer, how it ended.
+    let report = xr_session::run_xr_session(&XrOptions {
         input,
         env: args.env.clone(),
         mode: args.mode,
@@ -261,7 +265,9 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         export: args.export.options()?,
         export_at_frames: args.export_at_frame.clone(),
         ..Default::default()
-    })
+    })?;
+    println!("{report}");
+    Ok(())
 }
 
 /// `r2human devices`.
