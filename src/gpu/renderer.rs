@@ -624,7 +624,7 @@ impl Renderer {
     /// Uploads the mesh (once per mesh; frames re-render it for any camera without re-uploading). Buffers are
     /// reused when the new mesh fits in them.
     pub fn set_mesh(&mut self, mesh: &TriMesh) -> Result<(), GpuError> {
-        mesh.validate().map_err(|e| GpuError::Invalid(format!("invalid mesh: {e}")))?;
+        mesh.validate()?;
         let n = mesh.positions.len();
         let normals: Vec<[f32; 3]> = if mesh.normals.len() == n {
             mesh.normals.iter().map(|v| v.to_array()).collect()
