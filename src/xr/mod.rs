@@ -24,7 +24,8 @@ pub use eyes::{GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
 pub use pacing::{EyeError, EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
 pub use session::{
-    run_session, BlendChoice, EndReason, ExportHook, EyeCapture, PersonExporter, SessionConfig, SessionReport,
+    run_session, BlendChoice, EndReason, ExportFailure, ExportHook, EyeCapture, PersonExporter, SessionConfig,
+    SessionReport,
 };
 
 use openxr as xr;
