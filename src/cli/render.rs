@@ -18,8 +18,8 @@ use crate::io::sequence::{self, RenderedFrame};
 use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    load_body, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice, SharedNeural,
-    ViewRenderer,
+    load_body_for, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
+    SharedNeural, ViewRenderer,
 };
 
 /// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
@@ -216,7 +216,7 @@ fn load_environment(view: &ViewOptions) -> Result<Environment> {
 fn prepare_options(view: &ViewOptions) -> Result<PrepareOptions> {
     let options = RuntimeOptions { ep: view.neural.ep, ..Default::default() };
     let fof_net = load_fof_net(view.geometry, view.neural.models.as_deref(), view.fof_order, &options)?;
-    let body = load_body(view.geometry, &options)?;
+    let body = load_body_for(view.geometry, fof_net.as_ref(), &options)?;
     Ok(PrepareOptions { fof_order: view.fof_order, geometry: view.geometry, fof_net, body, ..Default::default() })
 }
 
@@ -402,7 +402,9 @@ pub fn run_export(args: &ExportArgs) -> Result<()> {
     let person = segment_photo(&args.image, args.mask.as_deref(), &args.segment.method()?)?;
     let runtime = RuntimeOptions::default();
     let fof_net = load_fof_net(args.geometry, args.models.as_deref(), args.fof_order, &runtime)?;
-    let prepare = PrepareOptions { fof_order: args.fof_order, geometry: args.geometry, fof_net, ..Default::default() };
+    let body = load_body_for(args.geometry, fof_net.as_ref(), &runtime)?;
+    let prepare =
+        PrepareOptions { fof_order: args.fof_order, geometry: args.geometry, fof_net, body, ..Default::default() };
     let prepared = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)
         .with_context(|| format!("reconstructing the person in {}", args.image.display()))?;
     let report = crate::pipeline::export::person_glb(&args.out, &prepared, &person.mask, &opts)?;
