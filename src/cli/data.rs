@@ -93,7 +93,7 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
         );
     }
     for (name, why) in &summary.failed {
-        eprintln!("warning: {name} failed and was skipped: {why}");
+        tracing::warn!("{name} failed and was skipped: {why}");
     }
     if summary.written.is_empty() {
         bail!("no subject could be written");
