@@ -25,8 +25,8 @@ use crate::io::sequence;
 use crate::pipeline::export::{ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    load_body_for, load_fof_net, load_renderer, GeometryMode, NeuralRequest, PrepareOptions, PreparedInput, SharedNeural,
-    SourceView, ViewRenderer,
+    load_body_for, load_fof_net, load_renderer, GeometryMode, NeuralRequest, PrepareOptions, PreparedInput,
+    SharedNeural, SourceView, ViewRenderer,
 };
 
 /// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
