@@ -293,7 +293,7 @@ fn write_subject(
     let source = Camera::source(r);
     let gt = render_ground_truth(&subject.mesh, &source);
     write_view(dir, "source_", &gt)?;
-    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::stage("ground-truth FOF", e))?;
     write_npy(&dir.join("fof.npy"), vec![r, r, opts.fof_n], fof.coeffs)?;
     write_npy(&dir.join("prior_fof.npy"), vec![r, r, opts.fof_n], prior)?;
     let mut body_fallback = None;
@@ -350,7 +350,8 @@ fn fof_grid(size: usize) -> usize {
 fn prior_from_render(gt: &GroundTruthView, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
     let hi = gt.width;
     let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
-    let fof = inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let fof =
+        inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::stage("inflation prior", e))?;
     Ok(box_downsample(&fof.coeffs, hi, n, hi / size.max(1)))
 }
 
@@ -370,7 +371,8 @@ pub fn body_fof(
     let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
     let normalised = NormalisedInput::in_source_view(rgb, mask);
     let opts = PrepareOptions { resolution: hi, fof_order: n, ..Default::default() };
-    let prior = inflate_to_fof(&normalised.mask, n, &opts.inflate).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let prior =
+        inflate_to_fof(&normalised.mask, n, &opts.inflate).map_err(|e| EvalError::stage("inflation prior", e))?;
     let mut timings = StageTimings::default();
     let (fof, fallback) = body_prior_fof(&normalised, &opts, body, prior, &mut timings);
     Ok((box_downsample(&fof.coeffs, hi, n, hi / size.max(1)), fallback))

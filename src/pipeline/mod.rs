@@ -681,19 +681,20 @@ struct CpuBackend<'r> {
 impl PersonBackend<NeuralRef<'_>> for CpuBackend<'_> {
     type Output = RgbaImage;
     type Error = std::convert::Infallible;
+    type NeuralFailure = NeuralError;
 
     fn neural(
         &mut self,
         _source: SourceView<'_>,
         n: &NeuralRef<'_>,
         camera: &Camera,
-    ) -> Result<Result<(RgbaImage, NeuralViewTimes), String>, Self::Error> {
+    ) -> Result<Result<(RgbaImage, NeuralViewTimes), NeuralError>, Self::Error> {
         let (input, target, flowz) = (self.input, self.target, &mut *self.flowz);
         let person = self.timings.time("flow + Z-map + decoder", || {
             let mut renderer = n.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
             renderer.render_view(input, n.encoded, target, camera, flowz)
         });
-        Ok(person.map(|p| (p, NeuralViewTimes::default())).map_err(|e| e.to_string()))
+        Ok(person.map(|p| (p, NeuralViewTimes::default())))
     }
 
     fn reuse_neural(&mut self, _camera: &Camera) -> Result<Option<RgbaImage>, Self::Error> {
