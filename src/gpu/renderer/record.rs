@@ -246,14 +246,7 @@ impl Renderer {
             }
             device.cmd_end_render_pass(cb);
             // Attachments (now TRANSFER_SRC_OPTIMAL) into the storage buffers the compute passes read.
-            let region = vk::BufferImageCopy::default()
-                .image_subresource(vk::ImageSubresourceLayers {
-                    aspect_mask: vk::ImageAspectFlags::COLOR,
-                    mip_level: 0,
-                    base_array_layer: 0,
-                    layer_count: 1,
-                })
-                .image_extent(vk::Extent3D { width: self.width, height: self.height, depth: 1 });
+            let region = self.full_color_region();
             device.cmd_copy_image_to_buffer(
                 cb,
                 self.geometry_image.image,
@@ -271,6 +264,18 @@ impl Renderer {
         }
     }
 
+    /// A buffer <-> image copy of a whole colour image of the renderer's size (tightly packed rows).
+    fn full_color_region(&self) -> vk::BufferImageCopy {
+        vk::BufferImageCopy::default()
+            .image_subresource(vk::ImageSubresourceLayers {
+                aspect_mask: vk::ImageAspectFlags::COLOR,
+                mip_level: 0,
+                base_array_layer: 0,
+                layer_count: 1,
+            })
+            .image_extent(vk::Extent3D { width: self.width, height: self.height, depth: 1 })
+    }
+
     /// Records the copy of the encoded output into the swapchain `image` and its hand-over to presentation.
     ///
     /// # Safety
@@ -280,14 +285,7 @@ impl Renderer {
         let encoded_ready = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::SHADER_WRITE)
             .dst_access_mask(vk::AccessFlags::TRANSFER_READ);
-        let region = vk::BufferImageCopy::default()
-            .image_subresource(vk::ImageSubresourceLayers {
-                aspect_mask: vk::ImageAspectFlags::COLOR,
-                mip_level: 0,
-                base_array_layer: 0,
-                layer_count: 1,
-            })
-            .image_extent(vk::Extent3D { width: self.width, height: self.height, depth: 1 });
+        let region = self.full_color_region();
         // SAFETY: as the caller guarantees; the encoded buffer was written by the encode pass recorded before.
         unsafe {
             device.cmd_pipeline_barrier(
