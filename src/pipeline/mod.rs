@@ -251,7 +251,15 @@ fn body_geometry(
     timings.0.extend(stages);
     let fof = found.and_then(|p| match p {
         Some(p) => timings
-            .time("body FOF", || crate::body::prior::body_fof(&p.mesh, &normalised.mask, opts.fof_order, &opts.inflate))
+            .time("body FOF", || {
+                crate::body::prior::body_fof(
+                    &p.mesh,
+                    &normalised.mask,
+                    Some(normalised.frame),
+                    opts.fof_order,
+                    &opts.inflate,
+                )
+            })
             .map(Some),
         None => Ok(None),
     });
