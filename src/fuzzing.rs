@@ -842,46 +842,15 @@ fn mutate_once(target: Target, data: &mut Vec<u8>, others: &[Vec<u8>], rng: &mut
     }
 }
 
-/// The JSON and BIN chunk payloads of a GLB whose container is intact.
+/// The JSON and BIN chunk payloads of a GLB whose container is intact (no BIN chunk: empty).
 fn glb_split(glb: &[u8]) -> Option<(Vec<u8>, Vec<u8>)> {
-    let word = |at: usize| glb.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
-    if !glb.starts_with(b"glTF") {
-        return None;
-    }
-    let json_len = word(12)?;
-    let json = glb.get(20..20usize.checked_add(json_len)?)?.to_vec();
-    let bin_at = 20 + json_len;
-    let bin = match word(bin_at) {
-        Some(n) => glb.get(bin_at + 8..(bin_at + 8).checked_add(n)?)?.to_vec(),
-        None => Vec::new(),
-    };
-    Some((json, bin))
+    let chunks = mesh_io::glb_chunks(glb).ok()?;
+    Some((chunks.json.to_vec(), chunks.bin.unwrap_or_default().to_vec()))
 }
 
-/// A GLB container around a JSON and a BIN chunk (each padded to 4 bytes).
+/// A GLB container around a JSON and a BIN chunk (none when `bin` is empty).
 fn glb_join(json: &[u8], bin: &[u8]) -> Vec<u8> {
-    let pad = |v: &[u8], with: u8| {
-        let mut v = v.to_vec();
-        while v.len() % 4 != 0 {
-            v.push(with);
-        }
-        v
-    };
-    let (json, bin) = (pad(json, b' '), pad(bin, 0));
-    let total = 12 + 8 + json.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&json);
-    if !bin.is_empty() {
-        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-        out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(&bin);
-    }
-    out
+    mesh_io::glb_container(json, (!bin.is_empty()).then_some(bin)).expect("a fuzz input is far below 4 GiB")
 }
 
 /// Replaces one ASCII number in the data by an interesting one (huge, negative, NaN, an index one past).

@@ -153,6 +153,71 @@ fn glb_round_trip_and_corrupt_glb_errors() {
     assert!(!pe.exists());
 }
 
+/// A GLB header and chunks from parts: (declared total length, [(declared chunk length, tag, data)]).
+fn glb_raw(total: u32, chunks: &[(u32, &[u8; 4], &[u8])]) -> Vec<u8> {
+    let mut out = b"glTF".to_vec();
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&total.to_le_bytes());
+    for (len, tag, data) in chunks {
+        out.extend_from_slice(&len.to_le_bytes());
+        out.extend_from_slice(*tag);
+        out.extend_from_slice(data);
+    }
+    out
+}
+
+#[test]
+fn glb_container_is_checked_before_any_length_is_trusted() {
+    let json: &[u8] = br#"{"asset":{"version":"2.0"}}     "#; // 27 + 5 spaces of padding
+    let bin: &[u8] = &[1, 2, 3, 4, 5, 6, 7, 8];
+    // Well formed: header 12 + JSON 8+32 + BIN 8+8 = 68 bytes.
+    let good = glb_raw(68, &[(32, b"JSON", json), (8, b"BIN\0", bin)]);
+    assert_eq!(good.len(), 68);
+    let c = glb_chunks(&good).unwrap();
+    assert_eq!((c.json, c.bin, c.trailing), (json, Some(bin), 0));
+    // The writer's container is the same bytes; it pads a chunk to 4 bytes (JSON with spaces, BIN with zeros).
+    assert_eq!(glb_container(json, Some(bin)).unwrap(), good);
+    let padded = glb_container(&json[..27], Some(&bin[..5])).unwrap();
+    assert_eq!(padded.len(), 12 + 8 + 28 + 8 + 8);
+    let c = glb_chunks(&padded).unwrap();
+    assert_eq!((c.json, c.bin), (&json[..28], Some(&[1, 2, 3, 4, 5, 0, 0, 0][..])));
+    // An extension's chunk after BIN is skipped; trailing bytes past the declared length are counted, not read.
+    let mut ext = glb_raw(80, &[(32, b"JSON", json), (8, b"BIN\0", bin), (4, b"XYZW", &[9; 4])]);
+    ext.extend_from_slice(&[0xEE; 3]);
+    let c = glb_chunks(&ext).unwrap();
+    assert_eq!((c.json, c.bin, c.trailing), (json, Some(bin), 3));
+    // Every broken container is an error saying what is wrong (none may panic: lengths below 12 made gltf
+    // 1.4.1 subtract with overflow).
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        (b"glTF\x02\0\0".to_vec(), "shorter than the 12-byte GLB header"),
+        (glb_raw(0, &[(32, b"JSON", json)]), "total length of 0 bytes"),
+        (glb_raw(11, &[(32, b"JSON", json)]), "total length of 11 bytes"),
+        (glb_raw(69, &[(32, b"JSON", json), (8, b"BIN\0", bin)]), "the file has 68: it is truncated"),
+        (glb_raw(u32::MAX, &[(32, b"JSON", json)]), "truncated"),
+        (glb_raw(52, &[(33, b"JSON", json)]), "chunk 0 (\"JSON\") at offset 12 declares 33 bytes but only 32"),
+        (glb_raw(52, &[(u32::MAX, b"JSON", json)]), "declares 4294967295 bytes"),
+        (glb_raw(68, &[(32, b"JSON", json), (u32::MAX - 3, b"BIN\0", bin)]), "chunk 1 (\"BIN\\x00\")"),
+        (glb_raw(56, &[(32, b"JSON", json), (0, b"BIN\0", &[])]), "4 bytes at offset 52 are too few"),
+        (glb_raw(28, &[(8, b"BIN\0", bin)]), "the first chunk is \"BIN\\x00\", not JSON"),
+        (glb_raw(76, &[(32, b"JSON", json), (0, b"ABCD", &[]), (8, b"BIN\0", bin)]), "must directly follow JSON"),
+        (glb_raw(76, &[(32, b"JSON", json), (0, b"JSON", &[]), (8, b"BIN\0", bin)]), "a second JSON chunk"),
+    ];
+    let mut v1 = good.clone();
+    v1[4] = 1;
+    let cases = cases.into_iter().chain([(v1, "GLB version 1")]);
+    let dir = tempfile::tempdir().unwrap();
+    for (i, (data, expected)) in cases.enumerate() {
+        let e = glb_chunks(&data).unwrap_err();
+        assert!(e.contains(expected), "case {i}: {e:?} does not say {expected:?}");
+        // Through the reader: a glTF error naming the file.
+        let p = dir.path().join(format!("case{i}.glb"));
+        std::fs::write(&p, &data).unwrap();
+        let e = read_mesh(&p).unwrap_err();
+        assert!(matches!(e, MeshIoError::Gltf { .. }), "case {i}: {e}");
+        err_names_file(&e, &format!("case{i}.glb"));
+    }
+}
+
 #[test]
 fn gltf_with_missing_external_texture_names_it() {
     let dir = tempfile::tempdir().unwrap();

@@ -39,18 +39,17 @@ use winit::window::{Window, WindowId};
 use crate::app::live::{
     self, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline, LiveStats,
 };
-use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
+use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup, NeuralUnavailable};
 use crate::app::{log_software_device, Backend};
 use crate::buffer::{GrayImage, Image};
 use crate::capture::stats::DurationHistogram;
 use crate::capture::{CameraRequest, SegmentMethod};
-use crate::compose::Mode;
+use crate::compose::{Mode, RenderedFrame};
 use crate::geometry::Camera;
 use crate::gpu::{offline, Acquired, Context, GpuError, GpuView, OverlayMask, PresentTarget, Renderer, Swapchain};
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::io::sequence::RenderedFrame;
-use crate::pipeline::export::{person_glb, ExportOptions, ExportReport};
+use crate::pipeline::export::{numbered_path, person_glb, ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 pub use crate::pipeline::{Drawn, NeuralCounters};
 use crate::pipeline::{
@@ -81,6 +80,9 @@ pub enum ScriptAction {
     Key(char),
     /// A mouse drag by this many pixels (orbit).
     Drag(f32, f32),
+    /// Hold the display loop this long before the frame (a slow frame: lets a live source move on between
+    /// scripted key presses).
+    Wait(Duration),
 }
 
 /// One step of a script: what to do before which presented frame.
@@ -233,6 +235,8 @@ pub struct ViewStats {
     pub screenshots: Vec<PathBuf>,
     /// glTF files written by `E`.
     pub exports: Vec<PathBuf>,
+    /// Per file of `exports`: the source frame index of the live frame it holds (`None` for a photo).
+    pub export_sources: Vec<Option<u64>>,
     /// Validation-layer errors + warnings seen (0 unless validation is on).
     pub validation_messages: u32,
     /// The Vulkan device that ran the window.
@@ -623,12 +627,12 @@ impl<'a> Engine<'a> {
 
     /// Switches between the geometric and the neural renderer. Switching to neural without a neural renderer
     /// keeps the geometric one and returns (and shows in the overlay) one line saying why and how to enable it.
-    pub fn set_shading(&mut self, shading: Shading) -> Result<(), String> {
+    pub fn set_shading(&mut self, shading: Shading) -> Result<(), NeuralUnavailable> {
         if shading == Shading::Neural && self.neural.renderer.is_none() {
             let why = self.neural.unavailable.clone().unwrap_or_else(|| "NEURAL RENDERER OFF".to_string());
             tracing::warn!("{why}");
             self.message = Some((why.clone(), Instant::now()));
-            return Err(why);
+            return Err(NeuralUnavailable(why));
         }
         if shading != self.shading {
             self.shading = shading;
@@ -640,7 +644,7 @@ impl<'a> Engine<'a> {
     }
 
     /// Switches to the other renderer (see [`Engine::set_shading`]).
-    pub fn toggle_shading(&mut self) -> Result<(), String> {
+    pub fn toggle_shading(&mut self) -> Result<(), NeuralUnavailable> {
         self.set_shading(match self.shading {
             Shading::Geometric => Shading::Neural,
             Shading::Neural => Shading::Geometric,
@@ -703,6 +707,15 @@ impl<'a> Engine<'a> {
     fn shown_live(&self) -> Option<(u64, usize, usize)> {
         match &self.input {
             PersonInput::Live(live) => live.current.as_ref().map(|c| (c.sequence, c.mask.width, c.mask.height)),
+            PersonInput::Still(_) => None,
+        }
+    }
+
+    /// Live input: the source frame index of the person shown (`None` before the first completed frame and for a
+    /// photo).
+    fn shown_frame_index(&self) -> Option<u64> {
+        match &self.input {
+            PersonInput::Live(live) => live.current.as_ref().map(|c| c.frame_index),
             PersonInput::Still(_) => None,
         }
     }
@@ -1006,6 +1019,7 @@ impl App<'_, '_> {
                 }
                 ScriptAction::Key(c) => self.key(&Key::Character(c.to_string().into())),
                 ScriptAction::Drag(dx, dy) => self.orbit.drag(dx, dy),
+                ScriptAction::Wait(d) => std::thread::sleep(d),
             }
         }
     }
@@ -1076,13 +1090,14 @@ impl App<'_, '_> {
             }
         }
         if std::mem::take(&mut self.export_requested) {
-            let path = self.opts.export_dir.join(format!("r2human-person-{:05}.glb", self.presented));
+            let path = numbered_path(&self.opts.export_dir, self.presented);
             // A failed export is a message on screen, never the end of the session.
             match self.engine.export_person(&path, &self.opts.export) {
                 Ok(report) => {
                     self.engine.set_message(format!("EXPORTED {}", path.display()));
                     tracing::info!("exported {}: {report}", path.display());
                     self.stats.exports.push(path);
+                    self.stats.export_sources.push(self.engine.shown_frame_index());
                 }
                 Err(e) => {
                     tracing::warn!("export failed: {e}");
@@ -1191,10 +1206,7 @@ fn is_last_frame(opts: &WindowOptions, engine: &Engine<'_>, presented: u64, pers
 }
 
 fn save_frame(path: &std::path::Path, frame: &RenderedFrame) -> anyhow::Result<()> {
-    match frame {
-        RenderedFrame::Vr(img) => image_io::save_rgb_png(path, img)?,
-        RenderedFrame::Ar(img) => image_io::save_rgba_png(path, img)?,
-    }
+    frame.save_png(path)?;
     tracing::info!("screenshot: {}", path.display());
     Ok(())
 }

@@ -117,15 +117,23 @@ pub struct XrArgs {
     /// Do not show the eye images in a desktop window.
     #[arg(long)]
     pub no_mirror: bool,
+    /// How the export action (right B on Touch/Index, left select on the simple controller, E in the mirror
+    /// window) writes the person as glTF.
+    #[command(flatten)]
+    pub export: ExportFlags,
+    /// Also export the person when this many frames have shown it (repeatable; scripted captures).
+    #[arg(long, value_name = "N")]
+    pub export_at_frame: Vec<u64>,
     /// Which renderer draws the person.
     #[command(flatten)]
     pub neural: NeuralArgs,
 }
 
-/// `--export-dir`, `--export-height`, `--export-decimate`: how `view` (E key) writes the person as glTF.
+/// `--export-dir`, `--export-height`, `--export-decimate`: how `view` (E key) and `xr` (the export action) write
+/// the person as glTF.
 #[derive(Args, Debug, Clone)]
 pub struct ExportFlags {
-    /// Folder for glTF exports of the person (E key): r2human-person-NNNNN.glb.
+    /// Folder for glTF exports of the person (E key, xr's export action): r2human-person-NNNNN.glb.
     #[arg(long, default_value = ".")]
     pub export_dir: PathBuf,
     /// The person's standing height in metres for exports (see `r2human export --height`).
@@ -230,7 +238,10 @@ fn frame_time_summary(h: &crate::capture::stats::DurationHistogram) -> String {
 /// `r2human xr`.
 pub fn run_xr(args: &XrArgs) -> Result<()> {
     if args.check {
-        return xr_session::run_check();
+        // The runtime, its extensions, blend modes and view configuration, or (as the error) a sentence saying what
+        // to install or start when there is no runtime.
+        println!("{}", crate::xr::check_runtime()?);
+        return Ok(());
     }
     let segment = args.segment.method()?;
     let input = match (&args.image, &args.video, args.camera) {
@@ -241,7 +252,8 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         (Some(path), None, None) => XrInput::Image { path: path.clone(), mask: args.mask.clone(), segment },
         (None, None, None) => anyhow::bail!("give --image, --video or --camera (or --check)"),
     };
-    xr_session::run_xr(XrOptions {
+    // What happened: frame rate, fresh-render share, motion-to-photon latency of the person layer, how it ended.
+    let report = xr_session::run_xr_session(&XrOptions {
         input,
         env: args.env.clone(),
         mode: args.mode,
@@ -249,8 +261,13 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         eye_size: args.eye_size,
         mirror: !args.no_mirror,
         neural: args.neural.setup(),
+        export_dir: args.export.export_dir.clone(),
+        export: args.export.options()?,
+        export_at_frames: args.export_at_frame.clone(),
         ..Default::default()
-    })
+    })?;
+    println!("{report}");
+    Ok(())
 }
 
 /// `r2human devices`.

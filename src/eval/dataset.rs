@@ -248,7 +248,7 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
     let source = Camera::source(r);
     let gt = render_ground_truth(&subject.mesh, &source);
     write_view(dir, "source_", &gt)?;
-    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::stage("ground-truth FOF", e))?;
     write_npy(&dir.join("fof.npy"), vec![r, r, opts.fof_n], fof.coeffs)?;
     let prior = prior_fof(&subject.mesh, r, opts.fof_n)?;
     write_npy(&dir.join("prior_fof.npy"), vec![r, r, opts.fof_n], prior)?;
@@ -292,7 +292,8 @@ pub fn prior_fof(mesh: &TexturedMesh, size: usize, n: usize) -> Result<Vec<f32>,
     let hi = size * k;
     let gt = render_ground_truth(mesh, &Camera::source(hi));
     let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
-    let fof = inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let fof =
+        inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::stage("inflation prior", e))?;
     Ok(box_downsample(&fof.coeffs, hi, n, k))
 }
 

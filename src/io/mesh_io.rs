@@ -12,7 +12,7 @@ use glam::{Mat4, Vec2, Vec3};
 use serde_json::json;
 
 use crate::buffer::{linear_to_srgb, srgb_to_linear};
-use crate::geometry::mesh::TriMesh;
+use crate::geometry::mesh::{MeshError, TriMesh};
 
 /// Errors reading or writing mesh files. Each names the file concerned.
 #[derive(Debug, thiserror::Error)]
@@ -183,18 +183,18 @@ impl TexturedMesh {
 
     /// Checks what [`TriMesh::validate`] checks plus the appearance: one material index per triangle (or none),
     /// each naming an existing material, and UVs/colours either absent or one per vertex.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), MeshError> {
         self.mesh.validate()?;
-        let (nt, nv) = (self.mesh.triangles.len(), self.mesh.positions.len());
-        if !self.triangle_materials.is_empty() && self.triangle_materials.len() != nt {
-            return Err(format!("{} material indices for {nt} triangles", self.triangle_materials.len()));
+        let (triangles, vertices) = (self.mesh.triangles.len(), self.mesh.positions.len());
+        if !self.triangle_materials.is_empty() && self.triangle_materials.len() != triangles {
+            return Err(MeshError::MaterialCount { indices: self.triangle_materials.len(), triangles });
         }
-        if let Some(&m) = self.triangle_materials.iter().find(|&&m| m as usize >= self.materials.len()) {
-            return Err(format!("material index {m} past the {} materials", self.materials.len()));
+        if let Some(&index) = self.triangle_materials.iter().find(|&&m| m as usize >= self.materials.len()) {
+            return Err(MeshError::MaterialIndex { index, materials: self.materials.len() });
         }
         for (what, len) in [("UVs", self.mesh.uvs.len()), ("colours", self.mesh.colors.len())] {
-            if len != 0 && len != nv {
-                return Err(format!("{len} {what} for {nv} vertices"));
+            if len != 0 && len != vertices {
+                return Err(MeshError::AttributeCount { what, len, vertices });
             }
         }
         Ok(())
@@ -307,7 +307,7 @@ pub(crate) fn check_mesh(path: &Path, textured: &TexturedMesh) -> Result<(), Mes
         let p = mesh.positions[index];
         return Err(MeshIoError::NonFinite { path: path.to_path_buf(), index, value: p.to_array() });
     }
-    textured.validate().map_err(|message| MeshIoError::Gltf { path: path.to_path_buf(), message })
+    textured.validate().map_err(|e| MeshIoError::Gltf { path: path.to_path_buf(), message: e.to_string() })
 }
 
 // ------------------------------------------------------------------------------------------------------------
@@ -605,10 +605,20 @@ fn strip_map_options(rest: &str) -> String {
 pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     let gerr = |message: String| MeshIoError::Gltf { path: path.to_path_buf(), message };
     let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
-    let raw = gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| gerr(e.to_string()))?;
-    check_gltf_references(raw.document.as_json()).map_err(gerr)?;
-    let document = gltf::Document::from_json(raw.document.into_json()).map_err(|e| gerr(e.to_string()))?;
-    let blob = raw.blob;
+    // The GLB container is split here, not by `gltf` (its reader panics on a declared length below 12 bytes and
+    // refuses chunk types the specification says to skip).
+    let (json, blob) = if bytes.starts_with(b"glTF") {
+        let chunks = glb_chunks(&bytes).map_err(gerr)?;
+        if chunks.trailing > 0 {
+            tracing::warn!("{}: {} bytes after the GLB's declared length ignored", path.display(), chunks.trailing);
+        }
+        (chunks.json, chunks.bin.map(<[u8]>::to_vec))
+    } else {
+        (&bytes[..], None)
+    };
+    let root = gltf::json::Root::from_slice(json).map_err(|e| gerr(format!("JSON: {e}")))?;
+    check_gltf_references(&root).map_err(gerr)?;
+    let document = gltf::Document::from_json(root).map_err(|e| gerr(e.to_string()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     // Name a missing external texture or buffer before the importer fails with a generic message.
     for image in document.images() {
@@ -801,6 +811,117 @@ fn decode_gltf_image(
     }
 }
 
+/// The chunks of a binary glTF (`.glb`) container, as [`glb_chunks`] finds them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GlbChunks<'a> {
+    /// The JSON chunk's data (the glTF document).
+    pub json: &'a [u8],
+    /// The BIN chunk's data (buffer 0 without a `uri`), when the file has one.
+    pub bin: Option<&'a [u8]>,
+    /// Bytes after the header's declared total length (ignored).
+    pub trailing: usize,
+}
+
+/// Size of the GLB header (magic, version, total length) and of a chunk header (length, type).
+const GLB_HEADER: usize = 12;
+const GLB_CHUNK_HEADER: usize = 8;
+
+/// Splits a GLB container (glTF 2.0, section 4.4) into its chunks, checking the container before anything
+/// trusts its lengths: the `glTF` magic, version 2, a declared total length that covers a header and a chunk
+/// header and is not past the end of the data, every chunk's length within the declared length, a JSON chunk
+/// first, at most one BIN chunk and only right after it. Chunks of other types are skipped, as the
+/// specification requires. The error says what is wrong, with the offsets involved.
+pub fn glb_chunks(bytes: &[u8]) -> Result<GlbChunks<'_>, String> {
+    let word = |at: usize| bytes.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+    if bytes.len() < GLB_HEADER {
+        return Err(format!("GLB: the file is {} bytes, shorter than the 12-byte GLB header", bytes.len()));
+    }
+    if !bytes.starts_with(b"glTF") {
+        return Err(format!("GLB: the file starts with {}, not the magic \"glTF\"", show_tag(&bytes[..4])));
+    }
+    let version = word(4).unwrap_or(0);
+    if version != 2 {
+        return Err(format!("GLB version {version}; only version 2 is supported"));
+    }
+    let declared = word(8).unwrap_or(0) as usize;
+    if declared < GLB_HEADER + GLB_CHUNK_HEADER {
+        return Err(format!(
+            "GLB: the header declares a total length of {declared} bytes, less than the 20 of a header and one chunk \
+             header"
+        ));
+    }
+    if declared > bytes.len() {
+        return Err(format!(
+            "GLB: the header declares a total length of {declared} bytes but the file has {}: it is truncated",
+            bytes.len()
+        ));
+    }
+    let mut json = None;
+    let mut bin = None;
+    let mut at = GLB_HEADER;
+    let mut index = 0;
+    while at < declared {
+        let left = declared - at;
+        if left < GLB_CHUNK_HEADER {
+            return Err(format!("GLB: {left} bytes at offset {at} are too few for a chunk header (8)"));
+        }
+        let length = word(at).unwrap_or(0) as usize;
+        let tag = &bytes[at + 4..at + 8];
+        let data_at = at + GLB_CHUNK_HEADER;
+        if length > declared - data_at {
+            return Err(format!(
+                "GLB: chunk {index} ({}) at offset {at} declares {length} bytes but only {} remain before the \
+                 declared end ({declared})",
+                show_tag(tag),
+                declared - data_at
+            ));
+        }
+        let data = &bytes[data_at..data_at + length];
+        match (tag, index) {
+            (b"JSON", 0) => json = Some(data),
+            (_, 0) => return Err(format!("GLB: the first chunk is {}, not JSON", show_tag(tag))),
+            (b"JSON", _) => return Err(format!("GLB: a second JSON chunk (chunk {index}, offset {at})")),
+            (b"BIN\0", 1) => bin = Some(data),
+            (b"BIN\0", _) => {
+                return Err(format!("GLB: a BIN chunk at position {index} (offset {at}); it must directly follow JSON"))
+            }
+            _ => {} // an extension's chunk: skipped
+        }
+        at = data_at + length;
+        index += 1;
+    }
+    let json = json.ok_or_else(|| "GLB: no JSON chunk".to_string())?;
+    Ok(GlbChunks { json, bin, trailing: bytes.len() - declared })
+}
+
+/// A 4-byte GLB tag for messages, quoted (printable ASCII as is, other bytes escaped: `"BIN\x00"`).
+fn show_tag(tag: &[u8]) -> String {
+    format!("\"{}\"", tag.escape_ascii())
+}
+
+/// A GLB container around a JSON chunk and an optional BIN chunk, each padded to 4 bytes (JSON with spaces, BIN
+/// with zeros) as the specification requires.
+pub fn glb_container(json: &[u8], bin: Option<&[u8]>) -> Result<Vec<u8>, String> {
+    let padded = |n: usize| n.div_ceil(4) * 4;
+    let total = GLB_HEADER
+        + GLB_CHUNK_HEADER
+        + padded(json.len())
+        + bin.map(|b| GLB_CHUNK_HEADER + padded(b.len())).unwrap_or(0);
+    let total32 = u32::try_from(total).map_err(|_| "file larger than 4 GiB".to_string())?;
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&total32.to_le_bytes());
+    for (data, tag, pad) in [(Some(json), b"JSON", b' '), (bin, b"BIN\0", 0)] {
+        let Some(data) = data else { continue };
+        out.extend_from_slice(&(padded(data.len()) as u32).to_le_bytes());
+        out.extend_from_slice(tag);
+        out.extend_from_slice(data);
+        out.resize(out.len() + padded(data.len()) - data.len(), pad);
+    }
+    Ok(out)
+}
+
 /// Checks what `gltf` 1.4's validation does not but its reader relies on (each of these made it panic in
 /// `tests/fuzz.rs`; the inputs are in `tests/corpus/glb`, `tests/corpus/gltf`): before validation, that every
 /// primitive's accessors exist (validation indexes them) and that images say where their bytes are.
@@ -932,7 +1053,7 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     if m.is_empty() {
         return Err(MeshIoError::Empty { path: name.to_path_buf() });
     }
-    mesh.validate().map_err(enc)?;
+    mesh.validate().map_err(|e| enc(e.to_string()))?;
     if u32::try_from(nv).is_err() {
         return Err(enc("too many vertices for 32-bit indices".into()));
     }
@@ -1067,23 +1188,8 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     root["bufferViews"] = json!(views);
     root["accessors"] = json!(accessors);
     root["buffers"] = json!([{"byteLength": bin.len()}]);
-    let mut js = serde_json::to_vec(&root).map_err(|e| enc(e.to_string()))?;
-    while js.len() % 4 != 0 {
-        js.push(b' ');
-    }
-    let total = 12 + 8 + js.len() + 8 + bin.len();
-    let total32 = u32::try_from(total).map_err(|_| enc("file larger than 4 GiB".into()))?;
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&total32.to_le_bytes());
-    out.extend_from_slice(&(js.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&js);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    Ok(out)
+    let js = serde_json::to_vec(&root).map_err(|e| enc(e.to_string()))?;
+    glb_container(&js, Some(&bin)).map_err(enc)
 }
 
 /// Writes a mesh as `.glb` (see [`glb_bytes`]) atomically: a temporary file in the same folder, then a rename.

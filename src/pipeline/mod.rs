@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use crate::body::prior::BodyEstimator;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
-use crate::compose::{self, Mode};
+use crate::compose::{self, Mode, RenderedFrame};
 use crate::geometry::fof::{Fof, FofError};
 use crate::geometry::inflate::{self, InflateError, InflateParams};
 use crate::geometry::marching;
@@ -36,7 +36,6 @@ use crate::geometry::raster::{self, GBuffer};
 use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
-use crate::io::sequence::RenderedFrame;
 use crate::neural::{Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError, NeuralRuntime, RuntimeOptions};
 
 use fusion::SpatialFusion;
@@ -356,6 +355,13 @@ impl StageTimings {
     pub fn total(&self) -> Duration {
         self.0.iter().map(|(_, d)| *d).sum()
     }
+
+    /// One line: "name 12.3 ms, name 4.5 ms, …" in the order the stages ran.
+    pub fn summary(&self) -> String {
+        let parts: Vec<String> =
+            self.0.iter().map(|(name, d)| format!("{name} {:.1} ms", d.as_secs_f64() * 1e3)).collect();
+        parts.join(", ")
+    }
 }
 
 /// Which renderer draws the person (`--renderer`).
@@ -582,19 +588,20 @@ struct CpuBackend<'r> {
 impl PersonBackend<NeuralRef<'_>> for CpuBackend<'_> {
     type Output = RgbaImage;
     type Error = std::convert::Infallible;
+    type NeuralFailure = NeuralError;
 
     fn neural(
         &mut self,
         _source: SourceView<'_>,
         n: &NeuralRef<'_>,
         camera: &Camera,
-    ) -> Result<Result<(RgbaImage, NeuralViewTimes), String>, Self::Error> {
+    ) -> Result<Result<(RgbaImage, NeuralViewTimes), NeuralError>, Self::Error> {
         let (input, target, flowz) = (self.input, self.target, &mut *self.flowz);
         let person = self.timings.time("flow + Z-map + decoder", || {
             let mut renderer = n.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
             renderer.render_view(input, n.encoded, target, camera, flowz)
         });
-        Ok(person.map(|p| (p, NeuralViewTimes::default())).map_err(|e| e.to_string()))
+        Ok(person.map(|p| (p, NeuralViewTimes::default())))
     }
 
     fn reuse_neural(&mut self, _camera: &Camera) -> Result<Option<RgbaImage>, Self::Error> {
