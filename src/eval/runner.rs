@@ -414,6 +414,7 @@ impl SubjectSource {
                 let o = PrepareOptions {
                     geometry: GeometryMode::FofNet,
                     fof_net: Some(std::sync::Arc::clone(net)),
+                    body: nets.body.cloned(),
                     ..popts.clone()
                 };
                 let mut timings = StageTimings::default();
