@@ -151,8 +151,9 @@ pub fn check_webp_frames(bytes: &[u8]) -> Result<(), String> {
     }
     let u24 = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], 0]) + 1;
     let mut canvas: Option<(u32, u32)> = None;
-    // (chunk data, whether it is inside an animation frame of this size)
-    let mut stack: Vec<(&[u8], Option<(u32, u32)>)> = vec![(&bytes[12..], None)];
+    // Chunk lists to walk: the file's, then each animation frame's with the frame's size.
+    type Size = (u32, u32);
+    let mut stack: Vec<(&[u8], Option<Size>)> = vec![(&bytes[12..], None)];
     while let Some((mut data, frame)) = stack.pop() {
         while data.len() >= 8 {
             let tag = &data[..4];
