@@ -283,6 +283,28 @@ pub fn run_case(target: Target, case: &Case, dir: &Path) -> Result<Outcome, Viol
     }
 }
 
+/// One libFuzzer iteration (the `cargo fuzz` targets in `fuzz/`): runs `target` on `data` in a work folder of
+/// this process under the system's temporary folder; a property violation panics, which libFuzzer reports as a
+/// crash (as it does a panic inside the loader). Time and memory bounds are libFuzzer's (`-timeout`,
+/// `-rss_limit_mb`, `-malloc_limit_mb`).
+pub fn fuzz_one(target: Target, data: &[u8]) {
+    let dir = std::env::temp_dir().join(format!("r2human-fuzz-{}-{}", target.name(), std::process::id()));
+    if let Err(violation) = run(target, data, &dir) {
+        panic!("{}: {violation}", target.name());
+    }
+}
+
+/// libFuzzer's custom mutator hook (`fuzz_mutator!`): applies [`mutate`] to the first `size` bytes of `data`
+/// (structure-aware: GLB containers rebuilt, PNG checksums repaired, dictionary tokens, numbers out of range),
+/// and returns the new size, at most `max_size` (the tail is cut).
+pub fn mutate_in_place(target: Target, data: &mut [u8], size: usize, max_size: usize, seed: u64) -> usize {
+    let mut bytes = data[..size.min(data.len())].to_vec();
+    mutate(target, &mut bytes, &[], &mut Rng::new(seed));
+    let n = bytes.len().min(max_size).min(data.len());
+    data[..n].copy_from_slice(&bytes[..n]);
+    n
+}
+
 enum Failure {
     Error(String),
     Skipped(String),

@@ -518,3 +518,44 @@ fn explain_corpus() {
         }
     }
 }
+
+/// The `cargo fuzz` crate (`fuzz/`, built with nightly only) has one target per loader, each calling the shared
+/// entry point of its `Target`, so it cannot fall behind the stable harness unseen.
+#[test]
+fn cargo_fuzz_crate_has_a_target_per_loader() {
+    let fuzz = project_root().join("fuzz");
+    let manifest = std::fs::read_to_string(fuzz.join("Cargo.toml")).unwrap();
+    let mut names = Vec::new();
+    for target in Target::ALL {
+        let name = target.name();
+        names.push(name);
+        let path = format!("fuzz_targets/{name}.rs");
+        assert!(manifest.contains(&format!("name = \"{name}\"\npath = \"{path}\"")), "fuzz/Cargo.toml lacks {name}");
+        let source = std::fs::read_to_string(fuzz.join(&path)).unwrap();
+        assert!(source.contains(&format!("target!(r2human::fuzzing::Target::{target:?});")), "{path}: {source}");
+    }
+    let bins = manifest.matches("[[bin]]").count();
+    assert_eq!(bins, names.len(), "fuzz/Cargo.toml has {bins} targets for {names:?}");
+}
+
+/// Writes the starting corpus of the `cargo fuzz` targets: `fuzz/corpus/<target>/` gets the generated seeds and
+/// the committed corpus (`cargo test --test fuzz export_cargo_fuzz_corpus -- --ignored`).
+#[test]
+#[ignore]
+fn export_cargo_fuzz_corpus() {
+    let root = project_root();
+    for target in Target::ALL {
+        let dir = root.join("fuzz/corpus").join(target.name());
+        std::fs::create_dir_all(&dir).unwrap();
+        let seeds = fuzzing::seeds(target, &root).into_iter().enumerate().map(|(i, b)| (format!("seed-{i}"), b));
+        let committed = committed_corpus(target)
+            .into_iter()
+            .map(|(path, b)| (Path::new(&path).file_name().unwrap().to_string_lossy().into_owned(), b));
+        let mut n = 0;
+        for (name, bytes) in seeds.chain(committed) {
+            std::fs::write(dir.join(name), bytes).unwrap();
+            n += 1;
+        }
+        println!("{}: {n} files", dir.display());
+    }
+}
