@@ -433,8 +433,8 @@ fn end_to_end_person_and_frames_match_cpu() {
         let cpu_person = fusion.fuse(&person, &target, cam);
         r.render_frame(cam, r2human::compose::Mode::Vr, None).unwrap();
         let gpu_vr = match r.read_output(r2human::compose::Mode::Vr) {
-            r2human::io::sequence::RenderedFrame::Vr(img) => img,
-            r2human::io::sequence::RenderedFrame::Ar(_) => unreachable!("asked for VR"),
+            r2human::compose::RenderedFrame::Vr(img) => img,
+            r2human::compose::RenderedFrame::Ar(_) => unreachable!("asked for VR"),
         };
         let cpu_vr = compose::compose_vr(&cpu_person, &env, cam);
         let a: Vec<f32> = cpu_vr.data.iter().flat_map(|v| v.to_array()).collect();

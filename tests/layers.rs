@@ -167,3 +167,61 @@ fn lower_layers_never_import_higher_ones() {
         violations.join("\n")
     );
 }
+
+/// The code of a source file that ships: the text before its `#[cfg(test)]` module (tests may print).
+fn shipped_code(text: &str) -> &str {
+    text.find("#[cfg(test)]\nmod tests").map_or(text, |i| &text[..i])
+}
+
+/// Lines (1-based) of `text` whose code prints to stdout or stderr directly.
+fn printing_lines(text: &str) -> Vec<usize> {
+    const PRINTS: [&str; 5] = ["println!(", "eprintln!(", "print!(", "eprint!(", "dbg!("];
+    shipped_code(text)
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| {
+            let c = code(l);
+            PRINTS.iter().any(|p| {
+                c.match_indices(p).any(|(i, _)| !c[..i].ends_with(|ch: char| ch == '_' || ch.is_alphanumeric()))
+            })
+        })
+        .map(|(i, _)| i + 1)
+        .collect()
+}
+
+#[test]
+fn printing_is_found_outside_comments_and_tests() {
+    assert_eq!(printing_lines("fn a() {\n    println!(\"x\");\n    eprintln!(\"y\");\n}\n"), [2, 3]);
+    assert_eq!(printing_lines("// println!(\"in a comment\")\nfn a() { dbg!(1); }\n"), [2]);
+    assert_eq!(printing_lines("fn a() { tracing::warn!(\"w\"); my_println!(1); }\n"), Vec::<usize>::new());
+    assert_eq!(
+        printing_lines("fn a() {}\n#[cfg(test)]\nmod tests {\n    fn b() { println!(\"ok\"); }\n}\n"),
+        Vec::<usize>::new()
+    );
+}
+
+/// One warning channel: below `cli`, the library never prints. Warnings and progress notes go through `tracing`
+/// (the CLI's subscriber writes them to stderr); results go back to the CLI, which prints the summaries it means
+/// to print and its error sentence.
+#[test]
+fn only_the_cli_prints() {
+    let src = root().join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut found = Vec::new();
+    for file in files {
+        let rel = file.strip_prefix(&src).unwrap_or(&file).to_path_buf();
+        if rel.starts_with("cli") || rel == Path::new("main.rs") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&file).expect("a readable source file");
+        for line in printing_lines(&text) {
+            found.push(format!("src/{}:{line}", rel.display()));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "library code prints (warnings: `tracing::warn!`; results: return them to `cli`, which prints):\n{}",
+        found.join("\n")
+    );
+}

@@ -7,10 +7,10 @@ mod common;
 use glam::{Quat, Vec3};
 use r2human::buffer::Image;
 use r2human::compose::Mode;
+use r2human::compose::RenderedFrame;
 use r2human::geometry::{Camera, Fov};
 use r2human::io::environment::Environment;
 use r2human::io::image_io;
-use r2human::io::sequence::RenderedFrame;
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
 

@@ -44,12 +44,11 @@ use crate::app::{log_software_device, Backend};
 use crate::buffer::{GrayImage, Image};
 use crate::capture::stats::DurationHistogram;
 use crate::capture::{CameraRequest, SegmentMethod};
-use crate::compose::Mode;
+use crate::compose::{Mode, RenderedFrame};
 use crate::geometry::Camera;
 use crate::gpu::{offline, Acquired, Context, GpuError, GpuView, OverlayMask, PresentTarget, Renderer, Swapchain};
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::io::sequence::RenderedFrame;
 use crate::pipeline::export::{person_glb, ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 pub use crate::pipeline::{Drawn, NeuralCounters};
@@ -1191,10 +1190,7 @@ fn is_last_frame(opts: &WindowOptions, engine: &Engine<'_>, presented: u64, pers
 }
 
 fn save_frame(path: &std::path::Path, frame: &RenderedFrame) -> anyhow::Result<()> {
-    match frame {
-        RenderedFrame::Vr(img) => image_io::save_rgb_png(path, img)?,
-        RenderedFrame::Ar(img) => image_io::save_rgba_png(path, img)?,
-    }
+    frame.save_png(path)?;
     tracing::info!("screenshot: {}", path.display());
     Ok(())
 }

@@ -245,22 +245,6 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     Ok(report)
 }
 
-/// `r2human xr --image IN [--env FILE] [--mode vr|ar] [--frames N]`: runs the session and prints what happened
-/// (frame rate, fresh-render share, motion-to-photon latency of the person layer, how it ended).
-pub fn run_xr(opts: XrOptions) -> Result<()> {
-    let report = run_xr_session(&opts)?;
-    println!("{report}");
-    Ok(())
-}
-
-/// `r2human xr --check`: prints the runtime, its extensions, blend modes and view configuration, or (as the error)
-/// a sentence saying what to install or start when there is no runtime.
-pub fn run_check() -> Result<()> {
-    let report = crate::xr::check_runtime()?;
-    println!("{report}");
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

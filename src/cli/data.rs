@@ -81,7 +81,7 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
     let summary = dataset::write_dataset(&opts)?;
     println!("wrote {} subjects to {} in {:.1} s", summary.written.len(), args.out.display(), summary.seconds);
     for (name, why) in &summary.failed {
-        eprintln!("warning: {name} failed and was skipped: {why}");
+        tracing::warn!("{name} failed and was skipped: {why}");
     }
     if summary.written.is_empty() {
         bail!("no subject could be written");

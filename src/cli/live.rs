@@ -230,7 +230,10 @@ fn frame_time_summary(h: &crate::capture::stats::DurationHistogram) -> String {
 /// `r2human xr`.
 pub fn run_xr(args: &XrArgs) -> Result<()> {
     if args.check {
-        return xr_session::run_check();
+        // The runtime, its extensions, blend modes and view configuration, or (as the error) a sentence saying what
+        // to install or start when there is no runtime.
+        println!("{}", crate::xr::check_runtime()?);
+        return Ok(());
     }
     let segment = args.segment.method()?;
     let input = match (&args.image, &args.video, args.camera) {
@@ -241,7 +244,8 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         (Some(path), None, None) => XrInput::Image { path: path.clone(), mask: args.mask.clone(), segment },
         (None, None, None) => anyhow::bail!("give --image, --video or --camera (or --check)"),
     };
-    xr_session::run_xr(XrOptions {
+    // What happened: frame rate, fresh-render share, motion-to-photon latency of the person layer, how it ended.
+    let report = xr_session::run_xr_session(&XrOptions {
         input,
         env: args.env.clone(),
         mode: args.mode,
@@ -250,7 +254,9 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         mirror: !args.no_mirror,
         neural: args.neural.setup(),
         ..Default::default()
-    })
+    })?;
+    println!("{report}");
+    Ok(())
 }
 
 /// `r2human devices`.

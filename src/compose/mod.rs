@@ -8,6 +8,10 @@ use crate::buffer::{Image, RgbImage, RgbaImage};
 use crate::geometry::{Camera, Fov};
 use crate::io::environment::Environment;
 
+mod frame;
+
+pub use frame::RenderedFrame;
+
 /// Vertical field of view (degrees) of the virtual viewer used for the panorama behind orthographic renders.
 pub const VIEWER_FOV_DEG: f32 = 60.0;
 

@@ -107,13 +107,12 @@ pub fn write_contact_sheet(
     yaws: &[f32],
     size: usize,
 ) -> Result<(), super::EvalError> {
-    let frames: Vec<crate::io::sequence::RenderedFrame> = meshes
+    let frames: Vec<crate::buffer::RgbImage> = meshes
         .iter()
         .flat_map(|m| {
             yaws.iter().map(move |&yaw| {
-                crate::io::sequence::RenderedFrame::Ar(
-                    render_ground_truth(m, &Camera::orbit(yaw, 0.0, size, size)).shaded(),
-                )
+                crate::compose::RenderedFrame::Ar(render_ground_truth(m, &Camera::orbit(yaw, 0.0, size, size)).shaded())
+                    .preview()
             })
         })
         .collect();

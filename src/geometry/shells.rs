@@ -46,20 +46,29 @@ pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
 /// one shell per column, or a fitted body) cannot explain. Every column is tested; [`doubled_fraction_sampled`]
 /// tests a sparser grid. NaN when the grids differ; 0 for an empty mask.
 pub fn doubled_fraction(fof: &Fof, reference: &Fof, mask: &GrayImage) -> f32 {
-    doubled_fraction_sampled(fof, reference, mask, 1)
+    doubled_fraction_beyond(fof, &[reference], mask, 1)
 }
 
 /// [`doubled_fraction`] over every `step`-th column and row only (`step` 4: a sixteenth of the work, for checks
 /// on the per-input path).
 pub fn doubled_fraction_sampled(fof: &Fof, reference: &Fof, mask: &GrayImage, step: usize) -> f32 {
+    doubled_fraction_beyond(fof, &[reference], mask, step)
+}
+
+/// [`doubled_fraction_sampled`] against several references at once: a column is explained up to the largest
+/// interval count any reference has there (e.g. the inflation prior's one shell, or a fitted body's arm in front of
+/// its torso). NaN when a grid differs from `fof`'s or `mask`'s; 0 for an empty mask; with no reference, one
+/// interval per column is explained.
+pub fn doubled_fraction_beyond(fof: &Fof, references: &[&Fof], mask: &GrayImage, step: usize) -> f32 {
     let step = step.max(1);
     if (fof.width, fof.height) != (mask.width, mask.height)
-        || (reference.width, reference.height) != (fof.width, fof.height)
+        || references.iter().any(|r| (r.width, r.height) != (fof.width, fof.height))
     {
         return f32::NAN;
     }
     let table = CosineTable::new(fof.n, INTERVAL_SAMPLES);
-    let reference_table = CosineTable::new(reference.n, INTERVAL_SAMPLES);
+    let reference_tables: Vec<CosineTable> =
+        references.iter().map(|r| CosineTable::new(r.n, INTERVAL_SAMPLES)).collect();
     let (doubled, person) = (0..fof.height)
         .into_par_iter()
         .step_by(step)
@@ -72,8 +81,12 @@ pub fn doubled_fraction_sampled(fof: &Fof, reference: &Fof, mask: &GrayImage, st
                 }
                 person += 1;
                 fof.decode_column_with(&table, col, row, &mut a);
-                reference.decode_column_with(&reference_table, col, row, &mut b);
-                if count_intervals(&a, ISO_LEVEL) > count_intervals(&b, ISO_LEVEL).max(1) {
+                let mut explained = 1;
+                for (r, t) in references.iter().zip(&reference_tables) {
+                    r.decode_column_with(t, col, row, &mut b);
+                    explained = explained.max(count_intervals(&b, ISO_LEVEL));
+                }
+                if count_intervals(&a, ISO_LEVEL) > explained {
                     doubled += 1;
                 }
             }
@@ -346,6 +359,15 @@ mod tests {
         assert_eq!(doubled_fraction(&two, &two, &mask), 0.0);
         // Grids that differ are not comparable.
         assert!(doubled_fraction(&one, &Fof::zeros(32, 16, 16).unwrap(), &mask).is_nan());
+        // Several references: a column is explained up to the most intervals any of them has there.
+        let right = cuboid(Vec3::new(0.0, -0.5, -0.7), Vec3::new(0.5, 0.5, -0.5));
+        let right_two = Fof::from_mesh(&merged(slab.clone(), right), res, 32).unwrap();
+        let both = doubled_fraction_beyond(&two, &[&one, &right_two], &mask, 1);
+        assert!((both - 0.5).abs() < 0.1, "the right half's second shell does not explain the left's: {both}");
+        assert_eq!(doubled_fraction_beyond(&two, &[&one, &two], &mask, 1), 0.0);
+        assert_eq!(doubled_fraction_beyond(&one, &[], &mask, 1), 0.0, "one shell is always explained");
+        assert!((doubled_fraction_beyond(&two, &[], &mask, 1) - d).abs() < 1e-6, "no reference: one shell explained");
+        assert!(doubled_fraction_beyond(&one, &[&one, &Fof::zeros(32, 16, 16).unwrap()], &mask, 1).is_nan());
     }
 
     #[test]

@@ -7,10 +7,9 @@
 use std::sync::Arc;
 
 use super::{Context, GpuError, GpuView, Renderer};
-use crate::compose::Mode;
+use crate::compose::{Mode, RenderedFrame};
 use crate::geometry::Camera;
 use crate::io::environment::Environment;
-use crate::io::sequence::RenderedFrame;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralCounters, NeuralPolicy, NeuralRequest, SourceView};
 

@@ -1,63 +1,17 @@
-//! Writing rendered view sequences: numbered PNG frames, an animated GIF and a contact sheet, all atomically.
+//! Writing rendered view sequences as an animated GIF and a contact sheet, atomically. The writers take opaque
+//! linear RGB images (e.g. `compose::RenderedFrame::preview`).
 
 use std::path::Path;
 
-use glam::{Vec3, Vec4};
+use glam::Vec3;
 
-use crate::buffer::{Image, RgbImage, RgbaImage};
+use crate::buffer::{Image, RgbImage};
 use crate::io::image_io::{self, IoError};
 
-/// One rendered output frame: a VR composite (opaque linear RGB) or an AR layer (premultiplied linear RGBA).
-#[derive(Clone, Debug)]
-pub enum RenderedFrame {
-    /// Person over the panorama.
-    Vr(RgbImage),
-    /// Person alone, premultiplied alpha.
-    Ar(RgbaImage),
-}
-
-impl RenderedFrame {
-    /// Width in pixels.
-    pub fn width(&self) -> usize {
-        match self {
-            RenderedFrame::Vr(i) => i.width,
-            RenderedFrame::Ar(i) => i.width,
-        }
-    }
-
-    /// Height in pixels.
-    pub fn height(&self) -> usize {
-        match self {
-            RenderedFrame::Vr(i) => i.height,
-            RenderedFrame::Ar(i) => i.height,
-        }
-    }
-
-    /// Saves the frame as PNG (AR keeps its alpha, stored straight as PNG requires), atomically.
-    pub fn save_png(&self, path: &Path) -> Result<(), IoError> {
-        match self {
-            RenderedFrame::Vr(img) => image_io::save_rgb_png(path, img),
-            RenderedFrame::Ar(img) => image_io::save_rgba_png(path, img),
-        }
-    }
-
-    /// An opaque preview: VR as is, AR over a grey checkerboard (what "transparent" looks like in viewers).
-    pub fn preview(&self) -> RgbImage {
-        match self {
-            RenderedFrame::Vr(img) => img.clone(),
-            RenderedFrame::Ar(img) => Image::from_fn(img.width, img.height, |c, r| {
-                let p: Vec4 = *img.get(c, r);
-                let check = if ((c / 16) + (r / 16)) % 2 == 0 { 0.35 } else { 0.6 };
-                p.truncate() + Vec3::splat(check) * (1.0 - p.w)
-            }),
-        }
-    }
-}
-
-/// Writes an animated GIF of the frames' previews (looping, `delay_ms` per frame), atomically.
-pub fn write_gif(path: &Path, frames: &[RenderedFrame], delay_ms: u32) -> Result<(), IoError> {
+/// Writes an animated GIF of the frames (looping, `delay_ms` per frame), atomically.
+pub fn write_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> Result<(), IoError> {
     let images: Vec<image::RgbaImage> =
-        frames.iter().map(|f| image::DynamicImage::ImageRgb8(image_io::to_srgb8(&f.preview())).into_rgba8()).collect();
+        frames.iter().map(|f| image::DynamicImage::ImageRgb8(image_io::to_srgb8(f)).into_rgba8()).collect();
     image_io::write_atomic(path, |file| {
         let mut encoder = image::codecs::gif::GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
         encoder.set_repeat(image::codecs::gif::Repeat::Infinite).map_err(std::io::Error::other)?;
@@ -69,17 +23,16 @@ pub fn write_gif(path: &Path, frames: &[RenderedFrame], delay_ms: u32) -> Result
     })
 }
 
-/// Lays the frames' previews out in a grid (`columns` wide, each scaled to `thumb` pixels high) and writes a
-/// PNG, atomically.
-pub fn write_contact_sheet(path: &Path, frames: &[RenderedFrame], columns: usize, thumb: usize) -> Result<(), IoError> {
+/// Lays the frames out in a grid (`columns` wide, each scaled to `thumb` pixels high) and writes a PNG,
+/// atomically.
+pub fn write_contact_sheet(path: &Path, frames: &[RgbImage], columns: usize, thumb: usize) -> Result<(), IoError> {
     let columns = columns.max(1);
     let rows = frames.len().div_ceil(columns).max(1);
-    let (fw, fh) = frames.first().map(|f| (f.width(), f.height())).unwrap_or((1, 1));
+    let (fw, fh) = frames.first().map(|f| (f.width, f.height)).unwrap_or((1, 1));
     let tw = (thumb * fw / fh.max(1)).max(1);
     let gap = 4;
     let mut sheet = Image::new(columns * (tw + gap) + gap, rows * (thumb + gap) + gap, Vec3::splat(0.02));
-    for (i, f) in frames.iter().enumerate() {
-        let preview = f.preview();
+    for (i, preview) in frames.iter().enumerate() {
         let (x0, y0) = (gap + (i % columns) * (tw + gap), gap + (i / columns) * (thumb + gap));
         for r in 0..thumb {
             for c in 0..tw {
@@ -107,16 +60,8 @@ mod tests {
     #[test]
     fn gif_and_sheet_are_readable() {
         let dir = tempfile::tempdir().unwrap();
-        let frames: Vec<RenderedFrame> = (0..5)
-            .map(|i| {
-                RenderedFrame::Ar(Image::from_fn(32, 32, |c, _| {
-                    if c < 6 * i {
-                        Vec4::new(0.5, 0.1, 0.1, 1.0)
-                    } else {
-                        Vec4::ZERO
-                    }
-                }))
-            })
+        let frames: Vec<RgbImage> = (0..5)
+            .map(|i| Image::from_fn(32, 32, |c, _| if c < 6 * i { Vec3::new(0.5, 0.1, 0.1) } else { Vec3::splat(0.3) }))
             .collect();
         let gif = dir.path().join("o.gif");
         write_gif(&gif, &frames, 80).unwrap();

@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use crate::body::prior::BodyEstimator;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
-use crate::compose::{self, Mode};
+use crate::compose::{self, Mode, RenderedFrame};
 use crate::geometry::fof::{Fof, FofError};
 use crate::geometry::inflate::{self, InflateError, InflateParams};
 use crate::geometry::marching;
@@ -36,7 +36,6 @@ use crate::geometry::raster::{self, GBuffer};
 use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
-use crate::io::sequence::RenderedFrame;
 use crate::neural::{Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError, NeuralRuntime, RuntimeOptions};
 
 use fusion::SpatialFusion;

@@ -21,10 +21,9 @@ use glam::Vec4;
 
 use super::pacing::{EyeRenderer, EyeRequest};
 use super::placement::Placement;
-use crate::compose::Mode;
+use crate::compose::{Mode, RenderedFrame};
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
-use crate::io::sequence::RenderedFrame;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralCounters, NeuralPolicy, Scene};
 
