@@ -52,6 +52,7 @@ fn config(frames: u64) -> SessionConfig {
         eye_max_side: EYE_SIDE,
         capture: false,
         mirror: false,
+        ..Default::default()
     }
 }
 

@@ -2,8 +2,11 @@
 //! `gltf-validator`, installed by scripts/setup.d/gltf.sh) with no errors, reads back with the `gltf` crate in
 //! metres (feet at y = 0, facing +Z), and rendered back at yaw 0 it shows the input view.
 
-use std::path::{Path, PathBuf};
+mod common;
+
 use std::process::Command;
+
+use common::{khronos_validate, repo};
 
 use r2human::app::live::normalised_rgba;
 use r2human::capture::segment::segment_photo;
@@ -15,10 +18,6 @@ use r2human::io::mesh_io::{read_gltf, TexturedMesh};
 use r2human::pipeline::export::{person_glb, person_mesh, ExportOptions, ExportReport, HeightCue};
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{GeometryMode, PrepareOptions, PreparedInput, ViewRenderer};
-
-fn repo(path: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
-}
 
 /// The demo person (a synthetic full-body photo with an exact alpha mask), prepared with the inflation prior.
 fn demo_person() -> (PreparedInput, r2human::buffer::GrayImage) {
@@ -50,22 +49,6 @@ fn psnr_against_input(mesh: &TexturedMesh, report: &ExportReport, input: &Prepar
     (against_view, against_photo)
 }
 
-/// Runs the Khronos validator on `path`; `None` (with a message) only when npm is not installed.
-fn validate(path: &Path) -> Option<serde_json::Value> {
-    if Command::new("npm").arg("--version").output().is_err() {
-        eprintln!("SKIPPED the glTF validator: npm is not installed (bash scripts/setup.d/gltf.sh installs it)");
-        return None;
-    }
-    if !repo(".tools/gltf-validator/node_modules/gltf-validator/package.json").is_file() {
-        let status = Command::new("bash").arg(repo("scripts/setup.d/gltf.sh")).status().unwrap();
-        assert!(status.success(), "scripts/setup.d/gltf.sh failed");
-    }
-    let out = Command::new("node").arg(repo("scripts/gltf-validate.mjs")).arg(path).output().unwrap();
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
-        .unwrap_or_else(|e| panic!("validator output: {e}: {}", String::from_utf8_lossy(&out.stderr)));
-    Some(report)
-}
-
 #[test]
 fn export_validates_reloads_in_metres_and_matches_the_input_view() {
     let dir = tempfile::tempdir().unwrap();
@@ -80,7 +63,7 @@ fn export_validates_reloads_in_metres_and_matches_the_input_view() {
     assert_eq!(report.visible.cue, HeightCue::WholePerson);
 
     // 1. The Khronos validator: no errors, no warnings.
-    if let Some(v) = validate(&path) {
+    if let Some(v) = khronos_validate(&path) {
         assert_eq!(v["issues"]["numErrors"], 0, "{v:#}");
         assert_eq!(v["issues"]["numWarnings"], 0, "{v:#}");
         assert_eq!(v["info"]["totalTriangleCount"], report.triangles as u64);

@@ -148,18 +148,12 @@ fn white_in_corner(img: &image::RgbImage, w: u32, h: u32) -> usize {
 
 /// A person-shaped magenta silhouette with alpha (head, torso, legs) on a transparent background.
 fn write_person(path: &Path) {
-    let (w, h) = (200u32, 200u32);
-    let img = image::RgbaImage::from_fn(w, h, |x, y| {
-        let (fx, fy) = (x as f32 + 0.5, y as f32 + 0.5);
-        let head = ((fx - 100.0) / 18.0).powi(2) + ((fy - 38.0) / 22.0).powi(2) <= 1.0;
-        let torso = (70.0..130.0).contains(&fx) && (60.0..125.0).contains(&fy);
-        let legs = ((76.0..96.0).contains(&fx) || (104.0..124.0).contains(&fx)) && (120.0..185.0).contains(&fy);
-        if head || torso || legs {
-            image::Rgba([235, 30, 210, 255])
-        } else {
-            image::Rgba([0, 0, 0, 0])
+    let mut img = person_figure(200, 200);
+    for px in img.pixels_mut() {
+        if px[3] > 0 {
+            *px = image::Rgba([235, 30, 210, 255]);
         }
-    });
+    }
     img.save(path).unwrap();
 }
 
@@ -335,6 +329,95 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
         assert!(img.pixels().filter(|p| p[3] == 0).count() > 128 * 128 / 2);
         let shown = image::open(&presented).unwrap().to_rgb8();
         assert!(white_in_corner(&shown, 128, 40) > 60);
+    });
+}
+
+/// Shirt colours of the frames of [`write_coloured_folder`], one per frame (sRGB), far apart from each other.
+const FRAME_COLOURS: [[u8; 3]; 6] =
+    [[230, 30, 30], [30, 200, 40], [40, 60, 230], [230, 220, 30], [30, 210, 220], [220, 40, 210]];
+
+/// Writes `frames` RGBA PNGs `f_0.png …` of the same standing figure (straight alpha = exact mask), frame `k` all
+/// in `FRAME_COLOURS[k % 6]`: the silhouette never changes (the mask smoothing has nothing to blend), the colour
+/// says which frame a picture of it came from.
+fn write_coloured_folder(dir: &Path, frames: usize) {
+    for k in 0..frames {
+        let mut img = person_figure(120, 160);
+        for px in img.pixels_mut() {
+            if px[3] > 0 {
+                let c = FRAME_COLOURS[k % FRAME_COLOURS.len()];
+                *px = image::Rgba([c[0], c[1], c[2], px[3]]);
+            }
+        }
+        img.save(dir.join(format!("f_{k}.png"))).unwrap();
+    }
+}
+
+/// A standing figure (head, torso, legs), white with alpha 255 on a transparent background, at `w x h`.
+fn person_figure(w: u32, h: u32) -> image::RgbaImage {
+    image::RgbaImage::from_fn(w, h, |x, y| {
+        let (fx, fy) = ((x as f32 + 0.5) / w as f32 * 200.0, (y as f32 + 0.5) / h as f32 * 200.0);
+        let head = ((fx - 100.0) / 18.0).powi(2) + ((fy - 38.0) / 22.0).powi(2) <= 1.0;
+        let torso = (70.0..130.0).contains(&fx) && (60.0..125.0).contains(&fy);
+        let legs = ((76.0..96.0).contains(&fx) || (104.0..124.0).contains(&fx)) && (120.0..185.0).contains(&fy);
+        if head || torso || legs {
+            image::Rgba([255, 255, 255, 255])
+        } else {
+            image::Rgba([0, 0, 0, 0])
+        }
+    })
+}
+
+/// `E` during a live stream (a folder of 40 frames played at 8 fps, 5 s) writes the person of the frame on
+/// screen: E is pressed every third presented frame, with a 400 ms pause before each press so the source moves on
+/// between them; every file written reads back, and its texture has the colour of the source frame that was on
+/// screen when E was pressed (the frames cycle through six colours). The presses hold more than one source frame.
+#[test]
+fn e_during_a_live_stream_exports_the_person_on_screen() {
+    in_window_child("e_during_a_live_stream_exports_the_person_on_screen", || {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = dir.path().join("frames");
+        std::fs::create_dir_all(&frames).unwrap();
+        write_coloured_folder(&frames, 40);
+        let stats = run(WindowOptions {
+            video: Some(frames),
+            segment: SegmentMethod::Alpha,
+            fps: 8.0,
+            mode: Mode::Ar,
+            backend: Backend::Cpu,
+            frames: Some(30),
+            size: 96,
+            resolution: 128,
+            export_dir: dir.path().join("exports"),
+            script: (1..=8)
+                .flat_map(|k| {
+                    [ScriptAction::Wait(Duration::from_millis(400)), ScriptAction::Key('e')]
+                        .map(|action| ScriptStep { at_frame: 3 * k, action })
+                })
+                .collect(),
+            ..WindowOptions::default()
+        });
+        eprintln!("exports: {:?} of source frames {:?}", stats.exports, stats.export_sources);
+        assert!(stats.source_finished);
+        assert!(!stats.exports.is_empty() && stats.exports.len() <= 8);
+        assert_eq!(stats.exports.len(), stats.export_sources.len());
+        for (path, source) in stats.exports.iter().zip(&stats.export_sources) {
+            let k = source.expect("a live export names its source frame") as usize;
+            let glb = r2human::io::mesh_io::read_gltf(path).unwrap();
+            let (lo, hi) = glb.mesh.bounds().unwrap();
+            assert!(lo.y.abs() < 1e-4 && hi.y > 0.5, "{}: {lo} {hi}", path.display());
+            // The texture (the person's colours, push-pull filled around) is the colour of frame k.
+            let tex = glb.first_texture().expect("a texture");
+            let mean =
+                tex.pixels().fold([0f64; 3], |a, p| [a[0] + p[0] as f64, a[1] + p[1] as f64, a[2] + p[2] as f64]);
+            let n = (tex.width() * tex.height()) as f64;
+            let mean = mean.map(|v| v / n);
+            let nearest = (0..FRAME_COLOURS.len())
+                .min_by_key(|&i| (0..3).map(|c| (mean[c] - FRAME_COLOURS[i][c] as f64).powi(2)).sum::<f64>() as u64)
+                .unwrap();
+            assert_eq!(nearest, k % FRAME_COLOURS.len(), "{}: mean texture colour {mean:?}", path.display());
+        }
+        let distinct: std::collections::BTreeSet<_> = stats.export_sources.iter().collect();
+        assert!(distinct.len() >= 2, "all exports hold the same frame: {:?}", stats.export_sources);
     });
 }
 

@@ -73,8 +73,7 @@ fn xr_session_survives_a_faulty_live_source() {
         // One fault cycle, the return to full size, and the session's start-up.
         max_duration: Some(Duration::from_secs(16)),
         eye_max_side: 96,
-        capture: false,
-        mirror: false,
+        ..SessionConfig::default()
     };
     let report = run_session(&config, Box::new(timed), Some(Environment::default_embedded())).unwrap();
     println!("{report}\nsource messages: {:#?}", report.source_messages);

@@ -26,7 +26,7 @@ use crate::pipeline::export::{ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
     load_body, load_fof_net, load_renderer, GeometryMode, NeuralRequest, PrepareOptions, PreparedInput, SharedNeural,
-    SourceView, ViewRenderer,
+    SourceView, StageTimings, ViewRenderer,
 };
 
 /// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
@@ -201,6 +201,8 @@ pub enum Written {
         path: PathBuf,
         /// What went into it.
         report: ExportReport,
+        /// Time of every stage: loading and segmenting the photo, reconstruction, the export's own stages.
+        stages: StageTimings,
     },
 }
 
@@ -226,7 +228,13 @@ impl fmt::Display for Written {
             Written::Demo { orbit, prepare_ms, triangles } => {
                 write!(f, "{orbit}\nper-input stages: {prepare_ms:.0} ms; mesh: {triangles} triangles")
             }
-            Written::Export { path, report } => write!(f, "wrote {}: {report}", path.display()),
+            Written::Export { path, report, stages } => write!(
+                f,
+                "wrote {}: {report}\nstages: {}; export {:.1} ms",
+                path.display(),
+                stages.summary(),
+                report.timings.total().as_secs_f64() * 1e3
+            ),
         }
     }
 }
@@ -340,12 +348,14 @@ pub fn export(job: &ExportJob) -> Result<Written> {
     job.geometry.check()?;
     let opts = ExportOptions { fill: job.geometry.fill, ..job.options.clone() };
     opts.validate()?;
-    let person = segment_photo(&job.image, job.mask.as_deref(), &job.segment)?;
+    let mut stages = StageTimings::default();
+    let person = stages.time("load + segment", || segment_photo(&job.image, job.mask.as_deref(), &job.segment))?;
     let prepare = job.geometry.prepare_options(job.models.as_deref(), &Default::default())?;
     let prepared = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)
         .with_context(|| format!("reconstructing the person in {}", job.image.display()))?;
     let report = crate::pipeline::export::person_glb(&job.out, &prepared, &person.mask, &opts)?;
-    Ok(Written::Export { path: job.out.clone(), report })
+    stages.0.extend(prepared.timings.0.iter().chain(&report.timings.0).cloned());
+    Ok(Written::Export { path: job.out.clone(), report, stages })
 }
 
 /// Renders one frame per camera with the CPU reference ([`ViewRenderer`], spatial fusion across the cameras when

@@ -49,7 +49,7 @@ use crate::geometry::Camera;
 use crate::gpu::{offline, Acquired, Context, GpuError, GpuView, OverlayMask, PresentTarget, Renderer, Swapchain};
 use crate::io::environment::Environment;
 use crate::io::image_io;
-use crate::pipeline::export::{person_glb, ExportOptions, ExportReport};
+use crate::pipeline::export::{numbered_path, person_glb, ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 pub use crate::pipeline::{Drawn, NeuralCounters};
 use crate::pipeline::{
@@ -80,6 +80,9 @@ pub enum ScriptAction {
     Key(char),
     /// A mouse drag by this many pixels (orbit).
     Drag(f32, f32),
+    /// Hold the display loop this long before the frame (a slow frame: lets a live source move on between
+    /// scripted key presses).
+    Wait(Duration),
 }
 
 /// One step of a script: what to do before which presented frame.
@@ -232,6 +235,8 @@ pub struct ViewStats {
     pub screenshots: Vec<PathBuf>,
     /// glTF files written by `E`.
     pub exports: Vec<PathBuf>,
+    /// Per file of `exports`: the source frame index of the live frame it holds (`None` for a photo).
+    pub export_sources: Vec<Option<u64>>,
     /// Validation-layer errors + warnings seen (0 unless validation is on).
     pub validation_messages: u32,
     /// The Vulkan device that ran the window.
@@ -706,6 +711,15 @@ impl<'a> Engine<'a> {
         }
     }
 
+    /// Live input: the source frame index of the person shown (`None` before the first completed frame and for a
+    /// photo).
+    fn shown_frame_index(&self) -> Option<u64> {
+        match &self.input {
+            PersonInput::Live(live) => live.current.as_ref().map(|c| c.frame_index),
+            PersonInput::Still(_) => None,
+        }
+    }
+
     /// Is there a person to show?
     fn has_person(&self) -> bool {
         match &self.input {
@@ -1005,6 +1019,7 @@ impl App<'_, '_> {
                 }
                 ScriptAction::Key(c) => self.key(&Key::Character(c.to_string().into())),
                 ScriptAction::Drag(dx, dy) => self.orbit.drag(dx, dy),
+                ScriptAction::Wait(d) => std::thread::sleep(d),
             }
         }
     }
@@ -1075,13 +1090,14 @@ impl App<'_, '_> {
             }
         }
         if std::mem::take(&mut self.export_requested) {
-            let path = self.opts.export_dir.join(format!("r2human-person-{:05}.glb", self.presented));
+            let path = numbered_path(&self.opts.export_dir, self.presented);
             // A failed export is a message on screen, never the end of the session.
             match self.engine.export_person(&path, &self.opts.export) {
                 Ok(report) => {
                     self.engine.set_message(format!("EXPORTED {}", path.display()));
                     tracing::info!("exported {}: {report}", path.display());
                     self.stats.exports.push(path);
+                    self.stats.export_sources.push(self.engine.shown_frame_index());
                 }
                 Err(e) => {
                     tracing::warn!("export failed: {e}");

@@ -7,7 +7,7 @@
 //! and hands it to the session as [`Scene`]s.
 
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
@@ -16,11 +16,13 @@ use crate::app::live::{
     camera_source, video_source, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline,
 };
 use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
+use crate::buffer::GrayImage;
 use crate::capture::{CameraRequest, SegmentMethod, SourceFactory};
 use crate::compose::Mode;
 use crate::io::environment::Environment;
+use crate::pipeline::export::{numbered_path, person_glb, ExportOptions};
 use crate::pipeline::{PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural};
-use crate::xr::{SceneFeed, SessionConfig, SessionReport, StaticScene};
+use crate::xr::{ExportHook, PersonExporter, SceneFeed, SessionConfig, SessionReport, StaticScene};
 
 /// Where the person comes from.
 #[derive(Clone, Debug)]
@@ -71,6 +73,12 @@ pub struct XrOptions {
     pub mirror: bool,
     /// `--renderer`, `--models`, `--ep` (the default loads none: geometric).
     pub neural: NeuralSetup,
+    /// Folder the export action writes the person to (`r2human-person-NNNNN.glb`).
+    pub export_dir: PathBuf,
+    /// How the export action writes the person (height, decimation; the fill is the eyes').
+    pub export: ExportOptions,
+    /// Also export when this many frames have shown the person (`--export-at-frame`).
+    pub export_at_frames: Vec<u64>,
 }
 
 impl Default for XrOptions {
@@ -84,7 +92,49 @@ impl Default for XrOptions {
             duration: None,
             mirror: true,
             neural: NeuralSetup::default(),
+            export_dir: PathBuf::from("."),
+            export: ExportOptions::default(),
+            export_at_frames: Vec::new(),
         }
+    }
+}
+
+/// The person the eyes show, as the export action writes it: a photo's reconstruction and person mask, or the
+/// live frame the eyes last received (its smoothed mask).
+#[derive(Clone)]
+enum ShownPerson {
+    Photo(Arc<(PreparedInput, GrayImage)>),
+    Live(Arc<Completed<LiveFrame>>),
+}
+
+impl ShownPerson {
+    fn parts(&self) -> (&PreparedInput, &GrayImage) {
+        match self {
+            ShownPerson::Photo(p) => (&p.0, &p.1),
+            ShownPerson::Live(c) => (&c.output.input, &c.mask),
+        }
+    }
+}
+
+/// Where the feed leaves the person it last handed to the eyes, for the exporter.
+type ShownSlot = Arc<Mutex<Option<ShownPerson>>>;
+
+/// The export action of `r2human xr`: the person the eyes show, written as glTF like view's `E` key
+/// ([`person_glb`] into [`numbered_path`]).
+struct GltfExporter {
+    shown: ShownSlot,
+    dir: PathBuf,
+    options: ExportOptions,
+}
+
+impl PersonExporter for GltfExporter {
+    fn export(&self, frame: u64) -> Result<PathBuf, String> {
+        let shown = self.shown.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let shown = shown.ok_or("no person has been reconstructed yet: wait for the first frame")?;
+        let (input, mask) = shown.parts();
+        let path = numbered_path(&self.dir, frame);
+        person_glb(&path, input, mask, &self.options).map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(path)
     }
 }
 
@@ -102,6 +152,8 @@ pub struct LiveFeed {
     /// Frame size (width, height) of the last new frame, and messages about changes not yet taken.
     frame_size: Option<(usize, usize)>,
     pending: Vec<String>,
+    /// The frame last handed to the eyes (for the export action).
+    shown: ShownSlot,
 }
 
 impl LiveFeed {
@@ -128,7 +180,16 @@ impl LiveFeed {
             ended_reported: false,
             frame_size: None,
             pending: Vec::new(),
+            shown: ShownSlot::default(),
         })
+    }
+}
+
+impl LiveFeed {
+    /// This feed, leaving the frame it hands to the eyes in `shown` (for the export action).
+    fn sharing_shown(mut self, shown: &ShownSlot) -> Self {
+        self.shown = Arc::clone(shown);
+        self
     }
 }
 
@@ -151,6 +212,7 @@ impl SceneFeed for LiveFeed {
             ));
         }
         self.frame_size = Some(size);
+        *self.shown.lock().unwrap_or_else(|p| p.into_inner()) = Some(ShownPerson::Live(Arc::clone(done)));
         let neural = match (&self.decoder, &done.output.neural) {
             (Some(renderer), Some(encoded)) => {
                 Some(SceneNeural { renderer: Arc::clone(renderer), encoded: encoded.clone() })
@@ -189,7 +251,12 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if opts.frames == Some(0) {
         bail!("--frames 0 shows nothing: give at least 1, or leave it out to run until the headset session ends");
     }
+    opts.export.validate()?;
+    if let Some(0) = opts.export_at_frames.iter().copied().min() {
+        bail!("--export-at-frame 0 is before the person is shown: give 1 or more");
+    }
     let neural = load_interactive(&opts.neural)?;
+    let shown = ShownSlot::default();
     let feed: Box<dyn SceneFeed> = match &opts.input {
         XrInput::Image { path, mask, segment } => {
             let person = crate::capture::segment::segment_photo(path, mask.as_deref(), segment)?;
@@ -209,21 +276,25 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
                 }
                 None => None,
             };
-            Box::new(StaticScene::new(Scene::from_prepared(&prepared, eye_neural)))
+            let scene = Scene::from_prepared(&prepared, eye_neural);
+            *shown.lock().unwrap_or_else(|p| p.into_inner()) =
+                Some(ShownPerson::Photo(Arc::new((prepared, person.mask))));
+            Box::new(StaticScene::new(scene))
         }
         XrInput::Video { path, fps, segment } => {
             if !(*fps > 0.0 && fps.is_finite()) {
                 bail!("--fps {fps} must be a positive number of frames per second");
             }
-            Box::new(
-                LiveFeed::start(video_source(path, *fps), segment.clone(), PrepareOptions::default(), &neural)
-                    .with_context(|| format!("opening {}", path.display()))?,
-            )
+            let feed = LiveFeed::start(video_source(path, *fps), segment.clone(), PrepareOptions::default(), &neural)
+                .with_context(|| format!("opening {}", path.display()))?;
+            Box::new(feed.sharing_shown(&shown))
         }
-        XrInput::Camera { request, segment } => Box::new(
-            LiveFeed::start(camera_source(request.clone()), segment.clone(), PrepareOptions::default(), &neural)
-                .with_context(|| format!("opening camera {}", request.index))?,
-        ),
+        XrInput::Camera { request, segment } => {
+            let feed =
+                LiveFeed::start(camera_source(request.clone()), segment.clone(), PrepareOptions::default(), &neural)
+                    .with_context(|| format!("opening camera {}", request.index))?;
+            Box::new(feed.sharing_shown(&shown))
+        }
     };
     let environment = match (opts.mode, &opts.env) {
         (Mode::Ar, _) => None,
@@ -237,6 +308,12 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
         eye_max_side: opts.eye_size,
         capture: false,
         mirror: opts.mirror,
+        export: Some(ExportHook(Arc::new(GltfExporter {
+            shown,
+            dir: opts.export_dir.clone(),
+            options: opts.export.clone(),
+        }))),
+        export_at_frames: opts.export_at_frames.clone(),
     };
     let report = crate::xr::run_session(&config, feed, environment)?;
     if let crate::xr::EndReason::RenderFailed(e) = &report.end {
@@ -261,6 +338,11 @@ mod tests {
         let video = XrInput::Video { path: "/nonexistent/frames".into(), fps: 10.0, segment: SegmentMethod::Alpha };
         let err = run_xr_session(&XrOptions { input: video, ..Default::default() }).unwrap_err();
         assert!(format!("{err:#}").contains("/nonexistent/frames"), "{err:#}");
+        let opts = XrOptions { input: image("missing.png"), export_at_frames: vec![5, 0], ..Default::default() };
+        assert!(run_xr_session(&opts).unwrap_err().to_string().contains("--export-at-frame 0"));
+        let export = ExportOptions { height_m: 9.0, ..Default::default() };
+        let opts = XrOptions { input: image("missing.png"), export, ..Default::default() };
+        assert!(run_xr_session(&opts).unwrap_err().to_string().contains("--height 9"));
         let video = XrInput::Video { path: "x".into(), fps: 0.0, segment: SegmentMethod::Alpha };
         assert!(run_xr_session(&XrOptions { input: video, ..Default::default() })
             .unwrap_err()

@@ -117,15 +117,23 @@ pub struct XrArgs {
     /// Do not show the eye images in a desktop window.
     #[arg(long)]
     pub no_mirror: bool,
+    /// How the export action (right B on Touch/Index, left select on the simple controller, E in the mirror
+    /// window) writes the person as glTF.
+    #[command(flatten)]
+    pub export: ExportFlags,
+    /// Also export the person when this many frames have shown it (repeatable; scripted captures).
+    #[arg(long, value_name = "N")]
+    pub export_at_frame: Vec<u64>,
     /// Which renderer draws the person.
     #[command(flatten)]
     pub neural: NeuralArgs,
 }
 
-/// `--export-dir`, `--export-height`, `--export-decimate`: how `view` (E key) writes the person as glTF.
+/// `--export-dir`, `--export-height`, `--export-decimate`: how `view` (E key) and `xr` (the export action) write
+/// the person as glTF.
 #[derive(Args, Debug, Clone)]
 pub struct ExportFlags {
-    /// Folder for glTF exports of the person (E key): r2human-person-NNNNN.glb.
+    /// Folder for glTF exports of the person (E key, xr's export action): r2human-person-NNNNN.glb.
     #[arg(long, default_value = ".")]
     pub export_dir: PathBuf,
     /// The person's standing height in metres for exports (see `r2human export --height`).
@@ -233,6 +241,9 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         eye_size: args.eye_size,
         mirror: !args.no_mirror,
         neural: args.neural.setup(),
+        export_dir: args.export.export_dir.clone(),
+        export: args.export.options()?,
+        export_at_frames: args.export_at_frame.clone(),
         ..Default::default()
     })?;
     println!("{report}");

@@ -20,7 +20,7 @@ use std::path::Path;
 use glam::{Vec2, Vec3};
 
 use super::warp::{push_pull, OcclusionFill};
-use super::PreparedInput;
+use super::{PreparedInput, StageTimings};
 use crate::buffer::GrayImage;
 use crate::geometry::TriMesh;
 use crate::io::mesh_io::{linear_to_srgb8, write_glb, MeshIoError, TexturedMesh};
@@ -208,7 +208,7 @@ impl Placement {
 }
 
 /// What [`person_glb`] made.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct ExportReport {
     /// Triangles of the pipeline's mesh.
     pub source_triangles: usize,
@@ -226,6 +226,10 @@ pub struct ExportReport {
     pub texture: (u32, u32),
     /// Triangles textured from the colours the photo does not show ([`OcclusionFill::Propagate`] only).
     pub back_triangles: usize,
+    /// Time of each export stage: "decimate" (with `--decimate`), "UVs + metres" (which texture image each
+    /// triangle uses, vertices moved into metres), "texture bake" (push-pull filled photo, rim image, 8-bit sRGB),
+    /// and [`person_glb`]'s "encode + write" (glTF binary with its PNG, written atomically).
+    pub timings: StageTimings,
 }
 
 impl std::fmt::Display for ExportReport {
@@ -281,32 +285,22 @@ fn project_uv(p: Vec3, image: usize, images: usize) -> Vec2 {
     Vec2::new((image as f32 + (p.x + 1.0) * 0.5) / images as f32, (1.0 - p.y) * 0.5)
 }
 
-/// The person of `input` as a textured mesh in metres (see the module docs). `photo_mask` is the person mask at
-/// the photo's size (it decides [`visible_height`]).
-pub fn person_mesh(
+/// The mesh in metres with its UVs: each triangle on the photo's texture image, or (`two`, for
+/// [`OcclusionFill::Propagate`]) on the second image when the photo does not see it, vertices duplicated where
+/// they are on both; wound counter-clockwise (glTF's front faces). Returns it and the number of triangles on the
+/// second image.
+fn uv_mesh(
     input: &PreparedInput,
-    photo_mask: &GrayImage,
-    opts: &ExportOptions,
-) -> Result<(TexturedMesh, ExportReport), ExportError> {
-    opts.validate()?;
-    let visible = visible_height(photo_mask, opts.height_m).ok_or(ExportError::EmptyMask)?;
-    if input.mesh.is_empty() {
-        return Err(ExportError::Empty);
-    }
-    let (mesh, decimation_error) = match opts.decimate {
-        Some(t) => input.mesh.simplified(t),
-        None => (input.mesh.clone(), 0.0),
-    };
-    let (lo, hi) = mesh.bounds().ok_or(ExportError::Empty)?;
-    let placement = Placement::standing(lo.y, hi.y, visible.metres);
-
-    let res = input.normalised.rgb.width;
-    let front = front_image(input);
-    let two = opts.fill == OcclusionFill::Propagate;
+    mesh: &TriMesh,
+    decimation_error: f32,
+    placement: Placement,
+    two: bool,
+) -> (TriMesh, usize) {
     let images = if two { 2 } else { 1 };
+    let res = input.normalised.rgb.width;
     // Which triangles the photo sees (Propagate only): centroid against the source depth, with a tolerance of
     // two source pixels plus what simplification may have moved the surface.
-    let extent = (hi - lo).max_element();
+    let extent = mesh.bounds().map_or(0.0, |(lo, hi)| (hi - lo).max_element());
     let tolerance = 4.0 / res as f32 + 2.0 * decimation_error * extent;
     let back: Vec<bool> = mesh
         .triangles
@@ -345,17 +339,48 @@ pub fn person_mesh(
         }
         out.compute_normals();
     }
+    (out, back_triangles)
+}
 
-    let rim = if two { Some(rim_image(&front, &input.normalised.mask, (res / 50).max(2))) } else { None };
-    let mut texture = image::RgbImage::new((res * images) as u32, res as u32);
-    for (x, y, px) in texture.enumerate_pixels_mut() {
-        let (img, col, row) = (x as usize / res, x as usize % res, y as usize);
-        let c = match (&rim, img) {
-            (Some(r), 1) => r[row * res + col],
-            _ => front[row * res + col],
-        };
-        *px = image::Rgb(linear_to_srgb8(c));
+/// The person of `input` as a textured mesh in metres (see the module docs). `photo_mask` is the person mask at
+/// the photo's size (it decides [`visible_height`]).
+pub fn person_mesh(
+    input: &PreparedInput,
+    photo_mask: &GrayImage,
+    opts: &ExportOptions,
+) -> Result<(TexturedMesh, ExportReport), ExportError> {
+    opts.validate()?;
+    let visible = visible_height(photo_mask, opts.height_m).ok_or(ExportError::EmptyMask)?;
+    if input.mesh.is_empty() {
+        return Err(ExportError::Empty);
     }
+    let mut timings = StageTimings::default();
+    let decimated = opts.decimate.map(|t| timings.time("decimate", || input.mesh.simplified(t)));
+    let (mesh, decimation_error) = match &decimated {
+        Some((m, e)) => (m, *e),
+        None => (&input.mesh, 0.0),
+    };
+    let (lo, hi) = mesh.bounds().ok_or(ExportError::Empty)?;
+    let placement = Placement::standing(lo.y, hi.y, visible.metres);
+
+    let res = input.normalised.rgb.width;
+    let two = opts.fill == OcclusionFill::Propagate;
+    let images = if two { 2 } else { 1 };
+    let (out, back_triangles) = timings.time("UVs + metres", || uv_mesh(input, mesh, decimation_error, placement, two));
+    let texture = timings.time("texture bake", || {
+        let front = front_image(input);
+        let rim = if two { Some(rim_image(&front, &input.normalised.mask, (res / 50).max(2))) } else { None };
+        let mut texture = image::RgbImage::new((res * images) as u32, res as u32);
+        for (x, y, px) in texture.enumerate_pixels_mut() {
+            let (img, col, row) = (x as usize / res, x as usize % res, y as usize);
+            let c = match (&rim, img) {
+                (Some(r), 1) => r[row * res + col],
+                _ => front[row * res + col],
+            };
+            *px = image::Rgb(linear_to_srgb8(c));
+        }
+        texture
+    });
     let report = ExportReport {
         source_triangles: input.mesh.triangle_count(),
         triangles: out.triangle_count(),
@@ -365,8 +390,15 @@ pub fn person_mesh(
         placement,
         texture: texture.dimensions(),
         back_triangles,
+        timings,
     };
     Ok((TexturedMesh::textured(out, texture), report))
+}
+
+/// The file an interactive export (view's `E` key, xr's export action) writes in `dir` at frame `frame`:
+/// `r2human-person-NNNNN.glb`.
+pub fn numbered_path(dir: &Path, frame: u64) -> std::path::PathBuf {
+    dir.join(format!("r2human-person-{frame:05}.glb"))
 }
 
 /// [`person_mesh`] written to `path` as glTF 2.0 binary (atomically: a temporary file, then a rename).
@@ -376,11 +408,11 @@ pub fn person_glb(
     photo_mask: &GrayImage,
     opts: &ExportOptions,
 ) -> Result<ExportReport, ExportError> {
-    let (mesh, report) = person_mesh(input, photo_mask, opts)?;
+    let (mesh, mut report) = person_mesh(input, photo_mask, opts)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|source| MeshIoError::Io { path: dir.to_path_buf(), source })?;
     }
-    write_glb(path, &mesh)?;
+    report.timings.time("encode + write", || write_glb(path, &mesh))?;
     tracing::info!("wrote {}: {report}", path.display());
     Ok(report)
 }

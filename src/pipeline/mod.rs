@@ -347,6 +347,13 @@ impl StageTimings {
     pub fn total(&self) -> Duration {
         self.0.iter().map(|(_, d)| *d).sum()
     }
+
+    /// One line: "name 12.3 ms, name 4.5 ms, …" in the order the stages ran.
+    pub fn summary(&self) -> String {
+        let parts: Vec<String> =
+            self.0.iter().map(|(name, d)| format!("{name} {:.1} ms", d.as_secs_f64() * 1e3)).collect();
+        parts.join(", ")
+    }
 }
 
 /// Which renderer draws the person (`--renderer`).

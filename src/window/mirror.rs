@@ -4,7 +4,8 @@
 //! [`Swapchain`] ([`SwapchainOptions::MIRROR`]) on the device the OpenXR runtime chose: the eyes' float images
 //! (`crate::xr::swapchain::EyeSwapchain`) are blitted side by side into the window's image on the GPU.
 //! Presentation never blocks the display loop: the present mode is IMMEDIATE or MAILBOX when offered, and an image
-//! that cannot be acquired at once is skipped. Closing the window only closes the mirror, not the session.
+//! that cannot be acquired at once is skipped. Closing the window only closes the mirror, not the session. `E` in the
+//! window asks the session to export the person ([`Mirror::take_export_key`]).
 
 use std::ffi::c_char;
 use std::sync::Arc;
@@ -16,6 +17,7 @@ use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
 use winit::event::WindowEvent;
 use winit::event_loop::{ActiveEventLoop, EventLoop};
+use winit::keyboard::Key;
 use winit::platform::pump_events::EventLoopExtPumpEvents;
 use winit::window::{Window, WindowId};
 
@@ -30,6 +32,8 @@ struct MirrorApp {
     closed: bool,
     resized: bool,
     error: Option<String>,
+    /// `E` was pressed since the last [`Mirror::take_export_key`].
+    export_key: bool,
 }
 
 impl ApplicationHandler for MirrorApp {
@@ -47,6 +51,11 @@ impl ApplicationHandler for MirrorApp {
         match event {
             WindowEvent::CloseRequested => self.closed = true,
             WindowEvent::Resized(_) => self.resized = true,
+            WindowEvent::KeyboardInput { event, .. } if event.state.is_pressed() && !event.repeat => {
+                if let Key::Character(c) = &event.logical_key {
+                    self.export_key |= c.as_str().eq_ignore_ascii_case("e");
+                }
+            }
             _ => {}
         }
     }
@@ -147,6 +156,11 @@ impl Mirror {
     pub fn pump(&mut self) -> bool {
         self.lp.pump();
         !self.lp.app.closed
+    }
+
+    /// Whether `E` (export the person) was pressed in the window since the last call.
+    pub fn take_export_key(&mut self) -> bool {
+        std::mem::take(&mut self.lp.app.export_key)
     }
 
     fn recreate(&mut self) -> Result<(), GpuError> {

@@ -23,7 +23,9 @@ pub use check::{check_runtime, RuntimeReport};
 pub use eyes::{GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
 pub use pacing::{EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
-pub use session::{run_session, BlendChoice, EndReason, EyeCapture, SessionConfig, SessionReport};
+pub use session::{
+    run_session, BlendChoice, EndReason, ExportHook, EyeCapture, PersonExporter, SessionConfig, SessionReport,
+};
 
 use openxr as xr;
 

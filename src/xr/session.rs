@@ -35,6 +35,26 @@ use crate::window::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 
 const VIEW_TYPE: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_STEREO;
 
+/// Writes the person the session shows as a file (the export action: a controller button, the mirror window's `E`
+/// key, or [`SessionConfig::export_at_frames`]). The app layer implements it (glTF through
+/// [`crate::pipeline::export`]); the session calls it on a thread of its own, one export at a time, so the display
+/// loop never waits for it.
+pub trait PersonExporter: Send + Sync {
+    /// Writes the person shown now; `frame` is the number of frames that have shown the person so far (it names
+    /// the file). Returns the file written, or a sentence saying why nothing was written.
+    fn export(&self, frame: u64) -> Result<std::path::PathBuf, String>;
+}
+
+/// The exporter a session calls (see [`PersonExporter`]).
+#[derive(Clone)]
+pub struct ExportHook(pub Arc<dyn PersonExporter>);
+
+impl fmt::Debug for ExportHook {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("ExportHook")
+    }
+}
+
 /// How the session is run.
 #[derive(Clone, Debug)]
 pub struct SessionConfig {
@@ -52,6 +72,10 @@ pub struct SessionConfig {
     /// Show the eye images side by side in a desktop window while the session runs (skipped with a warning when
     /// there is no display).
     pub mirror: bool,
+    /// What the export action does (`None`: the action only logs that exporting is off).
+    pub export: Option<ExportHook>,
+    /// Also export when this many frames have shown the person (scripted captures, tests without a controller).
+    pub export_at_frames: Vec<u64>,
 }
 
 impl Default for SessionConfig {
@@ -63,6 +87,8 @@ impl Default for SessionConfig {
             eye_max_side: 512,
             capture: false,
             mirror: false,
+            export: None,
+            export_at_frames: Vec::new(),
         }
     }
 }
@@ -288,6 +314,10 @@ pub struct SessionReport {
     pub placement: Option<Placement>,
     /// Images shown in the desktop mirror window (0 without a mirror).
     pub mirror_presented: u64,
+    /// Files written by the export action, in order.
+    pub exports: Vec<std::path::PathBuf>,
+    /// Export requests that wrote nothing, each with the reason (a failure, or an export still being written).
+    pub export_failures: Vec<String>,
 }
 
 impl SessionReport {
@@ -352,18 +382,62 @@ impl fmt::Display for SessionReport {
         if self.mirror_presented > 0 {
             writeln!(f, "desktop mirror: {} images shown", self.mirror_presented)?;
         }
+        for p in &self.exports {
+            writeln!(f, "exported the person: {}", p.display())?;
+        }
+        for e in &self.export_failures {
+            writeln!(f, "export: {e}")?;
+        }
         writeln!(f, "validation messages: OpenXR {}, Vulkan {}", self.xr_message_count, self.vk_message_count)?;
         write!(f, "session ended: {}", self.end)
     }
 }
 
-/// Controller actions: move, turn/scale, recentre.
+/// Controller actions: move, turn/scale, recentre, export.
 struct Controllers {
     set: xr::ActionSet,
     move_xz: xr::Action<xr::Vector2f>,
     turn_scale: xr::Action<xr::Vector2f>,
     recentre: xr::Action<bool>,
+    export: xr::Action<bool>,
 }
+
+/// Which action a binding drives.
+#[derive(Clone, Copy)]
+enum Act {
+    Move,
+    TurnScale,
+    Recentre,
+    Export,
+}
+
+/// Bindings for common controllers (profile, [(input path, action)]): the left thumbstick moves the person, the
+/// right one turns (x) and scales (y) it, right A (select on the simple controller's right hand) recentres it, and
+/// right B (select on its left hand) writes it as glTF.
+const BINDINGS: [(&str, &[(&str, Act)]); 3] = [
+    (
+        "/interaction_profiles/khr/simple_controller",
+        &[("/user/hand/right/input/select/click", Act::Recentre), ("/user/hand/left/input/select/click", Act::Export)],
+    ),
+    (
+        "/interaction_profiles/oculus/touch_controller",
+        &[
+            ("/user/hand/left/input/thumbstick", Act::Move),
+            ("/user/hand/right/input/thumbstick", Act::TurnScale),
+            ("/user/hand/right/input/a/click", Act::Recentre),
+            ("/user/hand/right/input/b/click", Act::Export),
+        ],
+    ),
+    (
+        "/interaction_profiles/valve/index_controller",
+        &[
+            ("/user/hand/left/input/thumbstick", Act::Move),
+            ("/user/hand/right/input/thumbstick", Act::TurnScale),
+            ("/user/hand/right/input/a/click", Act::Recentre),
+            ("/user/hand/right/input/b/click", Act::Export),
+        ],
+    ),
+];
 
 impl Controllers {
     fn new(instance: &xr::Instance) -> Result<Self, XrError> {
@@ -372,36 +446,19 @@ impl Controllers {
         let turn_scale =
             set.create_action::<xr::Vector2f>("turn_scale", "Turn and scale the person", &[]).xr("xrCreateAction")?;
         let recentre = set.create_action::<bool>("recentre", "Recentre the person", &[]).xr("xrCreateAction")?;
-        let c = Self { set, move_xz, turn_scale, recentre };
-        // Bindings for common controllers; a profile the runtime does not know is skipped with a log line.
-        let profiles: [(&str, &[(&str, u8)]); 3] = [
-            ("/interaction_profiles/khr/simple_controller", &[("/user/hand/right/input/select/click", 2)]),
-            (
-                "/interaction_profiles/oculus/touch_controller",
-                &[
-                    ("/user/hand/left/input/thumbstick", 0),
-                    ("/user/hand/right/input/thumbstick", 1),
-                    ("/user/hand/right/input/a/click", 2),
-                ],
-            ),
-            (
-                "/interaction_profiles/valve/index_controller",
-                &[
-                    ("/user/hand/left/input/thumbstick", 0),
-                    ("/user/hand/right/input/thumbstick", 1),
-                    ("/user/hand/right/input/a/click", 2),
-                ],
-            ),
-        ];
-        for (profile, bindings) in profiles {
+        let export = set.create_action::<bool>("export", "Write the person as glTF", &[]).xr("xrCreateAction")?;
+        let c = Self { set, move_xz, turn_scale, recentre, export };
+        // A profile the runtime does not know is skipped with a log line.
+        for (profile, bindings) in BINDINGS {
             let result = (|| -> Result<(), xr::sys::Result> {
                 let mut list = Vec::new();
-                for &(path, which) in bindings {
+                for &(path, act) in bindings {
                     let p = instance.string_to_path(path)?;
-                    list.push(match which {
-                        0 => xr::Binding::new(&c.move_xz, p),
-                        1 => xr::Binding::new(&c.turn_scale, p),
-                        _ => xr::Binding::new(&c.recentre, p),
+                    list.push(match act {
+                        Act::Move => xr::Binding::new(&c.move_xz, p),
+                        Act::TurnScale => xr::Binding::new(&c.turn_scale, p),
+                        Act::Recentre => xr::Binding::new(&c.recentre, p),
+                        Act::Export => xr::Binding::new(&c.export, p),
                     });
                 }
                 instance.suggest_interaction_profile_bindings(instance.string_to_path(profile)?, &list)
@@ -413,8 +470,9 @@ impl Controllers {
         Ok(c)
     }
 
-    /// Reads the controls (call only while focused, after `xrSyncActions`).
-    fn read(&self, session: &xr::Session<xr::Vulkan>) -> Controls {
+    /// Reads the controls (call only while focused, after `xrSyncActions`): the placement controls, and whether
+    /// the export button went down since the last sync.
+    fn read(&self, session: &xr::Session<xr::Vulkan>) -> (Controls, bool) {
         let v2 = |a: &xr::Action<xr::Vector2f>| {
             a.state(session, xr::Path::NULL)
                 .ok()
@@ -422,13 +480,15 @@ impl Controllers {
                 .map(|s| Vec2::new(s.current_state.x, s.current_state.y))
                 .unwrap_or(Vec2::ZERO)
         };
+        let pressed = |a: &xr::Action<bool>| {
+            a.state(session, xr::Path::NULL)
+                .ok()
+                .is_some_and(|s| s.is_active && s.current_state && s.changed_since_last_sync)
+        };
         let ts = v2(&self.turn_scale);
-        let recentre = self
-            .recentre
-            .state(session, xr::Path::NULL)
-            .ok()
-            .is_some_and(|s| s.is_active && s.current_state && s.changed_since_last_sync);
-        Controls { move_xz: v2(&self.move_xz), turn: -ts.x, scale: ts.y, recentre }
+        let controls =
+            Controls { move_xz: v2(&self.move_xz), turn: -ts.x, scale: ts.y, recentre: pressed(&self.recentre) };
+        (controls, pressed(&self.export))
     }
 }
 
@@ -648,6 +708,7 @@ pub fn run_session(
         mirror_loop,
         mirror: None,
         mirror_presented: 0,
+        exports: Exports::default(),
     };
     let end = std::thread::scope(|scope| {
         let m = mailbox.clone();
@@ -676,6 +737,8 @@ pub fn run_session(
         mailbox.shutdown();
         end
     });
+    // An export still being written finishes (its file is part of what the session did).
+    loop_state.exports.collect(true);
     // The render thread has ended; collect a capture still in flight.
     if uploader.wait().is_ok() {
         collect_captures(&mut uploader, &eyes, &mut loop_state);
@@ -755,6 +818,8 @@ pub fn run_session(
         captures: loop_state.captures,
         placement: loop_state.placement,
         mirror_presented: loop_state.mirror_presented,
+        exports: loop_state.exports.written,
+        export_failures: loop_state.exports.failures,
     };
     drop(vk);
     Ok(report)
@@ -792,6 +857,72 @@ struct LoopState {
     mirror_loop: Option<MirrorEventLoop>,
     mirror: Option<Mirror>,
     mirror_presented: u64,
+    exports: Exports,
+}
+
+/// The export action's state: one export at a time, on a thread of its own.
+#[derive(Default)]
+struct Exports {
+    running: Option<std::thread::JoinHandle<Result<std::path::PathBuf, String>>>,
+    written: Vec<std::path::PathBuf>,
+    failures: Vec<String>,
+    /// The person-frame count [`SessionConfig::export_at_frames`] was last checked at.
+    checked_frame: u64,
+}
+
+impl Exports {
+    /// Starts an export of the person shown after `frame` person frames, asked for `by` (for the log); refused
+    /// (and recorded) while the previous one is still being written or when the session has no exporter.
+    fn request(&mut self, config: &SessionConfig, frame: u64, by: &str) {
+        self.collect(false);
+        let refused = match (&config.export, &self.running) {
+            (None, _) => Some(format!("{by} at frame {frame}: exporting is off in this session")),
+            (Some(_), Some(_)) => {
+                Some(format!("{by} at frame {frame}: the previous export is still being written; press again later"))
+            }
+            (Some(_), None) => None,
+        };
+        if let Some(why) = refused {
+            tracing::warn!("{why}");
+            self.failures.push(why);
+            return;
+        }
+        let Some(hook) = config.export.as_ref().map(|h| Arc::clone(&h.0)) else { return };
+        tracing::info!("{by}: exporting the person shown at frame {frame}");
+        match std::thread::Builder::new().name("r2human-xr-export".into()).spawn(move || hook.export(frame)) {
+            Ok(h) => self.running = Some(h),
+            Err(e) => self.failures.push(format!("{by}: cannot start the export thread: {e}")),
+        }
+    }
+
+    /// Exports when the person-frame count reaches one of [`SessionConfig::export_at_frames`] (once per count).
+    fn at_frame(&mut self, config: &SessionConfig, person_frames: u64) {
+        if person_frames != self.checked_frame {
+            self.checked_frame = person_frames;
+            if config.export_at_frames.contains(&person_frames) {
+                self.request(config, person_frames, "--export-at-frame");
+            }
+        }
+    }
+
+    /// Records a finished export; with `wait`, waits for one still being written.
+    fn collect(&mut self, wait: bool) {
+        if !self.running.as_ref().is_some_and(|h| wait || h.is_finished()) {
+            return;
+        }
+        let Some(handle) = self.running.take() else { return };
+        match handle.join() {
+            Ok(Ok(path)) => {
+                tracing::info!("exported the person: {}", path.display());
+                self.written.push(path);
+            }
+            Ok(Err(e)) => {
+                tracing::warn!("export failed: {e}");
+                self.failures.push(e);
+            }
+            Err(_) => self.failures.push("the export thread panicked".into()),
+        }
+    }
 }
 
 /// How long to wait for the runtime to confirm an exit request before giving up on it.
@@ -911,7 +1042,11 @@ fn frame_loop(
         if ctx.config.max_duration.is_some_and(|d| started.elapsed() > d) {
             request_exit(EndReason::TimeLimit, &mut exit_requested);
         }
+        st.exports.collect(false);
         if let Some(m) = &mut st.mirror {
+            if m.take_export_key() {
+                st.exports.request(ctx.config, st.pacing.person_frames, "the mirror window's E key");
+            }
             if !m.pump() {
                 tracing::info!("mirror window closed; the session goes on");
                 if let Some(m) = st.mirror.take() {
@@ -948,12 +1083,15 @@ fn frame_loop(
                     .placement
                     .get_or_insert_with(|| Placement::in_front_of(head_pos, head_rot, floor, DEFAULT_DISTANCE));
                 // Input pauses while the session is not focused (xrSyncActions would fail anyway).
-                let controls = if st.sm.input_enabled() {
+                let (controls, export_pressed) = if st.sm.input_enabled() {
                     ctx.session.sync_actions(&[(&ctx.controllers.set).into()]).xr("xrSyncActions")?;
                     ctx.controllers.read(ctx.session)
                 } else {
-                    Controls::default()
+                    (Controls::default(), false)
                 };
+                if export_pressed {
+                    st.exports.request(ctx.config, st.pacing.person_frames, "the controller's export button");
+                }
                 if controls.is_active() {
                     st.placement = Some(placement.apply(&controls, head_pos, head_rot, floor, dt));
                 }
@@ -1077,6 +1215,7 @@ fn frame_loop(
         if let Err(e) = step {
             return EndReason::RuntimeGone(e.to_string());
         }
+        st.exports.at_frame(ctx.config, st.pacing.person_frames);
         if ctx.config.max_person_frames.is_some_and(|n| st.pacing.person_frames >= n) {
             request_exit(EndReason::FrameLimit, &mut exit_requested);
         }

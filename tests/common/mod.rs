@@ -56,3 +56,26 @@ pub fn figure_rgba(w: u32, h: u32) -> image::RgbaImage {
 pub fn write_figure(path: &Path, w: u32, h: u32) {
     figure_rgba(w, h).save(path).expect("write fixture");
 }
+
+/// The checkout's path of `path`.
+pub fn repo(path: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// Runs the Khronos glTF validator (npm `gltf-validator`, installed into .tools by scripts/setup.d/gltf.sh, which
+/// this runs when it is missing) on `path` and returns its JSON report; `None` (with a message) only when npm is
+/// not installed.
+pub fn khronos_validate(path: &Path) -> Option<serde_json::Value> {
+    if Command::new("npm").arg("--version").output().is_err() {
+        eprintln!("SKIPPED the glTF validator: npm is not installed (bash scripts/setup.d/gltf.sh installs it)");
+        return None;
+    }
+    if !repo(".tools/gltf-validator/node_modules/gltf-validator/package.json").is_file() {
+        let status = Command::new("bash").arg(repo("scripts/setup.d/gltf.sh")).status().unwrap();
+        assert!(status.success(), "scripts/setup.d/gltf.sh failed");
+    }
+    let out = Command::new("node").arg(repo("scripts/gltf-validate.mjs")).arg(path).output().unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("validator output: {e}: {}", String::from_utf8_lossy(&out.stderr)));
+    Some(report)
+}
