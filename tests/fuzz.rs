@@ -17,7 +17,8 @@
 //!
 //! Failing inputs are written to `target/tmp/fuzz-failures/<target>/` with the reason; the fix goes into the
 //! loader and the input into `tests/corpus/<target>/`. A summary (cases per target and outcome, slowest case,
-//! largest allocation) is printed and written to `target/tmp/fuzz-report.json` (`R2HUMAN_FUZZ_REPORT` overrides).
+//! largest allocation) is printed and written to `target/tmp/fuzz-report.json` (`R2HUMAN_FUZZ_REPORT` overrides)
+//! and, as a Markdown table, beside it with the extension `.md`.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
@@ -361,6 +362,18 @@ fn every_loader_survives_mutated_inputs() {
         "targets": reports,
     });
     std::fs::write(&report_path, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
+    // The same as a Markdown table (the README's reliability table is made from a long run's).
+    let mut md = format!(
+        "| loader (target) | cases (seed {seed}) | accepted | rejected | failures | slowest case | largest allocation |\n\
+         |---|---:|---:|---:|---:|---:|---:|\n"
+    );
+    for r in &reports {
+        md.push_str(&format!(
+            "| `{}` | {} | {} | {} | {} | {:.0} ms | {:.1} MiB |\n",
+            r.target, r.cases, r.accepted, r.rejected, r.failures, r.slowest_ms, r.largest_alloc_mib
+        ));
+    }
+    std::fs::write(report_path.with_extension("md"), md).unwrap();
     let failed: Vec<String> = reports.iter().flat_map(|r| r.failure_files.iter().cloned()).collect();
     let total_failures: u64 = reports.iter().map(|r| r.failures).sum();
     assert_eq!(total_failures, 0, "{total_failures} failing inputs, saved as {failed:#?}");
