@@ -272,7 +272,12 @@ struct SlowStage {
 
 impl FrameProcessor for SlowStage {
     type Output = f32;
-    fn process(&mut self, _frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<f32, String> {
+    fn process(
+        &mut self,
+        _frame: &Frame,
+        mask: &GrayImage,
+        stats: &mut StageStats,
+    ) -> Result<f32, r2human::pipeline::PipelineError> {
         self.calls.fetch_add(1, Ordering::SeqCst);
         stats.time("slow", || std::thread::sleep(self.delay));
         Ok(mask.data.iter().sum())

@@ -17,9 +17,10 @@ use r2human::eval::runner::fof_occupancy_iou;
 use r2human::geometry::fof::Fof;
 use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
 use r2human::geometry::Camera;
-use r2human::neural::{ExecutionProvider, FofNet, NeuralError, RuntimeOptions};
+use r2human::neural::{ExecutionProvider, FofInput, FofNet, NeuralError, RuntimeOptions};
 use r2human::pipeline::{
-    compute_geometry, load_fof_net, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
+    body_prior_fof, centre_visible_depth, compute_geometry, load_body_for, load_fof_net, GeometryMode, PipelineError,
+    PrepareOptions, PreparedInput, StageTimings,
 };
 use r2human::synth::{self, SubjectParams, SynthAssets};
 
@@ -353,4 +354,170 @@ fn volumetric_iou_matches_closed_forms() {
     assert_eq!(fof_occupancy_iou(&d(&left), &d(&right), 64), 0.0);
     let empty = Fof::zeros(32, w, h).unwrap();
     assert_eq!(fof_occupancy_iou(&empty, &empty, 64), 1.0);
+}
+
+/// A FOF net on the reference's inputs (`r2human.fof_inputs = image,body,prior`, residual on the body FOF): it
+/// refines the body FOF, not the inflation prior (the fixture adds 0.25 to c0 of its `body` input and ignores
+/// `prior`), needs the body FOF (a clear error without it), and checks its size; old files (no
+/// `r2human.fof_inputs`) keep taking image + prior; metadata naming an input this build cannot feed, or a residual
+/// base the model does not take, is an error naming the key.
+#[test]
+fn body_fof_net_refines_the_body_fof_and_needs_it() {
+    let size = 4 * R;
+    let (rgb, mask) = blocky_person(size);
+    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }).unwrap();
+    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }).unwrap();
+    assert_ne!(prior, body);
+    let mut net = FofNet::load(&fixture("fof_body.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(net.inputs(), &[FofInput::Body, FofInput::Prior]);
+    assert!(net.takes_body() && net.has_prior());
+    assert_eq!(net.base(), FofInput::Body);
+    let e = net.refine(&rgb, &mask, &prior).expect_err("no body FOF given");
+    assert!(matches!(e, NeuralError::BadInput { .. }) && e.to_string().contains("body FOF"), "{e}");
+    let fof = net.refine_with(&rgb, &mask, &prior, Some(&body)).unwrap();
+    let (mut inside, mut corrected) = (0, 0);
+    for row in 0..size {
+        for col in 0..size {
+            let (b, f) = (body.column(col, row), fof.column(col, row));
+            if b.iter().all(|v| *v == 0.0) {
+                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the body FOF: {f:?}");
+                continue;
+            }
+            inside += 1;
+            assert_eq!(&f[1..], &b[1..], "({col},{row}): the other coefficients are the body FOF's");
+            let d = f[0] - b[0];
+            assert!((d - 0.25).abs() < 1e-5 || d == 0.0, "({col},{row}): c0 {} -> {}", b[0], f[0]);
+            corrected += (d != 0.0) as usize;
+        }
+    }
+    assert!(inside > 500 && corrected as f32 > 0.95 * inside as f32, "{corrected} of {inside}");
+    // A body FOF of the wrong order or size is refused, naming it.
+    let small = inflate_to_fof(&mask, N - 1, &InflateParams::default()).unwrap();
+    let e = net.refine_with(&rgb, &mask, &prior, Some(&small)).expect_err("wrong N");
+    assert!(e.to_string().contains("body has 3 coefficients"), "{e}");
+    // Old files: image + prior, refining the prior.
+    let legacy = FofNet::load(&fixture("fof_identity.onnx"), &cpu()).unwrap();
+    assert_eq!((legacy.inputs(), legacy.takes_body(), legacy.base()), (&[FofInput::Prior][..], false, FofInput::Prior));
+    for (file, key) in [("fof_bad_inputs.onnx", "r2human.fof_inputs"), ("fof_bad_residual.onnx", "r2human.residual")] {
+        let e = FofNet::load(&fixture(file), &cpu()).expect_err(file);
+        assert!(matches!(e, NeuralError::Metadata { .. }) && e.to_string().contains(key), "{file}: {e}");
+    }
+}
+
+/// The pipeline feeds a net that takes the body FOF the body prior exactly as `--geometry body` computes it
+/// ([`body_prior_fof`]) and falls back to that body FOF when the guard rejects; without a loaded body prior,
+/// `--geometry fofnet` is an error that says so and `auto` is the inflation prior. Needs the pose model.
+#[test]
+fn pipeline_feeds_the_body_prior_to_a_net_that_takes_it() {
+    let size = 128;
+    let (rgb, mask, _) = subject_source(subject_seed(3, 9), size);
+    let norm = r2human::pipeline::input::NormalisedInput::in_source_view(rgb, mask);
+    let net = shared(&fixture("fof_body.onnx"));
+    let base = PrepareOptions { resolution: size, depth_samples: size, fof_order: N, ..Default::default() };
+    let prior = inflate_to_fof(&norm.mask, N, &base.inflate).unwrap();
+    let explicit = PrepareOptions { geometry: GeometryMode::FofNet, fof_net: Some(Arc::clone(&net)), ..base.clone() };
+    let e = compute_geometry(&norm, &explicit, &mut StageTimings::default()).expect_err("no body prior loaded");
+    assert!(matches!(e, PipelineError::NoFofNet(_)) && e.to_string().contains("body FOF"), "{e}");
+    let auto = PrepareOptions { geometry: GeometryMode::Auto, ..explicit.clone() };
+    assert_eq!(compute_geometry(&norm, &auto, &mut StageTimings::default()).unwrap(), prior);
+
+    let body = load_body_for(GeometryMode::FofNet, Some(&net), &cpu()).unwrap_or_else(|e| panic!("{e}"));
+    assert!(body.is_some(), "a net that takes the body FOF loads the body prior");
+    assert!(load_body_for(GeometryMode::FofNet, Some(&shared(&fixture("fof_identity.onnx"))), &cpu())
+        .unwrap()
+        .is_none());
+    let with_body = PrepareOptions { body, ..explicit };
+    let mut timings = StageTimings::default();
+    let fof = compute_geometry(&norm, &with_body, &mut timings).unwrap_or_else(|e| panic!("{e}"));
+    for stage in ["pose landmarks", "body fit", "body FOF", "geometry (FOF net)"] {
+        assert!(timings.0.iter().any(|(name, _)| *name == stage), "{stage}: {:?}", timings.0);
+    }
+    let (body_fof, fallback) = body_prior_fof(
+        &norm,
+        &with_body,
+        with_body.body.as_ref().unwrap(),
+        prior.clone(),
+        &mut StageTimings::default(),
+    );
+    assert!(fallback.is_none(), "the pose network finds the rendered subject: {fallback:?}");
+    let refined = net.lock().unwrap().refine_with(&norm.rgb, &norm.mask, &prior, Some(&body_fof)).unwrap();
+    let (want, _) = r2human::pipeline::guard::guarded(refined, body_fof, &norm.mask, &Default::default());
+    assert_eq!(fof, want);
+    assert_ne!(fof, prior);
+}
+
+/// `r2human dataset` writes `body_fof.npy` next to `prior_fof.npy`: same shape and layout, the body prior on the
+/// rendered source (held inside the silhouette like the prior, and different from it), and says where it came
+/// from in `subject.json` and `dataset.json`. Needs the pose model.
+#[test]
+fn dataset_writes_the_body_fof_of_the_rendered_source() {
+    use r2human::eval::dataset::{write_dataset, DatasetOptions};
+    use r2human::io::npy::{NpyArray, NpyData};
+    let dir = tempfile::tempdir().unwrap();
+    let opts = DatasetOptions {
+        subjects: 1,
+        seed: 3,
+        out: dir.path().to_path_buf(),
+        views: 0,
+        size: 64,
+        fof_n: 8,
+        texture_size: 128,
+        progress: false,
+        ..Default::default()
+    };
+    let summary = write_dataset(&opts).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(summary.written.len(), 1);
+    let read = |f: &str| match NpyArray::read(&dir.path().join("subject_0000").join(f)).unwrap() {
+        NpyArray { shape, data: NpyData::F32(v), .. } => (shape, v),
+        other => panic!("{f}: {:?}", other.shape),
+    };
+    let (shape, body) = read("body_fof.npy");
+    let (prior_shape, prior) = read("prior_fof.npy");
+    assert_eq!((shape.clone(), prior_shape), (vec![64, 64, 8], vec![64, 64, 8]));
+    assert!(body.iter().all(|v| v.is_finite()));
+    let occupied = |c: &[f32], i: usize| c[i * 8] > 1e-4;
+    let (mut both, mut only_body, mut only_prior) = (0, 0, 0);
+    for i in 0..64 * 64 {
+        match (occupied(&body, i), occupied(&prior, i)) {
+            (true, true) => both += 1,
+            (true, false) => only_body += 1,
+            (false, true) => only_prior += 1,
+            _ => {}
+        }
+    }
+    assert!(both > 200 && only_body * 50 <= both && only_prior * 10 <= both, "{both} {only_body} {only_prior}");
+    assert_ne!(body, prior);
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("subject_0000/subject.json")).unwrap()).unwrap();
+    let source = info["body_fof"]["source"].as_str().unwrap_or_default();
+    assert!(source.contains("fitted body") || source.contains("fall-back"), "{info}");
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(manifest["body_fof"], serde_json::json!(true));
+    assert_eq!(manifest["body_fof_fallbacks"].as_array().map(|a| a.len()), Some(summary.body_fallbacks.len()));
+}
+
+/// The fitted body is placed in depth by the part the photo shows: the minimal enclosing circle of the xz
+/// projection of the vertices inside the mask is centred on z = 0 (closed form: the visible points lie on a circle
+/// of centre z = 0.3, the hidden ones far behind; every vertex moves by -0.3), and nothing moves when no vertex is
+/// inside the mask.
+#[test]
+fn fitted_body_is_centred_on_its_visible_part() {
+    use glam::Vec3;
+    use r2human::geometry::TriMesh;
+    let mut positions = Vec::new();
+    for k in 0..16 {
+        let a = k as f32 * std::f32::consts::TAU / 16.0;
+        positions.push(Vec3::new(0.2 * a.cos(), 0.5, 0.3 + 0.2 * a.sin()));
+    }
+    positions.push(Vec3::new(0.0, -0.5, -0.9));
+    let mesh = TriMesh { positions: positions.clone(), ..Default::default() };
+    // The mask covers the top half of the view (y > 0) only.
+    let mask = GrayImage::from_fn(32, 32, |_, r| if r < 16 { 1.0 } else { 0.0 });
+    let centred = centre_visible_depth(mesh.clone(), &mask);
+    for (a, b) in positions.iter().zip(&centred.positions) {
+        assert!((b.z - (a.z - 0.3)).abs() < 1e-5 && a.x == b.x && a.y == b.y, "{a} -> {b}");
+    }
+    let empty = GrayImage::from_fn(32, 32, |_, _| 0.0);
+    assert_eq!(centre_visible_depth(mesh.clone(), &empty).positions, positions);
 }

@@ -225,3 +225,96 @@ fn only_the_cli_prints() {
         found.join("\n")
     );
 }
+
+/// Lines (1-based) of `text` that open an `unsafe` block or `unsafe impl` without a `// SAFETY:` comment: on the
+/// same line, or in the comment lines directly above the statement that holds it (a statement may span lines; a
+/// blank line or the end of the previous statement ends the search).
+fn unexplained_unsafe(text: &str) -> Vec<usize> {
+    let lines: Vec<&str> = text.lines().collect();
+    let opens_unsafe = |l: &str| {
+        let c = code(l);
+        c.contains("unsafe {") || c.trim_end().ends_with("unsafe") || c.contains("unsafe impl")
+    };
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        if !opens_unsafe(line) || line.contains("SAFETY:") {
+            continue;
+        }
+        let mut explained = false;
+        for above in lines[..i].iter().rev() {
+            let t = above.trim();
+            if t.starts_with("//") {
+                if t.contains("SAFETY:") {
+                    explained = true;
+                    break;
+                }
+                continue;
+            }
+            let c = code(t).trim_end();
+            // A blank line, an attribute-free block boundary or the end of the previous statement: stop.
+            if c.is_empty() || c.ends_with(';') || c.ends_with('{') || c.ends_with('}') || c.ends_with(',') {
+                break;
+            }
+        }
+        if !explained {
+            out.push(i + 1);
+        }
+    }
+    out
+}
+
+/// Lines (1-based) of `text` that declare an `unsafe fn` without a `# Safety` section in the doc comment directly
+/// above it (the caller's contract).
+fn undocumented_unsafe_fns(text: &str) -> Vec<usize> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let c = code(line);
+        if !(c.contains("unsafe fn ") || (c.contains("unsafe extern") && c.contains(" fn "))) {
+            continue;
+        }
+        let doc = lines[..i].iter().rev().map(|l| l.trim()).take_while(|t| t.starts_with("///") || t.starts_with("#["));
+        if !doc.into_iter().any(|t| t.starts_with("/// # Safety")) {
+            out.push(i + 1);
+        }
+    }
+    out
+}
+
+#[test]
+fn unsafe_lines_are_found_with_and_without_their_reason() {
+    let documented = "/// Does it.\n///\n/// # Safety\n/// `p` is valid.\n#[inline]\nunsafe fn f(p: *const u8) {}\n";
+    assert_eq!(undocumented_unsafe_fns(documented), Vec::<usize>::new());
+    assert_eq!(undocumented_unsafe_fns("/// Does it.\nunsafe extern \"system\" fn cb() {}\n"), [2]);
+    let ok = "fn a() {\n    // SAFETY: the handle is alive.\n    unsafe { f() };\n}\n";
+    assert_eq!(unexplained_unsafe(ok), Vec::<usize>::new());
+    let spanning = "fn a() {\n    // SAFETY: the pool outlives the buffer.\n    let x =\n        unsafe { f() };\n}\n";
+    assert_eq!(unexplained_unsafe(spanning), Vec::<usize>::new());
+    let bare = "fn a() {\n    let y = 1;\n    unsafe { f() };\n    // SAFETY: only for the next one.\n    unsafe { g() };\n}\n";
+    assert_eq!(unexplained_unsafe(bare), [3]);
+    let far = "// SAFETY: too far above.\nlet a = 1;\nunsafe { h() };\nunsafe impl Send for X {}\n";
+    assert_eq!(unexplained_unsafe(far), [3, 4]);
+    assert_eq!(unexplained_unsafe("let r = unsafe { f() }; // SAFETY: on the same line.\n"), Vec::<usize>::new());
+}
+
+/// Every `unsafe` block and `unsafe impl` in src/ says why it is sound (`// SAFETY: …` naming the invariant: the
+/// handle's lifetime, the synchronisation, the bounds), and every `unsafe fn` states its caller's contract.
+#[test]
+fn every_unsafe_says_why_it_is_sound() {
+    let src = root().join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    files.sort();
+    let mut found = Vec::new();
+    for file in files {
+        let text = std::fs::read_to_string(&file).expect("a readable source file");
+        let rel = file.strip_prefix(root()).unwrap_or(&file).display().to_string();
+        for line in unexplained_unsafe(&text) {
+            found.push(format!("{rel}:{line}: unsafe without a `// SAFETY:` comment above it"));
+        }
+        for line in undocumented_unsafe_fns(&text) {
+            found.push(format!("{rel}:{line}: unsafe fn without a `# Safety` section in its doc comment"));
+        }
+    }
+    assert!(found.is_empty(), "{} unexplained unsafe:\n{}", found.len(), found.join("\n"));
+}

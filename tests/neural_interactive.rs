@@ -17,7 +17,7 @@ use std::time::Duration;
 
 use glam::Vec4;
 use r2human::app::live::{render_video_views, EncodeProcessor, LiveOptions, LivePipeline};
-use r2human::app::neural::NeuralAvailability;
+use r2human::app::neural::{NeuralAvailability, NeuralUnavailable};
 use r2human::app::window::{Drawn, Engine, Shading};
 use r2human::app::Backend;
 use r2human::buffer::RgbaImage;
@@ -214,8 +214,8 @@ fn n_without_a_neural_renderer_keeps_geometric_and_says_why() {
     let mut engine = Engine::still(&input, &env, Backend::Vulkan, NeuralAvailability::none(why));
     engine.attach(&mut gpu).unwrap();
     assert_eq!(engine.shading(), Shading::Geometric);
-    assert_eq!(engine.set_shading(Shading::Neural), Err(why.to_string()));
-    assert_eq!(engine.toggle_shading(), Err(why.to_string()));
+    assert_eq!(engine.set_shading(Shading::Neural), Err(NeuralUnavailable(why.to_string())));
+    assert_eq!(engine.toggle_shading(), Err(NeuralUnavailable(why.to_string())));
     assert_eq!(engine.shading(), Shading::Geometric);
     assert_eq!(engine.message(), Some(why));
     let cam = Camera::orbit(20.0, 0.0, 64, 64);

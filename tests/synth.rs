@@ -231,6 +231,7 @@ mod dataset {
             texture_size: 128,
             progress: false,
             framing: Default::default(),
+            body_fof: false,
         }
     }
 

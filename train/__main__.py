@@ -37,7 +37,7 @@ def main(argv=None):
     p.add_argument("--lpips", default=None,
                    help="TorchScript LPIPS module (x, y in [-1,1] -> distance); default: SSIM + gradient substitute")
 
-    p = sub.add_parser("fit-fof", help="train the FOF network (photo + inflation prior -> FOF-X coefficients)")
+    p = sub.add_parser("fit-fof", help="train the FOF network (photo + body FOF and/or inflation prior -> FOF-X)")
     _train_args(p)
     p.add_argument("--ckpt-every", type=int, default=200, help="checkpoint (and held-out evaluation) interval")
     p.add_argument("--resume", default=None, help="continue from a fof.pt")
@@ -45,8 +45,14 @@ def main(argv=None):
                    help="weight of the decoded-occupancy L1 next to the coefficient L1 (weight 1)")
     p.add_argument("--lambda-silhouette", type=float, default=4.0,
                    help="weight of the silhouette term (every column of the person must hold some body)")
+    p.add_argument("--inputs", default="image,prior",
+                   help="the net's inputs: image, then any of body (the fitted body's FOF, body_fof.npy; the "
+                        "reference's input) and prior (the inflation prior, prior_fof.npy), e.g. image,body or "
+                        "image,body,prior (exported as r2human.fof_inputs)")
+    p.add_argument("--residual", default=None, choices=["body", "prior", "none"],
+                   help="the FOF input the net is residual on (default: body when among --inputs, else prior)")
     p.add_argument("--no-prior", action="store_true",
-                   help="train the plain image -> FOF net instead of the residual one on the inflation prior")
+                   help="train the plain image -> FOF net (same as --inputs image --residual none)")
 
     p = sub.add_parser("export", help="write encoder.onnx, decoder.onnx and/or fof.onnx with metadata and check them")
     p.add_argument("--renderer", default=None, help="renderer.pt from `fit` (writes encoder.onnx, decoder.onnx)")
@@ -109,7 +115,7 @@ def main(argv=None):
         import torch
 
         from .fit import R2HumanNet, evaluate_fof, evaluate_renderer
-        from .nets import FofNet
+        from .nets import fof_net_from_checkpoint
         out = {}
         if args.renderer:
             ck = torch.load(args.renderer, map_location="cpu")
@@ -119,9 +125,9 @@ def main(argv=None):
             out["renderer_zero_fof"] = evaluate_renderer(m, args.data, ck["resolution"], torch.device("cpu"), "zero")
         if args.fof:
             ck = torch.load(args.fof, map_location="cpu")
-            m = FofNet(ck["tier"], ck["fof_n"], prior=ck.get("prior", False))
+            m = fof_net_from_checkpoint(ck)
             m.load_state_dict(ck["model"])
-            out["fof"] = evaluate_fof(m, args.data, ck["resolution"], torch.device("cpu"))
+            out["fof"] = evaluate_fof(m, args.data, ck["resolution"], torch.device("cpu"), per_subject=True)
         print(json.dumps(out, indent=1))
     elif args.cmd == "synth":
         from .synth import write_dataset

@@ -113,6 +113,9 @@ class R2Dataset(torch.utils.data.Dataset):
         # `prior_fof.npy` (the inflation prior the residual FOF net corrects) exists in datasets written by this
         # version of `r2human dataset`.
         self.has_prior = all(os.path.exists(os.path.join(root, s, "prior_fof.npy")) for s in self.subjects)
+        # `body_fof.npy` (the fitted body's FOF, the reference FOF net's input) exists in datasets written by
+        # `r2human dataset` without `--no-body-fof`.
+        self.has_body = all(os.path.exists(os.path.join(root, s, "body_fof.npy")) for s in self.subjects)
         self.seed, self.epoch = seed, 0
         self.fixed_views = fixed_views
         self.cache = {} if cache else None
@@ -156,6 +159,11 @@ class R2Dataset(torch.utils.data.Dataset):
             prior = _box(np.load(os.path.join(d, "prior_fof.npy")).astype(np.float32), self.k)
             if prior.shape != fof.shape:
                 raise ValueError(f"{d}/prior_fof.npy has shape {prior.shape}, fof.npy {fof.shape}")
+        body = None
+        if self.has_body:
+            body = _box(np.load(os.path.join(d, "body_fof.npy")).astype(np.float32), self.k)
+            if body.shape != fof.shape:
+                raise ValueError(f"{d}/body_fof.npy has shape {body.shape}, fof.npy {fof.shape}")
         src_cam = SOURCE_CAMERA
         cam_path = os.path.join(d, "source_camera.json")
         if os.path.exists(cam_path):
@@ -178,6 +186,8 @@ class R2Dataset(torch.utils.data.Dataset):
         }
         if prior is not None:
             src["prior"] = torch.from_numpy(prior).permute(2, 0, 1).float().contiguous()
+        if body is not None:
+            src["body"] = torch.from_numpy(body).permute(2, 0, 1).float().contiguous()
         views = []
         for v in range(self.views if self.with_views else 0):
             vd = os.path.join(d, "views", f"view_{v:02d}")

@@ -8,7 +8,7 @@ import onnx
 import torch
 
 from .fit import R2HumanNet
-from .nets import TIERS, ZMAP_FREQUENCIES, FofNet
+from .nets import TIERS, ZMAP_FREQUENCIES, fof_net_from_checkpoint
 
 FORMAT_VERSION = 1
 # The decoder's inputs, in order. `warped_rgb` (the residual decoder's photo lookup) cannot be called `rgb` like the
@@ -90,24 +90,24 @@ def export_renderer(ckpt_path, out_dir, seed=0):
 
 def export_fof(ckpt_path, out_dir, seed=0):
     ck = torch.load(ckpt_path, map_location="cpu")
-    tier, fof_n, res, prior = ck["tier"], ck["fof_n"], ck["resolution"], ck.get("prior", False)
-    model = FofNet(tier, fof_n, prior=prior)
+    tier, fof_n, res = ck["tier"], ck["fof_n"], ck["resolution"]
+    model = fof_net_from_checkpoint(ck)
     model.load_state_dict(ck["model"])
     model.eval()
     os.makedirs(out_dir, exist_ok=True)
     path = os.path.join(out_dir, "fof.onnx")
     g = torch.Generator().manual_seed(seed)
     feeds = {"image": torch.rand(1, 3, res, res, generator=g) * 2 - 1}
-    if prior:
+    for name in model.inputs[1:]:
         # Coefficients of plausible occupied columns: c0 (the occupied fraction of the ray, times 2) in [0, 1].
-        feeds["prior"] = torch.randn(1, fof_n, res, res, generator=g) * 0.2
-        feeds["prior"][:, :1] = torch.rand(1, 1, res, res, generator=g)
+        feeds[name] = torch.randn(1, fof_n, res, res, generator=g) * 0.2
+        feeds[name][:, :1] = torch.rand(1, 1, res, res, generator=g)
     _export(model, tuple(feeds.values()), path, list(feeds), ["fof"])
     meta = {"r2human.format": FORMAT_VERSION, "r2human.kind": "fof", "r2human.tier": tier, "r2human.resolution": res,
-            "r2human.fof_n": fof_n, "r2human.stride": model.stride,
+            "r2human.fof_n": fof_n, "r2human.stride": model.stride, "r2human.fof_inputs": ",".join(model.inputs),
             "r2human.recipe": json.dumps(ck["recipe"], sort_keys=True)}
-    if prior:
-        meta["r2human.residual"] = "prior"
+    if model.residual:
+        meta["r2human.residual"] = model.residual
     _metadata(path, meta)
     return {"fof": {"max_abs_diff": _compare(path, model, feeds)}}
 

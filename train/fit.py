@@ -18,7 +18,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from . import losses
 from .dataset import R2Dataset
 from .geometry import transfer, warp, warp_rgb
-from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters
+from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters, fof_net_from_checkpoint, parse_fof_inputs
 
 
 class R2HumanNet(nn.Module):
@@ -253,13 +253,16 @@ def decode_occupancy(fof, samples=64):
 
 
 def fof_inputs(model, b):
-    """The FOF net's inputs from a batch: the photo, plus the inflation prior when the net is residual on it."""
-    if getattr(model, "prior", False):
-        if "src_prior" not in b:
-            raise ValueError("this FOF net takes the inflation prior, but the dataset has no prior_fof.npy: rewrite it "
-                             "with this version's `r2human dataset`")
-        return b["src_image"], b["src_prior"]
-    return (b["src_image"],)
+    """The FOF net's inputs from a batch, in the net's order (`model.inputs`: the photo, then `body` and/or
+    `prior`)."""
+    out = [b["src_image"]]
+    for name in model.inputs[1:]:
+        if f"src_{name}" not in b:
+            file = {"prior": "prior_fof.npy", "body": "body_fof.npy"}[name]
+            raise ValueError(f"this FOF net takes `{name}`, but the dataset has no {file}: rewrite it with this "
+                             "version's `r2human dataset` (without --no-body-fof)")
+        out.append(b[f"src_{name}"])
+    return tuple(out)
 
 
 def occupancy_iou(pred, gt, mask, samples=64):
@@ -270,33 +273,42 @@ def occupancy_iou(pred, gt, mask, samples=64):
 
 
 @torch.no_grad()
-def evaluate_fof(model, data, resolution, device):
-    """Held-out FOF accuracy, the FOF net against the inflation prior it starts from (when the dataset has one):
-    coefficient L1 over the person and the volumetric IoU of the decoded 0.5 iso-surface against ground truth."""
+def evaluate_fof(model, data, resolution, device, per_subject=False):
+    """Held-out FOF accuracy of the FOF net next to the FOF priors the dataset holds (the inflation prior `prior_`,
+    the fitted body `body_`): coefficient L1 over the person, the volumetric IoU of the decoded 0.5 iso-surface
+    against ground truth, and the share of the silhouette's columns that hold body. With `per_subject`, also each
+    test subject's IoU per row (`per_subject`: name -> {row: iou})."""
     model.eval()
     ds = R2Dataset(data, "test", resolution=resolution, cache=False, with_views=False)
     out = {"subjects": len(ds)}
     rows = {"net": ([], [], [])}
     if ds.has_prior:
         rows["prior"] = ([], [], [])
+    if ds.has_body:
+        rows["body"] = ([], [], [])
+    each = {}
     for i in range(len(ds)):
         b = to_device({k: t[None] for k, t in ds[i].items()}, device)
         mask, gt = b["src_mask"], b["src_fof"]
         preds = {"net": model(*fof_inputs(model, b)) * mask}
-        if ds.has_prior:
-            preds["prior"] = b["src_prior"] * mask
+        for k in ("prior", "body"):
+            if k in rows:
+                preds[k] = b[f"src_{k}"] * mask
         for k, pred in preds.items():
             rows[k][0].append(float(losses.masked_l1(pred, gt, mask)))
             rows[k][1].append(occupancy_iou(pred, gt, mask))
             # Silhouette kept: the share of the person's columns that hold some body (0.5 level).
             kept = ((decode_occupancy(pred, 64).max(1, keepdim=True).values > 0.5) & (mask > 0.5)).sum()
             rows[k][2].append(float(kept) / max(float((mask > 0.5).sum()), 1.0))
+        each[ds.subjects[i]] = {k: round(rows[k][1][-1], 4) for k in rows}
     model.train()
-    for k, prefix in (("net", ""), ("prior", "prior_")):
+    for k, prefix in (("net", ""), ("prior", "prior_"), ("body", "body_")):
         if k in rows:
             out[prefix + "coefficient_l1"] = float(np.mean(rows[k][0]))
             out[prefix + "occupancy_iou"] = float(np.mean(rows[k][1]))
             out[prefix + "silhouette_kept"] = float(np.mean(rows[k][2]))
+    if per_subject:
+        out["per_subject"] = each
     return out
 
 
@@ -327,9 +339,9 @@ def fof_loss(net, model, b, lambda_occupancy, lambda_silhouette=0.0, samples=32)
 
 
 def flip_batch(b, gen):
-    """Mirrors a random half of the batch left-right (image, mask, FOF, prior): a mirrored person is as plausible and
-    x does not enter FOF coefficients (they describe occupancy along z only)."""
-    keys = [k for k in ("src_image", "src_mask", "src_fof", "src_prior") if k in b]
+    """Mirrors a random half of the batch left-right (image, mask, FOF, prior, body): a mirrored person is as plausible
+    and x does not enter FOF coefficients (they describe occupancy along z only)."""
+    keys = [k for k in ("src_image", "src_mask", "src_fof", "src_prior", "src_body") if k in b]
     n = b[keys[0]].shape[0]
     flip = torch.rand(n, generator=gen) < 0.5
     if not bool(flip.any()):
@@ -346,8 +358,10 @@ def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
     rec = recipe(args, args.tier, ds.meta, step, elapsed, world)
     rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": args.lambda_occupancy, "occupancy_samples": 32,
                      "silhouette": args.lambda_silhouette, "silhouette_level": SILHOUETTE_LEVEL}
-    rec["fof_net"] = ("residual on the inflation prior: fof = prior + UNet(image, prior), last convolution "
-                      "zero-initialised") if model.prior else "plain: image -> fof"
+    ins = ", ".join(model.inputs)
+    rec["fof_net"] = (f"residual on `{model.residual}`: fof = {model.residual} + UNet({ins}), last convolution "
+                      "zero-initialised") if model.residual else f"plain: ({ins}) -> fof"
+    rec["fof_inputs"] = list(model.inputs)
     rec["augmentation"] = "left-right flip (p = 0.5)"
     rec.pop("decoder", None)
     rec.pop("fof_dropout", None)
@@ -355,9 +369,32 @@ def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
         rec["held_out"] = evaluation
     path = os.path.join(args.out, "fof.pt")
     torch.save({"kind": "fof", "tier": args.tier, "fof_n": ds.fof_n, "resolution": args.resolution,
-                "prior": model.prior, "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                "prior": model.prior, "inputs": list(model.inputs), "residual": model.residual,
+                "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
                 "recipe": rec}, path + ".tmp")
     os.replace(path + ".tmp", path)
+
+
+def fof_net_choice(args, ds):
+    """The FOF net's inputs and residual base from `--inputs` / `--residual` (`--no-prior`: the plain image -> FOF
+    net), checked against what the dataset holds."""
+    if getattr(args, "no_prior", False):
+        return ("image",), None
+    inputs = parse_fof_inputs(args.inputs)
+    files = {"prior": (ds.has_prior, "prior_fof.npy"), "body": (ds.has_body, "body_fof.npy")}
+    for name in inputs[1:]:
+        present, file = files[name]
+        if not present:
+            raise SystemExit(f"{args.data} has no {file} per subject (needed by --inputs {args.inputs}): rewrite it "
+                             "with this version's `r2human dataset`, or choose other --inputs")
+    residual = args.residual
+    if residual == "none":
+        residual = None
+    elif residual is None:
+        residual = "body" if "body" in inputs else ("prior" if "prior" in inputs else None)
+    if residual is not None and residual not in inputs[1:]:
+        raise SystemExit(f"--residual {residual} is not one of --inputs {args.inputs}")
+    return inputs, residual
 
 
 def fit_fof(args):
@@ -366,18 +403,19 @@ def fit_fof(args):
     args.resolution = args.resolution or TIERS[args.tier]["resolution"]
     log = Logger(args.out, rank)
     ds = R2Dataset(args.data, "train", resolution=args.resolution, seed=args.seed, with_views=False)
-    use_prior = ds.has_prior and not args.no_prior
-    if not ds.has_prior and not args.no_prior:
-        raise SystemExit(f"{args.data} has no prior_fof.npy per subject: rewrite it with this version's "
-                         "`r2human dataset`, or pass --no-prior to train the plain image -> FOF net")
+    inputs, residual = fof_net_choice(args, ds)
     sampler = DistributedSampler(ds, num_replicas=world, rank=rank, shuffle=True, seed=args.seed) if world > 1 else None
     loader = DataLoader(ds, batch_size=args.batch, shuffle=sampler is None, sampler=sampler, num_workers=args.workers,
                         drop_last=len(ds) >= args.batch * world)
-    model = FofNet(args.tier, ds.fof_n, prior=use_prior).to(device)
+    model = FofNet(args.tier, ds.fof_n, inputs=inputs, residual=residual).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     start_step = 0
     if args.resume and os.path.exists(args.resume):
         ck = torch.load(args.resume, map_location=device)
+        resumed = fof_net_from_checkpoint(ck)
+        if (resumed.inputs, resumed.residual) != (model.inputs, model.residual):
+            raise SystemExit(f"{args.resume} takes {','.join(resumed.inputs)} (residual {resumed.residual}), not "
+                             f"--inputs {','.join(model.inputs)} --residual {model.residual}")
         model.load_state_dict(ck["model"])
         if "optimizer" in ck:
             opt.load_state_dict(ck["optimizer"])
@@ -385,12 +423,12 @@ def fit_fof(args):
     net = nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None) \
         if world > 1 else model
     log(f"FOF net tier {args.tier}: {count_parameters(model) / 1e6:.3f} M params, "
-        f"{'residual on the inflation prior' if use_prior else 'no prior'}, {len(ds)} train subjects at "
+        f"inputs {','.join(inputs)}, residual on {residual or 'nothing'}, {len(ds)} train subjects at "
         f"{args.resolution} px, fof_n {ds.fof_n}, lambda_occupancy {args.lambda_occupancy}, lambda_silhouette "
         f"{args.lambda_silhouette}, resumed from step {start_step}, "
         f"threads {torch.get_num_threads()}")
     if rank == 0 and start_step == 0 and not args.no_eval:
-        log("held-out FOF evaluation at step 0 (= the inflation prior): " +
+        log(f"held-out FOF evaluation at step 0 (= the {residual or 'untrained net'}): " +
             json.dumps(evaluate_fof(model, args.data, args.resolution, device)))
     t0, step, epoch, stop, running = time.time(), start_step, 0, False, {}
     gen = torch.Generator().manual_seed(args.seed * 31 + rank)

@@ -13,9 +13,12 @@ Contracts (identical for every tier; the Rust side checks names, shapes and meta
            This is a deliberate deviation from the paper (whose decoder sees C + 32 + 3 = 291 channels and no
            photo): the tiny tier sees encoder features at 1/4 resolution only, and the skip keeps the photo's
            full-resolution texture. The paper tier's first convolution sees 256 + 32 + 3 + 3 = 294 channels.
-  fof      image [B,3,R,R], prior [B,N,R,R] (the inflation prior) -> fof [B,N,R,R] = prior + UNet(image, prior)
-           (no activation; last convolution zero-initialised, so the untrained net is the prior). Without a prior
-           (`FofNet(..., prior=False)`): image -> fof.
+  fof      image [B,3,R,R] plus, as chosen at training (`FofNet(inputs=...)`, exported as `r2human.fof_inputs`),
+           body [B,N,R,R] (the fitted body's FOF, `body_fof.npy`: the reference's 35-channel input) and/or
+           prior [B,N,R,R] (the silhouette-inflation prior, `prior_fof.npy`) -> fof [B,N,R,R] = base + UNet(all
+           inputs), residual on one base input (`r2human.residual`: `body` or `prior`; no activation; last
+           convolution zero-initialised, so the untrained net is its base). Without a base (`residual=None`) the
+           UNet's output is the FOF (the paper's plain regression).
 """
 import math
 
@@ -205,27 +208,62 @@ class Decoder(nn.Module):
         return warped_rgb + self.net(torch.cat([features, zmap_encoding(zmap), normals, warped_rgb], 1))
 
 
+# The FOF net's optional FOF inputs besides the photo (`image`), by ONNX input name.
+FOF_INPUTS = ("body", "prior")
+
+
+def parse_fof_inputs(text):
+    """`image,body[,prior]` (any order after image) -> the tuple of input names, checked."""
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    if not names or names[0] != "image" or len(set(names)) != len(names) or \
+            any(n not in FOF_INPUTS for n in names[1:]):
+        raise ValueError(f"FOF net inputs {text!r}: give `image` first, then any of {', '.join(FOF_INPUTS)} "
+                         "once each (e.g. image,body or image,body,prior)")
+    return names
+
+
 class FofNet(nn.Module):
-    """Photo (+ the silhouette-inflation prior) -> N FOF-X coefficients.
+    """Photo (+ FOF priors) -> N FOF-X coefficients.
 
-    With `prior=True` (the default, what ships) the net is RESIDUAL on the prior, like the decoder on the colour
-    lookup: fof = prior + UNet(image, prior) with the last convolution zero-initialised, so an untrained net returns
-    the inflation prior exactly and training only adds what the photo says (depth offsets, thickness, limbs in front
-    of the body). `prior=False` is the paper's plain image -> FOF regression."""
+    `inputs` names the inputs in order: `image` then any of `body` (the fitted body's FOF, the reference's input) and
+    `prior` (the silhouette-inflation prior). With `residual` set to one of the FOF inputs the net is RESIDUAL on it,
+    like the decoder on the colour lookup: fof = base + UNet(all inputs) with the last convolution zero-initialised,
+    so an untrained net returns its base exactly and training only adds what the photo says. `residual=None` is the
+    paper's plain regression. The legacy form `prior=True/False` is `inputs=("image", "prior"), residual="prior"` /
+    `inputs=("image",), residual=None` (checkpoints of earlier versions)."""
 
-    def __init__(self, tier, fof_n, prior=True):
+    def __init__(self, tier, fof_n, prior=None, inputs=None, residual="unset"):
         super().__init__()
-        self.prior = prior
-        self.net = UNet(3 + (fof_n if prior else 0), fof_n, TIERS[tier]["fof_widths"], light=False)
-        if prior:
+        if inputs is None:
+            inputs = ("image", "prior") if prior in (None, True) else ("image",)
+        inputs = parse_fof_inputs(",".join(inputs))
+        if residual == "unset":
+            residual = "prior" if "prior" in inputs else ("body" if "body" in inputs else None)
+        if residual is not None and residual not in inputs[1:]:
+            raise ValueError(f"the residual base {residual!r} must be one of the FOF inputs {inputs[1:]}")
+        self.inputs, self.residual = inputs, residual
+        # Kept for old callers: whether the net takes the inflation prior.
+        self.prior = "prior" in inputs
+        self.net = UNet(3 + fof_n * (len(inputs) - 1), fof_n, TIERS[tier]["fof_widths"], light=False)
+        if residual is not None:
             nn.init.zeros_(self.net.out.weight)
             nn.init.zeros_(self.net.out.bias)
         self.stride = self.net.stride
 
-    def forward(self, image, prior=None):
-        if not self.prior:
-            return self.net(image)
-        return prior + self.net(torch.cat([image, prior], 1))
+    def forward(self, image, *fofs):
+        if len(fofs) != len(self.inputs) - 1:
+            raise ValueError(f"FofNet takes {self.inputs}, got {1 + len(fofs)} tensors")
+        out = self.net(torch.cat([image, *fofs], 1))
+        if self.residual is None:
+            return out
+        return fofs[self.inputs.index(self.residual) - 1] + out
+
+
+def fof_net_from_checkpoint(ck):
+    """The FofNet a `fof.pt` describes (new checkpoints name `inputs` and `residual`; older ones only `prior`)."""
+    if "inputs" in ck:
+        return FofNet(ck["tier"], ck["fof_n"], inputs=tuple(ck["inputs"]), residual=ck.get("residual"))
+    return FofNet(ck["tier"], ck["fof_n"], prior=ck.get("prior", False))
 
 
 def count_parameters(m):

@@ -147,6 +147,11 @@ def slab_prior(mask, n, half=0.15):
     return fof_from_intervals([(lo, hi, mask)], n)
 
 
+def body_stand_in(mask, n, lo=-0.1, hi=0.3):
+    """A stand-in for the Rust writer's body FOF (`body_fof.npy`) in this test dataset: the slab z in [lo, hi]."""
+    return fof_from_intervals([(np.full(mask.shape, lo), np.full(mask.shape, hi), mask)], n)
+
+
 def write_dataset(root, subjects=6, views=4, res=64, fof_n=8, seed=0, test=2):
     """Writes `subjects` synthetic subjects with `views` orbit views each; the last `test` subjects are held out."""
     rng = np.random.default_rng(seed)
@@ -164,6 +169,9 @@ def write_dataset(root, subjects=6, views=4, res=64, fof_n=8, seed=0, test=2):
         np.save(os.path.join(d, "source_normal.npy"), normal)
         np.save(os.path.join(d, "fof.npy"), fof_from_intervals(intervals, fof_n))
         np.save(os.path.join(d, "prior_fof.npy"), slab_prior(rgba[..., 3] > 0.5, fof_n))
+        # A stand-in for the fitted body's FOF (`body_fof.npy`): a thicker slab shifted off centre, so it differs
+        # from both the prior and the ground truth.
+        np.save(os.path.join(d, "body_fof.npy"), body_stand_in(rgba[..., 3] > 0.5, fof_n))
         for v in range(views):
             yaw = 360.0 * v / views + rng.uniform(-20, 20)
             pitch = rng.uniform(-15, 15)

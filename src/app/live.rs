@@ -29,7 +29,8 @@ use crate::geometry::Camera;
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    compute_geometry, NeuralInput, PrepareOptions, PreparedInput, SharedNeural, StageTimings, ViewRenderer,
+    compute_geometry, NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, StageTimings,
+    ViewRenderer,
 };
 
 /// Errors of the live loop and offline video rendering.
@@ -39,12 +40,13 @@ pub enum LiveError {
     #[error(transparent)]
     Capture(#[from] CaptureError),
     /// A per-frame stage failed on one frame (the frame is skipped).
-    #[error("frame {index}: {reason}")]
+    #[error("frame {index}: {source}")]
     Stage {
         /// Frame index in the source.
         index: u64,
-        /// The stage's message.
-        reason: String,
+        /// The stage's error.
+        #[source]
+        source: PipelineError,
     },
     /// An output file could not be written.
     #[error("cannot write `{path}`: {reason}")]
@@ -68,7 +70,12 @@ pub trait FrameProcessor: Send + 'static {
     /// What the views need.
     type Output: Send + Sync + 'static;
     /// Processes one frame with its (smoothed) mask; records its own stage timings in `stats`.
-    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<Self::Output, String>;
+    fn process(
+        &mut self,
+        frame: &Frame,
+        mask: &GrayImage,
+        stats: &mut StageStats,
+    ) -> Result<Self::Output, PipelineError>;
 
     /// Forgets what earlier frames left behind (temporal smoothing): the next frame starts a new shot, e.g. a photo
     /// of another size in a folder.
@@ -85,8 +92,13 @@ pub struct NormaliseProcessor {
 impl FrameProcessor for NormaliseProcessor {
     type Output = NormalisedInput;
 
-    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<NormalisedInput, String> {
-        stats.time("normalise", || normalise(&frame.rgb, mask, self.resolution)).map_err(|e| e.to_string())
+    fn process(
+        &mut self,
+        frame: &Frame,
+        mask: &GrayImage,
+        stats: &mut StageStats,
+    ) -> Result<NormalisedInput, PipelineError> {
+        Ok(stats.time("normalise", || normalise(&frame.rgb, mask, self.resolution))?)
     }
 }
 
@@ -111,15 +123,19 @@ impl PrepareProcessor {
 impl FrameProcessor for PrepareProcessor {
     type Output = PreparedInput;
 
-    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<PreparedInput, String> {
+    fn process(
+        &mut self,
+        frame: &Frame,
+        mask: &GrayImage,
+        stats: &mut StageStats,
+    ) -> Result<PreparedInput, PipelineError> {
         let opts = &self.options;
         let mut timings = StageTimings::default();
-        let normalised =
-            timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution)).map_err(|e| e.to_string())?;
-        let mut fof = compute_geometry(&normalised, opts, &mut timings).map_err(|e| e.to_string())?;
+        let normalised = timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution))?;
+        let mut fof = compute_geometry(&normalised, opts, &mut timings)?;
         let smoother = &mut self.fof_smoother;
         timings.time("smooth geometry", || smoother.update(&mut fof.coeffs));
-        let prepared = PreparedInput::from_fof(normalised, fof, opts, timings).map_err(|e| e.to_string())?;
+        let prepared = PreparedInput::from_fof(normalised, fof, opts, timings)?;
         for (name, d) in &prepared.timings.0 {
             stats.record(name, *d);
         }
@@ -166,7 +182,7 @@ impl EncodeProcessor {
 impl FrameProcessor for EncodeProcessor {
     type Output = LiveFrame;
 
-    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<LiveFrame, String> {
+    fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<LiveFrame, PipelineError> {
         let input = self.prepare.process(frame, mask, stats)?;
         let Some(shared) = &self.neural else { return Ok(LiveFrame { input, neural: None }) };
         let t = Instant::now();
@@ -567,8 +583,8 @@ fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, 
         let output = processor.process(&frame, &mask, &mut local);
         let output = match output {
             Ok(o) => o,
-            Err(reason) => {
-                shared.report(LiveError::Stage { index: frame.index, reason }.to_string());
+            Err(source) => {
+                shared.report(LiveError::Stage { index: frame.index, source }.to_string());
                 merge_stats(shared, &local, None);
                 continue;
             }
@@ -662,7 +678,7 @@ pub fn render_video<P: FrameProcessor>(
     method: &SegmentMethod,
     options: &LiveOptions,
     processor: &mut P,
-    mut render: impl FnMut(&Completed<P::Output>) -> Result<RgbaImage, String>,
+    mut render: impl FnMut(&Completed<P::Output>) -> Result<RgbaImage, PipelineError>,
     out_dir: &Path,
     mut on_message: impl FnMut(&str),
 ) -> Result<RenderReport, LiveError> {
@@ -735,8 +751,8 @@ pub fn render_video<P: FrameProcessor>(
         let mask = stats.time("smooth", || smoother.update(&mask));
         let output = match processor.process(&frame, &mask, &mut stats) {
             Ok(o) => o,
-            Err(reason) => {
-                skip(&mut report, outcome, LiveError::Stage { index: frame.index, reason }.to_string());
+            Err(source) => {
+                skip(&mut report, outcome, LiveError::Stage { index: frame.index, source }.to_string());
                 continue;
             }
         };
@@ -751,8 +767,8 @@ pub fn render_video<P: FrameProcessor>(
         };
         let image = match stats.time("render", || render(&done)) {
             Ok(i) => i,
-            Err(reason) => {
-                skip(&mut report, outcome, LiveError::Stage { index: frame.index, reason }.to_string());
+            Err(source) => {
+                skip(&mut report, outcome, LiveError::Stage { index: frame.index, source }.to_string());
                 continue;
             }
         };
@@ -798,7 +814,7 @@ pub fn render_video_views(
             }
             _ => ViewRenderer::new(&frame.input, fill, false),
         };
-        let person = view.render_person(camera).map_err(|e| e.to_string());
+        let person = view.render_person(camera);
         fallbacks += view.neural_fallbacks();
         person
     };

@@ -25,6 +25,12 @@ pub struct NeuralSetup {
     pub options: RuntimeOptions,
 }
 
+/// Switching to the neural renderer was refused: the one line saying why there is none and how to enable it (the
+/// window shows it in its overlay).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct NeuralUnavailable(pub String);
+
 /// The neural renderer of an interactive session, or why there is none.
 #[derive(Clone)]
 pub struct NeuralAvailability {

@@ -25,8 +25,8 @@ use crate::io::sequence;
 use crate::pipeline::export::{ExportOptions, ExportReport};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    load_body, load_fof_net, load_renderer, GeometryMode, NeuralRequest, PrepareOptions, PreparedInput, SharedNeural,
-    SourceView, StageTimings, ViewRenderer,
+    load_body_for, load_fof_net, load_renderer, GeometryMode, NeuralRequest, PrepareOptions, PreparedInput,
+    SharedNeural, SourceView, StageTimings, ViewRenderer,
 };
 
 /// The person image embedded in the binary for `demo` (a synthetic CC0 subject with alpha; see assets/CREDITS.md).
@@ -63,7 +63,7 @@ impl GeometryOptions {
         runtime: &crate::neural::RuntimeOptions,
     ) -> Result<PrepareOptions> {
         let fof_net = load_fof_net(self.geometry, models, self.fof_order, runtime)?;
-        let body = load_body(self.geometry, runtime)?;
+        let body = load_body_for(self.geometry, fof_net.as_ref(), runtime)?;
         Ok(PrepareOptions { fof_order: self.fof_order, geometry: self.geometry, fof_net, body, ..Default::default() })
     }
 }

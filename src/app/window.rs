@@ -39,7 +39,7 @@ use winit::window::{Window, WindowId};
 use crate::app::live::{
     self, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline, LiveStats,
 };
-use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
+use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup, NeuralUnavailable};
 use crate::app::{log_software_device, Backend};
 use crate::buffer::{GrayImage, Image};
 use crate::capture::stats::DurationHistogram;
@@ -627,12 +627,12 @@ impl<'a> Engine<'a> {
 
     /// Switches between the geometric and the neural renderer. Switching to neural without a neural renderer
     /// keeps the geometric one and returns (and shows in the overlay) one line saying why and how to enable it.
-    pub fn set_shading(&mut self, shading: Shading) -> Result<(), String> {
+    pub fn set_shading(&mut self, shading: Shading) -> Result<(), NeuralUnavailable> {
         if shading == Shading::Neural && self.neural.renderer.is_none() {
             let why = self.neural.unavailable.clone().unwrap_or_else(|| "NEURAL RENDERER OFF".to_string());
             tracing::warn!("{why}");
             self.message = Some((why.clone(), Instant::now()));
-            return Err(why);
+            return Err(NeuralUnavailable(why));
         }
         if shading != self.shading {
             self.shading = shading;
@@ -644,7 +644,7 @@ impl<'a> Engine<'a> {
     }
 
     /// Switches to the other renderer (see [`Engine::set_shading`]).
-    pub fn toggle_shading(&mut self) -> Result<(), String> {
+    pub fn toggle_shading(&mut self) -> Result<(), NeuralUnavailable> {
         self.set_shading(match self.shading {
             Shading::Geometric => Shading::Neural,
             Shading::Neural => Shading::Geometric,

@@ -22,7 +22,7 @@ use crate::compose::Mode;
 use crate::io::environment::Environment;
 use crate::pipeline::export::{numbered_path, person_glb, ExportOptions};
 use crate::pipeline::{PrepareOptions, PreparedInput, Scene, SceneNeural, SharedNeural};
-use crate::xr::{ExportHook, PersonExporter, SceneFeed, SessionConfig, SessionReport, StaticScene};
+use crate::xr::{ExportFailure, ExportHook, PersonExporter, SceneFeed, SessionConfig, SessionReport, StaticScene};
 
 /// Where the person comes from.
 #[derive(Clone, Debug)]
@@ -128,13 +128,15 @@ struct GltfExporter {
 }
 
 impl PersonExporter for GltfExporter {
-    fn export(&self, frame: u64) -> Result<PathBuf, String> {
+    fn export(&self, frame: u64) -> Result<PathBuf, ExportFailure> {
         let shown = self.shown.lock().unwrap_or_else(|p| p.into_inner()).clone();
-        let shown = shown.ok_or("no person has been reconstructed yet: wait for the first frame")?;
+        let shown = shown.ok_or(ExportFailure::NothingShown)?;
         let (input, mask) = shown.parts();
         let path = numbered_path(&self.dir, frame);
-        person_glb(&path, input, mask, &self.options).map_err(|e| format!("{}: {e}", path.display()))?;
-        Ok(path)
+        match person_glb(&path, input, mask, &self.options) {
+            Ok(_) => Ok(path),
+            Err(source) => Err(ExportFailure::Write { path, source }),
+        }
     }
 }
 

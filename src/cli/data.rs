@@ -28,6 +28,10 @@ pub struct DatasetArgs {
     /// Framing of each subject: mixed (full, three-quarter and upper in turn), full, three-quarter or upper.
     #[arg(long, default_value = "mixed", value_parser = parse_framing_choice)]
     pub framing: crate::synth::framing::FramingChoice,
+    /// Do not write `body_fof.npy` (the body prior's FOF: pose network + fitter on each rendered source, the FOF
+    /// net's `body` input). Without this flag the pose model must be installed (`bash scripts/setup.sh`).
+    #[arg(long)]
+    pub no_body_fof: bool,
 }
 
 /// Arguments of `synth`.
@@ -76,10 +80,18 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
         views: args.views,
         size: args.size,
         framing: args.framing,
+        body_fof: !args.no_body_fof,
         ..Default::default()
     };
     let summary = dataset::write_dataset(&opts)?;
     println!("wrote {} subjects to {} in {:.1} s", summary.written.len(), args.out.display(), summary.seconds);
+    if !summary.body_fallbacks.is_empty() {
+        eprintln!(
+            "note: {} subject(s) have the body prior's fall-back (the inflation prior) as body_fof.npy, as the \
+             pipeline does at run time (listed in dataset.json, body_fof_fallbacks)",
+            summary.body_fallbacks.len()
+        );
+    }
     for (name, why) in &summary.failed {
         tracing::warn!("{name} failed and was skipped: {why}");
     }

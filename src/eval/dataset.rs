@@ -6,7 +6,12 @@
 //! (atomically) and lists only complete subjects. Subjects run in parallel (rayon).
 //!
 //! Next to the ground-truth `fof.npy`, each subject has `prior_fof.npy` ([`prior_fof`]): the silhouette-inflation
-//! prior exactly as the pipeline feeds it to the FOF net, the input the residual FOF net corrects.
+//! prior exactly as the pipeline feeds it to the FOF net, the input the residual FOF net corrects; and, unless
+//! [`DatasetOptions::body_fof`] is off, `body_fof.npy` ([`body_fof`]): the body prior's FOF as inference computes it
+//! (pose network + fitter on the rendered source image, not the ground-truth pose), the reference FOF net's other
+//! input. A subject whose body prior falls back (no pose found, fit failed) gets the fall-back the pipeline uses
+//! at run time (the inflation prior), and the fall-back is recorded in its `subject.json` (`body_fof.fallback`) and
+//! in `dataset.json` (`body_fof_fallbacks`), never dropped silently.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -17,12 +22,14 @@ use serde_json::json;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
 use super::EvalError;
-use crate::buffer::GrayImage;
+use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::camera::{Camera, Projection, SOURCE_RESOLUTION};
 use crate::geometry::fof::Fof;
 use crate::geometry::inflate::{inflate_to_fof, InflateParams};
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::{write_atomic, NpyArray, NpyData};
+use crate::pipeline::input::NormalisedInput;
+use crate::pipeline::{body_prior_fof, PrepareOptions, SharedBody, StageTimings};
 use crate::synth::framing::{self, FramingChoice};
 use crate::synth::{self, Rng, SubjectParams, SynthAssets};
 
@@ -47,6 +54,8 @@ pub struct DatasetOptions {
     pub progress: bool,
     /// Framing of each subject (`--framing`; mixed: full, three-quarter and upper in turn).
     pub framing: FramingChoice,
+    /// Write `body_fof.npy` per subject (needs the pose model: `bash scripts/setup.sh`; `--no-body-fof` skips it).
+    pub body_fof: bool,
 }
 
 impl Default for DatasetOptions {
@@ -61,6 +70,7 @@ impl Default for DatasetOptions {
             texture_size: synth::DEFAULT_TEXTURE_SIZE,
             progress: true,
             framing: FramingChoice::Mixed,
+            body_fof: true,
         }
     }
 }
@@ -74,6 +84,8 @@ pub struct DatasetSummary {
     pub failed: Vec<(String, String)>,
     /// Wall-clock seconds.
     pub seconds: f64,
+    /// Written subjects whose `body_fof.npy` is the body prior's fall-back (the inflation prior), with the reason.
+    pub body_fallbacks: Vec<(String, String)>,
 }
 
 /// The generator seed of subject `index` in a dataset with seed `seed`.
@@ -126,6 +138,14 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
     check(opts)?;
     let start = Instant::now();
     let assets = SynthAssets::shared()?;
+    let body = if opts.body_fof {
+        let options = crate::neural::RuntimeOptions::default();
+        crate::pipeline::load_body(crate::pipeline::GeometryMode::Body, &options).map_err(|e| {
+            EvalError::InvalidOptions(format!("body_fof.npy needs the body prior: {e} (or pass --no-body-fof)"))
+        })?
+    } else {
+        None
+    };
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
     let bar = if opts.progress {
         let b = indicatif::ProgressBar::new(opts.subjects as u64);
@@ -142,7 +162,7 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
         .into_par_iter()
         .map(|i| {
             let name = format!("subject_{i:04}");
-            let r = write_subject(assets, opts, i, &name);
+            let r = write_subject(assets, opts, body.as_ref(), i, &name);
             if let Err(e) = &r {
                 bar.println(format!("{name}: {e}"));
             }
@@ -155,10 +175,14 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
     let mut failed = Vec::new();
     let mut framings = serde_json::Map::new();
     let mut sheet = Vec::new();
+    let mut body_fallbacks = Vec::new();
     for (name, r) in results {
         match r {
             Ok(w) => {
                 framings.insert(name.clone(), json!(w.framing.label()));
+                if let Some(why) = w.body_fallback {
+                    body_fallbacks.push((name.clone(), why));
+                }
                 sheet.extend(w.mesh);
                 written.push(name);
             }
@@ -184,13 +208,15 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
         "contact_sheet": "contact_sheet.png",
         "split": {"train": train, "test": test},
         "failed": failed.iter().map(|(n, e)| json!({"subject": n, "error": e})).collect::<Vec<_>>(),
+        "body_fof": opts.body_fof,
+        "body_fof_fallbacks": body_fallbacks.iter().map(|(n, e)| json!({"subject": n, "reason": e})).collect::<Vec<_>>(),
     });
     let path = opts.out.join("dataset.json");
     let text = serde_json::to_vec_pretty(&manifest).map_err(|e| EvalError::io(&path, std::io::Error::other(e)))?;
     write_atomic(&path, &text).map_err(|e| EvalError::io(&path, e))?;
     let meshes: Vec<&TexturedMesh> = sheet.iter().collect();
     super::ground_truth::write_contact_sheet(&opts.out.join("contact_sheet.png"), &meshes, &SHEET_YAWS, SHEET_SIZE)?;
-    Ok(DatasetSummary { written, failed, seconds: start.elapsed().as_secs_f64() })
+    Ok(DatasetSummary { written, failed, seconds: start.elapsed().as_secs_f64(), body_fallbacks })
 }
 
 /// Subjects shown in `contact_sheet.png` (the first ones), the yaws and the view size of the sheet.
@@ -204,9 +230,17 @@ pub const SHEET_SIZE: usize = 256;
 struct Written {
     framing: synth::Framing,
     mesh: Option<TexturedMesh>,
+    /// Why `body_fof.npy` holds the body prior's fall-back (the inflation prior), when it does.
+    body_fallback: Option<String>,
 }
 
-fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name: &str) -> Result<Written, EvalError> {
+fn write_subject(
+    assets: &SynthAssets,
+    opts: &DatasetOptions,
+    body: Option<&SharedBody>,
+    index: usize,
+    name: &str,
+) -> Result<Written, EvalError> {
     let seed = subject_seed(opts.seed, index);
     let params = SubjectParams::sample(seed);
     let subject = synth::generate(assets, &params, opts.texture_size)?;
@@ -222,7 +256,15 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
     let r = opts.size;
 
     crate::io::mesh_io::write_glb(&dir.join("mesh.glb"), &subject.mesh).map_err(synth::SynthError::from)?;
-    let info = json!({
+    let hi_source = render_ground_truth(&subject.mesh, &Camera::source(fof_grid(r)));
+    let prior = prior_from_render(&hi_source, r, opts.fof_n)?;
+    let body_fof = body.map(|b| body_fof(&hi_source, b, r, opts.fof_n)).transpose()?;
+    let body_info = match &body_fof {
+        None => serde_json::Value::Null,
+        Some((_, None)) => json!({"source": "fitted body (pose network + fitter on the rendered source)"}),
+        Some((_, Some(why))) => json!({"source": "inflation prior (the body prior's fall-back)", "fallback": why}),
+    };
+    let mut info = json!({
         "name": name,
         "index": index,
         "dataset_seed": opts.seed,
@@ -243,15 +285,22 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
         },
         "test": is_test(index),
     });
+    if body.is_some() {
+        info["body_fof"] = body_info;
+    }
     write_json(&dir.join("subject.json"), &info)?;
 
     let source = Camera::source(r);
     let gt = render_ground_truth(&subject.mesh, &source);
     write_view(dir, "source_", &gt)?;
-    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::Fof(e.to_string()))?;
+    let fof = Fof::from_mesh(&subject.mesh.mesh, r, opts.fof_n).map_err(|e| EvalError::stage("ground-truth FOF", e))?;
     write_npy(&dir.join("fof.npy"), vec![r, r, opts.fof_n], fof.coeffs)?;
-    let prior = prior_fof(&subject.mesh, r, opts.fof_n)?;
     write_npy(&dir.join("prior_fof.npy"), vec![r, r, opts.fof_n], prior)?;
+    let mut body_fallback = None;
+    if let Some((coeffs, fallback)) = body_fof {
+        write_npy(&dir.join("body_fof.npy"), vec![r, r, opts.fof_n], coeffs)?;
+        body_fallback = fallback;
+    }
 
     if opts.views > 0 {
         let views_dir = dir.join("views");
@@ -279,7 +328,7 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
         let _ = std::fs::remove_dir_all(&tmp_path);
         EvalError::io(&dest, e)
     })?;
-    Ok(Written { framing: subject.crop.framing, mesh: (index < SHEET_SUBJECTS).then_some(subject.mesh) })
+    Ok(Written { framing: subject.crop.framing, mesh: (index < SHEET_SUBJECTS).then_some(subject.mesh), body_fallback })
 }
 
 /// The silhouette-inflation prior of a subject's source view as the FOF net sees it at inference
@@ -288,12 +337,45 @@ fn write_subject(assets: &SynthAssets, opts: &DatasetOptions, index: usize, name
 /// source mask is rendered at `k * size` with `k = max(1, 512 / size)`, inflated with the default
 /// [`InflateParams`] ([`inflate_to_fof`]) and box-averaged by `k` to `size x size` (pixel-major `HWN`).
 pub fn prior_fof(mesh: &TexturedMesh, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
-    let k = (SOURCE_RESOLUTION / size.max(1)).max(1);
-    let hi = size * k;
-    let gt = render_ground_truth(mesh, &Camera::source(hi));
+    prior_from_render(&render_ground_truth(mesh, &Camera::source(fof_grid(size))), size, n)
+}
+
+/// The side of the grid the pipeline computes a per-input FOF on for a dataset of `size` pixels:
+/// `k * size` with `k = max(1, 512 / size)` (see [`prior_fof`]).
+fn fof_grid(size: usize) -> usize {
+    size * (SOURCE_RESOLUTION / size.max(1)).max(1)
+}
+
+/// [`prior_fof`] of an already rendered source view at [`fof_grid`]`(size)`.
+fn prior_from_render(gt: &GroundTruthView, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
+    let hi = gt.width;
     let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
-    let fof = inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::Fof(e.to_string()))?;
-    Ok(box_downsample(&fof.coeffs, hi, n, k))
+    let fof =
+        inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::stage("inflation prior", e))?;
+    Ok(box_downsample(&fof.coeffs, hi, n, hi / size.max(1)))
+}
+
+/// The body FOF of a rendered source view as inference computes it (`body_fof.npy`): the rendered source (`gt`,
+/// at [`fof_grid`]`(size)`, the person already in the body cube) goes through the pipeline's body prior
+/// ([`crate::pipeline::body_prior_fof`]: pose network, fitter, body FOF reconciled with the silhouette; cold start)
+/// and is box-averaged to `size` like [`prior_fof`]. Returns the coefficients (pixel-major `HWN`) and, when the body
+/// prior fell back to the inflation prior (the pipeline's run-time fall-back), why.
+pub fn body_fof(
+    gt: &GroundTruthView,
+    body: &SharedBody,
+    size: usize,
+    n: usize,
+) -> Result<(Vec<f32>, Option<String>), EvalError> {
+    let hi = gt.width;
+    let rgb: RgbImage = gt.to_linear_rgba().map(|p| p.truncate());
+    let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
+    let normalised = NormalisedInput::in_source_view(rgb, mask);
+    let opts = PrepareOptions { resolution: hi, fof_order: n, ..Default::default() };
+    let prior =
+        inflate_to_fof(&normalised.mask, n, &opts.inflate).map_err(|e| EvalError::stage("inflation prior", e))?;
+    let mut timings = StageTimings::default();
+    let (fof, fallback) = body_prior_fof(&normalised, &opts, body, prior, &mut timings);
+    Ok((box_downsample(&fof.coeffs, hi, n, hi / size.max(1)), fallback))
 }
 
 /// Box-averages pixel-major (`HWN`) coefficients of a `side x side` grid by an integer factor `k`.

@@ -28,15 +28,25 @@ pub enum EvalError {
         /// What failed.
         message: String,
     },
-    /// Ground-truth FOF encoding failed.
-    #[error("ground-truth FOF: {0}")]
-    Fof(String),
+    /// A stage failed on an input (`stage`: e.g. `ground-truth FOF`, `inflation prior`, `rendering`).
+    #[error("{stage}: {message}")]
+    Stage {
+        /// Which stage.
+        stage: &'static str,
+        /// Why.
+        message: String,
+    },
     /// No subject could be written.
     #[error("every subject failed; the first error was {0}")]
     AllFailed(String),
 }
 
 impl EvalError {
+    /// `stage` failed for the reason `e`.
+    pub fn stage(stage: &'static str, e: impl std::fmt::Display) -> Self {
+        EvalError::Stage { stage, message: e.to_string() }
+    }
+
     /// An I/O error on `path`.
     pub fn io(path: &Path, e: std::io::Error) -> Self {
         EvalError::Io { path: path.to_path_buf(), message: e.to_string() }

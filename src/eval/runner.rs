@@ -390,12 +390,13 @@ impl SubjectSource {
     ) -> Result<Option<PreparedInput>, EvalError> {
         let fof_net = nets.fof_net;
         let popts = &self.prepare;
-        let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
+        let which = if kind == 0 { "inflation prior" } else { "ground-truth FOF" };
         let fof = match kind {
             0 => inflate_to_fof(&self.mask, popts.fof_order, &InflateParams::default())
-                .map_err(|e| EvalError::Fof(e.to_string()))?,
-            1 => Fof::from_mesh(&mesh.mesh, self.mask.width, popts.fof_order)
-                .map_err(|e| EvalError::Fof(e.to_string()))?,
+                .map_err(|e| EvalError::stage(which, e))?,
+            1 => {
+                Fof::from_mesh(&mesh.mesh, self.mask.width, popts.fof_order).map_err(|e| EvalError::stage(which, e))?
+            }
             3 => {
                 let Some(body) = nets.body else { return Ok(None) };
                 let o = PrepareOptions {
@@ -413,6 +414,7 @@ impl SubjectSource {
                 let o = PrepareOptions {
                     geometry: GeometryMode::FofNet,
                     fof_net: Some(std::sync::Arc::clone(net)),
+                    body: nets.body.cloned(),
                     ..popts.clone()
                 };
                 let mut timings = StageTimings::default();
@@ -421,7 +423,9 @@ impl SubjectSource {
                 return Ok(built.map_err(|e| tracing::warn!("{name}: the FOF net rows skip this subject: {e}")).ok());
             }
         };
-        PreparedInput::from_fof(self.normalised(), fof, popts, Default::default()).map(Some).map_err(perr)
+        PreparedInput::from_fof(self.normalised(), fof, popts, Default::default())
+            .map(Some)
+            .map_err(|e| EvalError::stage(which, e))
     }
 }
 
@@ -501,7 +505,7 @@ fn eval_subject(
     let r = opts.size;
     let src = SubjectSource::of(mesh, r);
     let (rgb, mask) = (&src.rgb, &src.mask);
-    let perr = |e: crate::pipeline::PipelineError| EvalError::Fof(e.to_string());
+    let perr = |e: crate::pipeline::PipelineError| EvalError::stage("rendering", e);
 
     // Per-input work, timed per method.
     let t = Instant::now();

@@ -390,10 +390,38 @@ fn simplify_loop(ring: &[(i64, i64)], tol: f64) -> Vec<(i64, i64)> {
         }
     }
     let out: Vec<(i64, i64)> = ring.iter().zip(&keep).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
+    let out = remove_spikes(out);
     if out.len() >= 3 {
         out
     } else {
         ring.to_vec()
+    }
+}
+
+/// Removes zero-area spikes from a closed loop: a vertex whose neighbours are the same point (`a, b, a`, the
+/// edge walked out and back) and repeated consecutive points. Simplification makes them where the traced outline
+/// passes a corner twice (a lobe attached through a diagonal pixel touch) and the lobe collapses to one point;
+/// the doubled edge breaks the triangulation's inside/outside parity (every face then counted as outside, an
+/// empty inflation). The lobe's pixels stay in the mask at the minimum thickness.
+fn remove_spikes(mut ring: Vec<(i64, i64)>) -> Vec<(i64, i64)> {
+    loop {
+        let n = ring.len();
+        if n < 3 {
+            return ring;
+        }
+        let at = (0..n).find(|&i| {
+            let (prev, next) = (ring[(i + n - 1) % n], ring[(i + 1) % n]);
+            ring[i] == next || prev == next
+        });
+        let Some(i) = at else { return ring };
+        if ring[i] == ring[(i + 1) % n] {
+            ring.remove(i);
+        } else {
+            // `prev, b, prev`: drop `b` and the second `prev`.
+            let (first, second) = (i, (i + 1) % n);
+            ring.remove(first.max(second));
+            ring.remove(first.min(second));
+        }
     }
 }
 
@@ -786,6 +814,41 @@ mod tests {
         assert!(s.front.data[mid] > s.front.data[edge]);
         let fof = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
         assert!(fof.coeffs.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn spikes_are_removed_from_loops() {
+        let square = vec![(0, 0), (4, 0), (4, 4), (0, 4)];
+        assert_eq!(remove_spikes(square.clone()), square);
+        // An edge walked out and back from (4, 4), anywhere in the cycle, and repeated points.
+        assert_eq!(remove_spikes(vec![(0, 0), (4, 0), (4, 4), (7, 7), (4, 4), (0, 4)]), square);
+        assert_eq!(
+            remove_spikes(vec![(7, 7), (0, 0), (4, 0), (4, 4), (0, 4), (0, 0)]),
+            vec![(4, 0), (4, 4), (0, 4), (0, 0)]
+        );
+        assert_eq!(remove_spikes(vec![(0, 0), (0, 0), (4, 0), (4, 4), (0, 4)]), square);
+        assert!(remove_spikes(vec![(0, 0), (1, 1), (0, 0)]).len() < 3, "a loop that is only a spike vanishes");
+    }
+
+    #[test]
+    fn a_lobe_touching_diagonally_does_not_empty_the_inflation() {
+        // A synthetic subject's source mask at 128 px (`eval --size 128 --framing full`, subject 0): the traced
+        // outline passes one corner twice (a lobe attached through a diagonal pixel touch) and simplification
+        // collapsed the lobe into an out-and-back edge that made every triangle count as outside: an empty
+        // inflation prior.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/inflate/lobe_on_a_diagonal_touch_128.png");
+        let img = image::open(path).expect("test mask").to_luma8();
+        let mask = GrayImage {
+            width: img.width() as usize,
+            height: img.height() as usize,
+            data: img.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
+        };
+        let s = inflate(&mask, &InflateParams::default()).unwrap();
+        let inside: Vec<usize> = (0..s.mask.data.len()).filter(|&i| s.mask.data[i] > 0.5).collect();
+        let min_half = 2.0 / mask.width as f32;
+        let thick = inside.iter().filter(|&&i| s.front.data[i] - s.back.data[i] > 4.0 * min_half).count();
+        let area = inside.len();
+        assert!(thick * 2 > area, "most of the person is inflated: {thick} of {area} pixels");
     }
 
     #[test]

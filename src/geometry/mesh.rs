@@ -2,6 +2,53 @@
 
 use glam::{Vec2, Vec3};
 
+/// Why a mesh cannot be drawn ([`TriMesh::validate`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeshError {
+    /// A vertex position is NaN or infinite.
+    #[error("vertex {index} is not finite ({position:?})")]
+    NonFiniteVertex {
+        /// The vertex.
+        index: usize,
+        /// Its position.
+        position: Vec3,
+    },
+    /// A triangle names a vertex that does not exist.
+    #[error("triangle {triangle} indexes past the {vertices} vertices")]
+    IndexOutOfRange {
+        /// The triangle.
+        triangle: usize,
+        /// Number of vertices.
+        vertices: u32,
+    },
+    /// A textured mesh has a material index list of the wrong length.
+    #[error("{indices} material indices for {triangles} triangles")]
+    MaterialCount {
+        /// Material indices given.
+        indices: usize,
+        /// Triangles.
+        triangles: usize,
+    },
+    /// A triangle names a material that does not exist.
+    #[error("material index {index} past the {materials} materials")]
+    MaterialIndex {
+        /// The index.
+        index: u32,
+        /// Number of materials.
+        materials: usize,
+    },
+    /// A per-vertex attribute (UVs, colours) is neither absent nor one per vertex.
+    #[error("{len} {what} for {vertices} vertices")]
+    AttributeCount {
+        /// Which attribute.
+        what: &'static str,
+        /// How many were given.
+        len: usize,
+        /// Number of vertices.
+        vertices: usize,
+    },
+}
+
 /// An indexed triangle mesh. Triangles are counter-clockwise seen from outside (outward normals).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TriMesh {
@@ -60,13 +107,13 @@ impl TriMesh {
     }
 
     /// Checks that every vertex is finite and every index in range.
-    pub fn validate(&self) -> Result<(), String> {
-        if let Some(i) = self.positions.iter().position(|p| !p.is_finite()) {
-            return Err(format!("vertex {i} is not finite ({:?})", self.positions[i]));
+    pub fn validate(&self) -> Result<(), MeshError> {
+        if let Some(index) = self.positions.iter().position(|p| !p.is_finite()) {
+            return Err(MeshError::NonFiniteVertex { index, position: self.positions[index] });
         }
-        let n = self.positions.len() as u32;
-        if let Some(t) = self.triangles.iter().position(|t| t.iter().any(|&i| i >= n)) {
-            return Err(format!("triangle {t} indexes past the {n} vertices"));
+        let vertices = self.positions.len() as u32;
+        if let Some(triangle) = self.triangles.iter().position(|t| t.iter().any(|&i| i >= vertices)) {
+            return Err(MeshError::IndexOutOfRange { triangle, vertices });
         }
         Ok(())
     }

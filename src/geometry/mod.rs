@@ -12,4 +12,4 @@ pub mod shells;
 pub mod zmap;
 
 pub use camera::{Camera, Fov, Projection, Ray, RayGrid, SOURCE_RESOLUTION};
-pub use mesh::TriMesh;
+pub use mesh::{MeshError, TriMesh};

@@ -76,6 +76,12 @@ impl ValidationLog {
     }
 }
 
+/// The Vulkan debug-utils callback: records validation warnings and errors into the [`ValidationLog`] in
+/// `user_data`.
+///
+/// # Safety
+/// Called by the loader only: `data` is null or valid for the call, `user_data` is null or the `ValidationLog`
+/// registered with the messenger (alive while the messenger is).
 unsafe extern "system" fn debug_callback(
     severity: vk::DebugUtilsMessageSeverityFlagsEXT,
     _types: vk::DebugUtilsMessageTypeFlagsEXT,
@@ -305,8 +311,8 @@ impl Context {
             None
         };
         let surface = match window {
-            // SAFETY: the caller's window handles are valid; the surface is destroyed before the instance.
             Some((display, handle)) => {
+                // SAFETY: the caller's window handles are valid; the surface is destroyed before the instance.
                 match unsafe { ash_window::create_surface(&entry, &instance, display, handle, None) } {
                     Ok(s) => Some(s),
                     Err(e) => {
@@ -591,20 +597,26 @@ fn pick_device(
     instance: &ash::Instance,
     surface: Option<(&ash::khr::surface::Instance, vk::SurfaceKHR)>,
 ) -> Result<(vk::PhysicalDevice, u32), GpuError> {
+    // SAFETY: `instance` is borrowed for the call, so it is alive (the caller destroys it only after this returns);
+    // a read-only query.
     let devices = unsafe { instance.enumerate_physical_devices() }.map_err(GpuError::vk("list the devices"))?;
     let mut best: Option<(u32, vk::PhysicalDevice, u32)> = None;
     let mut rejected = Vec::new();
     for pd in devices {
+        // SAFETY: `pd` was just enumerated from this live instance; a read-only query.
         let props = unsafe { instance.get_physical_device_properties(pd) };
         let name = props.device_name_as_c_str().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         if vk::api_version_major(props.api_version) == 1 && vk::api_version_minor(props.api_version) < 2 {
             rejected.push(format!("{name} (Vulkan 1.{} < 1.2)", vk::api_version_minor(props.api_version)));
             continue;
         }
+        // SAFETY: the same physical device of the same live instance; a read-only query.
         let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
         let family = families.iter().enumerate().find_map(|(i, f)| {
             let ok = f.queue_flags.contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE);
             let present = match surface {
+                // SAFETY: `pd`, queue family `i` and the surface `s` all belong to this live instance (the surface is
+                // destroyed only after the device is chosen and the context dropped).
                 Some((loader, s)) => unsafe {
                     loader.get_physical_device_surface_support(pd, i as u32, s).unwrap_or(false)
                 },

@@ -25,7 +25,7 @@ pub mod shaders;
 pub use commands::CommandSlot;
 pub use context::{Context, ContextOptions, DeviceFactory, ValidationLog, VALIDATION_ENV};
 pub use overlay::OverlayMask;
-pub use person::{gpu_neural_person, GpuView};
+pub use person::{gpu_neural_person, GpuView, NeuralViewError};
 pub use present::{Acquired, Swapchain, SwapchainOptions};
 pub use renderer::{PresentTarget, Renderer, RendererCounters};
 
@@ -58,6 +58,9 @@ pub enum GpuError {
     /// Invalid arguments (sizes, empty inputs).
     #[error("{0}")]
     Invalid(String),
+    /// The mesh to draw is broken.
+    #[error("invalid mesh: {0}")]
+    Mesh(#[from] crate::geometry::MeshError),
     /// Any other Vulkan failure.
     #[error("Vulkan call failed while trying to {what}: {result}")]
     Vulkan {

@@ -20,7 +20,22 @@ use super::{GpuError, PresentTarget, Renderer};
 use crate::buffer::RgbaImage;
 use crate::compose::Mode;
 use crate::geometry::Camera;
+use crate::neural::NeuralError;
 use crate::pipeline::{photo_lookup, NeuralInput, NeuralRef, NeuralViewTimes, PersonBackend, SharedNeural, SourceView};
+
+/// Why [`gpu_neural_person`] could not draw a view (the person-renderer policy then draws it geometrically).
+#[derive(Debug, thiserror::Error)]
+pub enum NeuralViewError {
+    /// The GPU raster or flow/Z-map pass (or its read-back) failed.
+    #[error("GPU raster/flow: {0}")]
+    Inputs(#[source] GpuError),
+    /// The decoder failed (ONNX Runtime, shapes).
+    #[error(transparent)]
+    Decoder(#[from] NeuralError),
+    /// The decoder returned NaN or infinite values.
+    #[error("the decoder output is not finite")]
+    NotFinite,
+}
 
 /// Renders the person for `camera` with the neural decoder through the host-memory seam (see the module docs):
 /// the Vulkan renderer (with the input's mesh and source view uploaded) rasterises the target and computes the
@@ -33,19 +48,18 @@ pub fn gpu_neural_person(
     source: SourceView<'_>,
     encoded: &NeuralInput,
     camera: &Camera,
-) -> Result<(RgbaImage, NeuralViewTimes), String> {
+) -> Result<(RgbaImage, NeuralViewTimes), NeuralViewError> {
     let start = Instant::now();
-    let (target, flowz) = renderer.neural_inputs(camera).map_err(|e| format!("GPU raster/flow: {e}"))?;
+    let (target, flowz) = renderer.neural_inputs(camera).map_err(NeuralViewError::Inputs)?;
     let gpu_inputs = start.elapsed();
     let start = Instant::now();
     let lookup = photo_lookup(source.rgb, source.mask, source.camera, &flowz);
     let person = {
         let mut n = neural.lock().unwrap_or_else(|p| p.into_inner());
         n.runtime.decoder.render_view(&encoded.features, &flowz, source.camera.width, &target, &lookup)
-    }
-    .map_err(|e| e.to_string())?;
+    }?;
     if person.data.iter().any(|p| !p.is_finite()) {
-        return Err("the decoder output is not finite".into());
+        return Err(NeuralViewError::NotFinite);
     }
     Ok((person, NeuralViewTimes { gpu_inputs, decoder: start.elapsed() }))
 }
@@ -65,13 +79,14 @@ pub struct GpuView<'r> {
 impl PersonBackend<NeuralRef<'_>> for GpuView<'_> {
     type Output = ();
     type Error = GpuError;
+    type NeuralFailure = NeuralViewError;
 
     fn neural(
         &mut self,
         source: SourceView<'_>,
         n: &NeuralRef<'_>,
         camera: &Camera,
-    ) -> Result<Result<((), NeuralViewTimes), String>, GpuError> {
+    ) -> Result<Result<((), NeuralViewTimes), NeuralViewError>, GpuError> {
         match gpu_neural_person(self.renderer, n.renderer, source, n.encoded, camera) {
             Ok((person, times)) => {
                 self.renderer.render_frame_from_person(Some(&person), camera, self.mode, self.target)?;

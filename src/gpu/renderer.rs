@@ -215,13 +215,18 @@ impl StageTimer {
     fn new(ctx: &Context) -> Result<Option<Self>, GpuError> {
         let instance = ctx.instance();
         let pd = ctx.physical_device();
+        // SAFETY: `pd` is the context's physical device, enumerated from this live instance; the query only reads its
+        // properties.
         let period_ns = unsafe { instance.get_physical_device_properties(pd) }.limits.timestamp_period;
+        // SAFETY: the same physical device of the same live instance; a read-only query.
         let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
         let bits = families.get(ctx.queue_family() as usize).map_or(0, |f| f.timestamp_valid_bits);
         if bits == 0 || period_ns.is_nan() || period_ns <= 0.0 {
             return Ok(None);
         }
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(TIMESTAMPS);
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; the pool is destroyed in `Drop for Renderer` after the queue is idle.
         let pool =
             unsafe { ctx.device().create_query_pool(&info, None) }.map_err(GpuError::vk("create a query pool"))?;
         let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
@@ -371,6 +376,9 @@ impl Renderer {
             .width(w)
             .height(h)
             .layers(1);
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; the render pass and both attachment views are alive and match the framebuffer's
+        // size; it is destroyed in `Drop`.
         let framebuffer =
             unsafe { device.create_framebuffer(&fb_info, None) }.map_err(GpuError::vk("create a framebuffer"))?;
 
@@ -389,6 +397,8 @@ impl Renderer {
                     .stage_flags(stages),
             );
         }
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; `bindings` outlives the call; the layout is destroyed in `Drop`.
         let set_layout = unsafe {
             device.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
         }
@@ -399,6 +409,8 @@ impl Renderer {
             offset: 0,
             size: std::mem::size_of::<LevelConstants>() as u32,
         }];
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; `layouts` and `push_ranges` outlive the call; the layout is destroyed in `Drop`.
         let pipeline_layout = unsafe {
             device.create_pipeline_layout(
                 &vk::PipelineLayoutCreateInfo::default().set_layouts(&layouts).push_constant_ranges(&push_ranges),
@@ -410,6 +422,8 @@ impl Renderer {
             vk::DescriptorPoolSize { ty: vk::DescriptorType::UNIFORM_BUFFER, descriptor_count: 1 },
             vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: binding::COUNT - 1 },
         ];
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; the pool is destroyed in `Drop`, after the queue is idle (which frees its set).
         let descriptor_pool = unsafe {
             device.create_descriptor_pool(
                 &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes),
@@ -417,6 +431,8 @@ impl Renderer {
             )
         }
         .map_err(GpuError::vk("create the descriptor pool"))?;
+        // SAFETY: the pool was just created with `max_sets(1)` and room for every binding of `set_layout`, so one
+        // allocation fits.
         let set = unsafe {
             device.allocate_descriptor_sets(
                 &vk::DescriptorSetAllocateInfo::default().descriptor_pool(descriptor_pool).set_layouts(&layouts),
@@ -430,6 +446,8 @@ impl Renderer {
             pipelines.push(create_compute_pipeline(&ctx, pipeline_layout, spv)?);
         }
 
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; the pool uses the context's queue family and is destroyed in `Drop`.
         let command_pool = unsafe {
             device.create_command_pool(
                 &vk::CommandPoolCreateInfo::default()
@@ -439,6 +457,8 @@ impl Renderer {
             )
         }
         .map_err(GpuError::vk("create a command pool"))?;
+        // SAFETY: the pool was just created on this device; its one buffer is only recorded by `&mut self` methods
+        // (one thread).
         let command_buffer = unsafe {
             device.allocate_command_buffers(
                 &vk::CommandBufferAllocateInfo::default()
@@ -448,6 +468,9 @@ impl Renderer {
             )
         }
         .map_err(GpuError::vk("allocate a command buffer"))?[0];
+        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
+        // after every owner is gone; the fence is unsignalled, waited for after every submission, and destroyed in
+        // `Drop`.
         let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
             .map_err(GpuError::vk("create a fence"))?;
 
@@ -624,7 +647,7 @@ impl Renderer {
     /// Uploads the mesh (once per mesh; frames re-render it for any camera without re-uploading). Buffers are
     /// reused when the new mesh fits in them.
     pub fn set_mesh(&mut self, mesh: &TriMesh) -> Result<(), GpuError> {
-        mesh.validate().map_err(|e| GpuError::Invalid(format!("invalid mesh: {e}")))?;
+        mesh.validate()?;
         let n = mesh.positions.len();
         let normals: Vec<[f32; 3]> = if mesh.normals.len() == n {
             mesh.normals.iter().map(|v| v.to_array()).collect()
@@ -1158,6 +1181,10 @@ impl Renderer {
         self.frame.write(std::slice::from_ref(&self.uniforms));
         let device = self.ctx.device();
         let cb = self.command_buffer;
+        // SAFETY: `&mut self` makes this the only recording of `cb`; the previous `run` waited for its submission on
+        // the fence (or reported the device lost), so the buffer may be reset; every bound set, pipeline, buffer and
+        // image belongs to this renderer and outlives the submission, which is waited for below; the queue is used
+        // under its lock.
         unsafe {
             device
                 .reset_command_buffer(cb, vk::CommandBufferResetFlags::empty())
@@ -1265,6 +1292,9 @@ impl Renderer {
     }
 
     /// A full memory barrier between passes (compute/transfer/attachment writes before any later read/write).
+    ///
+    /// # Safety
+    /// `cb` is this renderer's command buffer, in the recording state.
     unsafe fn barrier(&self, cb: vk::CommandBuffer) {
         let barrier = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
@@ -1274,6 +1304,7 @@ impl Renderer {
                     | vk::AccessFlags::TRANSFER_READ
                     | vk::AccessFlags::TRANSFER_WRITE,
             );
+        // SAFETY: the caller is recording `cb` (see `barrier`'s contract); a global memory barrier names no resource.
         unsafe {
             self.ctx.device().cmd_pipeline_barrier(
                 cb,
@@ -1287,6 +1318,10 @@ impl Renderer {
         };
     }
 
+    /// Records the push-pull hole fill over the renderer's pyramid levels.
+    ///
+    /// # Safety
+    /// `cb` is this renderer's command buffer, recording outside a render pass, with its descriptor set bound.
     unsafe fn record_hole_fill(&self, cb: vk::CommandBuffer) {
         let device = self.ctx.device();
         let top = self.levels.last().map_or(0, |l| l.0);
@@ -1300,6 +1335,8 @@ impl Renderer {
             top_offset: top,
             pad: 0,
         };
+        // SAFETY: the closure runs only inside `record_hole_fill`, whose caller is recording `cb`; the pipelines,
+        // layout and push-constant range belong to this renderer and `c` matches the `LevelConstants` range size.
         let dispatch = |pass: Pass, c: LevelConstants, first: bool| unsafe {
             if !first {
                 self.barrier(cb);
@@ -1325,6 +1362,10 @@ impl Renderer {
         dispatch(Pass::Resolve, constants(self.levels[0], self.levels[0]), first);
     }
 
+    /// Records the target raster (the render pass over the geometry image and depth) of the uploaded mesh.
+    ///
+    /// # Safety
+    /// `cb` is this renderer's command buffer, recording outside a render pass.
     unsafe fn record_raster(&self, cb: vk::CommandBuffer) {
         let device = self.ctx.device();
         let clear = [
@@ -1338,6 +1379,9 @@ impl Renderer {
             .framebuffer(self.framebuffer)
             .render_area(area)
             .clear_values(&clear);
+        // SAFETY: the caller is recording `cb` outside any render pass; the render pass, framebuffer, pipeline and
+        // the mesh's vertex/index buffers belong to this renderer and live until the submission is waited for;
+        // `index_count` is the index buffer's length.
         unsafe {
             device.cmd_begin_render_pass(cb, &begin, vk::SubpassContents::INLINE);
             if let Some(mesh) = self.mesh.as_ref().filter(|m| m.index_count > 0) {
@@ -1519,6 +1563,7 @@ impl Drop for Renderer {
 
 fn pick_depth_format(ctx: &Context) -> Result<vk::Format, GpuError> {
     for format in [vk::Format::D32_SFLOAT, vk::Format::X8_D24_UNORM_PACK32] {
+        // SAFETY: a read-only format query on the context's physical device of its live instance.
         let props = unsafe { ctx.instance().get_physical_device_format_properties(ctx.physical_device(), format) };
         if props.optimal_tiling_features.contains(vk::FormatFeatureFlags::DEPTH_STENCIL_ATTACHMENT) {
             return Ok(format);
@@ -1588,6 +1633,8 @@ fn create_render_pass(device: &ash::Device, depth_format: vk::Format) -> Result<
     ];
     let info =
         vk::RenderPassCreateInfo::default().attachments(&attachments).subpasses(&subpasses).dependencies(&dependencies);
+    // SAFETY: the device is alive; `attachments`, `subpasses` and `dependencies` outlive the call; the caller
+    // destroys the render pass (in `Drop for Renderer`).
     unsafe { device.create_render_pass(&info, None) }.map_err(GpuError::vk("create the render pass"))
 }
 
@@ -1601,6 +1648,7 @@ fn create_raster_pipeline(
     let frag = match shader_module(ctx, shaders::RASTER_FRAG) {
         Ok(f) => f,
         Err(e) => {
+            // SAFETY: `vert` was just created on this device and is not used by any pipeline yet.
             unsafe { device.destroy_shader_module(vert, None) };
             return Err(e);
         }
@@ -1657,7 +1705,11 @@ fn create_raster_pipeline(
         .layout(layout)
         .render_pass(render_pass)
         .subpass(0);
+    // SAFETY: `info` and the shader modules it names are alive for the call; the layout and render pass belong to the
+    // caller.
     let result = unsafe { device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None) };
+    // SAFETY: pipeline creation has returned, so nothing uses the modules any more (a pipeline keeps its own copy of
+    // the code).
     unsafe {
         device.destroy_shader_module(vert, None);
         device.destroy_shader_module(frag, None);
@@ -1671,7 +1723,9 @@ fn create_compute_pipeline(ctx: &Context, layout: vk::PipelineLayout, spv: &[u8]
     let stage =
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
     let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
+    // SAFETY: `info` names a module created above and a layout of the caller; both are alive for the call.
     let result = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
+    // SAFETY: pipeline creation has returned; the pipeline does not need the module afterwards.
     unsafe { device.destroy_shader_module(module, None) };
     result.map(|p| p[0]).map_err(|(_, e)| GpuError::vk("create a compute pipeline")(e))
 }

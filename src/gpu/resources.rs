@@ -23,6 +23,8 @@ pub struct Buffer {
 // SAFETY: the mapped pointer is only dereferenced through &self / &mut self methods, and the renderer
 // synchronises with the GPU through fences before touching it.
 unsafe impl Send for Buffer {}
+// SAFETY: `&Buffer` only reads the mapping (`read`, `bytes`) — writes need `&mut` — and the GPU side is ordered by
+// the owners' fences, so shared references on several threads cannot race.
 unsafe impl Sync for Buffer {}
 
 impl Buffer {
@@ -31,24 +33,31 @@ impl Buffer {
         let size = size.max(16);
         let device = ctx.device();
         let info = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
+        // SAFETY: the context keeps the device alive while this `Buffer` holds its `Arc`; `info` outlives the call.
         let buffer = unsafe { device.create_buffer(&info, None) }.map_err(GpuError::vk("create a buffer"))?;
+        // SAFETY: `buffer` was just created on this device.
         let req = unsafe { device.get_buffer_memory_requirements(buffer) };
         let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
         let type_index = ctx
             .memory_type(req.memory_type_bits, host | vk::MemoryPropertyFlags::DEVICE_LOCAL)
             .or_else(|| ctx.memory_type(req.memory_type_bits, host));
         let Some(type_index) = type_index else {
+            // SAFETY: `buffer` was created above, has no memory bound and was never used.
             unsafe { device.destroy_buffer(buffer, None) };
             return Err(GpuError::OutOfMemory("no host-visible memory type for a buffer".into()));
         };
         let alloc = vk::MemoryAllocateInfo::default().allocation_size(req.size).memory_type_index(type_index);
+        // SAFETY: the device is alive; `alloc` names a memory type the device reported for this buffer.
         let memory = match unsafe { device.allocate_memory(&alloc, None) } {
             Ok(m) => m,
             Err(e) => {
+                // SAFETY: `buffer` was created above and was never used.
                 unsafe { device.destroy_buffer(buffer, None) };
                 return Err(GpuError::vk("allocate buffer memory")(e));
             }
         };
+        // SAFETY: `memory` was allocated for `buffer` (its requirements) and is bound once at offset 0, then mapped
+        // whole; host-visible by the chosen type.
         let mapped = unsafe {
             device
                 .bind_buffer_memory(buffer, memory, 0)
@@ -57,6 +66,8 @@ impl Buffer {
         match mapped {
             Ok(ptr) => Ok(Self { ctx: ctx.clone(), buffer, memory, size, mapped: ptr as *mut u8 }),
             Err(e) => {
+                // SAFETY: both were created above and never used by the GPU; memory is freed after the buffer that
+                // used it.
                 unsafe {
                     device.destroy_buffer(buffer, None);
                     device.free_memory(memory, None);
@@ -135,24 +146,31 @@ impl Image2d {
             .usage(usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE)
             .initial_layout(vk::ImageLayout::UNDEFINED);
+        // SAFETY: the context keeps the device alive while this `Image` holds its `Arc`; `info` outlives the call.
         let image = unsafe { device.create_image(&info, None) }.map_err(GpuError::vk("create an image"))?;
+        // SAFETY: `image` was just created on this device.
         let req = unsafe { device.get_image_memory_requirements(image) };
         let Some(type_index) = ctx
             .memory_type(req.memory_type_bits, vk::MemoryPropertyFlags::DEVICE_LOCAL)
             .or_else(|| ctx.memory_type(req.memory_type_bits, vk::MemoryPropertyFlags::empty()))
         else {
+            // SAFETY: `image` was created above, has no memory bound and was never used.
             unsafe { device.destroy_image(image, None) };
             return Err(GpuError::OutOfMemory("no memory type for an image".into()));
         };
         let alloc = vk::MemoryAllocateInfo::default().allocation_size(req.size).memory_type_index(type_index);
+        // SAFETY: the device is alive; `alloc` names a memory type the device reported for this image.
         let memory = match unsafe { device.allocate_memory(&alloc, None) } {
             Ok(m) => m,
             Err(e) => {
+                // SAFETY: `image` was created above and was never used.
                 unsafe { device.destroy_image(image, None) };
                 return Err(GpuError::vk("allocate image memory")(e));
             }
         };
+        // SAFETY: `memory` was allocated for `image` with its requirements and is bound once at offset 0.
         if let Err(e) = unsafe { device.bind_image_memory(image, memory, 0) } {
+            // SAFETY: both were created above and never used by the GPU.
             unsafe {
                 device.destroy_image(image, None);
                 device.free_memory(memory, None);
@@ -164,9 +182,12 @@ impl Image2d {
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
             .subresource_range(subresource(aspect));
+        // SAFETY: `image` is alive and bound to memory; `view_info` matches its format and single mip level and
+        // layer.
         let view = match unsafe { device.create_image_view(&view_info, None) } {
             Ok(v) => v,
             Err(e) => {
+                // SAFETY: both were created above; the view was not created, so nothing refers to them.
                 unsafe {
                     device.destroy_image(image, None);
                     device.free_memory(memory, None);
@@ -237,5 +258,7 @@ pub fn shader_module(ctx: &Context, spv: &[u8]) -> Result<vk::ShaderModule, GpuE
     let words = ash::util::read_spv(&mut std::io::Cursor::new(spv))
         .map_err(|e| GpuError::Shader(format!("invalid SPIR-V: {e}")))?;
     let info = vk::ShaderModuleCreateInfo::default().code(&words);
+    // SAFETY: the device is alive; `words` is SPIR-V produced and validated by naga in build.rs and outlives the
+    // call.
     unsafe { ctx.device().create_shader_module(&info, None) }.map_err(GpuError::vk("create a shader module"))
 }

@@ -12,7 +12,7 @@ use glam::{Mat4, Vec2, Vec3};
 use serde_json::json;
 
 use crate::buffer::{linear_to_srgb, srgb_to_linear};
-use crate::geometry::mesh::TriMesh;
+use crate::geometry::mesh::{MeshError, TriMesh};
 
 /// Errors reading or writing mesh files. Each names the file concerned.
 #[derive(Debug, thiserror::Error)]
@@ -183,18 +183,18 @@ impl TexturedMesh {
 
     /// Checks what [`TriMesh::validate`] checks plus the appearance: one material index per triangle (or none),
     /// each naming an existing material, and UVs/colours either absent or one per vertex.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), MeshError> {
         self.mesh.validate()?;
-        let (nt, nv) = (self.mesh.triangles.len(), self.mesh.positions.len());
-        if !self.triangle_materials.is_empty() && self.triangle_materials.len() != nt {
-            return Err(format!("{} material indices for {nt} triangles", self.triangle_materials.len()));
+        let (triangles, vertices) = (self.mesh.triangles.len(), self.mesh.positions.len());
+        if !self.triangle_materials.is_empty() && self.triangle_materials.len() != triangles {
+            return Err(MeshError::MaterialCount { indices: self.triangle_materials.len(), triangles });
         }
-        if let Some(&m) = self.triangle_materials.iter().find(|&&m| m as usize >= self.materials.len()) {
-            return Err(format!("material index {m} past the {} materials", self.materials.len()));
+        if let Some(&index) = self.triangle_materials.iter().find(|&&m| m as usize >= self.materials.len()) {
+            return Err(MeshError::MaterialIndex { index, materials: self.materials.len() });
         }
         for (what, len) in [("UVs", self.mesh.uvs.len()), ("colours", self.mesh.colors.len())] {
-            if len != 0 && len != nv {
-                return Err(format!("{len} {what} for {nv} vertices"));
+            if len != 0 && len != vertices {
+                return Err(MeshError::AttributeCount { what, len, vertices });
             }
         }
         Ok(())
@@ -308,7 +308,7 @@ pub(crate) fn check_mesh(path: &Path, textured: &TexturedMesh) -> Result<(), Mes
         let p = mesh.positions[index];
         return Err(MeshIoError::NonFinite { path: path.to_path_buf(), index, value: p.to_array() });
     }
-    textured.validate().map_err(|message| MeshIoError::Gltf { path: path.to_path_buf(), message })
+    textured.validate().map_err(|e| MeshIoError::Gltf { path: path.to_path_buf(), message: e.to_string() })
 }
 
 // ------------------------------------------------------------------------------------------------------------
@@ -1059,7 +1059,7 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     if m.is_empty() {
         return Err(MeshIoError::Empty { path: name.to_path_buf() });
     }
-    mesh.validate().map_err(enc)?;
+    mesh.validate().map_err(|e| enc(e.to_string()))?;
     if u32::try_from(nv).is_err() {
         return Err(enc("too many vertices for 32-bit indices".into()));
     }

@@ -25,9 +25,11 @@
 //!   full-resolution texture. A decoder of the earlier three-input contract is rejected at load, naming the
 //!   missing `warped_rgb`. (It is not called `rgb` because ONNX value names are unique and `rgb` is the output.)
 //! - `rgb` is sRGB in `[-1, 1]`; [`Decoder`] turns it into linear premultiplied RGBA with the target mask as alpha.
-//! - `prior` (FOF net) is the silhouette-inflation FOF box-averaged to `R`; the shipped FOF net is residual on it
-//!   (`fof = prior + UNet(image, prior)`, zero-initialised last convolution, metadata `r2human.residual = prior`),
-//!   and [`FofNet::refine`] applies its correction to the full-resolution prior (the pipeline's
+//! - The FOF net's FOF inputs (`r2human.fof_inputs`, e.g. `image,body,prior`; files without the key take `image`
+//!   and `prior` when they have it): `prior` is the silhouette-inflation FOF and `body` the fitted body's FOF (the
+//!   body prior, as `--geometry body` computes it: the reference FOF net's input), each box-averaged to `R`. The net
+//!   is residual on one of them (`r2human.residual`; `fof = base + UNet(...)`, zero-initialised last convolution),
+//!   and [`FofNet::refine_with`] applies its correction to that base at full resolution (the pipeline's
 //!   `--geometry fofnet|auto`).
 //!
 //! Every model carries metadata (`r2human.kind`, `r2human.tier`, `r2human.resolution`, `r2human.fof_n`,
@@ -52,7 +54,7 @@ use std::path::{Path, PathBuf};
 pub(crate) use library::project_roots;
 pub use library::{find_library, library_candidates, ORT_LIBRARY_FILE, ORT_TOOLS_SUBDIR};
 pub use model::{ModelInfo, ModelKind, FORMAT_VERSION};
-pub use nets::{Decoder, Encoder, EncoderInput, FofNet, FofPrediction, DECODER_INPUTS};
+pub use nets::{Decoder, Encoder, EncoderInput, FofInput, FofNet, FofPrediction, DECODER_INPUTS};
 pub(crate) use provider::create_session;
 pub use provider::{environment, ActiveProvider, ExecutionProvider, RuntimeOptions};
 pub use tensor::{Coefficients, FeatureMap, PixelBox};

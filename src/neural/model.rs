@@ -123,6 +123,17 @@ impl ModelInfo {
     }
 }
 
+/// An optional `r2human.*` metadata value of a loaded session (`None` when the key is absent).
+pub(crate) fn optional_key(session: &Session, path: &Path, key: &str) -> Result<Option<String>, NeuralError> {
+    let meta = session.metadata().map_err(|e| meta_error(path, "*", format!("cannot be read: {e}")))?;
+    Ok(meta.custom(key))
+}
+
+/// A metadata error naming the file and the key (for checks done by the network types).
+pub(crate) fn metadata_problem(path: &Path, key: &str, problem: impl Into<String>) -> NeuralError {
+    meta_error(path, key, problem)
+}
+
 /// An expected tensor dimension.
 #[derive(Clone, Copy, Debug)]
 pub(crate) enum Dim {

@@ -8,7 +8,7 @@ use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
 use rayon::prelude::*;
 
-use super::model::{check_no_extra_inputs, check_tensor, Dim, ModelInfo, ModelKind};
+use super::model::{check_no_extra_inputs, check_tensor, metadata_problem, optional_key, Dim, ModelInfo, ModelKind};
 use super::provider::{create_session, ActiveProvider, RuntimeOptions};
 use super::tensor::{
     coefficients_tensor, image_tensor, normals_tensor, resample_plane, Coefficients, FeatureMap, PixelBox,
@@ -80,10 +80,42 @@ fn check_sizes(model: &'static str, what: &str, w: usize, h: usize, ew: usize, e
     Ok(())
 }
 
-/// The FOF network: source photo (+ an optional prior FOF) to `N` FOF-X coefficients per pixel.
+/// A FOF input of the FOF network besides the photo (its ONNX input name; listed in `r2human.fof_inputs`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FofInput {
+    /// `prior`: the silhouette-inflation prior ([`crate::geometry::inflate::inflate_to_fof`]).
+    Prior,
+    /// `body`: the fitted body's FOF (the body prior, computed as `--geometry body` does), the reference FOF net's
+    /// second input.
+    Body,
+}
+
+impl FofInput {
+    /// The ONNX input name (and the name in `r2human.fof_inputs` / `r2human.residual`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Prior => "prior",
+            Self::Body => "body",
+        }
+    }
+
+    fn parse(s: &str) -> Option<Self> {
+        match s {
+            "prior" => Some(Self::Prior),
+            "body" => Some(Self::Body),
+            _ => None,
+        }
+    }
+}
+
+/// The FOF network: source photo (+ the FOF inputs its metadata names: the inflation prior and/or the body FOF)
+/// to `N` FOF-X coefficients per pixel.
 pub struct FofNet {
     net: Net,
-    has_prior: bool,
+    /// The FOF inputs after `image`, in the model's order.
+    inputs: Vec<FofInput>,
+    /// The input the network is residual on (`r2human.residual`), if any.
+    residual: Option<FofInput>,
 }
 
 /// FOF coefficients predicted at the model's resolution, pixel-major (`HWN`), zero outside the mask.
@@ -107,19 +139,56 @@ impl FofPrediction {
 }
 
 impl FofNet {
-    /// Loads and checks a FOF network (`r2human.kind = fof`; input `image` `[1,3,R,R]`, optional `prior`
-    /// `[1,N,R,R]`; output `fof` `[1,N,R,R]`).
+    /// Loads and checks a FOF network (`r2human.kind = fof`; input `image` `[1,3,R,R]`, then the FOF inputs
+    /// `r2human.fof_inputs` names (`image,body`, `image,body,prior`, ...), each `[1,N,R,R]`; output `fof`
+    /// `[1,N,R,R]`). Files without `r2human.fof_inputs` (written before it existed) take `image` and, when they
+    /// have it, `prior`. `r2human.residual`, when present, must name one of the FOF inputs.
     pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
         let net = Net::load(path, ModelKind::Fof, "FOF net", options)?;
         let (r, n) = (net.info.resolution as i64, net.info.fof_n as i64);
         check_tensor(&net.session, path, false, "image", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
-        let has_prior = net.session.inputs().iter().any(|i| i.name() == "prior");
-        if has_prior {
-            check_tensor(&net.session, path, false, "prior", [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
+        let inputs = match optional_key(&net.session, path, "r2human.fof_inputs")? {
+            Some(text) => parse_fof_inputs(&text).map_err(|p| metadata_problem(path, "r2human.fof_inputs", p))?,
+            None if net.session.inputs().iter().any(|i| i.name() == "prior") => vec![FofInput::Prior],
+            None => Vec::new(),
+        };
+        for input in &inputs {
+            check_tensor(&net.session, path, false, input.name(), [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
         }
-        check_no_extra_inputs(&net.session, path, &["image", "prior"])?;
+        let names: Vec<&str> = std::iter::once("image").chain(inputs.iter().map(|i| i.name())).collect();
+        check_no_extra_inputs(&net.session, path, &names)?;
+        let residual = match optional_key(&net.session, path, "r2human.residual")? {
+            None => None,
+            Some(text) => match FofInput::parse(text.trim()) {
+                Some(base) if inputs.contains(&base) => Some(base),
+                _ => {
+                    return Err(metadata_problem(
+                        path,
+                        "r2human.residual",
+                        format!("is `{text}`, not one of the model's FOF inputs {names:?}"),
+                    ))
+                }
+            },
+        };
         check_tensor(&net.session, path, true, "fof", [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
-        Ok(Self { net, has_prior })
+        Ok(Self { net, inputs, residual })
+    }
+
+    /// The FOF inputs the model takes after `image`, in its order.
+    pub fn inputs(&self) -> &[FofInput] {
+        &self.inputs
+    }
+
+    /// Whether the model takes the body FOF (`body` in `r2human.fof_inputs`): the caller must compute the body
+    /// prior for it ([`FofNet::refine_with`]).
+    pub fn takes_body(&self) -> bool {
+        self.inputs.contains(&FofInput::Body)
+    }
+
+    /// The FOF input the network's output is a correction of: `r2human.residual`, else the body FOF when the model
+    /// takes one, else the inflation prior.
+    pub fn base(&self) -> FofInput {
+        self.residual.unwrap_or(if self.takes_body() { FofInput::Body } else { FofInput::Prior })
     }
 
     /// The model's metadata.
@@ -140,51 +209,63 @@ impl FofNet {
     /// Predicts FOF coefficients for a square source photo (`rgb` linear and premultiplied, `mask` in `[0,1]`,
     /// any size; resampled to the model's resolution). `prior` feeds the model's `prior` input when it has one
     /// (zeros when `None`) and is ignored otherwise. The result is zero where the resampled mask is below 0.5.
+    /// A model that takes the body FOF gets zeros for it here; see [`FofNet::run_with`].
     pub fn run(
         &mut self,
         rgb: &RgbImage,
         mask: &GrayImage,
         prior: Option<Coefficients<'_>>,
     ) -> Result<FofPrediction, NeuralError> {
-        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
-        let model = "FOF net";
-        if rgb.width != rgb.height || rgb.width == 0 {
-            return Err(NeuralError::BadInput {
-                model,
-                problem: format!("photo is {}x{}, not square", rgb.width, rgb.height),
-            });
-        }
-        check_sizes(model, "mask", mask.width, mask.height, rgb.width, rgb.height)?;
-        let prior_tensor = match (&prior, self.has_prior) {
-            (Some(p), true) => {
-                check_sizes(model, "prior", p.width, p.height, rgb.width, rgb.height)?;
-                if p.n != n || p.data.len() != p.width * p.height * p.n {
-                    return Err(NeuralError::BadInput {
-                        model,
-                        problem: format!("prior has {} coefficients per pixel, the model takes {n}", p.n),
-                    });
-                }
-                Some(coefficients_tensor(p, r))
-            }
-            (None, true) => Some(vec![0.0; n * r * r]),
-            _ => None,
-        };
-        self.predict(rgb, mask, prior_tensor.as_deref())
+        self.run_with(rgb, mask, prior, None)
     }
 
-    /// The network on a checked square photo and, when the model takes one, its planar `prior` tensor at the model's
-    /// resolution; zero where the resampled mask is below 0.5.
-    fn predict(
+    /// [`FofNet::run`] with the body FOF too: each FOF input the model takes is fed from `prior` / `body` (same
+    /// size as the photo, the model's `N`), zeros when `None`.
+    pub fn run_with(
         &mut self,
         rgb: &RgbImage,
         mask: &GrayImage,
-        prior_tensor: Option<&[f32]>,
+        prior: Option<Coefficients<'_>>,
+        body: Option<Coefficients<'_>>,
     ) -> Result<FofPrediction, NeuralError> {
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        self.check_photo(rgb, mask)?;
+        let mut tensors = Vec::with_capacity(self.inputs.len());
+        for input in self.inputs.clone() {
+            let given = match input {
+                FofInput::Prior => &prior,
+                FofInput::Body => &body,
+            };
+            tensors.push(match given {
+                Some(c) => {
+                    check_coefficients(input, c.width, c.height, c.n, c.data.len(), rgb, n)?;
+                    coefficients_tensor(c, r)
+                }
+                None => vec![0.0; n * r * r],
+            });
+        }
+        self.predict(rgb, mask, &tensors)
+    }
+
+    /// Fails unless `rgb` is square and non-empty and `mask` has its size.
+    fn check_photo(&self, rgb: &RgbImage, mask: &GrayImage) -> Result<(), NeuralError> {
+        if rgb.width != rgb.height || rgb.width == 0 {
+            return Err(NeuralError::BadInput {
+                model: "FOF net",
+                problem: format!("photo is {}x{}, not square", rgb.width, rgb.height),
+            });
+        }
+        check_sizes("FOF net", "mask", mask.width, mask.height, rgb.width, rgb.height)
+    }
+
+    /// The network on a checked square photo and its FOF input tensors (planar, at the model's resolution, in
+    /// [`FofNet::inputs`] order); zero where the resampled mask is below 0.5.
+    fn predict(&mut self, rgb: &RgbImage, mask: &GrayImage, fofs: &[Vec<f32>]) -> Result<FofPrediction, NeuralError> {
         let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
         let image = image_tensor(rgb, mask, r);
         let mut inputs: Vec<(&str, [usize; 4], &[f32])> = vec![("image", [1, 3, r, r], &image)];
-        if let Some(p) = prior_tensor {
-            inputs.push(("prior", [1, n, r, r], p));
+        for (input, tensor) in self.inputs.iter().zip(fofs) {
+            inputs.push((input.name(), [1, n, r, r], tensor));
         }
         let start = std::time::Instant::now();
         let (shape, planes) = self.net.run(&inputs, "fof")?;
@@ -203,12 +284,52 @@ impl FofNet {
     }
 }
 
+/// Fails unless a FOF input of `w x h` pixels with `cn` coefficients (`len` values) fits a photo of `rgb`'s size
+/// and a model with `n` coefficients.
+fn check_coefficients(
+    input: FofInput,
+    w: usize,
+    h: usize,
+    cn: usize,
+    len: usize,
+    rgb: &RgbImage,
+    n: usize,
+) -> Result<(), NeuralError> {
+    let model = "FOF net";
+    check_sizes(model, input.name(), w, h, rgb.width, rgb.height)?;
+    if cn != n || len != w * h * cn {
+        return Err(NeuralError::BadInput {
+            model,
+            problem: format!("{} has {cn} coefficients per pixel, the model takes {n}", input.name()),
+        });
+    }
+    Ok(())
+}
+
+/// Parses `r2human.fof_inputs`: `image`, then `body` and/or `prior` once each.
+fn parse_fof_inputs(text: &str) -> Result<Vec<FofInput>, String> {
+    let names: Vec<&str> = text.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
+    let bad = || format!("is `{text}`; expected `image` followed by `body` and/or `prior` (e.g. `image,body,prior`)");
+    if names.first() != Some(&"image") {
+        return Err(bad());
+    }
+    let mut inputs = Vec::new();
+    for name in &names[1..] {
+        match FofInput::parse(name) {
+            Some(input) if !inputs.contains(&input) => inputs.push(input),
+            _ => return Err(bad()),
+        }
+    }
+    Ok(inputs)
+}
+
 impl std::fmt::Debug for FofNet {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("FofNet")
             .field("path", &self.net.path)
             .field("info", &self.net.info)
-            .field("has_prior", &self.has_prior)
+            .field("inputs", &self.inputs)
+            .field("residual", &self.residual)
             .field("provider", &self.net.provider)
             .finish()
     }
@@ -218,45 +339,71 @@ impl FofNet {
     /// Whether the model takes the inflation prior as its `prior` input (the residual FOF net of
     /// `train/nets.py`: `fof = prior + UNet(image, prior)`).
     pub fn has_prior(&self) -> bool {
-        self.has_prior
+        self.inputs.contains(&FofInput::Prior)
     }
 
-    /// The FOF at the prior's full resolution: runs the network at its resolution `R` on the photo and the
-    /// box-averaged `prior`, then applies its correction `delta = prediction - prior_R` to the full-resolution
-    /// prior: `fof(p) = prior(p) + delta_up(p)`, where `delta_up` is the bilinear upsampling of `delta` that only
-    /// reads model pixels inside the (resampled) mask, renormalising the weights (so the silhouette edge is not
-    /// pulled towards zero by background taps). Pixels whose four taps are all outside keep the prior, and pixels
-    /// where the prior is empty (outside the cleaned mask) stay empty. A column inside the silhouette holds body by
-    /// definition, so a column the network leaves empty (its occupancy, decoded at 64 depths, never reaches the
-    /// mesh's 0.5 level) is treated as outside (no correction from it), and a corrected full-resolution column that
-    /// ends up empty keeps the prior: the FOF net can reshape the body in depth but never erases the silhouette.
-    ///
-    /// A network trained as a residual on the prior returns the prior unchanged while untrained; a network without a
-    /// `prior` input predicts absolute coefficients, which this applies the same way (its prediction minus the
-    /// prior). `rgb` (linear, premultiplied), `mask` and `prior` must have the same square size and `prior` the
-    /// model's `N`.
+    /// [`FofNet::refine_with`] without a body FOF (for models that do not take one; those that do fail with a
+    /// clear error).
     pub fn refine(&mut self, rgb: &RgbImage, mask: &GrayImage, prior: &Fof) -> Result<Fof, NeuralError> {
+        self.refine_with(rgb, mask, prior, None)
+    }
+
+    /// The FOF at the prior's full resolution: runs the network at its resolution `R` on the photo and its FOF
+    /// inputs (the inflation `prior` and/or the `body` FOF, box-averaged to `R`), then applies its correction
+    /// `delta = prediction - base_R` to the full-resolution base FOF ([`FofNet::base`]: what the network is
+    /// residual on): `fof(p) = base(p) + delta_up(p)`, where `delta_up` is the bilinear upsampling of `delta` that
+    /// only reads model pixels inside the (resampled) mask, renormalising the weights (so the silhouette edge is
+    /// not pulled towards zero by background taps). Pixels whose four taps are all outside keep the base, and
+    /// pixels where the base is empty (outside the cleaned mask) stay empty. A column inside the silhouette holds
+    /// body by definition, so a column the network leaves empty (its occupancy, decoded at 64 depths, never
+    /// reaches the mesh's 0.5 level) is treated as outside (no correction from it), and a corrected
+    /// full-resolution column that ends up empty keeps the base: the FOF net can reshape the body in depth but
+    /// never erases the silhouette.
+    ///
+    /// A network trained as a residual on its base returns the base unchanged while untrained; a network without a
+    /// residual predicts absolute coefficients, which this applies the same way (its prediction minus the base).
+    /// `rgb` (linear, premultiplied), `mask`, `prior` and `body` must have the same square size and the model's
+    /// `N`; `body` is required when the model takes it ([`FofNet::takes_body`]).
+    pub fn refine_with(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        prior: &Fof,
+        body: Option<&Fof>,
+    ) -> Result<Fof, NeuralError> {
         let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
         let model = "FOF net";
         let (w, h) = (prior.width, prior.height);
-        check_sizes(model, "prior", w, h, rgb.width, rgb.height)?;
-        if prior.n != n || prior.coeffs.len() != w * h * n {
-            return Err(NeuralError::BadInput {
-                model,
-                problem: format!("prior has {} coefficients per pixel, the model takes {n}", prior.n),
-            });
+        self.check_photo(rgb, mask)?;
+        check_coefficients(FofInput::Prior, w, h, prior.n, prior.coeffs.len(), rgb, n)?;
+        if let Some(b) = body {
+            check_coefficients(FofInput::Body, b.width, b.height, b.n, b.coeffs.len(), rgb, n)?;
         }
-        if rgb.width != rgb.height || rgb.width == 0 {
-            return Err(NeuralError::BadInput {
-                model,
-                problem: format!("photo is {}x{}, not square", rgb.width, rgb.height),
-            });
-        }
-        check_sizes(model, "mask", mask.width, mask.height, w, h)?;
-        let view = Coefficients { width: w, height: h, n, data: &prior.coeffs };
+        let fof_of = |input: FofInput| -> Result<&Fof, NeuralError> {
+            match input {
+                FofInput::Prior => Ok(prior),
+                FofInput::Body => body.ok_or_else(|| NeuralError::BadInput {
+                    model,
+                    problem: format!(
+                        "`{}` takes the body FOF (r2human.fof_inputs) but none was given: compute the body prior \
+                         for it (pipeline::load_body, as --geometry body does)",
+                        self.net.path.display()
+                    ),
+                }),
+            }
+        };
+        let base = fof_of(self.base())?;
         let start = std::time::Instant::now();
-        let prior_small = coefficients_tensor(&view, r);
-        let predicted = self.predict(rgb, mask, self.has_prior.then_some(&prior_small[..]))?;
+        let small = |f: &Fof| coefficients_tensor(&Coefficients { width: w, height: h, n, data: &f.coeffs }, r);
+        let mut tensors = Vec::with_capacity(self.inputs.len());
+        for input in self.inputs.clone() {
+            tensors.push(small(fof_of(input)?));
+        }
+        let base_small = match self.inputs.iter().position(|&i| i == self.base()) {
+            Some(k) => tensors[k].clone(),
+            None => small(base),
+        };
+        let predicted = self.predict(rgb, mask, &tensors)?;
         let ran = start.elapsed();
         let small_mask = resample_plane(&mask.data, mask.width, mask.height, r, r);
         let plane = r * r;
@@ -270,10 +417,10 @@ impl FofNet {
             .collect();
         for i in (0..plane).filter(|&i| valid[i]) {
             for k in 0..n {
-                delta[i * n + k] = predicted.data[i * n + k] - prior_small[k * plane + i];
+                delta[i * n + k] = predicted.data[i * n + k] - base_small[k * plane + i];
             }
         }
-        let mut coeffs = prior.coeffs.clone();
+        let mut coeffs = base.coeffs.clone();
         let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
         coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
             let y = (row as f32 + 0.5) * sy - 0.5;

@@ -131,7 +131,8 @@ pub struct PrepareOptions {
     /// The FOF network for [`GeometryMode::FofNet`] and [`GeometryMode::Auto`] ([`load_fof_net`]); `None` with
     /// `FofNet` is an error, with `Auto` the inflation prior.
     pub fof_net: Option<SharedFofNet>,
-    /// The body prior for [`GeometryMode::Body`] ([`load_body`]); `None` with `Body` is an error.
+    /// The body prior for [`GeometryMode::Body`] ([`load_body`]) and for a FOF net that takes the body FOF
+    /// ([`load_body_for`]); `None` with `Body` is an error.
     pub body: Option<SharedBody>,
     /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
     pub warm_start: bool,
@@ -229,15 +230,47 @@ pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<
     Ok(Some(Arc::new(Mutex::new(body))))
 }
 
-/// The body prior's FOF of a normalised input (see [`GeometryMode::Body`]); the inflation prior `prior` when no
-/// pose is found or the prior fails (one warning per process, then debug messages).
-fn body_geometry(
+/// The body prior for `mode` and the FOF network it uses: [`load_body`] for [`GeometryMode::Body`]; for the FOF
+/// net modes, the body prior when the loaded network takes the body FOF ([`FofNet::takes_body`]) — an error under
+/// [`GeometryMode::FofNet`] when it cannot load, one warning and `None` under [`GeometryMode::Auto`] (its inputs
+/// then get the inflation prior, see [`compute_geometry`]); `None` otherwise.
+pub fn load_body_for(
+    mode: GeometryMode,
+    fof_net: Option<&SharedFofNet>,
+    options: &RuntimeOptions,
+) -> Result<Option<SharedBody>, PipelineError> {
+    let takes_body = fof_net.is_some_and(|n| n.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).takes_body());
+    match mode {
+        GeometryMode::Body => load_body(mode, options),
+        GeometryMode::FofNet | GeometryMode::Auto if takes_body => match BodyEstimator::load(None, options) {
+            Ok(body) => Ok(Some(Arc::new(Mutex::new(body)))),
+            Err(e) if mode == GeometryMode::FofNet => Err(PipelineError::NoFofNet(format!(
+                "the FOF net takes the body FOF, but the body prior does not load ({e}); install it with \
+                     `bash scripts/setup.sh`"
+            ))),
+            Err(e) => {
+                tracing::warn!(
+                    "geometry: the FOF net takes the body FOF, but the body prior does not load ({e}); using \
+                         the silhouette-inflation prior. Install it with `bash scripts/setup.sh`"
+                );
+                Ok(None)
+            }
+        },
+        _ => Ok(None),
+    }
+}
+
+/// The body prior's FOF of a normalised input (see [`GeometryMode::Body`]) and, when it could not be used, why:
+/// the inflation prior `prior` is returned instead when no pose is found or the prior fails. This is the one place
+/// the body FOF is computed: `--geometry body`, the FOF net's `body` input and the dataset writer's
+/// `body_fof.npy` all come through it.
+pub fn body_prior_fof(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     body: &SharedBody,
     prior: Fof,
     timings: &mut StageTimings,
-) -> Fof {
+) -> (Fof, Option<String>) {
     let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let mut stages: Vec<(&'static str, Duration)> = Vec::new();
     let found = estimator.estimate(
@@ -247,26 +280,67 @@ fn body_geometry(
         opts.warm_start,
         &mut |name, d| stages.push((name, d)),
     );
+    drop(estimator);
     timings.0.extend(stages);
     let fof = found.and_then(|p| match p {
         Some(p) => timings
-            .time("body FOF", || crate::body::prior::body_fof(&p.mesh, &normalised.mask, opts.fof_order, &opts.inflate))
+            .time("body FOF", || {
+                let mesh = centre_visible_depth(p.mesh, &normalised.mask);
+                crate::body::prior::body_fof(&mesh, &normalised.mask, opts.fof_order, &opts.inflate)
+            })
             .map(Some),
         None => Ok(None),
     });
-    static WARNED: AtomicBool = AtomicBool::new(false);
-    let warn = |m: String| warn_once(&WARNED, &m);
     match fof {
-        Ok(Some(f)) => f,
-        Ok(None) => {
-            warn("body prior: no pose found in this input, using the silhouette-inflation prior".into());
-            prior
-        }
-        Err(e) => {
-            warn(format!("body prior failed on this input, using the silhouette-inflation prior: {e}"));
-            prior
-        }
+        Ok(Some(f)) => (f, None),
+        Ok(None) => (prior, Some("no pose found in this input".into())),
+        Err(e) => (prior, Some(format!("it failed on this input ({e})"))),
     }
+}
+
+/// Places a fitted body (a mesh in the body cube seen by the source camera of `mask`'s grid) in depth like the
+/// ground truth of a framed photo: the minimal enclosing circle of the xz projection of the part the photo shows
+/// (vertices that project inside the mask) is centred on z = 0 ([`crate::synth::framing::photo_normalization`]
+/// does this for the synthetic subjects, the reference's preprocessing for whole bodies). The body prior centres
+/// the whole fitted body; for a photo cut at the waist the legs it fits below the frame moved the visible part
+/// off centre by up to 0.3 cube units (measured on synthetic three-quarter subjects). The mesh is unchanged when
+/// no vertex projects inside the mask.
+pub fn centre_visible_depth(mut mesh: TriMesh, mask: &GrayImage) -> TriMesh {
+    let (w, h) = (mask.width, mask.height);
+    let inside = |p: &glam::Vec3| {
+        let col = ((p.x + 1.0) * 0.5 * w as f32).floor();
+        let row = ((1.0 - p.y) * 0.5 * h as f32).floor();
+        col >= 0.0
+            && row >= 0.0
+            && (col as usize) < w
+            && (row as usize) < h
+            && *mask.get(col as usize, row as usize) >= 0.5
+    };
+    let xz: Vec<Vec2> = mesh.positions.iter().filter(|p| inside(p)).map(|p| Vec2::new(p.x, p.z)).collect();
+    if xz.is_empty() {
+        return mesh;
+    }
+    let (centre, _) = crate::geometry::circle::min_enclosing_circle(&xz);
+    if centre.y.is_finite() {
+        mesh.positions.iter_mut().for_each(|p| p.z -= centre.y);
+    }
+    mesh
+}
+
+/// [`body_prior_fof`] with its fall-back logged (one warning per process, then debug messages).
+fn body_geometry(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    prior: Fof,
+    timings: &mut StageTimings,
+) -> Fof {
+    let (fof, fallback) = body_prior_fof(normalised, opts, body, prior, timings);
+    if let Some(why) = fallback {
+        static WARNED: AtomicBool = AtomicBool::new(false);
+        warn_once(&WARNED, &format!("body prior: {why}, using the silhouette-inflation prior"));
+    }
+    fof
 }
 
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
@@ -294,13 +368,40 @@ pub fn compute_geometry(
         (GeometryMode::Auto, None) => return Ok(prior),
         (_, Some(net)) => net,
     };
+    let takes_body = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).takes_body();
+    // The body FOF the network takes: the body prior exactly as `--geometry body` computes it (its fall-back, the
+    // inflation prior, when no pose is found: what the training data holds for such inputs).
+    let body = match (takes_body, &opts.body) {
+        (false, _) => None,
+        (true, Some(body)) => Some(body_geometry(normalised, opts, body, prior.clone(), timings)),
+        (true, None) if opts.geometry == GeometryMode::FofNet => {
+            return Err(PipelineError::NoFofNet(
+                "the FOF net takes the body FOF, but no body prior was loaded (see load_body_for)".into(),
+            ))
+        }
+        (true, None) => {
+            static WARNED: AtomicBool = AtomicBool::new(false);
+            warn_once(
+                &WARNED,
+                "the FOF net takes the body FOF, but no body prior was loaded: using the silhouette-inflation prior",
+            );
+            return Ok(prior);
+        }
+    };
     let refined = timings.time("geometry (FOF net)", || {
-        net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).refine(&normalised.rgb, &normalised.mask, &prior)
+        net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).refine_with(
+            &normalised.rgb,
+            &normalised.mask,
+            &prior,
+            body.as_ref(),
+        )
     });
+    // What the network refined: the guard measures against it and falls back to it.
+    let base = body.unwrap_or(prior);
     match (refined, opts.geometry) {
         (Ok(fof), _) => {
             let (fof, rejected) = timings.time("geometry (guard)", || {
-                guard::guarded(fof, prior, &normalised.mask, &guard::GuardLimits::default())
+                guard::guarded(fof, base, &normalised.mask, &guard::GuardLimits::default())
             });
             if let Some(why) = rejected {
                 static WARNED: AtomicBool = AtomicBool::new(false);
@@ -313,8 +414,8 @@ pub fn compute_geometry(
         }
         (Err(e), GeometryMode::Auto) => {
             static WARNED: AtomicBool = AtomicBool::new(false);
-            warn_once(&WARNED, &format!("the FOF net failed on this input, using the inflation prior: {e}"));
-            Ok(prior)
+            warn_once(&WARNED, &format!("the FOF net failed on this input, using the prior it refines: {e}"));
+            Ok(base)
         }
         (Err(e), _) => Err(PipelineError::FofNetFailed(e)),
     }
@@ -580,19 +681,20 @@ struct CpuBackend<'r> {
 impl PersonBackend<NeuralRef<'_>> for CpuBackend<'_> {
     type Output = RgbaImage;
     type Error = std::convert::Infallible;
+    type NeuralFailure = NeuralError;
 
     fn neural(
         &mut self,
         _source: SourceView<'_>,
         n: &NeuralRef<'_>,
         camera: &Camera,
-    ) -> Result<Result<(RgbaImage, NeuralViewTimes), String>, Self::Error> {
+    ) -> Result<Result<(RgbaImage, NeuralViewTimes), NeuralError>, Self::Error> {
         let (input, target, flowz) = (self.input, self.target, &mut *self.flowz);
         let person = self.timings.time("flow + Z-map + decoder", || {
             let mut renderer = n.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
             renderer.render_view(input, n.encoded, target, camera, flowz)
         });
-        Ok(person.map(|p| (p, NeuralViewTimes::default())).map_err(|e| e.to_string()))
+        Ok(person.map(|p| (p, NeuralViewTimes::default())))
     }
 
     fn reuse_neural(&mut self, _camera: &Camera) -> Result<Option<RgbaImage>, Self::Error> {

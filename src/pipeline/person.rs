@@ -224,6 +224,8 @@ pub trait PersonBackend<N> {
     type Output;
     /// A failure that ends the view (device lost, a broken stage); a neural failure is not one.
     type Error;
+    /// Why the neural decoder could not draw a view (the policy logs it and draws the view geometrically).
+    type NeuralFailure: std::fmt::Display;
     /// Draws the view with the neural decoder: `Ok(Err(reason))` when the decoder failed (the policy then draws
     /// geometrically), `Err` on a failure of the backend itself.
     #[allow(clippy::type_complexity)]
@@ -232,7 +234,7 @@ pub trait PersonBackend<N> {
         source: SourceView<'_>,
         neural: &N,
         camera: &Camera,
-    ) -> Result<Result<(Self::Output, NeuralViewTimes), String>, Self::Error>;
+    ) -> Result<Result<(Self::Output, NeuralViewTimes), Self::NeuralFailure>, Self::Error>;
     /// Draws the view again from the last neural layer (same camera and input); `None` when the backend keeps
     /// no layer (the decoder then runs again).
     fn reuse_neural(&mut self, camera: &Camera) -> Result<Option<Self::Output>, Self::Error>;
@@ -332,15 +334,16 @@ mod tests {
     impl PersonBackend<()> for Probe {
         type Output = &'static str;
         type Error = ();
+        type NeuralFailure = &'static str;
         fn neural(
             &mut self,
             _: SourceView<'_>,
             _: &(),
             _: &Camera,
-        ) -> Result<Result<(&'static str, NeuralViewTimes), String>, ()> {
+        ) -> Result<Result<(&'static str, NeuralViewTimes), &'static str>, ()> {
             self.ran.push("neural");
             let times = NeuralViewTimes { gpu_inputs: Duration::from_millis(2), decoder: Duration::from_millis(3) };
-            Ok(if self.fail { Err("decoder failed".into()) } else { Ok(("n", times)) })
+            Ok(if self.fail { Err("decoder failed") } else { Ok(("n", times)) })
         }
         fn reuse_neural(&mut self, _: &Camera) -> Result<Option<&'static str>, ()> {
             self.ran.push("reuse");

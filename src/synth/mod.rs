@@ -291,7 +291,7 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
     let positions: Vec<Vec3> = positions.iter().map(|&p| normalization.apply(p)).collect();
     let mut mesh = TriMesh::new(positions, triangles);
     mesh.uvs = uvs;
-    mesh.validate().map_err(fail)?;
+    mesh.validate().map_err(|e| fail(e.to_string()))?;
 
     let mut canvas = texture::Canvas::new(if dressed { 2 * size } else { size }, size);
     texture::paint_body(&mut canvas, &assets.base, &body_uvs, &assets.parts, &assets.landmarks, a);

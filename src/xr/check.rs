@@ -112,7 +112,7 @@ pub fn check_runtime() -> Result<RuntimeReport, XrError> {
         )
         .xr("xrCreateInstance")?;
     let props = instance.properties().xr("xrGetInstanceProperties")?;
-    let system = query_system(&instance);
+    let system = query_system(&instance).map_err(|e| e.to_string());
     Ok(RuntimeReport {
         runtime_name: props.runtime_name,
         runtime_version: props.runtime_version.to_string(),
@@ -122,12 +122,10 @@ pub fn check_runtime() -> Result<RuntimeReport, XrError> {
     })
 }
 
-fn query_system(instance: &xr::Instance) -> Result<SystemSummary, String> {
-    let system = instance.system(xr::FormFactor::HEAD_MOUNTED_DISPLAY).xr("xrGetSystem").map_err(|e| e.to_string())?;
-    let props = instance.system_properties(system).map_err(|e| format!("xrGetSystemProperties failed: {e}"))?;
-    let configs = instance
-        .enumerate_view_configurations(system)
-        .map_err(|e| format!("xrEnumerateViewConfigurations failed: {e}"))?;
+fn query_system(instance: &xr::Instance) -> Result<SystemSummary, XrError> {
+    let system = instance.system(xr::FormFactor::HEAD_MOUNTED_DISPLAY).xr("xrGetSystem")?;
+    let props = instance.system_properties(system).xr("xrGetSystemProperties")?;
+    let configs = instance.enumerate_view_configurations(system).xr("xrEnumerateViewConfigurations")?;
     let mut view_configurations = Vec::new();
     for kind in configs {
         let fov_mutable = instance.view_configuration_properties(system, kind).map(|p| p.fov_mutable).unwrap_or(false);

@@ -25,6 +25,10 @@ unsafe fn c_str(ptr: *const std::ffi::c_char) -> String {
 }
 
 /// The OpenXR debug-utils callback: records warnings and errors into the [`ValidationLog`] in `user_data`.
+///
+/// # Safety
+/// Called by the runtime only: `data` is null or valid for the call, `user_data` is null or the `ValidationLog`
+/// registered with the messenger (alive while the messenger is).
 unsafe extern "system" fn openxr_callback(
     severity: xr::sys::DebugUtilsMessageSeverityFlagsEXT,
     _types: xr::sys::DebugUtilsMessageTypeFlagsEXT,

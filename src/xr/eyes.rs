@@ -19,7 +19,7 @@ use std::time::Duration;
 use ash::vk;
 use glam::Vec4;
 
-use super::pacing::{EyeRenderer, EyeRequest};
+use super::pacing::{EyeError, EyeRenderer, EyeRequest};
 use super::placement::Placement;
 use crate::compose::{Mode, RenderedFrame};
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
@@ -187,10 +187,11 @@ impl GpuEyes {
 }
 
 impl EyeRenderer for GpuEyes {
-    fn refresh(&mut self, placement: &Placement) -> Result<bool, String> {
+    fn refresh(&mut self, placement: &Placement) -> Result<bool, EyeError> {
         let mut uploaded = false;
         if let Some(scene) = self.feed.poll() {
-            self.upload_scene(&scene).map_err(|e| format!("uploading the person to the GPU: {e}"))?;
+            self.upload_scene(&scene)
+                .map_err(|source| EyeError::Gpu { what: "uploading the person to the GPU".into(), source })?;
             self.scene = Some(scene);
             self.scene_count += 1;
             uploaded = true;
@@ -199,7 +200,8 @@ impl EyeRenderer for GpuEyes {
             if self.uploaded_for_yaw != Some(placement.yaw) {
                 env.yaw = Self::room_locked_yaw(self.base_yaw, placement.yaw);
                 for r in &mut self.renderers {
-                    r.set_environment(env).map_err(|e| format!("uploading the panorama to the GPU: {e}"))?;
+                    r.set_environment(env)
+                        .map_err(|source| EyeError::Gpu { what: "uploading the panorama to the GPU".into(), source })?;
                 }
                 self.uploaded_for_yaw = Some(placement.yaw);
             }
@@ -211,27 +213,23 @@ impl EyeRenderer for GpuEyes {
         self.scene.is_some()
     }
 
-    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, String> {
+    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError> {
         let mode = self.mode;
-        let r = self
-            .renderers
-            .get_mut(eye.eye)
-            .ok_or_else(|| format!("eye {} has no renderer (the session has fewer eyes)", eye.eye))?;
-        if r.size() != (eye.body_camera.width, eye.body_camera.height) {
-            let (w, h) = r.size();
-            return Err(format!(
-                "eye {}: camera of {}x{} for a renderer of {w}x{h}",
-                eye.eye, eye.body_camera.width, eye.body_camera.height
-            ));
+        let gpu = |source| EyeError::Gpu { what: format!("eye {}", eye.eye), source };
+        let r = self.renderers.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
+        let camera = (eye.body_camera.width, eye.body_camera.height);
+        if r.size() != camera {
+            return Err(EyeError::SizeMismatch { eye: eye.eye, camera, renderer: r.size() });
         }
-        let policy = self.policies.get_mut(eye.eye).ok_or_else(|| format!("eye {}: no policy slot", eye.eye))?;
+        // One policy per renderer (made together in `new`).
+        let policy = self.policies.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
         match &self.scene {
             Some(scene) => {
                 let before = policy.counters();
                 let mut view = GpuView { renderer: &mut *r, mode, target: None };
                 policy
                     .draw(&mut view, scene.source(), scene.neural(), self.scene_count, &eye.body_camera)
-                    .map_err(|e| format!("eye {}: {e}", eye.eye))?;
+                    .map_err(gpu)?;
                 let drawn = policy.counters().since(before);
                 if drawn.decoder_runs > 0 {
                     let times = policy.last_times();
@@ -240,7 +238,7 @@ impl EyeRenderer for GpuEyes {
                 }
                 self.neural_stats.counters += drawn;
             }
-            None => r.render_frame(&eye.body_camera, mode, None).map_err(|e| format!("eye {}: {e}", eye.eye))?,
+            None => r.render_frame(&eye.body_camera, mode, None).map_err(gpu)?,
         }
         match self.staging.as_mut().and_then(|s| s.get_mut(eye.eye)) {
             // Separate device: hand the result over through the session device's host-visible buffer. Safe to
@@ -257,16 +255,14 @@ impl EyeRenderer for GpuEyes {
         }
     }
 
-    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String> {
+    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
         // SAFETY: the fence belongs to this device and is only reset by the display loop after it has seen a newer
         // frame, which this thread publishes only after this wait.
         let result = unsafe { self.session.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
         match result {
             Ok(()) => Ok(()),
-            Err(vk::Result::TIMEOUT) => {
-                Err(format!("the copy into the swapchain did not finish within {COPY_TIMEOUT:?} (device lost?)"))
-            }
-            Err(e) => Err(format!("waiting for the copy into the swapchain failed: {e}")),
+            Err(vk::Result::TIMEOUT) => Err(EyeError::CopyTimeout(COPY_TIMEOUT)),
+            Err(e) => Err(EyeError::CopyWait(e)),
         }
     }
 

@@ -21,10 +21,11 @@ pub mod swapchain;
 
 pub use check::{check_runtime, RuntimeReport};
 pub use eyes::{GpuEyes, NeuralEyeStats, SceneFeed, StaticScene};
-pub use pacing::{EyeRenderer, EyeRequest};
+pub use pacing::{EyeError, EyeRenderer, EyeRequest};
 pub use placement::{Controls, Placement};
 pub use session::{
-    run_session, BlendChoice, EndReason, ExportHook, EyeCapture, PersonExporter, SessionConfig, SessionReport,
+    run_session, BlendChoice, EndReason, ExportFailure, ExportHook, EyeCapture, PersonExporter, SessionConfig,
+    SessionReport,
 };
 
 use openxr as xr;

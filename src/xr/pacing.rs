@@ -60,19 +60,52 @@ pub struct EyeRequest {
     pub stage_camera: Camera,
 }
 
+/// Why the render thread could not render the eyes (it stops; the session ends with this sentence).
+#[derive(Debug, thiserror::Error)]
+pub enum EyeError {
+    /// A GPU call failed (`what`: the step, e.g. "uploading the person to the GPU" or "eye 0").
+    #[error("{what}: {source}")]
+    Gpu {
+        /// The step that failed.
+        what: String,
+        /// The GPU's error.
+        #[source]
+        source: crate::gpu::GpuError,
+    },
+    /// The session asked for an eye the renderer does not have.
+    #[error("eye {0} has no renderer (the session has fewer eyes)")]
+    NoRenderer(usize),
+    /// The eye's camera does not match its renderer's size.
+    #[error("eye {eye}: camera of {}x{} for a renderer of {}x{}", .camera.0, .camera.1, .renderer.0, .renderer.1)]
+    SizeMismatch {
+        /// Eye index.
+        eye: usize,
+        /// The camera's (width, height).
+        camera: (usize, usize),
+        /// The renderer's (width, height).
+        renderer: (usize, usize),
+    },
+    /// The display loop's copy out of the eye buffers did not finish in time.
+    #[error("the copy into the swapchain did not finish within {0:?} (device lost?)")]
+    CopyTimeout(Duration),
+    /// Waiting for that copy failed.
+    #[error("waiting for the copy into the swapchain failed: {0}")]
+    CopyWait(vk::Result),
+}
+
 /// The render thread's side of the eye renderer (implemented on the Vulkan renderer by
-/// [`super::eyes::GpuEyes`]). Errors are sentences for the session report.
+/// [`super::eyes::GpuEyes`]).
 pub trait EyeRenderer: Send {
     /// Takes new content (a new input frame, a panorama turned with the placement) without blocking; called
     /// before every request. Returns whether something was uploaded.
-    fn refresh(&mut self, placement: &Placement) -> Result<bool, String>;
+    fn refresh(&mut self, placement: &Placement) -> Result<bool, EyeError>;
     /// Is there anything to render yet (a live source may not have produced its first frame)?
     fn has_content(&self) -> bool;
     /// Renders one eye; returns the device buffer holding the result (`vec4` linear RGBA per pixel, row-major,
     /// of the eye camera's size), valid until the next call for that eye.
-    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, String>;
+    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError>;
     /// Waits until the display loop's copy (signalled by `fence`) has finished reading the result buffers.
-    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String>;
+    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError>;
     /// Messages for the user since the last call (a live source that ended, a corrupt frame).
     fn take_messages(&mut self) -> Vec<String>;
 }
@@ -202,7 +235,7 @@ impl RenderMailbox {
                     s = self.wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
-            let result = (|| -> Result<Option<RenderedEyes>, String> {
+            let result = (|| -> Result<Option<RenderedEyes>, EyeError> {
                 if let Some(fence) = copy_fence {
                     renderer.wait_copied(fence)?;
                 }
@@ -227,7 +260,7 @@ impl RenderMailbox {
                 }
                 Ok(None) => {}
                 Err(e) => {
-                    self.lock().error = Some(e);
+                    self.lock().error = Some(e.to_string());
                     return;
                 }
             }
@@ -236,7 +269,7 @@ impl RenderMailbox {
 }
 
 /// Renders both eyes of one request.
-pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -> Result<RenderedEyes, String> {
+pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -> Result<RenderedEyes, EyeError> {
     let mut cameras = Vec::with_capacity(request.views.len());
     let mut outputs = Vec::with_capacity(request.views.len());
     let mut eye_times = Vec::with_capacity(request.views.len());
@@ -339,7 +372,7 @@ mod tests {
     }
 
     impl EyeRenderer for Fake {
-        fn refresh(&mut self, _placement: &Placement) -> Result<bool, String> {
+        fn refresh(&mut self, _placement: &Placement) -> Result<bool, EyeError> {
             let first = !self.content;
             self.content = true;
             if first {
@@ -350,9 +383,9 @@ mod tests {
         fn has_content(&self) -> bool {
             self.content
         }
-        fn render_eye(&mut self, e: &EyeRequest) -> Result<vk::Buffer, String> {
+        fn render_eye(&mut self, e: &EyeRequest) -> Result<vk::Buffer, EyeError> {
             if self.fail {
-                return Err("decoder exploded".into());
+                return Err(EyeError::SizeMismatch { eye: e.eye, camera: (8, 8), renderer: (4, 4) });
             }
             if let Some(g) = &self.gate {
                 let (lock, cv) = &**g;
@@ -364,7 +397,7 @@ mod tests {
             self.seen.lock().unwrap().push((e.eye, e.body_camera.position(), e.stage_camera.position()));
             Ok(vk::Buffer::from_raw(100 + e.eye as u64))
         }
-        fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), String> {
+        fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
             self.waited.lock().unwrap().push(fence.as_raw());
             Ok(())
         }
@@ -465,7 +498,7 @@ mod tests {
         let m = mailbox.clone();
         let t = std::thread::spawn(move || m.run_render_loop(&mut r));
         t.join().unwrap();
-        assert_eq!(mailbox.error().as_deref(), Some("decoder exploded"));
+        assert_eq!(mailbox.error().as_deref(), Some("eye 0: camera of 8x8 for a renderer of 4x4"));
         assert!(mailbox.latest().is_none());
     }
 }

@@ -41,8 +41,25 @@ const VIEW_TYPE: xr::ViewConfigurationType = xr::ViewConfigurationType::PRIMARY_
 /// loop never waits for it.
 pub trait PersonExporter: Send + Sync {
     /// Writes the person shown now; `frame` is the number of frames that have shown the person so far (it names
-    /// the file). Returns the file written, or a sentence saying why nothing was written.
-    fn export(&self, frame: u64) -> Result<std::path::PathBuf, String>;
+    /// the file). Returns the file written, or why nothing was written.
+    fn export(&self, frame: u64) -> Result<std::path::PathBuf, ExportFailure>;
+}
+
+/// Why an export of the person wrote nothing.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportFailure {
+    /// No person has been shown yet (a live source before its first frame).
+    #[error("no person has been reconstructed yet: wait for the first frame")]
+    NothingShown,
+    /// Writing the file failed.
+    #[error("{}: {source}", .path.display())]
+    Write {
+        /// The file that was to be written.
+        path: std::path::PathBuf,
+        /// Why.
+        #[source]
+        source: crate::pipeline::export::ExportError,
+    },
 }
 
 /// The exporter a session calls (see [`PersonExporter`]).
@@ -863,7 +880,7 @@ struct LoopState {
 /// The export action's state: one export at a time, on a thread of its own.
 #[derive(Default)]
 struct Exports {
-    running: Option<std::thread::JoinHandle<Result<std::path::PathBuf, String>>>,
+    running: Option<std::thread::JoinHandle<Result<std::path::PathBuf, ExportFailure>>>,
     written: Vec<std::path::PathBuf>,
     failures: Vec<String>,
     /// The person-frame count [`SessionConfig::export_at_frames`] was last checked at.
@@ -918,7 +935,7 @@ impl Exports {
             }
             Ok(Err(e)) => {
                 tracing::warn!("export failed: {e}");
-                self.failures.push(e);
+                self.failures.push(e.to_string());
             }
             Err(_) => self.failures.push("the export thread panicked".into()),
         }

@@ -242,10 +242,39 @@ class NetsTest(unittest.TestCase):
         (f(image, prior) - 0.3).abs().mean().backward()
         self.assertGreater(float(f.net.out.weight.grad.abs().sum()), 0.0)
 
+    def test_body_inputs_residual_base_and_checks(self):
+        from train.nets import fof_net_from_checkpoint, parse_fof_inputs
+        g = torch.Generator().manual_seed(6)
+        image = torch.rand(1, 3, 32, 32, generator=g) * 2 - 1
+        body, prior = torch.randn(1, 8, 32, 32, generator=g), torch.randn(1, 8, 32, 32, generator=g)
+        f = FofNet("tiny", 8, inputs=("image", "body", "prior"), residual="body")
+        first = next(m for m in f.modules() if isinstance(m, torch.nn.Conv2d))
+        self.assertEqual(first.in_channels, 3 + 8 + 8)
+        with torch.no_grad():
+            # Untrained: exactly the body base, whatever the prior says.
+            self.assertTrue(torch.equal(f(image, body, prior), body))
+            self.assertTrue(torch.equal(FofNet("tiny", 8, inputs=("image", "body", "prior"), residual="prior")(
+                image, body, prior), prior))
+            self.assertTrue(torch.equal(FofNet("tiny", 8, inputs=("image", "body"))(image, body), body))
+        with self.assertRaises(ValueError):
+            f(image, body)
+        for bad in ("body,image", "image,body,body", "image,depth", ""):
+            with self.assertRaises(ValueError):
+                parse_fof_inputs(bad)
+        with self.assertRaises(ValueError):
+            FofNet("tiny", 8, inputs=("image", "body"), residual="prior")
+        # Checkpoints: new ones name inputs and residual; old ones only `prior`.
+        new = fof_net_from_checkpoint({"tier": "tiny", "fof_n": 8, "inputs": ["image", "body"], "residual": "body"})
+        self.assertEqual((new.inputs, new.residual), (("image", "body"), "body"))
+        old = fof_net_from_checkpoint({"tier": "tiny", "fof_n": 8, "prior": True})
+        self.assertEqual((old.inputs, old.residual), (("image", "prior"), "prior"))
+        plain = fof_net_from_checkpoint({"tier": "tiny", "fof_n": 8, "prior": False})
+        self.assertEqual((plain.inputs, plain.residual), (("image",), None))
+
     def test_flip_batch_mirrors_every_source_tensor_of_the_same_items(self):
         from train.fit import flip_batch
         b = {k: torch.arange(2 * 2 * 3 * 4, dtype=torch.float32).view(2, 2, 3, 4) + i
-             for i, k in enumerate(["src_image", "src_mask", "src_fof", "src_prior"])}
+             for i, k in enumerate(["src_image", "src_mask", "src_fof", "src_prior", "src_body"])}
         out = flip_batch(b, torch.Generator().manual_seed(0))
         flipped = [bool(torch.equal(out["src_image"][j], torch.flip(b["src_image"][j], dims=[-1]))) for j in range(2)]
         for k in b:
@@ -314,6 +343,25 @@ class TrainExportTest(unittest.TestCase):
         f = onnx.load(os.path.join(models, "fof.onnx"))
         self.assertEqual([i.name for i in f.graph.input], ["image", "prior"])
         self.assertEqual({p.key: p.value for p in f.metadata_props}["r2human.residual"], "prior")
+        self.assertEqual({p.key: p.value for p in f.metadata_props}["r2human.fof_inputs"], "image,prior")
+        # The reference's inputs: photo + body FOF (+ the prior), residual on the body.
+        body_run = os.path.join(out, "body")
+        subprocess.run(base + ["fit-fof", *common, "--inputs", "image,body,prior", "--out", body_run], check=True,
+                       env=env, capture_output=True)
+        log = open(os.path.join(body_run, "train.log")).read()
+        self.assertIn("body_occupancy_iou", log)
+        self.assertIn("residual on body", log)
+        subprocess.run(base + ["export", "--fof", os.path.join(body_run, "fof.pt"), "--out", body_run], check=True,
+                       env=env, capture_output=True)
+        f = onnx.load(os.path.join(body_run, "fof.onnx"))
+        meta = {p.key: p.value for p in f.metadata_props}
+        self.assertEqual([i.name for i in f.graph.input], ["image", "body", "prior"])
+        self.assertEqual((meta["r2human.fof_inputs"], meta["r2human.residual"]), ("image,body,prior", "body"))
+        self.assertLess(json.load(open(os.path.join(body_run, "export_report.json")))["fof"]["max_abs_diff"], 1e-3)
+        bad = subprocess.run(base + ["fit-fof", *common, "--inputs", "image,body", "--residual", "prior", "--out",
+                                     os.path.join(out, "bad")], env=env, capture_output=True, text=True)
+        self.assertNotEqual(bad.returncode, 0)
+        self.assertIn("--residual prior is not one of --inputs", bad.stderr)
 
     def test_torchrun_two_processes(self):
         out = tempfile.mkdtemp(prefix="r2h_ddp_")

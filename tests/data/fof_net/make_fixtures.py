@@ -8,6 +8,10 @@ r2human metadata with kind `fof`, R = 16, N = 4) and a closed-form output:
   fof_zero.onnx      fof = 0                            (erases every column: must not erase the silhouette)
   fof_identity32.onnx  the identity with N = 32 (the pipeline's default order: `r2human eval` with it must score the
                      FOF-net geometry exactly like the inflation prior)
+  fof_body.onnx      inputs image, body, prior (`r2human.fof_inputs = image,body,prior`, residual `body`):
+                     fof = body + 0 * prior + [0.25, 0, 0, 0]  (the reference's inputs; must refine the body FOF)
+  fof_bad_inputs.onnx  `r2human.fof_inputs = image,depth` (an input this build cannot feed: a clear error)
+  fof_bad_residual.onnx  inputs image, prior but `r2human.residual = body` (a base it does not take: an error)
 Needs only `onnx` and `numpy`.
 """
 import os
@@ -18,6 +22,37 @@ from onnx import TensorProto, helper, numpy_helper
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 R, N = 16, 4
+
+
+def save_body(name, offset, fof_inputs="image,body,prior", residual="body", inputs=("body", "prior")):
+    """A net on `inputs` (after image): fof = <residual input> + offset + 0 * (every other input)."""
+    zero = numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero")
+    off = numpy_helper.from_array(np.asarray(offset, np.float32).reshape(1, N, 1, 1), "offset")
+    nodes = [helper.make_node("ReduceMean", ["image"], ["m"], keepdims=1),
+             helper.make_node("Mul", ["m", "zero"], ["acc0"])]
+    base = residual if residual in inputs else inputs[0]
+    for k, other in enumerate(inputs):
+        if other != base:
+            nodes.append(helper.make_node("Mul", [other, "zero"], [f"z{k}"]))
+            nodes.append(helper.make_node("Add", [f"acc{k}", f"z{k}"], [f"acc{k + 1}"]))
+        else:
+            nodes.append(helper.make_node("Identity", [f"acc{k}"], [f"acc{k + 1}"]))
+    nodes.append(helper.make_node("Add", [base, "offset"], ["b1"]))
+    nodes.append(helper.make_node("Add", ["b1", f"acc{len(inputs)}"], ["fof"]))
+    graph = helper.make_graph(
+        nodes, name,
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, R, R])] +
+        [helper.make_tensor_value_info(i, TensorProto.FLOAT, [1, N, R, R]) for i in inputs],
+        [helper.make_tensor_value_info("fof", TensorProto.FLOAT, [1, N, R, R])], [zero, off])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="r2human-fixtures")
+    model.ir_version = 8
+    meta = {"r2human.format": "1", "r2human.kind": "fof", "r2human.tier": "test", "r2human.resolution": str(R),
+            "r2human.fof_n": str(N), "r2human.residual": residual, "r2human.fof_inputs": fof_inputs,
+            "r2human.recipe": "tests/data/fof_net/make_fixtures.py"}
+    for k, v in meta.items():
+        model.metadata_props.append(onnx.StringStringEntryProto(key=k, value=v))
+    onnx.checker.check_model(model)
+    onnx.save(model, os.path.join(HERE, name))
 
 
 def save(name, offset, n=N, keep_prior=1.0):
@@ -52,3 +87,6 @@ save("fof_offset.onnx", [0.25, 0, 0, 0])
 save("fof_nan.onnx", [float("nan"), 0, 0, 0])
 save("fof_identity32.onnx", [0] * 32, n=32)
 save("fof_zero.onnx", [0, 0, 0, 0], keep_prior=0.0)
+save_body("fof_body.onnx", [0.25, 0, 0, 0])
+save_body("fof_bad_inputs.onnx", [0, 0, 0, 0], fof_inputs="image,depth", residual="prior", inputs=("prior",))
+save_body("fof_bad_residual.onnx", [0, 0, 0, 0], fof_inputs="image,prior", residual="body", inputs=("prior",))
