@@ -41,7 +41,7 @@ fn benches(c: &mut Criterion) {
     println!("fit evaluations: cold {}, warm {}", cold.evaluations, warm.evaluations);
     let (_, body_mesh) = centre_depth(model, &cold.pose);
     let params = InflateParams::default();
-    let fof = body_fof(&body_mesh, &mask, 32, &params).expect("body FOF");
+    let fof = body_fof(&body_mesh, &mask, None, 32, &params).expect("body FOF");
 
     let mut g = c.benchmark_group("body");
     g.sample_size(10);
@@ -53,14 +53,14 @@ fn benches(c: &mut Criterion) {
     g.bench_function("fit_warm", |b| b.iter(|| fit_body(model, black_box(&moved_target), Some(&cold.pose), &options)));
     g.bench_function("distance_field_512", |b| b.iter(|| FitTarget::new(black_box(&landmarks), &mask)));
     g.bench_function("body_mesh_and_centre", |b| b.iter(|| centre_depth(model, black_box(&cold.pose))));
-    g.bench_function("body_fof_512_n32", |b| b.iter(|| body_fof(black_box(&body_mesh), &mask, 32, &params)));
+    g.bench_function("body_fof_512_n32", |b| b.iter(|| body_fof(black_box(&body_mesh), &mask, None, 32, &params)));
     g.bench_function("mesh_512_d512", |b| b.iter(|| extract_mesh(black_box(&fof), 512)));
     g.bench_function("still_pose_fit_fof_mesh_512", |b| {
         b.iter(|| {
             let lm = net.estimate(black_box(&rgb), &mask, None).expect("runs").expect("a pose");
             let fit = fit_body(model, &FitTarget::new(&lm, &mask), None, &options);
             let (_, m) = centre_depth(model, &fit.pose);
-            let f = body_fof(&m, &mask, 32, &params).expect("body FOF");
+            let f = body_fof(&m, &mask, None, 32, &params).expect("body FOF");
             extract_mesh(&f, 512)
         })
     });

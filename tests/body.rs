@@ -268,7 +268,7 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
         // network's own landmarks are within 0.036: the fit, not the network, loses accuracy there (issue 14).
         assert!(e2 < 0.075, "seed {seed}: fitted 2-D joint error {e2}");
         let (_, mesh) = centre_depth(model, &fit.pose);
-        let body = body_fof(&mesh, &t.mask, 32, &InflateParams::default()).unwrap();
+        let body = body_fof(&mesh, &t.mask, None, 32, &InflateParams::default()).unwrap();
         let gt = Fof::from_mesh(&t.subject.mesh.mesh, RES, 32).unwrap();
         let inflated = inflate_to_fof(&t.mask, 32, &InflateParams::default()).unwrap();
         let (b, i) = (fof_occupancy_iou(&body, &gt, RES), fof_occupancy_iou(&inflated, &gt, RES));

@@ -14,6 +14,7 @@ pub mod model;
 pub mod morph;
 pub mod pose;
 pub mod prior;
+pub mod reconcile;
 pub mod rig;
 
 use std::path::{Path, PathBuf};

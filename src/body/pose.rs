@@ -47,6 +47,9 @@ pub const MASK_MARGIN: f32 = 1.25;
 pub const AUX_SCALE: f32 = 1.5;
 /// Pose presence below which the network is taken to have found no person.
 pub const MIN_POSE_SCORE: f32 = 0.5;
+/// How far above a cut photo's bottom edge (fraction of its height) a visible foot means a folded body
+/// ([`PoseLandmarks::legs_above_cut`]). The folded Grace Hopper portrait has its ankles 19 % above the edge.
+pub const FOLD_MARGIN: f32 = 0.1;
 /// File name of the model under `.tools/models/`.
 pub const MODEL_FILE: &str = "pose_landmark_full.onnx";
 
@@ -305,6 +308,15 @@ impl PoseLandmarks {
         (centre.is_finite() && side.is_finite() && side > 1.0).then_some(PoseRegion { centre, side })
     }
 
+    /// Whether a foot (ankle, heel or toe) is visible inside the photo's frame more than `margin` (a fraction of
+    /// the frame's height) above its bottom edge. In a photo whose mask runs off the bottom edge this means the
+    /// network folded a whole body into the visible part (a full body standing on the edge has its feet there).
+    pub fn legs_above_cut(&self, margin: f32) -> bool {
+        let limit = self.frame_max.y - margin * (self.frame_max.y - self.frame_min.y);
+        (index::LEFT_ANKLE..LANDMARK_COUNT)
+            .any(|i| self.landmarks[i].visibility >= 0.5 && self.in_frame(i, 0.0) && self.landmarks[i].pixel.y < limit)
+    }
+
     /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` pixels).
     pub fn in_frame(&self, i: usize, margin: f32) -> bool {
         let p = self.landmarks[i].pixel;
@@ -482,21 +494,50 @@ impl PoseEstimator {
         // A photo that cuts the person may show too little of the body for the network to find it in the mask's
         // region: look again in regions two and three times as large that extend below the photo (the body
         // continues there), keeping the top of the person at the same place.
+        let grown = |grow: f32| {
+            let top = region.centre.y - 0.5 * region.side;
+            let side = region.side * grow;
+            PoseRegion { centre: Vec2::new(region.centre.x, top + 0.5 * side), side }
+        };
         let mut first = self.run(rgb, region, frame)?;
         for grow in [2.0f32, 3.0] {
             if first.is_some() || !cut {
                 break;
             }
-            let top = region.centre.y - 0.5 * region.side;
-            let side = region.side * grow;
-            let bigger = PoseRegion { centre: Vec2::new(region.centre.x, top + 0.5 * side), side };
-            first = self.run(rgb, bigger, frame)?;
+            first = self.run(rgb, grown(grow), frame)?;
         }
         let Some(first) = first else { return Ok(None) };
-        match first.refined_region(cut) {
-            Some(next) => Ok(self.run(rgb, next, frame)?.or(Some(first))),
-            None => Ok(Some(first)),
+        let found = self.refine(rgb, first, cut, frame)?;
+        // A photo cut at the bottom cannot show the feet well above its bottom edge: the network folded a small
+        // whole body into the visible part (legs over the coat). Look again in the larger regions, where the
+        // hidden part of the body falls outside the photo, and keep the first answer that is not folded.
+        if cut && found.legs_above_cut(FOLD_MARGIN) {
+            for grow in [2.0f32, 3.0] {
+                if let Some(again) = self.run(rgb, grown(grow), frame)? {
+                    let again = self.refine(rgb, again, cut, frame)?;
+                    if !again.legs_above_cut(FOLD_MARGIN) {
+                        tracing::debug!("pose: folded body in the mask's region; region grown x{grow} instead");
+                        return Ok(Some(again));
+                    }
+                }
+            }
         }
+        Ok(Some(found))
+    }
+
+    /// One more run on the region `first` gives ([`PoseLandmarks::refined_region`]); `first` when that finds
+    /// nothing.
+    fn refine(
+        &mut self,
+        rgb: &RgbImage,
+        first: PoseLandmarks,
+        cut: bool,
+        frame: PhotoFrame,
+    ) -> Result<PoseLandmarks, BodyError> {
+        Ok(match first.refined_region(cut) {
+            Some(next) => self.run(rgb, next, frame)?.unwrap_or(first),
+            None => first,
+        })
     }
 
     /// Live input: one run on the previous frame's tracking region when there is one (MediaPipe's tracking),
@@ -583,6 +624,29 @@ mod tests {
         let mask = Image::from_fn(8, 8, |_, r| if r < 6 { 1.0 } else { 0.0 });
         assert!(cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 6.0))));
         assert!(!cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 8.0))));
+    }
+
+    #[test]
+    fn feet_well_above_a_cut_edge_mean_a_folded_body() {
+        let region = PoseRegion { centre: Vec2::splat(50.0), side: 100.0 };
+        let frame = (Vec2::ZERO, Vec2::new(100.0, 100.0));
+        let raw = vec![0.0f32; 39 * 5];
+        let mut p = PoseLandmarks::decode(&raw, &[0.0; 39 * 3], 0.9, region, frame).unwrap();
+        let put = |p: &mut PoseLandmarks, y: f32, visibility: f32| {
+            for l in &mut p.landmarks[index::LEFT_ANKLE..] {
+                *l = Landmark { pixel: Vec2::new(50.0, y), depth: 0.0, visibility, presence: 1.0 };
+            }
+        };
+        // Feet 20 % above the bottom edge: folded. 5 %: a full body standing on the edge. Below the edge or not
+        // visible: nothing to say.
+        put(&mut p, 80.0, 0.9);
+        assert!(p.legs_above_cut(FOLD_MARGIN));
+        put(&mut p, 95.0, 0.9);
+        assert!(!p.legs_above_cut(FOLD_MARGIN));
+        put(&mut p, 130.0, 0.9);
+        assert!(!p.legs_above_cut(FOLD_MARGIN));
+        put(&mut p, 80.0, 0.2);
+        assert!(!p.legs_above_cut(FOLD_MARGIN));
     }
 
     #[test]

@@ -1,26 +1,26 @@
 //! The body prior of one input: pose landmarks ([`super::pose`]) -> fitted body ([`super::fit`]) -> the posed
 //! body's FOF (the **body FOF**), reconciled with the person's silhouette.
 //!
-//! Reconciliation ([`body_fof`]): the FOF intervals of the posed body mesh where the mask covers the pixel; none
-//! outside the mask (so whatever the photo does not show, past its frame or beyond the silhouette, is cut); mask
-//! pixels the body does not cover (hair, loose clothes, a hand the fit missed) get the silhouette-inflation
-//! prior's thickness there, centred on the depth of the nearest body column, so they join the body instead of
-//! floating at depth 0. The body is placed in depth like the reference's preprocessing: its xz minimal enclosing
-//! circle centred on z = 0.
+//! Reconciliation ([`body_fof`], [`super::reconcile`]): the FOF intervals of the posed body mesh where the mask
+//! covers the pixel; none outside the mask (so whatever the photo does not show, past its frame or beyond the
+//! silhouette, is cut); mask pixels the body does not cover (hair, loose clothes, a held object) get one interval
+//! from a smooth centre field (harmonic from the body's depths) and the inflation profile with the body as its
+//! boundary, so they join the body without steps. The body is placed in depth like the reference's
+//! preprocessing: its xz minimal enclosing circle centred on z = 0.
 
 use std::path::Path;
 
 use glam::{DVec3, Vec2};
 
-use super::distance::DistanceField;
 use super::fit::{fit_body, BodyFit, FitOptions, FitTarget};
 use super::model::{BodyModel, Pose};
 use super::pose::{PhotoFrame, PoseEstimator, PoseLandmarks};
+use super::reconcile::{reconcile, ReconcileParams};
 use super::BodyError;
-use crate::buffer::{GrayImage, Image, RgbImage};
+use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::circle::min_enclosing_circle;
 use crate::geometry::fof::{intervals_from_mesh, sheet_thickness, Fof};
-use crate::geometry::inflate::{inflate, InflateParams};
+use crate::geometry::inflate::InflateParams;
 use crate::geometry::mesh::TriMesh;
 use crate::neural::RuntimeOptions;
 
@@ -114,40 +114,19 @@ impl BodyEstimator {
     }
 }
 
-/// The body FOF reconciled with the silhouette (see the module docs): `mesh` (body cube) and `mask` (`[0, 1]`,
-/// threshold 0.5) on the mask's grid, `n` coefficients.
-pub fn body_fof(mesh: &TriMesh, mask: &GrayImage, n: usize, inflate_params: &InflateParams) -> Result<Fof, BodyError> {
-    let fof_err = |e: String| BodyError::Model(format!("body FOF: {e}"));
-    let (w, h) = (mask.width, mask.height);
-    let body = intervals_from_mesh(mesh, w, h, sheet_thickness(n));
-    let inside = |i: usize| mask.data[i] >= 0.5;
-    let has_body = |i: usize| inside(i) && !body.data[i].is_empty();
-    let filled = (0..w * h).any(|i| inside(i) && !has_body(i));
-    let mut out: Image<Vec<(f32, f32)>> = Image::new(w, h, Vec::new());
-    if filled {
-        let surfaces = inflate(mask, inflate_params).map_err(|e| fof_err(e.to_string()))?;
-        let nearest = DistanceField::new(w, h, has_body);
-        for i in 0..w * h {
-            if has_body(i) {
-                out.data[i] = body.data[i].clone();
-            } else if surfaces.mask.data[i] > 0.5 {
-                let half = 0.5 * (surfaces.front.data[i] - surfaces.back.data[i]).max(0.0);
-                let centre = match nearest.nearest[i] {
-                    usize::MAX => 0.5 * (surfaces.front.data[i] + surfaces.back.data[i]),
-                    j => {
-                        let list = &body.data[j];
-                        0.5 * (list[0].0 + list[list.len() - 1].1)
-                    }
-                };
-                out.data[i] = vec![((centre - half).max(-1.0), (centre + half).min(1.0))];
-            }
-        }
-    } else {
-        for i in 0..w * h {
-            if has_body(i) {
-                out.data[i] = body.data[i].clone();
-            }
-        }
-    }
-    Fof::from_intervals(&out, n).map_err(|e| fof_err(e.to_string()))
+/// The body FOF reconciled with the silhouette ([`super::reconcile`]): `mesh` (body cube) and `mask` (`[0, 1]`,
+/// threshold 0.5) on the mask's grid, `frame` where the photo lies in it (`None`: the whole grid), `n`
+/// coefficients; the inflation profile's κ and smallest thickness from `inflate_params`.
+pub fn body_fof(
+    mesh: &TriMesh,
+    mask: &GrayImage,
+    frame: Option<PhotoFrame>,
+    n: usize,
+    inflate_params: &InflateParams,
+) -> Result<Fof, BodyError> {
+    let body = intervals_from_mesh(mesh, mask.width, mask.height, sheet_thickness(n));
+    let params =
+        ReconcileParams { thickness: inflate_params.thickness, min_half_thickness: inflate_params.min_half_thickness };
+    let out = reconcile(&body, mask, frame, &params);
+    Fof::from_intervals(&out, n).map_err(|e| BodyError::Model(format!("body FOF: {e}")))
 }

@@ -286,7 +286,13 @@ pub fn body_prior_fof(
         Some(p) => timings
             .time("body FOF", || {
                 let mesh = centre_visible_depth(p.mesh, &normalised.mask);
-                crate::body::prior::body_fof(&mesh, &normalised.mask, opts.fof_order, &opts.inflate)
+                crate::body::prior::body_fof(
+                    &mesh,
+                    &normalised.mask,
+                    Some(normalised.frame),
+                    opts.fof_order,
+                    &opts.inflate,
+                )
             })
             .map(Some),
         None => Ok(None),

@@ -1,0 +1,502 @@
+//! Reconciling the fitted body with the person's silhouette: one closed surface per person, whatever the mask adds
+//! to the body (hair, a hat, loose clothes, a helmet held in front) or takes from it (the photo's frame, a limb the
+//! photo does not show).
+//!
+//! Every column of the source view falls in one of four classes:
+//! - **body**: inside the mask and crossed by the posed body: the body's own intervals (arms in front of the torso
+//!   stay separate shells);
+//! - **free**: inside the mask, missed by the body: one interval `[c - h, c + h]` from two smooth fields solved
+//!   over the free columns;
+//! - **outside** the mask, inside the photo: empty; the silhouette's outline;
+//! - **cut**: outside the photo's frame (a portrait cut at the chest): empty, but not an outline — the person
+//!   continues there, so the free surfaces meet it with zero slope instead of closing.
+//!
+//! The fields, on the pixel grid in body-cube units (spacing `2/width`, `2/height`):
+//! - the **centre** `c` is harmonic, `Δc = 0`, equal to the middle of the body's outermost interval on body
+//!   columns, free (zero normal slope) at the outline and the cut: the depth of the body carries smoothly into
+//!   hair, clothes and held objects, so nothing steps or floats apart;
+//! - the **half thickness** is the silhouette-inflation profile ([`crate::geometry::inflate`]) with the body as a
+//!   boundary: `-Δu = 4`, `u = 0` on the outline (half a pixel outside the last mask pixel), `u = (h_b / κ)²` on
+//!   body columns (`h_b` the half depth of the body's outermost interval), zero slope at the cut, and
+//!   `h = κ sqrt(u)`. A free region touching no body is exactly the inflation prior there (centred on the body's
+//!   mean depth); one between the body and the outline bulges like the inflation of the gap, starting from the
+//!   body's own thickness, so the surface is continuous where body and silhouette meet.
+//!
+//! Both are solved with Jacobi-preconditioned conjugate gradients on the 5-point stencil, started from the
+//! solution of the same problem on a grid half as fine (a cascade down to about 64 pixels a side, bilinear in
+//! between), with a fixed small number of iterations on the finer levels: they remove the interpolation's local
+//! error; what remains is a smooth offset of a few hundredths of a unit. A tiny screening term pulls `c` toward the body's mean depth and `u` toward 0 so a
+//! region with no fixed value has a unique solution.
+
+use glam::Vec2;
+
+use super::pose::PhotoFrame;
+use crate::buffer::{GrayImage, Image};
+
+/// What one column of the source view is (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cell {
+    /// Outside the mask, inside the photo: the outline.
+    Outside,
+    /// Outside the photo's frame: the person may continue there.
+    Cut,
+    /// Inside the mask and crossed by the body: a fixed value.
+    Body,
+    /// Inside the mask, not crossed by the body: solved for.
+    Free,
+}
+
+/// Settings of [`reconcile`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReconcileParams {
+    /// κ of the inflation profile `h = κ sqrt(u)` ([`crate::geometry::inflate::InflateParams::thickness`]).
+    pub thickness: f32,
+    /// Smallest half thickness of a free column, in pixels.
+    pub min_half_thickness: f32,
+}
+
+impl Default for ReconcileParams {
+    fn default() -> Self {
+        let p = crate::geometry::inflate::InflateParams::default();
+        Self { thickness: p.thickness, min_half_thickness: p.min_half_thickness }
+    }
+}
+
+/// Screening weight (per cube unit²): a screening length of about 30 cube units, far beyond the cube, so it only
+/// decides the value of regions that nothing else fixes.
+const SCREEN: f64 = 1e-3;
+/// Below this many free cells (or this side) a level is solved directly, without a coarser start.
+const DIRECT_CELLS: usize = 4096;
+/// Relative residual at which the conjugate gradients stop.
+const TOLERANCE: f64 = 1e-6;
+/// Conjugate-gradient iterations on a level started from the coarser one (sides up to 256), and on finer levels.
+/// Measured on the Grace Hopper portrait (94 000 free columns at 512²) against the fully converged solve: 40 and 15
+/// leave a smooth offset of at most 0.026 cube units (99 % of columns under 0.021), in about a tenth of the time.
+const LEVEL_ITERATIONS: usize = 40;
+/// See [`LEVEL_ITERATIONS`].
+const FINE_ITERATIONS: usize = 15;
+
+/// A Poisson problem `-Δx + s (x - t) = f` over the free cells of a grid (see the module docs).
+#[derive(Clone, Debug)]
+struct GridProblem {
+    width: usize,
+    height: usize,
+    cells: Vec<Cell>,
+    /// The value of body cells (unused elsewhere).
+    fixed: Vec<f64>,
+    /// `Some(v)`: the outline holds `x = v` half a pixel outside the mask; `None`: zero slope there.
+    outline: Option<f64>,
+    /// `f`.
+    source: f64,
+    /// `t`.
+    target: f64,
+    /// `1 / spacing²` across columns and rows.
+    inv_dx2: f64,
+    inv_dy2: f64,
+}
+
+impl GridProblem {
+    fn free_count(&self) -> usize {
+        self.cells.iter().filter(|&&c| c == Cell::Free).count()
+    }
+
+    /// The same problem on a grid half as fine: a 2x2 block is body if any of its cells is (the mean of their
+    /// values), else free if any is, else outside if any is, else cut.
+    fn coarsen(&self) -> Self {
+        let (cw, ch) = (self.width.div_ceil(2), self.height.div_ceil(2));
+        let mut cells = vec![Cell::Cut; cw * ch];
+        let mut fixed = vec![0.0; cw * ch];
+        for r in 0..ch {
+            for c in 0..cw {
+                let (mut body, mut sum, mut free, mut outside) = (0usize, 0.0, false, false);
+                for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let (fc, fr) = (2 * c + dc, 2 * r + dr);
+                    if fc >= self.width || fr >= self.height {
+                        continue;
+                    }
+                    let i = fr * self.width + fc;
+                    match self.cells[i] {
+                        Cell::Body => {
+                            body += 1;
+                            sum += self.fixed[i];
+                        }
+                        Cell::Free => free = true,
+                        Cell::Outside => outside = true,
+                        Cell::Cut => {}
+                    }
+                }
+                let k = r * cw + c;
+                cells[k] = if body > 0 {
+                    fixed[k] = sum / body as f64;
+                    Cell::Body
+                } else if free {
+                    Cell::Free
+                } else if outside {
+                    Cell::Outside
+                } else {
+                    Cell::Cut
+                };
+            }
+        }
+        Self { width: cw, height: ch, cells, fixed, inv_dx2: self.inv_dx2 / 4.0, inv_dy2: self.inv_dy2 / 4.0, ..*self }
+    }
+
+    /// The solution on every cell: solved on free cells, the fixed value on body cells, `target` elsewhere.
+    /// Solved from the coarser level's solution when the grid is large.
+    fn solve_cascade(&self) -> Vec<f64> {
+        let free = self.free_count();
+        let cascaded = free > DIRECT_CELLS && self.width.min(self.height) > 64;
+        let guess: Vec<f64> = if cascaded {
+            let coarse = self.coarsen();
+            let xs = coarse.solve_cascade();
+            self.prolong(&coarse, &xs)
+        } else {
+            vec![self.target; self.width * self.height]
+        };
+        let cap = if !cascaded {
+            usize::MAX
+        } else if self.width.max(self.height) > 256 {
+            FINE_ITERATIONS
+        } else {
+            LEVEL_ITERATIONS
+        };
+        self.solve_from(&guess, cap)
+    }
+
+    /// Bilinear interpolation of the coarser level's solution `xs` (a value per coarse cell) at this level's cell
+    /// centres, over the coarse cells that have a value (free or body); `target` where none around has one.
+    fn prolong(&self, coarse: &GridProblem, xs: &[f64]) -> Vec<f64> {
+        let valued = |k: usize| matches!(coarse.cells[k], Cell::Free | Cell::Body);
+        (0..self.width * self.height)
+            .map(|i| {
+                let (c, r) = (i % self.width, i / self.width);
+                // Fine centre c + 0.5 sits at coarse coordinate (c + 0.5) / 2 - 0.5.
+                let (x, y) = ((c as f64 + 0.5) * 0.5 - 0.5, (r as f64 + 0.5) * 0.5 - 0.5);
+                let (x0, y0) = (x.floor(), y.floor());
+                let (tx, ty) = (x - x0, y - y0);
+                let (mut sum, mut weight) = (0.0, 0.0);
+                for (dx, dy, wt) in
+                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+                {
+                    let (cx, cy) = (x0 as i64 + dx, y0 as i64 + dy);
+                    if cx < 0 || cy < 0 || cx >= coarse.width as i64 || cy >= coarse.height as i64 {
+                        continue;
+                    }
+                    let k = cy as usize * coarse.width + cx as usize;
+                    if valued(k) && wt > 0.0 {
+                        sum += wt * xs[k];
+                        weight += wt;
+                    }
+                }
+                if weight > 0.0 {
+                    sum / weight
+                } else {
+                    self.target
+                }
+            })
+            .collect()
+    }
+
+    /// Conjugate gradients (Jacobi preconditioner) from `guess` (a value per cell).
+    fn solve_from(&self, guess: &[f64], cap: usize) -> Vec<f64> {
+        let (w, h) = (self.width, self.height);
+        let mut index = vec![usize::MAX; w * h];
+        let mut order = Vec::new();
+        for (i, c) in self.cells.iter().enumerate() {
+            if *c == Cell::Free {
+                index[i] = order.len();
+                order.push(i);
+            }
+        }
+        let n = order.len();
+        // Per unknown: diagonal, right-hand side, and up to four (neighbour unknown, weight) entries.
+        let mut diag = vec![SCREEN; n];
+        let mut rhs = vec![self.source + SCREEN * self.target; n];
+        let mut links = vec![[(usize::MAX, 0.0f64); 4]; n];
+        for (k, &i) in order.iter().enumerate() {
+            let (c, r) = (i % w, i / w);
+            let neighbours = [
+                (c > 0).then(|| i - 1).map(|j| (j, self.inv_dx2)),
+                (c + 1 < w).then(|| i + 1).map(|j| (j, self.inv_dx2)),
+                (r > 0).then(|| i - w).map(|j| (j, self.inv_dy2)),
+                (r + 1 < h).then(|| i + w).map(|j| (j, self.inv_dy2)),
+            ];
+            for (slot, nb) in neighbours.into_iter().enumerate() {
+                let Some((j, wt)) = nb else { continue };
+                match self.cells[j] {
+                    Cell::Free => {
+                        diag[k] += wt;
+                        links[k][slot] = (index[j], wt);
+                    }
+                    Cell::Body => {
+                        diag[k] += wt;
+                        rhs[k] += wt * self.fixed[j];
+                    }
+                    Cell::Outside => {
+                        if let Some(v) = self.outline {
+                            diag[k] += 2.0 * wt;
+                            rhs[k] += 2.0 * wt * v;
+                        }
+                    }
+                    Cell::Cut => {}
+                }
+            }
+        }
+        let apply = |x: &[f64], y: &mut [f64]| {
+            for k in 0..n {
+                let mut s = diag[k] * x[k];
+                for &(j, wt) in &links[k] {
+                    if j != usize::MAX {
+                        s -= wt * x[j];
+                    }
+                }
+                y[k] = s;
+            }
+        };
+        let mut x: Vec<f64> =
+            order.iter().map(|&i| if guess[i].is_finite() { guess[i] } else { self.target }).collect();
+        let mut ax = vec![0.0; n];
+        apply(&x, &mut ax);
+        let mut r: Vec<f64> = rhs.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
+        let mut p = z.clone();
+        let mut ap = vec![0.0; n];
+        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let b_norm = rhs.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+        for _ in 0..(4 * n + 100).min(cap) {
+            if r.iter().map(|v| v * v).sum::<f64>().sqrt() <= TOLERANCE * b_norm {
+                break;
+            }
+            apply(&p, &mut ap);
+            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+            if pap.is_nan() || pap <= 0.0 {
+                break;
+            }
+            let alpha = rz / pap;
+            for k in 0..n {
+                x[k] += alpha * p[k];
+                r[k] -= alpha * ap[k];
+                z[k] = r[k] / diag[k];
+            }
+            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for k in 0..n {
+                p[k] = z[k] + beta * p[k];
+            }
+        }
+        let mut out: Vec<f64> =
+            (0..w * h).map(|i| if self.cells[i] == Cell::Body { self.fixed[i] } else { self.target }).collect();
+        for (k, &i) in order.iter().enumerate() {
+            out[i] = if x[k].is_finite() { x[k] } else { self.target };
+        }
+        out
+    }
+}
+
+/// The class of every column (see the module docs): `body` intervals on the mask's grid, `mask` in `[0, 1]`
+/// (threshold 0.5), `frame` where the photo lies (`None`: the whole grid).
+pub fn classify(body: &Image<Vec<(f32, f32)>>, mask: &GrayImage, frame: Option<PhotoFrame>) -> Vec<Cell> {
+    let (w, h) = (mask.width, mask.height);
+    let (lo, hi) = frame.unwrap_or((Vec2::ZERO, Vec2::new(w as f32, h as f32)));
+    (0..w * h)
+        .map(|i| {
+            let (c, r) = ((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+            let in_photo = c >= lo.x && c <= hi.x && r >= lo.y && r <= hi.y;
+            match (mask.data[i] >= 0.5, body.data.get(i).is_some_and(|l| !l.is_empty())) {
+                (true, true) => Cell::Body,
+                (true, false) => Cell::Free,
+                (false, _) if in_photo => Cell::Outside,
+                (false, _) => Cell::Cut,
+            }
+        })
+        .collect()
+}
+
+/// The body's intervals reconciled with the silhouette (see the module docs), on the mask's grid. `body` must be
+/// on that grid (`intervals_from_mesh` at the mask's size); intervals are sorted by depth, each `(back, front)`.
+/// Non-finite body values are ignored; every output interval lies in `[-1, 1]`.
+pub fn reconcile(
+    body: &Image<Vec<(f32, f32)>>,
+    mask: &GrayImage,
+    frame: Option<PhotoFrame>,
+    params: &ReconcileParams,
+) -> Image<Vec<(f32, f32)>> {
+    let (w, h) = (mask.width, mask.height);
+    let mut out: Image<Vec<(f32, f32)>> = Image::new(w, h, Vec::new());
+    if w == 0 || h == 0 || body.width != w || body.height != h {
+        return out;
+    }
+    let clean = |l: &[(f32, f32)]| -> Vec<(f32, f32)> {
+        l.iter()
+            .filter(|(a, b)| a.is_finite() && b.is_finite() && b >= a)
+            .map(|&(a, b)| (a.clamp(-1.0, 1.0), b.clamp(-1.0, 1.0)))
+            .collect()
+    };
+    let body = body.map(|l| clean(l));
+    let cells = classify(&body, mask, frame);
+    let kappa = if params.thickness.is_finite() && params.thickness > 0.0 { params.thickness as f64 } else { 0.7 };
+    let envelope = |l: &[(f32, f32)]| -> (f64, f64) {
+        let (back, front) = (l[0].0 as f64, l[l.len() - 1].1 as f64);
+        (0.5 * (back + front), 0.5 * (front - back).max(0.0))
+    };
+    let (mut sum, mut count) = (0.0, 0usize);
+    let mut centre_fixed = vec![0.0; w * h];
+    let mut u_fixed = vec![0.0; w * h];
+    for i in 0..w * h {
+        if cells[i] == Cell::Body {
+            let (c, half) = envelope(&body.data[i]);
+            centre_fixed[i] = c;
+            u_fixed[i] = (half / kappa).powi(2);
+            sum += c;
+            count += 1;
+        }
+    }
+    for ((o, l), cell) in out.data.iter_mut().zip(&body.data).zip(&cells) {
+        if *cell == Cell::Body {
+            o.clone_from(l);
+        }
+    }
+    if !cells.contains(&Cell::Free) {
+        return out;
+    }
+    let mean_centre = if count > 0 { sum / count as f64 } else { 0.0 };
+    let base = GridProblem {
+        width: w,
+        height: h,
+        cells,
+        fixed: centre_fixed,
+        outline: None,
+        source: 0.0,
+        target: mean_centre,
+        inv_dx2: (w as f64 / 2.0).powi(2),
+        inv_dy2: (h as f64 / 2.0).powi(2),
+    };
+    let u_problem = GridProblem { fixed: u_fixed, outline: Some(0.0), source: 4.0, target: 0.0, ..base.clone() };
+    let (centre, u) = rayon::join(|| base.solve_cascade(), || u_problem.solve_cascade());
+    let h_min = params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64;
+    for i in 0..w * h {
+        if base.cells[i] == Cell::Free {
+            let half = (kappa * u[i].max(0.0).sqrt()).max(h_min);
+            let c = centre[i];
+            let (a, b) = ((c - half).clamp(-1.0, 1.0) as f32, (c + half).clamp(-1.0, 1.0) as f32);
+            if a.is_finite() && b.is_finite() && b > a {
+                out.data[i] = vec![(a, b)];
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mask_of(w: usize, h: usize, f: impl Fn(usize, usize) -> bool) -> GrayImage {
+        Image::from_fn(w, h, |c, r| if f(c, r) { 1.0 } else { 0.0 })
+    }
+
+    #[test]
+    fn a_free_region_without_body_is_the_inflation_profile() {
+        // A disc of radius R pixels: u = R² - r² (cube units), h = κ sqrt(u), centred on the body's mean depth
+        // (no body: 0).
+        let (n, radius) = (96usize, 30.0f32);
+        let mask = mask_of(n, n, |c, r| {
+            let (x, y) = (c as f32 + 0.5 - 48.0, r as f32 + 0.5 - 48.0);
+            x * x + y * y <= radius * radius
+        });
+        let body = Image::new(n, n, Vec::new());
+        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0 };
+        let out = reconcile(&body, &mask, None, &params);
+        let px = 2.0 / n as f32;
+        for (c, r) in [(48usize, 48usize), (60, 48), (48, 70), (30, 40)] {
+            let (x, y) = (c as f32 + 0.5 - 48.0, r as f32 + 0.5 - 48.0);
+            let expected = (radius * radius - x * x - y * y).max(0.0).sqrt() * px;
+            let (a, b) = out.get(c, r)[0];
+            assert!((a + b).abs() < 1e-5, "centred on 0: {a} {b}");
+            // The pixel outline approximates the circle to about half a pixel.
+            assert!(
+                (0.5 * (b - a) - expected).abs() < 0.03 * radius * px,
+                "({c},{r}): {} vs {expected}",
+                0.5 * (b - a)
+            );
+        }
+        assert!(out.get(5, 5).is_empty());
+    }
+
+    #[test]
+    fn the_centre_is_harmonic_between_body_columns() {
+        // A strip between two body columns at depths -0.2 and 0.4, the photo's frame around it (so its ends and
+        // sides are cut, zero slope): the centre is linear across it and the thickness follows the inflation of
+        // the gap from the body's thickness at both ends, exactly (the 5-point stencil is exact on quadratics).
+        let (w, h) = (40usize, 12usize);
+        let (first, last) = (10usize, 29usize);
+        let mask = mask_of(w, h, |c, _| (first..=last).contains(&c));
+        let mut body = Image::new(w, h, Vec::new());
+        for r in 0..h {
+            body.set(first, r, vec![(-0.3, -0.1)]);
+            body.set(last, r, vec![(0.3, 0.5)]);
+        }
+        let frame = Some((Vec2::new(first as f32, 0.0), Vec2::new(last as f32 + 1.0, h as f32)));
+        let out = reconcile(&body, &mask, frame, &ReconcileParams::default());
+        let kappa = ReconcileParams::default().thickness as f64;
+        let dx = 2.0 / w as f64;
+        let l = (last - first) as f64 * dx;
+        for c in first + 1..last {
+            let x = (c - first) as f64 * dx;
+            let centre = -0.2 + 0.6 * x / l;
+            // u = u_b + 2 x (L - x), u_b = (0.1 / κ)².
+            let half = kappa * ((0.1 / kappa).powi(2) + 2.0 * x * (l - x)).sqrt();
+            for r in [0usize, 5, 11] {
+                let (a, b) = out.get(c, r)[0];
+                let (got_c, got_h) = (0.5 * (a + b) as f64, 0.5 * (b - a) as f64);
+                assert!((got_c - centre).abs() < 1e-4, "column {c}: centre {got_c} vs {centre}");
+                assert!((got_h - half).abs() < 1e-4, "column {c}: half thickness {got_h} vs {half}");
+            }
+        }
+        assert_eq!(out.get(first, 3), &vec![(-0.3, -0.1)]);
+        assert!(out.get(first - 1, 3).is_empty() && out.get(last + 1, 3).is_empty());
+    }
+
+    #[test]
+    fn the_cut_is_not_an_outline_and_outside_the_mask_is_empty() {
+        // A strip of half width a whose bottom is the photo's frame: far from the top the thickness is the infinite
+        // strip's (u = 2 (a² - x²)) right down to the cut, instead of closing there.
+        let (w, h) = (64usize, 64usize);
+        let a_px = 8.0f32;
+        let mask = mask_of(w, h, |c, r| (8..56).contains(&r) && (c as f32 + 0.5 - 32.0).abs() <= a_px);
+        let body = Image::new(w, h, Vec::new());
+        let frame = Some((Vec2::ZERO, Vec2::new(64.0, 56.0)));
+        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0 };
+        let out = reconcile(&body, &mask, frame, &params);
+        let px = 2.0 / w as f32;
+        let expected = (2.0f32).sqrt() * a_px * px;
+        let (a, b) = out.get(32, 55)[0];
+        assert!((0.5 * (b - a) - expected).abs() < 0.05 * expected, "{} vs {expected}", 0.5 * (b - a));
+        // Without the frame the bottom is an outline: the last row is thin.
+        let closed = reconcile(&body, &mask, None, &params);
+        let (a, b) = closed.get(32, 55)[0];
+        assert!(0.5 * (b - a) < 0.5 * expected);
+        assert!(out.get(2, 30).is_empty() && out.get(32, 60).is_empty());
+    }
+
+    #[test]
+    fn degenerate_inputs_stay_finite() {
+        let mask = mask_of(16, 16, |c, _| c > 3);
+        let mut body = Image::new(16, 16, Vec::new());
+        body.set(8, 8, vec![(f32::NAN, 0.2)]);
+        body.set(9, 8, vec![(-5.0, 5.0)]);
+        let out = reconcile(&body, &mask, None, &ReconcileParams::default());
+        for l in &out.data {
+            assert!(l.iter().all(|&(a, b)| a.is_finite() && b.is_finite() && (-1.0..=1.0).contains(&a) && b <= 1.0));
+        }
+        assert_eq!(out.get(9, 8), &vec![(-1.0, 1.0)]);
+        // A grid mismatch or an empty grid gives nothing, not a panic.
+        assert!(reconcile(&Image::new(3, 3, Vec::new()), &mask, None, &ReconcileParams::default())
+            .data
+            .iter()
+            .all(|l| l.is_empty()));
+        let empty = Image::new(0, 0, 0.0f32);
+        assert!(reconcile(&Image::new(0, 0, Vec::new()), &empty, None, &ReconcileParams::default()).data.is_empty());
+    }
+}
