@@ -215,19 +215,26 @@ fn plot(path: &Path, ranges: &[(f64, Option<f64>, u64)], name: &str) -> Result<(
             .margin(15)
             .x_label_area_size(35)
             .y_label_area_size(60)
-            .build_cartesian_2d(0f64..ranges.len().max(1) as f64, 0f64..top)
+            .build_cartesian_2d(-0.5f64..ranges.len().max(1) as f64 - 0.5, 0f64..top)
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .configure_mesh()
-            .x_labels(ranges.len())
-            .x_label_formatter(&|x| labels.get(*x as usize).cloned().unwrap_or_default())
+            .x_labels(ranges.len() + 1)
+            .x_label_formatter(&|x| {
+                // One label under each bar (bars are centred on whole numbers).
+                let i = x.round();
+                if (x - i).abs() > 1e-6 || i < 0.0 {
+                    return String::new();
+                }
+                labels.get(i as usize).cloned().unwrap_or_default()
+            })
             .y_desc("frames")
             .disable_x_mesh()
             .draw()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .draw_series(ranges.iter().enumerate().map(|(i, r)| {
-                Rectangle::new([(i as f64 + 0.1, 0.0), (i as f64 + 0.9, r.2 as f64)], BLUE.mix(0.6).filled())
+                Rectangle::new([(i as f64 - 0.4, 0.0), (i as f64 + 0.4, r.2 as f64)], BLUE.mix(0.6).filled())
             }))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
