@@ -344,7 +344,7 @@ mod tests {
         assert!(run_xr_session(&opts).unwrap_err().to_string().contains("--export-at-frame 0"));
         let export = ExportOptions { height_m: 9.0, ..Default::default() };
         let opts = XrOptions { input: image("missing.png"), export, ..Default::default() };
-        assert!(run_xr_session(&opts).unwrap_err().to_string().contains("--height 9"));
+        assert!(run_xr_session(&opts).unwrap_err().to_string().contains("height of 9 m"));
         let video = XrInput::Video { path: "x".into(), fps: 0.0, segment: SegmentMethod::Alpha };
         assert!(run_xr_session(&XrOptions { input: video, ..Default::default() })
             .unwrap_err()

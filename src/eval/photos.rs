@@ -212,13 +212,17 @@ struct PhotoReference {
 }
 
 impl PhotoReference {
-    fn of(rgb: &RgbImage, mask: &GrayImage, opts: &PhotoEvalOptions, nets: PhotoNets<'_>) -> Result<Self, String> {
+    fn of(rgb: &RgbImage, mask: &GrayImage, opts: &PhotoEvalOptions, nets: PhotoNets<'_>) -> Result<Self, EvalError> {
         let mut timings = StageTimings::default();
-        let normalised = timings.time("normalise", || normalise(rgb, mask, opts.size)).map_err(|e| e.to_string())?;
-        let geometry = |mode: GeometryMode| -> Result<(Fof, StageTimings), String> {
+        let normalised = timings
+            .time("normalise", || normalise(rgb, mask, opts.size))
+            .map_err(|e| EvalError::stage("normalise", e))?;
+        let geometry = |mode: GeometryMode| -> Result<(Fof, StageTimings), EvalError> {
             let o = PrepareOptions { body: nets.body.cloned(), ..photo_prepare_options(opts, mode) };
             let mut t = StageTimings::default();
-            let fof = compute_geometry(&normalised, &o, &mut t).map_err(|e| e.to_string())?;
+            let fof = compute_geometry(&normalised, &o, &mut t).map_err(|e| {
+                EvalError::stage(if mode == GeometryMode::Body { "body prior" } else { "inflation prior" }, e)
+            })?;
             Ok((fof, t))
         };
         let inflation = geometry(GeometryMode::Inflate)?;
@@ -362,7 +366,7 @@ fn evaluate_photos(opts: &PhotoEvalOptions, nets: PhotoNets<'_>) -> Result<Photo
         let reference = match PhotoReference::of(&rgb, &mask, opts, nets) {
             Ok(r) => r,
             Err(e) => {
-                report.failed.push((name, e));
+                report.failed.push((name, e.to_string()));
                 continue;
             }
         };

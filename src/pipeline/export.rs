@@ -48,10 +48,16 @@ pub const MIN_TRIANGLES: usize = 100;
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     /// `--height` outside [`HEIGHT_RANGE_M`] or not finite.
-    #[error("--height {0} is not a person's standing height: give metres between 0.3 and 3 (default 1.75)")]
+    #[error(
+        "a height of {0} m is not a person's standing height: give metres between 0.3 and 3 (default 1.75) to \
+         --height (export) or --export-height (view, xr)"
+    )]
     Height(f32),
     /// `--decimate` below [`MIN_TRIANGLES`].
-    #[error("--decimate {0} leaves too little of the person: give at least {MIN_TRIANGLES} triangles")]
+    #[error(
+        "decimating to {0} triangles leaves too little of the person: give at least {MIN_TRIANGLES} to --decimate \
+         (export) or --export-decimate (view, xr)"
+    )]
     Decimate(usize),
     /// The mask given does not belong to the input.
     #[error("the person mask is empty, so the photo's framing (and the person's size) is unknown")]
