@@ -1,9 +1,15 @@
-//! Summarises a soak run of `scripts/soak.sh`: resident memory against time (least-squares slope in MiB/hour,
-//! ignoring the first 10 % of the run, at least a minute of a long run, as warm-up) and the display loop's frame times (histogram CSV and PNG).
+//! Summarises a soak run of `scripts/soak.sh`: resident memory against time (least-squares slope after warm-up,
+//! in MiB per hour and per 1000 frames), the validation messages, whether the run ended as asked (not dropped),
+//! and the display loop's frame times (histogram CSV and PNG).
 //!
-//! `cargo run --example soak_report -- DIR NAME` reads `DIR/NAME_rss.csv` (`seconds,rss_kib` per sample) and, when
-//! present, `DIR/NAME_frames.csv` (the window's `--frame-log`), and writes `DIR/NAME_summary.txt`,
-//! `DIR/NAME_histogram.csv` and `DIR/NAME_frame_times.png`. The summary is also printed.
+//! `cargo run --example soak_report -- DIR NAME` reads
+//! - `DIR/NAME_rss.csv` (`seconds,rss_kib` per sample, from the script),
+//! - `DIR/NAME.log`: the run's output (`view`'s or `xr`'s report: frame count, validation messages, the frame-time
+//!   line of `DurationHistogram::summary`, how the session ended) and the script's `exit status: N` line,
+//! - `DIR/NAME_frames.csv` when present (the window's `--frame-log`: per-frame times, a fine histogram),
+//!
+//! and writes `DIR/NAME_summary.txt` (also printed), `DIR/NAME_summary.json`, `DIR/NAME_histogram.csv` and
+//! `DIR/NAME_frame_times.png`. It exits with an error when the run was dropped or validation reported anything.
 
 use std::path::Path;
 use std::time::Duration;
@@ -20,6 +26,80 @@ fn read_csv(path: &Path) -> Result<Vec<Vec<f64>>> {
         .collect())
 }
 
+/// The number right after `key` in `line` (`"frames submitted: 303 (18.8 per second)"`, `"frames submitted: "`).
+fn number_after(line: &str, key: &str) -> Option<f64> {
+    let rest = &line[line.find(key)? + key.len()..];
+    let end = rest.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(rest.len());
+    rest[..end].parse().ok()
+}
+
+/// What the run's log says.
+#[derive(Debug, Default)]
+struct LogFacts {
+    frames: Option<u64>,
+    /// Frames per second the report states (XR).
+    fps: Option<f64>,
+    validation: Option<u64>,
+    /// How the run ended ("time budget reached", "exit status 0").
+    ended: Vec<String>,
+    /// The run ended as asked: exit status 0 and, for XR, on its frame or time budget.
+    clean_end: bool,
+    /// `(from ms, to ms, frames)` of the report's coarse histogram.
+    coarse: Vec<(f64, Option<f64>, u64)>,
+    frame_time_line: Option<String>,
+}
+
+fn read_log(path: &Path) -> Result<LogFacts> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut facts = LogFacts::default();
+    let mut status_ok = false;
+    let mut session_ok = true;
+    for line in text.lines() {
+        if line.starts_with("view: ") {
+            facts.frames = number_after(line, "view: ").map(|n| n as u64);
+        } else if line.starts_with("frames submitted: ") {
+            facts.frames = number_after(line, "frames submitted: ").map(|n| n as u64);
+            facts.fps = number_after(line, "(");
+        } else if let Some(i) = line.find("validation messages") {
+            // view: "... validation messages 0"; xr: "validation messages: OpenXR 0, Vulkan 0".
+            let rest = &line[i..];
+            let sum = if rest.contains("OpenXR") {
+                number_after(rest, "OpenXR ").unwrap_or(f64::NAN) + number_after(rest, "Vulkan ").unwrap_or(f64::NAN)
+            } else {
+                number_after(rest, "validation messages ").unwrap_or(f64::NAN)
+            };
+            facts.validation = sum.is_finite().then_some(sum as u64);
+        } else if let Some(how) = line.strip_prefix("session ended: ") {
+            session_ok = how.contains("budget reached");
+            facts.ended.push(format!("session ended: {how}"));
+        } else if let Some(code) = line.strip_prefix("exit status: ") {
+            status_ok = code.trim() == "0";
+            facts.ended.push(format!("exit status {}", code.trim()));
+        }
+        if let Some(i) = line.find("histogram ") {
+            if line.starts_with("frame times (ms)") || line.starts_with("frame interval (ms)") {
+                facts.frame_time_line = Some(line.to_string());
+                facts.coarse = line[i + "histogram ".len()..]
+                    .split(", ")
+                    .filter_map(|bar| {
+                        let (range, n) = bar.rsplit_once(' ')?;
+                        let n: u64 = n.parse().ok()?;
+                        match range.strip_suffix('+') {
+                            Some(lo) => Some((lo.parse().ok()?, None, n)),
+                            None => {
+                                let (lo, hi) = range.trim_start_matches('[').trim_end_matches(')').split_once(',')?;
+                                Some((lo.parse().ok()?, Some(hi.parse().ok()?), n))
+                            }
+                        }
+                    })
+                    .collect();
+            }
+        }
+    }
+    facts.clean_end = status_ok && session_ok;
+    Ok(facts)
+}
+
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [dir, name] = args.as_slice() else { bail!("usage: soak_report DIR NAME") };
@@ -30,6 +110,7 @@ fn main() -> Result<()> {
     if points.len() < 3 {
         bail!("{name}: only {} memory samples", points.len());
     }
+    let log = read_log(&dir.join(format!("{name}.log")))?;
     let end = points.last().map_or(0.0, |p| p.0);
     // Warm-up (models loading, first frames, allocator pools): the first 10 % of the run, at least 60 s of a
     // run over 10 minutes.
@@ -37,41 +118,84 @@ fn main() -> Result<()> {
     let steady: Vec<(f64, f64)> = points.iter().copied().filter(|p| p.0 >= warmup).collect();
     let (slope, _) = linear_fit(&steady).context("memory samples without spread in time")?;
     let max = points.iter().map(|p| p.1).fold(0.0, f64::max);
-    out.push_str(&format!(
-        "{name}: {} memory samples over {:.0} s; resident {:.1} MiB at the start, {:.1} MiB at the end, {:.1} MiB \
-         at most; slope after warm-up {:+.2} MiB/hour\n",
-        points.len(),
-        end,
-        points[0].1,
-        points.last().map_or(0.0, |p| p.1),
-        max,
-        slope * 3600.0
-    ));
+
+    // Frame times: the window's per-frame log when there is one, else the report's coarse histogram.
     let frames_path = dir.join(format!("{name}_frames.csv"));
-    if frames_path.is_file() {
+    let edges = [0.0, 5.0, 10.0, 20.0, 33.3, 50.0, 100.0, 250.0, 1000.0];
+    let (ranges, fps, detail) = if frames_path.is_file() {
         let rows = read_csv(&frames_path)?;
         let mut h = DurationHistogram::default();
         for r in rows.iter().filter(|r| r.len() >= 2) {
             h.record(Duration::from_secs_f64(r[1].max(0.0) / 1e3));
         }
-        let ms = |d: Duration| d.as_secs_f64() * 1e3;
-        out.push_str(&format!(
-            "{name}: {} frames; frame time median {:.2} ms, p99 {:.2} ms, max {:.2} ms\n",
-            h.count(),
-            ms(h.median()),
-            ms(h.quantile(0.99)),
-            ms(h.max())
-        ));
-        let edges = [0.0, 5.0, 10.0, 20.0, 33.3, 50.0, 100.0, 250.0, 1000.0];
-        for (lo, hi, n) in h.ranges(&edges) {
-            let range = hi.map_or(format!("{lo} ms and more"), |hi| format!("[{lo}, {hi}) ms"));
-            out.push_str(&format!("  {range:>18}: {n}\n"));
-        }
         std::fs::write(dir.join(format!("{name}_histogram.csv")), h.to_csv())?;
-        plot(&dir.join(format!("{name}_frame_times.png")), &h.ranges(&edges), name)?;
+        // Frames per second of the display loop: frame starts (ms, first column) over the run.
+        let starts: Vec<f64> = rows.iter().filter_map(|r| r.first().copied()).collect();
+        let span = starts.last().zip(starts.first()).map_or(0.0, |(b, a)| (b - a) / 1e3);
+        let fps = (span > 0.0).then(|| (starts.len() - 1) as f64 / span);
+        (h.ranges(&edges), fps, format!("frame times (ms): {}", h.summary()))
+    } else {
+        let csv: String = std::iter::once("from_ms,to_ms,frames\n".to_string())
+            .chain(
+                log.coarse
+                    .iter()
+                    .map(|(lo, hi, n)| format!("{lo},{},{n}\n", hi.map_or(String::new(), |h| h.to_string()))),
+            )
+            .collect();
+        std::fs::write(dir.join(format!("{name}_histogram.csv")), csv)?;
+        (log.coarse.clone(), log.fps, log.frame_time_line.clone().unwrap_or_else(|| "no frame-time line".into()))
+    };
+    let frames = log.frames.unwrap_or(0);
+    let fps = fps.or_else(|| (end > 0.0 && frames > 0).then(|| frames as f64 / end));
+    let per_1000 = fps.map(|fps| slope / fps * 1000.0);
+    out.push_str(&format!(
+        "{name}: {frames} frames in {end:.0} s ({}); {} memory samples; resident {:.1} MiB at the start, {:.1} MiB \
+         at the end, {:.1} MiB at most; slope after {warmup:.0} s of warm-up {:+.2} MiB/hour = {} MiB per 1000 \
+         frames\n",
+        fps.map_or("frame rate unknown".into(), |f| format!("{f:.1} frames/s")),
+        points.len(),
+        points[0].1,
+        points.last().map_or(0.0, |p| p.1),
+        max,
+        slope * 3600.0,
+        per_1000.map_or("?".into(), |s| format!("{s:+.3}")),
+    ));
+    out.push_str(&format!(
+        "{name}: validation messages {}; ended: {} ({})\n",
+        log.validation.map_or("not reported".into(), |n| n.to_string()),
+        if log.clean_end { "as asked" } else { "DROPPED or failed" },
+        log.ended.join(", ")
+    ));
+    out.push_str(&format!("{name}: {detail}\n"));
+    for (lo, hi, n) in &ranges {
+        let range = hi.map_or(format!("{lo} ms and more"), |hi| format!("[{lo}, {hi}) ms"));
+        out.push_str(&format!("  {range:>18}: {n}\n"));
     }
+    plot(&dir.join(format!("{name}_frame_times.png")), &ranges, name)?;
+    let json = serde_json::json!({
+        "name": name,
+        "frames": frames,
+        "seconds": end,
+        "frames_per_second": fps,
+        "rss_mib": {"start": points[0].1, "end": points.last().map(|p| p.1), "max": max},
+        "warmup_seconds": warmup,
+        "slope_mib_per_hour": slope * 3600.0,
+        "slope_mib_per_1000_frames": per_1000,
+        "validation_messages": log.validation,
+        "ended": log.ended,
+        "clean_end": log.clean_end,
+        "frame_times": detail,
+        "histogram": ranges.iter().map(|(lo, hi, n)| serde_json::json!([lo, hi, n])).collect::<Vec<_>>(),
+    });
+    std::fs::write(dir.join(format!("{name}_summary.json")), serde_json::to_vec_pretty(&json)?)?;
     print!("{out}");
     std::fs::write(dir.join(format!("{name}_summary.txt")), out)?;
+    if !log.clean_end {
+        bail!("{name}: the run did not end as asked ({})", log.ended.join(", "));
+    }
+    if log.validation != Some(0) {
+        bail!("{name}: validation messages: {:?}", log.validation);
+    }
     Ok(())
 }
 
@@ -91,19 +215,26 @@ fn plot(path: &Path, ranges: &[(f64, Option<f64>, u64)], name: &str) -> Result<(
             .margin(15)
             .x_label_area_size(35)
             .y_label_area_size(60)
-            .build_cartesian_2d(0f64..ranges.len() as f64, 0f64..top)
+            .build_cartesian_2d(-0.5f64..ranges.len().max(1) as f64 - 0.5, 0f64..top)
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .configure_mesh()
-            .x_labels(ranges.len())
-            .x_label_formatter(&|x| labels.get(*x as usize).cloned().unwrap_or_default())
+            .x_labels(ranges.len() + 1)
+            .x_label_formatter(&|x| {
+                // One label under each bar (bars are centred on whole numbers).
+                let i = x.round();
+                if (x - i).abs() > 1e-6 || i < 0.0 {
+                    return String::new();
+                }
+                labels.get(i as usize).cloned().unwrap_or_default()
+            })
             .y_desc("frames")
             .disable_x_mesh()
             .draw()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         chart
             .draw_series(ranges.iter().enumerate().map(|(i, r)| {
-                Rectangle::new([(i as f64 + 0.1, 0.0), (i as f64 + 0.9, r.2 as f64)], BLUE.mix(0.6).filled())
+                Rectangle::new([(i as f64 - 0.4, 0.0), (i as f64 + 0.4, r.2 as f64)], BLUE.mix(0.6).filled())
             }))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         root.present().map_err(|e| anyhow::anyhow!("{e}"))?;

@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Soak runs (issue 16): the desktop window under Xvfb and the OpenXR session against Monado, each for N frames
 # with the live synthetic source, Vulkan (and OpenXR) validation on. Resident memory is sampled every second;
-# the summary gives its slope (MiB/hour, least squares after a 10 % warm-up), the validation message counts,
-# whether the XR session ended on its frame budget (not dropped), and the window's frame-time histogram
-# (text, CSV and PNG; the XR report prints its frame-interval quantiles).
+# examples/soak_report.rs summarises each run (NAME_summary.txt/.json): the memory slope (least squares after a
+# 10 % warm-up, MiB/hour and MiB per 1000 frames), the validation message count (must be 0), whether the run
+# ended as asked (exit status 0, the XR session on its frame budget: not dropped) and the display loop's
+# frame-time histogram (CSV and PNG). The script exits non-zero when a run was dropped or validation spoke.
 #
 # Usage: scripts/soak.sh [--frames N] [--view-only | --xr-only] [--faults] [--release] [--out DIR]
 #   --frames N   frames per run (default 10000: about 10-20 minutes on this 2-core machine)
@@ -20,6 +21,7 @@ SOURCE="synthetic:320x240@30"
 PROFILE=debug
 CARGO_PROFILE=()
 OUT=target/soak
+FAILED=0
 while [ $# -gt 0 ]; do
     case "$1" in
         --frames) FRAMES=$2; shift 2 ;;
@@ -70,9 +72,9 @@ if [ "$RUN_VIEW" = 1 ]; then
     wait "$SAMPLER" || true
     kill "$XVFB_PID" 2>/dev/null || true
     trap - EXIT
-    grep -E "^(view|frame times|live)" "$OUT/view.log" || true
-    echo "view exit status: $VIEW_STATUS"
-    "$REPORT" "$OUT" view
+    echo "exit status: $VIEW_STATUS" >> "$OUT/view.log"
+    grep -E "^(view|frame times|live|exit status)" "$OUT/view.log" || true
+    "$REPORT" "$OUT" view || FAILED=1
 fi
 
 if [ "$RUN_XR" = 1 ]; then
@@ -98,8 +100,10 @@ if [ "$RUN_XR" = 1 ]; then
         XR_STATUS=0
         wait "$RUNNER" || XR_STATUS=$?
         [ -n "$XR_PID" ] && { wait "$SAMPLER" || true; }
-        grep -E "^(frames submitted|frame interval|validation messages|session ended|input frames)" "$OUT/xr.log" || true
-        echo "xr exit status: $XR_STATUS"
-        [ -n "$XR_PID" ] && "$REPORT" "$OUT" xr
+        echo "exit status: $XR_STATUS" >> "$OUT/xr.log"
+        grep -E "^(frames submitted|frame interval|validation messages|session ended|input frames|exit status)" \
+            "$OUT/xr.log" || true
+        if [ -n "$XR_PID" ]; then "$REPORT" "$OUT" xr || FAILED=1; else echo "soak: the xr process never started"; FAILED=1; fi
     fi
 fi
+exit "$FAILED"

@@ -42,11 +42,21 @@ pub enum Target {
     Model,
     /// The video reader's parsing of `ffprobe` output and the frame buffer it implies.
     Ffprobe,
+    /// `image_io::load_image` on the scan texture formats: BMP (plain and RLE), TGA (plain and RLE), WebP
+    /// (lossless and lossy).
+    ScanImage,
+    /// `mesh_io::read_mesh` on an `.obj` with its `.mtl` and a BMP, TGA or WebP `map_Kd` texture.
+    ObjTextures,
+    /// `mesh_io::read_mesh` on a `.gltf` with an external buffer and a BMP, TGA or WebP texture.
+    GltfTextures,
+    /// `mesh_io::read_mesh` on a `.ply` (ASCII, binary little and big endian; colours, UVs per vertex or per
+    /// face corner, a `TextureFile`).
+    Ply,
 }
 
 impl Target {
     /// Every target, in report order.
-    pub const ALL: [Target; 9] = [
+    pub const ALL: [Target; 13] = [
         Target::Image,
         Target::Mask,
         Target::Panorama,
@@ -56,6 +66,10 @@ impl Target {
         Target::Npy,
         Target::Model,
         Target::Ffprobe,
+        Target::ScanImage,
+        Target::ObjTextures,
+        Target::GltfTextures,
+        Target::Ply,
     ];
 
     /// Short name (corpus folder, cargo-fuzz target name).
@@ -70,6 +84,10 @@ impl Target {
             Target::Npy => "npy",
             Target::Model => "model",
             Target::Ffprobe => "ffprobe",
+            Target::ScanImage => "scan_image",
+            Target::ObjTextures => "obj_textures",
+            Target::GltfTextures => "gltf_textures",
+            Target::Ply => "ply",
         }
     }
 
@@ -78,8 +96,9 @@ impl Target {
         Target::ALL.into_iter().find(|t| t.name() == name)
     }
 
-    /// The files of one input, the loaded one first. Image-like targets name their file after its content
-    /// (see [`Case::from_bytes`]), so this is the default only.
+    /// The files of one input, the loaded one first. Image-like targets name their file after its content and
+    /// a texture (`skin.*`) takes the name its mesh or material file gives it (see [`Case::from_bytes`]), so
+    /// this is the default only.
     pub fn file_names(self) -> &'static [&'static str] {
         match self {
             Target::Image => &["photo.png"],
@@ -91,6 +110,10 @@ impl Target {
             Target::Npy => &["array.npy"],
             Target::Model => &["model.onnx"],
             Target::Ffprobe => &["clip.mp4"],
+            Target::ScanImage => &["photo.tga"],
+            Target::ObjTextures => &["mesh.obj", "mesh.mtl", "skin.png"],
+            Target::GltfTextures => &["mesh.gltf", "mesh.bin", "skin.png"],
+            Target::Ply => &["mesh.ply", "skin.png"],
         }
     }
 }
@@ -110,11 +133,27 @@ impl Case {
             if names.len() == 1 { vec![data] } else { split(data, PART_SEPARATOR).take(names.len()).collect() };
         let mut files: Vec<(String, Vec<u8>)> =
             names.iter().zip(parts).map(|(n, p)| (n.to_string(), p.to_vec())).collect();
-        if matches!(target, Target::Image | Target::Panorama) {
-            let stem = if target == Target::Image { "photo" } else { "panorama" };
-            files[0].0 = format!("{stem}.{}", sniff_extension(&files[0].1));
+        match target {
+            Target::Image => files[0].0 = format!("photo.{}", sniff_extension(&files[0].1).unwrap_or("png")),
+            Target::Panorama => files[0].0 = format!("panorama.{}", sniff_extension(&files[0].1).unwrap_or("png")),
+            // TGA is the one format without a signature.
+            Target::ScanImage => files[0].0 = format!("photo.{}", sniff_extension(&files[0].1).unwrap_or("tga")),
+            _ => {}
+        }
+        // A texture is called what the file that uses it calls it (`skin.bmp` in an MTL's `map_Kd`), so the
+        // extension tells the loader the format where the content cannot (TGA).
+        if let Some(k) = files.iter().position(|(n, _)| n.starts_with("skin.")) {
+            let named = files.iter().take(k).find_map(|(_, b)| referenced_texture_extension(b));
+            if let Some(ext) = named {
+                files[k].0 = format!("skin.{ext}");
+            }
         }
         Case { files }
+    }
+
+    /// The texture file of the input (`skin.*`), if it has one.
+    pub fn texture(&self) -> Option<&(String, Vec<u8>)> {
+        self.files.iter().find(|(n, _)| n.starts_with("skin."))
     }
 
     /// The fuzz input of these files (inverse of [`Case::from_bytes`]).
@@ -153,19 +192,29 @@ fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     (0..=last_start).find(|&i| hay[i] == first && &hay[i + 1..i + needle.len()] == rest)
 }
 
-/// The extension a user's file with these bytes would most likely have (the panorama loader decides HDR by it).
-fn sniff_extension(bytes: &[u8]) -> &'static str {
-    if bytes.starts_with(b"\x89PNG") {
-        "png"
-    } else if bytes.starts_with(&[0xFF, 0xD8]) {
-        "jpg"
-    } else if bytes.starts_with(b"#?") {
-        "hdr"
-    } else if bytes.starts_with(b"GIF8") {
-        "gif"
-    } else {
-        "png"
-    }
+/// The extension a user's file with these bytes would most likely have (the panorama loader decides HDR by it,
+/// TGA has no signature), `None` when the bytes start with no known signature.
+fn sniff_extension(bytes: &[u8]) -> Option<&'static str> {
+    let signatures: [(&[u8], &str); 6] = [
+        (b"\x89PNG", "png"),
+        (&[0xFF, 0xD8], "jpg"),
+        (b"#?", "hdr"),
+        (b"GIF8", "gif"),
+        (b"BM", "bmp"),
+        (b"RIFF", "webp"),
+    ];
+    signatures.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, ext)| *ext)
+}
+
+/// Texture extensions a fuzz input's mesh or material file may give its `skin.*` texture.
+const TEXTURE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "bmp", "tga", "webp", "gif"];
+
+/// The extension of the first `skin.EXT` this file names, when it is a texture extension.
+fn referenced_texture_extension(bytes: &[u8]) -> Option<&'static str> {
+    let at = find(bytes, b"skin.")? + 5;
+    let ext: Vec<u8> = bytes[at..].iter().take_while(|b| b.is_ascii_alphanumeric()).take(5).copied().collect();
+    let ext = std::str::from_utf8(&ext).ok()?.to_ascii_lowercase();
+    TEXTURE_EXTENSIONS.into_iter().find(|e| *e == ext)
 }
 
 /// How one input ended (all of these satisfy the property).
@@ -234,6 +283,28 @@ pub fn run_case(target: Target, case: &Case, dir: &Path) -> Result<Outcome, Viol
     }
 }
 
+/// One libFuzzer iteration (the `cargo fuzz` targets in `fuzz/`): runs `target` on `data` in a work folder of
+/// this process under the system's temporary folder; a property violation panics, which libFuzzer reports as a
+/// crash (as it does a panic inside the loader). Time and memory bounds are libFuzzer's (`-timeout`,
+/// `-rss_limit_mb`, `-malloc_limit_mb`).
+pub fn fuzz_one(target: Target, data: &[u8]) {
+    let dir = std::env::temp_dir().join(format!("r2human-fuzz-{}-{}", target.name(), std::process::id()));
+    if let Err(violation) = run(target, data, &dir) {
+        panic!("{}: {violation}", target.name());
+    }
+}
+
+/// libFuzzer's custom mutator hook (`fuzz_mutator!`): applies [`mutate`] to the first `size` bytes of `data`
+/// (structure-aware: GLB containers rebuilt, PNG checksums repaired, dictionary tokens, numbers out of range),
+/// and returns the new size, at most `max_size` (the tail is cut).
+pub fn mutate_in_place(target: Target, data: &mut [u8], size: usize, max_size: usize, seed: u64) -> usize {
+    let mut bytes = data[..size.min(data.len())].to_vec();
+    mutate(target, &mut bytes, &[], &mut Rng::new(seed));
+    let n = bytes.len().min(max_size).min(data.len());
+    data[..n].copy_from_slice(&bytes[..n]);
+    n
+}
+
 enum Failure {
     Error(String),
     Skipped(String),
@@ -248,10 +319,12 @@ pub const MASK_SIZE: (usize, usize) = (32, 48);
 
 fn load(target: Target, path: &Path) -> Result<(), Failure> {
     match target {
-        Target::Image => image_io::load_image(path).map(drop).map_err(err),
+        Target::Image | Target::ScanImage => image_io::load_image(path).map(drop).map_err(err),
         Target::Mask => image_io::load_mask(path, MASK_SIZE.0, MASK_SIZE.1).map(drop).map_err(err),
         Target::Panorama => Environment::load(path).map(drop).map_err(err),
-        Target::Gltf | Target::Glb | Target::Obj => mesh_io::read_mesh(path).map(drop).map_err(err),
+        Target::Gltf | Target::Glb | Target::Obj | Target::ObjTextures | Target::GltfTextures | Target::Ply => {
+            mesh_io::read_mesh(path).map(drop).map_err(err)
+        }
         Target::Npy => NpyArray::read(path).map(drop).map_err(err),
         Target::Model => load_model(path),
         Target::Ffprobe => {
@@ -327,11 +400,19 @@ pub fn seeds(target: Target, root: &Path) -> Vec<Vec<u8>> {
             jpeg(&image::DynamicImage::ImageRgb8(rgb_pattern_img(32, 16))),
         ],
         Target::Glb => vec![glb(true), glb(false)],
-        Target::Gltf => vec![gltf_parts(true, false), gltf_parts(false, true)],
-        Target::Obj => vec![obj_parts(true), obj_parts(false)],
+        Target::Gltf => vec![gltf_parts(Some(Texture::Embedded), false), gltf_parts(None, true)],
+        Target::Obj => vec![obj_parts(Some(("png", png_texture()))), obj_parts(None)],
         Target::Npy => npy_seeds(),
         Target::Model => onnx_fixtures(root),
         Target::Ffprobe => FFPROBE_SEEDS.iter().map(|s| s.as_bytes().to_vec()).collect(),
+        Target::ScanImage => scan_textures(root).into_iter().map(|(_, bytes)| bytes).collect(),
+        Target::ObjTextures => scan_textures(root).into_iter().map(|t| obj_parts(Some(t))).collect(),
+        Target::GltfTextures => scan_textures(root)
+            .into_iter()
+            .enumerate()
+            .map(|(i, (ext, bytes))| gltf_parts(Some(Texture::File(ext, bytes)), i % 2 == 1))
+            .collect(),
+        Target::Ply => ply_seeds(),
     }
 }
 
@@ -350,7 +431,7 @@ pub fn dictionary(target: Target) -> &'static [&'static str] {
             "-Y ",
             " +X ",
         ],
-        Target::Gltf | Target::Glb => &[
+        Target::Gltf | Target::Glb | Target::GltfTextures => &[
             "\"children\":[0]",
             "\"count\":4294967295",
             "\"byteOffset\":-1",
@@ -366,7 +447,7 @@ pub fn dictionary(target: Target) -> &'static [&'static str] {
             "\"type\":\"MAT4\"",
             "\"normalized\":true",
         ],
-        Target::Obj => &[
+        Target::Obj | Target::ObjTextures => &[
             "f -1 -2 -3\n",
             "f 0 1 2\n",
             "f 1/99 2/99 3/99\n",
@@ -401,6 +482,32 @@ pub fn dictionary(target: Target) -> &'static [&'static str] {
             "\"pix_fmt\": \"rgba\"",
             "\"streams\": {}",
             "[[[[[[[[[[[[[[[[",
+        ],
+        Target::ScanImage => {
+            &["BM", "RIFF", "WEBP", "VP8 ", "VP8L", "VP8X", "ALPH", "ANIM", "ANMF", "ICCP", "TRUEVISION-XFILE.\0"]
+        }
+        Target::Ply => &[
+            "element vertex 4294967295\n",
+            "element face 2147483648\n",
+            "element vertex 0\n",
+            "property list uchar int vertex_indices\n",
+            "property list uint uint vertex_indices\n",
+            "property list int int vertex_indices\n",
+            "property list uchar float texcoord\n",
+            "property float x\n",
+            "property double s\n",
+            "property uchar red\n",
+            "format binary_big_endian 1.0\n",
+            "format binary_little_endian 1.0\n",
+            "format ascii 1.0\n",
+            "comment TextureFile skin.png\n",
+            "comment TextureFile ../skin.png\n",
+            "obj_info TextureFile skin.bmp\n",
+            "end_header\n",
+            "255 ",
+            "nan ",
+            "-1 ",
+            "1025 ",
         ],
     }
 }
@@ -530,18 +637,36 @@ fn glb_chunks(glb: &[u8]) -> (serde_json::Value, Vec<u8>) {
     (serde_json::from_slice(&json).expect("our own GLB JSON"), bin)
 }
 
-/// A `.gltf` + `.bin` (+ `.png`) of the box: the buffer and texture as external files; `hierarchy` adds a parent
-/// node with a transform.
-fn gltf_parts(textured: bool, hierarchy: bool) -> Vec<u8> {
-    let (mut json, bin) = glb_chunks(&glb(textured));
+/// The texture of a `.gltf` seed.
+enum Texture {
+    /// The box's own PNG (taken out of its GLB).
+    Embedded,
+    /// This file (extension, bytes).
+    File(&'static str, Vec<u8>),
+}
+
+/// A `.gltf` + `.bin` (+ texture) of the box: the buffer and texture as external files; `hierarchy` adds a
+/// parent node with a transform.
+fn gltf_parts(texture: Option<Texture>, hierarchy: bool) -> Vec<u8> {
+    let (mut json, bin) = glb_chunks(&glb(texture.is_some()));
     json["buffers"][0]["uri"] = serde_json::json!("mesh.bin");
-    let mut texture = Vec::new();
-    if textured {
-        let view = json["images"][0]["bufferView"].as_u64().expect("image view") as usize;
-        let v = &json["bufferViews"][view];
-        let (off, len) = (v["byteOffset"].as_u64().unwrap() as usize, v["byteLength"].as_u64().unwrap() as usize);
-        texture = bin[off..off + len].to_vec();
-        json["images"] = serde_json::json!([{"uri": "skin.png"}]);
+    let mut skin = Vec::new();
+    if let Some(texture) = texture {
+        let ext = match texture {
+            Texture::Embedded => {
+                let view = json["images"][0]["bufferView"].as_u64().expect("image view") as usize;
+                let v = &json["bufferViews"][view];
+                let (off, len) =
+                    (v["byteOffset"].as_u64().unwrap() as usize, v["byteLength"].as_u64().unwrap() as usize);
+                skin = bin[off..off + len].to_vec();
+                "png"
+            }
+            Texture::File(ext, bytes) => {
+                skin = bytes;
+                ext
+            }
+        };
+        json["images"] = serde_json::json!([{ "uri": format!("skin.{ext}") }]);
     }
     if hierarchy {
         json["nodes"] = serde_json::json!([
@@ -551,10 +676,12 @@ fn gltf_parts(textured: bool, hierarchy: bool) -> Vec<u8> {
         json["scenes"] = serde_json::json!([{"nodes": [1]}]);
     }
     let text = serde_json::to_vec_pretty(&json).expect("JSON");
-    Case { files: vec![("mesh.gltf".into(), text), ("mesh.bin".into(), bin), ("skin.png".into(), texture)] }.to_bytes()
+    Case { files: vec![("mesh.gltf".into(), text), ("mesh.bin".into(), bin), ("skin.png".into(), skin)] }.to_bytes()
 }
 
-fn obj_parts(textured: bool) -> Vec<u8> {
+/// An `.obj` of the box; with a texture (extension, bytes), also its `.mtl` and the texture.
+fn obj_parts(texture: Option<(&str, Vec<u8>)>) -> Vec<u8> {
+    let textured = texture.is_some();
     let mesh = box_mesh(true).mesh;
     let mut obj = String::from("# box\n");
     if textured {
@@ -583,15 +710,170 @@ fn obj_parts(textured: bool) -> Vec<u8> {
             obj.push_str(&format!("f {} {} {} {}\n", rel(a), rel(b), rel(c), rel(d)));
         }
     }
-    if !textured {
-        return obj.into_bytes();
+    let Some((ext, tex)) = texture else { return obj.into_bytes() };
+    let mtl = format!("newmtl skin\nKd 0.8 0.6 0.5\nmap_Kd -s 1 1 1 skin.{ext}\n");
+    let name = format!("skin.{ext}");
+    Case { files: vec![("mesh.obj".into(), obj.into_bytes()), ("mesh.mtl".into(), mtl.into_bytes()), (name, tex)] }
+        .to_bytes()
+}
+
+/// The 8x8 PNG texture of the OBJ seed.
+fn png_texture() -> Vec<u8> {
+    png(rgb_pattern(8, 8), image::ExtendedColorType::Rgb8)
+}
+
+/// Small files of the scan texture formats, with their extension: BMP (24-bit, 8-bit palette, 32-bit, RLE8 with
+/// every escape), TGA (RLE and plain, colour and grey), lossless WebP (made here), and the lossy WebPs of
+/// `tests/corpus/scan_image/` (made with ffmpeg's libwebp; this crate's encoder writes lossless only).
+fn scan_textures(root: &Path) -> Vec<(&'static str, Vec<u8>)> {
+    use image::codecs::{bmp::BmpEncoder, tga::TgaEncoder, webp::WebPEncoder};
+    use image::{ExtendedColorType as C, ImageEncoder};
+    let encode = |f: &dyn Fn(&mut Vec<u8>) -> image::ImageResult<()>| {
+        let mut out = Vec::new();
+        f(&mut out).expect("encoding a small texture in memory");
+        out
+    };
+    let (rgb, w, h) = rgb_pattern(12, 8);
+    let (rgba, wa, ha) = rgba_pattern(10, 6);
+    let (gray, wg, hg) = gray_pattern(9, 7);
+    let mut out = vec![
+        ("bmp", encode(&|o| BmpEncoder::new(o).write_image(&rgb, w, h, C::Rgb8))),
+        ("bmp", encode(&|o| BmpEncoder::new(o).write_image(&gray, wg, hg, C::L8))),
+        ("bmp", encode(&|o| BmpEncoder::new(o).write_image(&rgba, wa, ha, C::Rgba8))),
+        ("bmp", bmp_rle8()),
+        ("tga", encode(&|o| TgaEncoder::new(o).write_image(&rgb, w, h, C::Rgb8))),
+        ("tga", encode(&|o| TgaEncoder::new(o).disable_rle().write_image(&rgba, wa, ha, C::Rgba8))),
+        ("tga", encode(&|o| TgaEncoder::new(o).write_image(&gray, wg, hg, C::L8))),
+        ("webp", encode(&|o| WebPEncoder::new_lossless(o).write_image(&rgb, w, h, C::Rgb8))),
+        ("webp", encode(&|o| WebPEncoder::new_lossless(o).write_image(&rgba, wa, ha, C::Rgba8))),
+    ];
+    let dir = root.join("tests/corpus/scan_image");
+    for name in ["lossy.webp", "lossy-alpha.webp"] {
+        if let Ok(bytes) = std::fs::read(dir.join(name)) {
+            out.push(("webp", bytes));
+        }
     }
-    let mtl = "newmtl skin\nKd 0.8 0.6 0.5\nmap_Kd -s 1 1 1 skin.png\n";
-    let tex = png(rgb_pattern(8, 8), image::ExtendedColorType::Rgb8);
-    Case {
-        files: vec![("mesh.obj".into(), obj.into_bytes()), ("mesh.mtl".into(), mtl.into()), ("skin.png".into(), tex)],
+    out
+}
+
+/// A 16x6 8-bit BMP compressed with RLE8, using encoded runs, an absolute run, end of line, a delta and end of
+/// bitmap (the rows it skips stay unset).
+fn bmp_rle8() -> Vec<u8> {
+    let palette: [[u8; 4]; 4] = [[0, 0, 0, 0], [40, 80, 200, 0], [200, 120, 40, 0], [90, 200, 90, 0]];
+    let data: &[u8] = &[
+        16, 1, 0, 0, // row 0: 16 x colour 1, end of line
+        4, 2, 0, 6, 1, 2, 3, 1, 2, 3, 6, 3, 0, 0, // row 1: run, absolute run of 6, run
+        0, 2, 3, 1, 8, 2, 0, 0, // row 2: delta (3 right, 1 up), run of 8
+        10, 3, 0, 1, // row 4: run, end of bitmap (row 5 unset)
+    ];
+    let offset = 14 + 40 + palette.len() * 4;
+    let mut out = Vec::new();
+    out.extend_from_slice(b"BM");
+    out.extend_from_slice(&((offset + data.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&(offset as u32).to_le_bytes());
+    for v in [40u32, 16, 6] {
+        out.extend_from_slice(&v.to_le_bytes());
     }
-    .to_bytes()
+    out.extend_from_slice(&1u16.to_le_bytes()); // planes
+    out.extend_from_slice(&8u16.to_le_bytes()); // bits per pixel
+    for v in [1u32, data.len() as u32, 2835, 2835, palette.len() as u32, 0] {
+        out.extend_from_slice(&v.to_le_bytes()); // BI_RLE8, data size, resolution, colours used, important
+    }
+    out.extend(palette.iter().flatten());
+    out.extend_from_slice(data);
+    out
+}
+
+/// PLY files of the box: ASCII with 8-bit colours and quads; binary little endian with float UVs per vertex and
+/// a PNG `TextureFile`; binary big endian with per-corner `texcoord` lists, 16-bit colours and a BMP texture;
+/// ASCII with float colours and a vertex element property the reader skips.
+fn ply_seeds() -> Vec<Vec<u8>> {
+    let mesh = box_mesh(true).mesh;
+    let (png_tex, bmp_tex) = (png_texture(), scan_textures(Path::new(""))[0].1.clone());
+    let quads: Vec<[u32; 4]> = mesh.triangles.chunks(2).map(|q| [q[0][0], q[0][1], q[0][2], q[1][2]]).collect();
+    let n = mesh.positions.len();
+    let mut out = Vec::new();
+
+    // ASCII, uchar colours, quads.
+    let mut a = format!(
+        "ply\nformat ascii 1.0\ncomment box\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float \
+         z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nelement face {}\nproperty list uchar int \
+         vertex_indices\nend_header\n",
+        quads.len()
+    );
+    for (i, p) in mesh.positions.iter().enumerate() {
+        a.push_str(&format!("{} {} {} {} {} {}\n", p.x, p.y, p.z, i * 10 % 256, 128, 255 - i * 7 % 256));
+    }
+    for q in &quads {
+        a.push_str(&format!("4 {} {} {} {}\n", q[0], q[1], q[2], q[3]));
+    }
+    out.push(a.into_bytes());
+
+    // Binary little endian: float x y z s t, uint index lists, a PNG texture.
+    let mut b = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment TextureFile skin.png\nelement vertex {n}\nproperty float \
+         x\nproperty float y\nproperty float z\nproperty float s\nproperty float t\nelement face {}\nproperty list \
+         uchar uint vertex_indices\nend_header\n",
+        mesh.triangles.len()
+    )
+    .into_bytes();
+    for (p, uv) in mesh.positions.iter().zip(&mesh.uvs) {
+        for v in [p.x, p.y, p.z, uv.x, 1.0 - uv.y] {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    for t in &mesh.triangles {
+        b.push(3);
+        t.iter().for_each(|i| b.extend_from_slice(&i.to_le_bytes()));
+    }
+    out.push(Case { files: vec![("mesh.ply".into(), b), ("skin.png".into(), png_tex)] }.to_bytes());
+
+    // Binary big endian: double x y z, ushort colours, int index lists with per-corner texcoord, a BMP texture.
+    let mut c = format!(
+        "ply\nformat binary_big_endian 1.0\ncomment TextureFile skin.bmp\nelement vertex {n}\nproperty double \
+         x\nproperty double y\nproperty double z\nproperty ushort red\nproperty ushort green\nproperty ushort \
+         blue\nelement face {}\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\n\
+         end_header\n",
+        mesh.triangles.len()
+    )
+    .into_bytes();
+    for (i, p) in mesh.positions.iter().enumerate() {
+        for v in [p.x, p.y, p.z] {
+            c.extend_from_slice(&(v as f64).to_be_bytes());
+        }
+        for v in [i as u16 * 2000, 30000, 65535 - i as u16 * 1000] {
+            c.extend_from_slice(&v.to_be_bytes());
+        }
+    }
+    for t in &mesh.triangles {
+        c.push(3);
+        t.iter().for_each(|&i| c.extend_from_slice(&(i as i32).to_be_bytes()));
+        c.push(6);
+        for &i in t {
+            let uv = mesh.uvs[i as usize];
+            c.extend_from_slice(&uv.x.to_be_bytes());
+            c.extend_from_slice(&(1.0 - uv.y).to_be_bytes());
+        }
+    }
+    out.push(Case { files: vec![("mesh.ply".into(), c), ("skin.bmp".into(), bmp_tex)] }.to_bytes());
+
+    // ASCII, float colours, an extra property and an edge element the reader skips.
+    let mut d = format!(
+        "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\n\
+         property float quality\nproperty float r\nproperty float g\nproperty float b\nelement edge 1\nproperty \
+         int vertex1\nproperty int vertex2\nelement face {}\nproperty list uchar int vertex_index\nend_header\n",
+        mesh.triangles.len()
+    );
+    for (i, p) in mesh.positions.iter().enumerate() {
+        d.push_str(&format!("{} {} {} 0.5 {} 0.25 1\n", p.x, p.y, p.z, i as f32 / n as f32));
+    }
+    d.push_str("0 1\n");
+    for t in &mesh.triangles {
+        d.push_str(&format!("3 {} {} {}\n", t[0], t[1], t[2]));
+    }
+    out.push(d.into_bytes());
+    out
 }
 
 fn npy_seeds() -> Vec<Vec<u8>> {
@@ -907,7 +1189,7 @@ mod tests {
 
     #[test]
     fn cases_round_trip_through_bytes() {
-        let case = Case::from_bytes(Target::Obj, &obj_parts(true));
+        let case = Case::from_bytes(Target::Obj, &obj_parts(Some(("png", png_texture()))));
         assert_eq!(case.files.len(), 3);
         assert_eq!(case.files[1].0, "mesh.mtl");
         assert!(case.files[1].1.starts_with(b"newmtl"));
@@ -934,7 +1216,7 @@ mod tests {
 
     #[test]
     fn mutations_are_deterministic_and_change_the_input() {
-        let seed = obj_parts(true);
+        let seed = obj_parts(Some(("png", png_texture())));
         let run = |s: u64| {
             let mut rng = Rng::new(s);
             let mut d = seed.clone();

@@ -144,3 +144,37 @@ fn export_command_writes_a_glb_of_the_given_height() {
         assert!(!bad.exists());
     }
 }
+
+/// The portrait rule on the shipped photos (`assets/photos`, with the person masks r2human's segmentation model
+/// finds in them, stored in `tests/data/photo_masks` by `cargo run --example person_mask`): the scale the export
+/// gives each photo makes its head as big as an adult's. Rows read off the photos by eye (2-3 px): the top of
+/// the silhouette (hair or cap), the pupils and the chin. An adult's head is 0.21-0.25 m from crown to chin (more
+/// with hair piled up or a cap) and 0.11-0.13 m from the pupils to the chin.
+#[test]
+fn portrait_scale_gives_an_adult_head_on_the_shipped_photos() {
+    // (photo, mask, silhouette top, pupils, chin, whole person in view?)
+    let photos = [
+        ("astronaut.png", 15, 102, 190, false),
+        ("grace_hopper.jpg", 22, 187, 322, false),
+        ("basketball_full_body.png", 85, 107, 135, true),
+    ];
+    for (photo, top, pupils, chin, whole) in photos {
+        let stem = photo.split('.').next().unwrap();
+        let size = r2human::io::image_io::load_image(&repo(&format!("assets/photos/{photo}"))).unwrap().rgb;
+        let mask_file = repo(&format!("tests/data/photo_masks/{stem}.png"));
+        let mask = r2human::io::image_io::load_mask(&mask_file, size.width, size.height).unwrap();
+        let v = r2human::pipeline::export::visible_height(&mask, 1.75).unwrap();
+        let rows = {
+            let person_rows: Vec<usize> =
+                (0..mask.height).filter(|&r| (0..mask.width).any(|c| *mask.get(c, r) >= 0.5)).collect();
+            person_rows.last().unwrap() + 1 - person_rows[0]
+        };
+        let per_row = v.metres / rows as f32;
+        let head = (chin - top) as f32 * per_row;
+        let face = (chin - pupils) as f32 * per_row;
+        eprintln!("{photo}: {v}; crown to chin {head:.3} m, pupils to chin {face:.3} m");
+        assert!((0.20..=0.28).contains(&head), "{photo}: crown to chin {head} m ({v})");
+        assert!((0.09..=0.14).contains(&face), "{photo}: pupils to chin {face} m ({v})");
+        assert_eq!(!whole, v.metres < 1.5, "{photo}: {v}");
+    }
+}

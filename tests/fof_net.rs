@@ -521,3 +521,14 @@ fn fitted_body_is_centred_on_its_visible_part() {
     let empty = GrayImage::from_fn(32, 32, |_, _| 0.0);
     assert_eq!(centre_visible_depth(mesh.clone(), &empty).positions, positions);
 }
+
+/// The FOF net trained on the reference's inputs ships as `models/tiny/fof_body.onnx` (not the default `fof.onnx`:
+/// it wins on synthetic clothed subjects but draws doubled shells on real photos, see models/tiny/README.md): it
+/// takes the photo, the body FOF and the inflation prior, is residual on the prior, and has the pipeline's order.
+#[test]
+fn shipped_body_input_fof_net_declares_its_inputs() {
+    let net = FofNet::load(&shipped_dir().join("fof_body.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(net.inputs(), &[FofInput::Body, FofInput::Prior]);
+    assert_eq!((net.base(), net.info().fof_n, net.info().resolution), (FofInput::Prior, 32, 128));
+    assert!(net.info().recipe.contains("\"fof_inputs\""), "{}", net.info().recipe);
+}

@@ -17,7 +17,8 @@
 //!
 //! Failing inputs are written to `target/tmp/fuzz-failures/<target>/` with the reason; the fix goes into the
 //! loader and the input into `tests/corpus/<target>/`. A summary (cases per target and outcome, slowest case,
-//! largest allocation) is printed and written to `target/tmp/fuzz-report.json` (`R2HUMAN_FUZZ_REPORT` overrides).
+//! largest allocation) is printed and written to `target/tmp/fuzz-report.json` (`R2HUMAN_FUZZ_REPORT` overrides)
+//! and, as a Markdown table, beside it with the extension `.md`.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::{Path, PathBuf};
@@ -114,36 +115,44 @@ static SERIAL: Mutex<()> = Mutex::new(());
 
 const BASE_BUDGET: u64 = 24 << 20;
 
-/// Pixels an image header declares, believed up to 16384 per byte of the data that holds it.
-fn believable_pixels(bytes: &[u8]) -> u64 {
-    let declared = image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .ok()
-        .and_then(|r| r.into_dimensions().ok())
-        .map(|(w, h)| w as u64 * h as u64)
-        .unwrap_or(0);
-    declared.min(16384 * bytes.len() as u64 + 65536)
+/// Pixels an image header declares (format from the content, else from `name`: TGA has no signature), believed
+/// up to 16384 per byte of the data that holds it (twice the densest format, 1-bit PNG at deflate's best
+/// ratio), 131072 for WebP (twice the loader's bound: lossless WebP codes uniform images at almost 0 bits).
+fn believable_pixels(bytes: &[u8], name: &str) -> u64 {
+    let Ok(mut reader) = image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format() else { return 0 };
+    if reader.format().is_none() {
+        if let Ok(format) = image::ImageFormat::from_path(name) {
+            reader.set_format(format);
+        }
+    }
+    let per_byte = if reader.format() == Some(image::ImageFormat::WebP) { 131072 } else { 16384 };
+    let declared = reader.into_dimensions().map(|(w, h)| w as u64 * h as u64).unwrap_or(0);
+    declared.min(per_byte * bytes.len() as u64 + 65536)
 }
 
 /// The most bytes one case may have allocated at once beyond what was live before it.
 fn budget(target: Target, case: &Case) -> u64 {
     let total: u64 = case.files.iter().map(|(_, b)| b.len() as u64).sum();
     let images: u64 = match target {
-        Target::Image | Target::Mask | Target::Panorama => believable_pixels(&case.files[0].1),
-        Target::Gltf | Target::Obj => case.files.get(2).map(|f| believable_pixels(&f.1)).unwrap_or(0),
+        Target::Image | Target::Mask | Target::Panorama | Target::ScanImage => {
+            believable_pixels(&case.files[0].1, &case.files[0].0)
+        }
+        Target::Gltf | Target::Obj | Target::ObjTextures | Target::GltfTextures | Target::Ply => {
+            case.texture().map(|(name, bytes)| believable_pixels(bytes, name)).unwrap_or(0)
+        }
         // The texture is embedded: whatever image starts at a PNG or JPEG signature inside the file.
         Target::Glb => {
             let data = &case.files[0].1;
             (0..data.len().saturating_sub(4))
                 .filter(|&i| data[i..].starts_with(b"\x89PNG") || data[i..].starts_with(&[0xFF, 0xD8, 0xFF]))
-                .map(|i| believable_pixels(&data[i..]))
+                .map(|i| believable_pixels(&data[i..], "embedded"))
                 .max()
                 .unwrap_or(0)
         }
         _ => 0,
     };
     let per_byte = match target {
-        Target::Gltf | Target::Glb | Target::Obj => 256,
+        Target::Gltf | Target::Glb | Target::Obj | Target::ObjTextures | Target::GltfTextures | Target::Ply => 256,
         _ => 64,
     };
     BASE_BUDGET + 64 * images + per_byte * total
@@ -329,7 +338,7 @@ fn every_loader_survives_mutated_inputs() {
         let t0 = Instant::now();
         let r = fuzz_target(target, cases, seed, timeout);
         println!(
-            "{:<9} {:>7} cases: {:>7} accepted, {:>7} rejected, {} skipped, {} failures; slowest {:.0} ms, largest \
+            "{:<13} {:>7} cases: {:>7} accepted, {:>7} rejected, {} skipped, {} failures; slowest {:.0} ms, largest \
              allocation {:.1} MiB; {:.1} s{}",
             r.target,
             r.cases,
@@ -353,6 +362,18 @@ fn every_loader_survives_mutated_inputs() {
         "targets": reports,
     });
     std::fs::write(&report_path, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
+    // The same as a Markdown table (the README's reliability table is made from a long run's).
+    let mut md = format!(
+        "| loader (target) | cases (seed {seed}) | accepted | rejected | failures | slowest case | largest allocation |\n\
+         |---|---:|---:|---:|---:|---:|---:|\n"
+    );
+    for r in &reports {
+        md.push_str(&format!(
+            "| `{}` | {} | {} | {} | {} | {:.0} ms | {:.1} MiB |\n",
+            r.target, r.cases, r.accepted, r.rejected, r.failures, r.slowest_ms, r.largest_alloc_mib
+        ));
+    }
+    std::fs::write(report_path.with_extension("md"), md).unwrap();
     let failed: Vec<String> = reports.iter().flat_map(|r| r.failure_files.iter().cloned()).collect();
     let total_failures: u64 = reports.iter().map(|r| r.failures).sum();
     assert_eq!(total_failures, 0, "{total_failures} failing inputs, saved as {failed:#?}");
@@ -392,6 +413,63 @@ fn budget_refuses_a_forged_header() {
     let peak = PEAK.load(Ordering::Relaxed) - base;
     assert!(unchecked.is_err());
     assert!(peak as u64 > allowed, "the unchecked decoder allocated only {peak} bytes");
+}
+
+/// Forged headers of the scan texture formats (BMP, TGA, WebP, and a WebP frame larger than its canvas) are
+/// refused before their pixel buffers exist, where the decoders alone allocate past the budget.
+#[test]
+fn forged_scan_texture_headers_are_refused_within_budget() {
+    let _serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
+    let root = project_root();
+    let seeds = fuzzing::seeds(Target::ScanImage, &root);
+    let find = |magic: &[u8], nth: usize| seeds.iter().filter(|s| s.starts_with(magic)).nth(nth).unwrap().clone();
+    // BMP: width and height (i32) at 18 and 22; the pixel data cut off.
+    let mut bmp = find(b"BM", 0);
+    bmp[18..22].copy_from_slice(&8000i32.to_le_bytes());
+    bmp[22..26].copy_from_slice(&8000i32.to_le_bytes());
+    bmp.truncate(70);
+    // TGA (RLE, no signature): width and height (u16) at 12 and 14.
+    let mut tga = seeds.iter().find(|s| !s.starts_with(b"BM") && !s.starts_with(b"RIFF")).unwrap().clone();
+    tga[12..14].copy_from_slice(&8000u16.to_le_bytes());
+    tga[14..16].copy_from_slice(&8000u16.to_le_bytes());
+    tga.truncate(60);
+    // Lossy WebP: the VP8 frame header's 14-bit width and height at 26 and 28.
+    let mut webp = std::fs::read(root.join("tests/corpus/scan_image/lossy.webp")).unwrap();
+    assert_eq!(&webp[12..16], b"VP8 ");
+    webp[26..28].copy_from_slice(&8000u16.to_le_bytes());
+    webp[28..30].copy_from_slice(&8000u16.to_le_bytes());
+    // A 24x16 canvas whose VP8 frame claims 16383x16255 (found by the harness).
+    let frame = std::fs::read(root.join("tests/corpus/scan_image/webp-frame-larger-than-canvas.webp")).unwrap();
+    let cases = [
+        ("photo.bmp", bmp, "8000x8000"),
+        ("photo.tga", tga, "8000x8000"),
+        ("photo.webp", webp, "8000x8000"),
+        ("photo.webp", frame, "larger than its 24x16 canvas"),
+    ];
+    for (name, data, says) in cases {
+        let case = Case::from_bytes(Target::ScanImage, &data);
+        assert_eq!(case.files[0].0, name);
+        let allowed = budget(Target::ScanImage, &case);
+        let r = run_one(Target::ScanImage, &data, &tmp_root().join("fuzz-forged"), Duration::from_secs(60)).unwrap();
+        match r.outcome {
+            Ok(Outcome::Rejected(msg)) => assert!(msg.contains(name) && msg.contains(says), "{name}: {msg}"),
+            other => panic!("{name}: expected a refusal, got {other:?}"),
+        }
+        assert!(r.peak < allowed, "{name}: {} > {allowed}", r.peak);
+        // The decoder alone asks for the claimed pixel buffer (for the 250-byte WebP the budget itself believes
+        // 131072 pixels per byte, so the comparison is with the checked load).
+        let format = image::ImageFormat::from_path(name).unwrap();
+        let base = LIVE.load(Ordering::Relaxed);
+        PEAK.store(base, Ordering::Relaxed);
+        let unchecked = image::load_from_memory_with_format(&data, format);
+        let peak = PEAK.load(Ordering::Relaxed) - base;
+        assert!(unchecked.is_err(), "{name}");
+        assert!(
+            peak > 100 << 20 && peak > 10 * r.peak as usize,
+            "{name}: the unchecked decoder allocated only {peak} bytes (checked: {})",
+            r.peak
+        );
+    }
 }
 
 /// `r2human render` on inputs the loaders reject fails with a message naming the file and writes nothing.
@@ -451,5 +529,46 @@ fn explain_corpus() {
             let r = fuzzing::run(target, &data, &tmp_root().join("fuzz-explain"));
             println!("{name}: {r:?}");
         }
+    }
+}
+
+/// The `cargo fuzz` crate (`fuzz/`, built with nightly only) has one target per loader, each calling the shared
+/// entry point of its `Target`, so it cannot fall behind the stable harness unseen.
+#[test]
+fn cargo_fuzz_crate_has_a_target_per_loader() {
+    let fuzz = project_root().join("fuzz");
+    let manifest = std::fs::read_to_string(fuzz.join("Cargo.toml")).unwrap();
+    let mut names = Vec::new();
+    for target in Target::ALL {
+        let name = target.name();
+        names.push(name);
+        let path = format!("fuzz_targets/{name}.rs");
+        assert!(manifest.contains(&format!("name = \"{name}\"\npath = \"{path}\"")), "fuzz/Cargo.toml lacks {name}");
+        let source = std::fs::read_to_string(fuzz.join(&path)).unwrap();
+        assert!(source.contains(&format!("target!(r2human::fuzzing::Target::{target:?});")), "{path}: {source}");
+    }
+    let bins = manifest.matches("[[bin]]").count();
+    assert_eq!(bins, names.len(), "fuzz/Cargo.toml has {bins} targets for {names:?}");
+}
+
+/// Writes the starting corpus of the `cargo fuzz` targets: `fuzz/corpus/<target>/` gets the generated seeds and
+/// the committed corpus (`cargo test --test fuzz export_cargo_fuzz_corpus -- --ignored`).
+#[test]
+#[ignore]
+fn export_cargo_fuzz_corpus() {
+    let root = project_root();
+    for target in Target::ALL {
+        let dir = root.join("fuzz/corpus").join(target.name());
+        std::fs::create_dir_all(&dir).unwrap();
+        let seeds = fuzzing::seeds(target, &root).into_iter().enumerate().map(|(i, b)| (format!("seed-{i}"), b));
+        let committed = committed_corpus(target)
+            .into_iter()
+            .map(|(path, b)| (Path::new(&path).file_name().unwrap().to_string_lossy().into_owned(), b));
+        let mut n = 0;
+        for (name, bytes) in seeds.chain(committed) {
+            std::fs::write(dir.join(name), bytes).unwrap();
+            n += 1;
+        }
+        println!("{}: {n} files", dir.display());
     }
 }

@@ -12,6 +12,7 @@
 //! the files it wrote inside the root are checked with the Khronos validator outside it (where node is).
 
 mod common;
+mod xr_root;
 mod xr_support;
 
 use std::path::{Path, PathBuf};
@@ -27,62 +28,18 @@ use r2human::io::environment::Environment;
 use r2human::pipeline::Scene;
 use r2human::xr::session::{EndReason, SessionReport};
 use r2human::xr::{check_runtime, run_session, SceneFeed, SessionConfig, StaticScene, XrError};
+use xr_root::{assert_validation_layers_present, checkout, prepare_root, run_inside};
 
 const IGNORE_REASON: &str = "needs a running OpenXR runtime; run via xr_suite_in_monado_root";
-
-fn checkout() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn is_root_user() -> bool {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("Uid:")).map(|l| l.split_whitespace().nth(1) == Some("0")))
-        .unwrap_or(false)
-}
-
-/// Runs `args` of this test binary inside the Monado root with validation on; returns (success, output).
-fn run_inside(extra_runner_args: &[&str], test_args: &[&str]) -> (bool, String) {
-    let exe = std::env::current_exe().expect("test binary path");
-    let out = Command::new(checkout().join("scripts/xr/run-in-root.sh"))
-        .args(extra_runner_args)
-        .arg(exe)
-        .args(test_args)
-        .env("XR_ENABLE_API_LAYERS", "XR_APILAYER_LUNARG_core_validation")
-        .env("VK_INSTANCE_LAYERS", "VK_LAYER_KHRONOS_validation")
-        .env("RUST_BACKTRACE", "1")
-        .current_dir(checkout())
-        .stdin(Stdio::null())
-        .output()
-        .expect("run-in-root.sh starts");
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    (out.status.success(), text)
-}
 
 #[test]
 fn xr_suite_in_monado_root() {
     if std::env::var("R2HUMAN_XR_IN_ROOT").is_ok() {
         return; // already inside: the ignored tests are the suite
     }
-    if !is_root_user() {
-        println!("SKIPPED xr_suite_in_monado_root: building and entering the Monado root needs root (mount, chroot)");
+    if let Err(why) = prepare_root() {
+        println!("SKIPPED xr_suite_in_monado_root: {why}");
         return;
-    }
-    let made = Command::new(checkout().join("scripts/xr/make-root.sh")).stdin(Stdio::null()).output();
-    match made {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            println!(
-                "SKIPPED xr_suite_in_monado_root: the XR root could not be built:\n{}{}",
-                String::from_utf8_lossy(&o.stdout),
-                String::from_utf8_lossy(&o.stderr)
-            );
-            return;
-        }
-        Err(e) => {
-            println!("SKIPPED xr_suite_in_monado_root: scripts/xr/make-root.sh did not run: {e}");
-            return;
-        }
     }
     let exported = export_folder();
     let _ = std::fs::remove_dir_all(&exported);
@@ -215,19 +172,6 @@ fn assert_clean_session(report: &SessionReport, frames: u64) {
     assert_eq!(report.captures.len(), 2, "both eyes read back");
     assert!(report.eye_render_ms.is_some_and(|ms| ms > 0.0), "no GPU eye render was timed");
     assert!(report.scene_uploads >= 1);
-}
-
-/// Checks that the validation layers the suite asks for are really installed in the root, so "no messages" means
-/// something.
-fn assert_validation_layers_present() {
-    let xr_layer = Path::new("/usr/share/openxr/1/api_layers/explicit.d");
-    let found = std::fs::read_dir(xr_layer)
-        .map(|d| d.flatten().any(|e| e.file_name().to_string_lossy().contains("core_validation")))
-        .unwrap_or(false);
-    assert!(found, "OpenXR core validation layer manifest missing in {}", xr_layer.display());
-    assert_eq!(std::env::var("XR_ENABLE_API_LAYERS").as_deref(), Ok("XR_APILAYER_LUNARG_core_validation"));
-    assert!(Path::new("/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json").exists());
-    assert_eq!(std::env::var("VK_INSTANCE_LAYERS").as_deref(), Ok("VK_LAYER_KHRONOS_validation"));
 }
 
 #[test]

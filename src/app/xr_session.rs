@@ -141,7 +141,8 @@ impl PersonExporter for GltfExporter {
 }
 
 /// A live source as a scene feed: the newest completed frame of a [`LivePipeline`] (read without blocking), its
-/// messages passed on, and one message when the source ends (the session keeps showing the last person).
+/// messages passed on, one message when the source changes resolution, and one when it ends (the session keeps
+/// showing the last person).
 pub struct LiveFeed {
     pipeline: LivePipeline<LiveFrame>,
     reader: LatestReader<Completed<LiveFrame>>,
@@ -150,6 +151,9 @@ pub struct LiveFeed {
     last_sequence: u64,
     errors_seen: u64,
     ended_reported: bool,
+    /// Frame size (width, height) of the last new frame, and messages about changes not yet taken.
+    frame_size: Option<(usize, usize)>,
+    pending: Vec<String>,
     /// The frame last handed to the eyes (for the export action).
     shown: ShownSlot,
 }
@@ -176,6 +180,8 @@ impl LiveFeed {
             last_sequence: 0,
             errors_seen: 0,
             ended_reported: false,
+            frame_size: None,
+            pending: Vec::new(),
             shown: ShownSlot::default(),
         })
     }
@@ -196,6 +202,18 @@ impl SceneFeed for LiveFeed {
             return None;
         }
         self.last_sequence = done.sequence;
+        let size = (done.mask.width, done.mask.height);
+        if let Some(old) = self.frame_size.filter(|&old| old != size) {
+            self.pending.push(format!(
+                "the source `{}` changed resolution from {}x{} to {}x{}",
+                self.pipeline.describe(),
+                old.0,
+                old.1,
+                size.0,
+                size.1
+            ));
+        }
+        self.frame_size = Some(size);
         *self.shown.lock().unwrap_or_else(|p| p.into_inner()) = Some(ShownPerson::Live(Arc::clone(done)));
         let neural = match (&self.decoder, &done.output.neural) {
             (Some(renderer), Some(encoded)) => {
@@ -208,7 +226,7 @@ impl SceneFeed for LiveFeed {
 
     fn take_messages(&mut self) -> Vec<String> {
         let stats = self.pipeline.stats();
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.pending);
         if stats.errors > self.errors_seen {
             let new = (stats.errors - self.errors_seen) as usize;
             let recent = self.pipeline.messages();

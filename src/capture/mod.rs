@@ -281,8 +281,8 @@ pub fn frame_from_srgb8(
 
 /// Decodes an image file (through [`crate::io::image_io::load_image`], with its size limits) into linear RGB and,
 /// when the file has an alpha channel, its alpha.
-pub fn load_image_frame(path: &Path) -> Result<(RgbImage, Option<GrayImage>), String> {
-    let img = crate::io::image_io::load_image(path).map_err(|e| e.to_string())?;
+pub fn load_image_frame(path: &Path) -> Result<(RgbImage, Option<GrayImage>), crate::io::image_io::IoError> {
+    let img = crate::io::image_io::load_image(path)?;
     Ok((img.rgb, img.alpha))
 }
 

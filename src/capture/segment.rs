@@ -87,7 +87,7 @@ impl SegmentMethod {
             Self::Alpha => Ok(Box::new(AlphaSegmenter)),
             Self::CleanPlate { plate: Some(path), .. } => {
                 let (rgb, _) = super::load_image_frame(path)
-                    .map_err(|reason| CaptureError::Open { path: path.clone(), reason })?;
+                    .map_err(|e| CaptureError::Open { path: path.clone(), reason: e.to_string() })?;
                 Ok(Box::new(CleanPlateSegmenter::with_plate(CleanPlate::from_frames(&[rgb])?)))
             }
             Self::CleanPlate { plate: None, plate_frames } => {

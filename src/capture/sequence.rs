@@ -108,10 +108,10 @@ impl FrameSource for ImageSequenceSource {
         };
         let index = self.next as u64;
         self.next += 1;
-        let (rgb, alpha) = load_image_frame(&path).map_err(|reason| CaptureError::CorruptFrame {
+        let (rgb, alpha) = load_image_frame(&path).map_err(|e| CaptureError::CorruptFrame {
             index,
             path: path.clone(),
-            reason,
+            reason: e.to_string(),
         })?;
         let timestamp = Duration::from_secs_f64(index as f64 / self.fps as f64);
         Ok(SourceEvent::Frame(Frame { index, timestamp, rgb, alpha }))
@@ -136,7 +136,8 @@ pub struct StillImageSource {
 impl StillImageSource {
     /// Decodes the image now, so a bad file is reported when the source is opened.
     pub fn open(path: &Path) -> Result<Self, CaptureError> {
-        let (rgb, alpha) = load_image_frame(path).map_err(|reason| CaptureError::Open { path: path.into(), reason })?;
+        let (rgb, alpha) =
+            load_image_frame(path).map_err(|e| CaptureError::Open { path: path.into(), reason: e.to_string() })?;
         Ok(Self { path: path.into(), frame: Some(Frame { index: 0, timestamp: Duration::ZERO, rgb, alpha }) })
     }
 }

@@ -113,6 +113,33 @@ impl DurationHistogram {
         out
     }
 
+    /// Range edges (ms) of [`DurationHistogram::summary`]'s coarse histogram: under 10 ms, to 20, to a 30 Hz
+    /// frame (33.3), to 50, 100, 250, 1000 ms, and longer.
+    pub const SUMMARY_EDGES_MS: [f64; 8] = [0.0, 10.0, 20.0, 33.3, 50.0, 100.0, 250.0, 1000.0];
+
+    /// One line: median, p99 and maximum in ms, then the coarse histogram (counts per range of
+    /// [`DurationHistogram::SUMMARY_EDGES_MS`]), e.g. `median 16.70, p99 33.10, max 40.00; histogram [0,10) 0,
+    /// [10,20) 98, …, 1000+ 0`. The window's and the XR session's reports print it; `examples/soak_report` reads
+    /// the histogram back from their logs.
+    pub fn summary(&self) -> String {
+        let ms = |d: Duration| d.as_secs_f64() * 1e3;
+        let bars: Vec<String> = self
+            .ranges(&Self::SUMMARY_EDGES_MS)
+            .iter()
+            .map(|(lo, hi, n)| match hi {
+                Some(hi) => format!("[{lo},{hi}) {n}"),
+                None => format!("{lo}+ {n}"),
+            })
+            .collect();
+        format!(
+            "median {:.2}, p99 {:.2}, max {:.2}; histogram {}",
+            ms(self.median()),
+            ms(self.quantile(0.99)),
+            ms(self.max()),
+            bars.join(", ")
+        )
+    }
+
     /// A CSV of the non-empty bins: `from_ms,to_ms,frames` (the overflow bin's upper end is the maximum).
     pub fn to_csv(&self) -> String {
         let mut s = String::from("from_ms,to_ms,frames\n");
@@ -276,6 +303,17 @@ mod tests {
         assert!(csv.starts_with("from_ms,to_ms,frames\n1.00,1.05,1\n"), "{csv}");
         assert!(csv.ends_with("2000.00,5000.00,1\n"), "{csv}");
         assert_eq!(csv.lines().count(), 102);
+        // The one-line summary the reports print and soak_report reads back: 1..=9 ms, 10..=19, 20..=33, 34..=49,
+        // 50..=99, 100, the 5 s overflow.
+        let line = h.summary();
+        assert!(line.starts_with("median 51.02, p99 "), "{line}");
+        assert!(
+            line.ends_with(
+                ", max 5000.00; histogram [0,10) 9, [10,20) 10, [20,33.3) 14, [33.3,50) 16, [50,100) 50, [100,250) 1, \
+                 [250,1000) 0, 1000+ 1"
+            ),
+            "{line}"
+        );
     }
 
     #[test]

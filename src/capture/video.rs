@@ -60,19 +60,43 @@ pub fn parse_rate(s: &str) -> Option<f32> {
     (v.is_finite() && v > 0.0).then_some(v as f32)
 }
 
+/// Why ffprobe's description of a file cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ProbeError {
+    /// Not JSON.
+    #[error("unreadable ffprobe output: {0}")]
+    Unreadable(#[from] serde_json::Error),
+    /// No stream listed.
+    #[error("no video stream")]
+    NoStream,
+    /// Width or height missing or zero.
+    #[error("the video stream has no valid size")]
+    NoSize,
+    /// Larger than the input limit.
+    #[error("the video is {width}x{height} pixels; the limit is {max}x{max}: downscale it first")]
+    TooLarge {
+        /// Declared width.
+        width: u64,
+        /// Declared height.
+        height: u64,
+        /// The limit per side ([`MAX_INPUT_SIDE`]).
+        max: u64,
+    },
+}
+
 /// Parses `ffprobe -of json -show_entries stream=width,height,avg_frame_rate,r_frame_rate,pix_fmt` output.
-pub fn parse_ffprobe_json(json: &str) -> Result<VideoInfo, String> {
-    let v: serde_json::Value = serde_json::from_str(json).map_err(|e| format!("unreadable ffprobe output: {e}"))?;
-    let s = v.get("streams").and_then(|s| s.get(0)).ok_or("no video stream")?;
+pub fn parse_ffprobe_json(json: &str) -> Result<VideoInfo, ProbeError> {
+    let v: serde_json::Value = serde_json::from_str(json)?;
+    let s = v.get("streams").and_then(|s| s.get(0)).ok_or(ProbeError::NoStream)?;
     let dim = |k: &str| s.get(k).and_then(|x| x.as_u64()).filter(|&x| x > 0);
     let (width, height) = match (dim("width"), dim("height")) {
         (Some(w), Some(h)) => (w, h),
-        _ => return Err("the video stream has no valid size".into()),
+        _ => return Err(ProbeError::NoSize),
     };
     // The same limit as photos: a frame buffer is allocated from this size before any frame is decoded.
     let max = MAX_INPUT_SIDE as u64;
     if width > max || height > max {
-        return Err(format!("the video is {width}x{height} pixels; the limit is {max}x{max}: downscale it first"));
+        return Err(ProbeError::TooLarge { width, height, max });
     }
     let (width, height) = (width as usize, height as usize);
     let rate = |k: &str| s.get(k).and_then(|x| x.as_str()).and_then(parse_rate);
@@ -84,7 +108,7 @@ pub fn parse_ffprobe_json(json: &str) -> Result<VideoInfo, String> {
 /// The stream description of `path` from ffprobe's JSON output (`stdout`); errors name the file.
 pub fn info_from_ffprobe(path: &Path, stdout: &[u8]) -> Result<VideoInfo, CaptureError> {
     parse_ffprobe_json(&String::from_utf8_lossy(stdout))
-        .map_err(|reason| CaptureError::NoVideoStream { path: path.into(), reason })
+        .map_err(|e| CaptureError::NoVideoStream { path: path.into(), reason: e.to_string() })
 }
 
 /// Runs ffprobe on `path`.
@@ -266,7 +290,7 @@ mod tests {
         assert!(parse_ffprobe_json(r#"{"streams":[]}"#).is_err());
         assert!(parse_ffprobe_json(r#"{"streams":[{"width":0,"height":4}]}"#).is_err());
         // A declared size past the photo limit is refused before any frame buffer exists.
-        let huge = parse_ffprobe_json(r#"{"streams":[{"width":8193,"height":4}]}"#).unwrap_err();
+        let huge = parse_ffprobe_json(r#"{"streams":[{"width":8193,"height":4}]}"#).unwrap_err().to_string();
         assert!(huge.contains("8193x4"), "{huge}");
         let named = info_from_ffprobe(Path::new("dir/clip.mp4"), b"{").unwrap_err().to_string();
         assert!(named.contains("dir/clip.mp4"), "{named}");

@@ -204,7 +204,7 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
             stats.encodes,
             n.fallbacks
         );
-        println!("{}", frame_time_summary(&stats.frame_histogram));
+        println!("frame times (ms): {}", stats.frame_histogram.summary());
         if let Some(live) = &stats.live {
             println!(
                 "live: {} frames read, {} completed, {} dropped, {} errors, {} uploaded; validation messages {}",
@@ -213,26 +213,6 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Frame-time quantiles and a coarse histogram, one line.
-fn frame_time_summary(h: &crate::capture::stats::DurationHistogram) -> String {
-    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
-    let ranges = h.ranges(&[0.0, 10.0, 20.0, 33.3, 50.0, 100.0, 250.0, 1000.0]);
-    let bars: Vec<String> = ranges
-        .iter()
-        .map(|(lo, hi, n)| match hi {
-            Some(hi) => format!("[{lo},{hi}) {n}"),
-            None => format!("{lo}+ {n}"),
-        })
-        .collect();
-    format!(
-        "frame times (ms): median {:.2}, p99 {:.2}, max {:.2}; histogram {}",
-        ms(h.median()),
-        ms(h.quantile(0.99)),
-        ms(h.max()),
-        bars.join(", ")
-    )
 }
 
 /// `r2human xr`.

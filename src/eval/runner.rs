@@ -170,7 +170,7 @@ pub struct ReportRow {
 }
 
 /// What [`run_eval`] produced.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct EvalReport {
     /// The table.
     pub rows: Vec<ReportRow>,
@@ -871,6 +871,7 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             sets.push(&r.inputs);
         }
     }
+    md.push_str(&at_a_glance(rep, &sets));
     for set in sets {
         let title = match set {
             set if set.starts_with("synthetic/") => {
@@ -933,6 +934,81 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
     let p = out.join("report.md");
     write_atomic(&p, md.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
     plot(&out.join("error_vs_time.png"), rep)
+}
+
+/// One number of a report row, as a column of [`at_a_glance`].
+type RowValue = fn(&ReportRow) -> f32;
+
+/// The oracle's method names contain this (it is left out when the best predicted geometry is marked).
+const ORACLE_TAG: &str = "gt-fof";
+
+/// One table over every input set (`sets`, in order): per method, the paper's whole-frame PSNR at close and
+/// divergent views and the divergent mask IoU; the best method without oracle geometry in each column is bold.
+fn at_a_glance(rep: &EvalReport, sets: &[&str]) -> String {
+    if sets.is_empty() {
+        return String::new();
+    }
+    let mut methods: Vec<&str> = Vec::new();
+    for r in &rep.rows {
+        if !methods.contains(&r.method.as_str()) {
+            methods.push(&r.method);
+        }
+    }
+    let row = |set: &str, method: &str, group: &str| {
+        rep.rows.iter().find(|r| r.inputs == set && r.method == method && r.group == group)
+    };
+    // Columns: per set, PSNR frame close, PSNR frame divergent, mask IoU divergent.
+    let columns: Vec<(&str, &str, RowValue)> = sets
+        .iter()
+        .flat_map(|&set| {
+            [
+                (set, "close", (|r: &ReportRow| r.psnr_frame) as RowValue),
+                (set, "divergent", |r: &ReportRow| r.psnr_frame),
+                (set, "divergent", |r: &ReportRow| r.mask_iou),
+            ]
+        })
+        .collect();
+    let best: Vec<f32> = columns
+        .iter()
+        .map(|&(set, group, value)| {
+            methods
+                .iter()
+                .filter(|m| !m.contains(ORACLE_TAG))
+                .filter_map(|m| row(set, m, group).map(value))
+                .filter(|v| v.is_finite())
+                .fold(f32::NEG_INFINITY, f32::max)
+        })
+        .collect();
+    let mut md = String::from(
+        "\n## At a glance\n\nPer input set: PSNR frame at close / divergent views (dB) and the divergent views' mask \
+         IoU. Bold: the best method without oracle geometry in that column.\n\n| method |",
+    );
+    for set in sets {
+        md.push_str(&format!(" {set}: PSNR frame close | divergent | mask IoU |"));
+    }
+    md.push_str(&format!("\n|---|{}\n", "---|".repeat(columns.len())));
+    for m in &methods {
+        md.push_str(&format!("| {m} |"));
+        for (&(set, group, value), &b) in columns.iter().zip(&best) {
+            let cell = match row(set, m, group).map(value) {
+                Some(v) if v == b && !m.contains(ORACLE_TAG) => format!(" **{}** |", fmt_cell(v)),
+                Some(v) => format!(" {} |", fmt_cell(v)),
+                None => " - |".to_string(),
+            };
+            md.push_str(&cell);
+        }
+        md.push('\n');
+    }
+    md
+}
+
+/// A PSNR (above 1) with two decimals, an IoU with three.
+fn fmt_cell(v: f32) -> String {
+    if v > 1.0 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.3}")
+    }
 }
 
 fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
@@ -998,4 +1074,56 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
         .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
         .map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
     write_atomic(path, &bytes).map_err(|e| EvalError::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(inputs: &str, method: &str, group: &str, psnr_frame: f32, mask_iou: f32) -> ReportRow {
+        ReportRow {
+            inputs: inputs.into(),
+            framing: "full".into(),
+            method: method.into(),
+            group: group.into(),
+            psnr: 0.0,
+            psnr_overlap: 0.0,
+            ssim: 0.0,
+            psnr_frame,
+            ssim_frame: 0.0,
+            mask_iou,
+            depth_l1: 0.0,
+            ms_per_view: 0.0,
+            ms_per_input: 0.0,
+            views: 1,
+            peak_mib: None,
+        }
+    }
+
+    #[test]
+    fn at_a_glance_marks_the_best_predicted_geometry_per_column() {
+        let (a, b) = ("synthetic/full", "synthetic/upper");
+        let rows = vec![
+            row(a, "geometric+inflation", "close", 17.0, 0.6),
+            row(a, "geometric+inflation", "divergent", 16.0, 0.5),
+            row(a, "geometric+fofnet", "close", 18.0, 0.7),
+            row(a, "geometric+fofnet", "divergent", 15.0, 0.45),
+            row(a, "geometric+gt-fof", "close", 27.0, 0.97),
+            row(a, "geometric+gt-fof", "divergent", 24.0, 0.96),
+            row(b, "geometric+inflation", "close", 14.0, 0.55),
+            row(b, "geometric+inflation", "divergent", 15.0, 0.49),
+        ];
+        let rep = EvalReport { rows, ..Default::default() };
+        let md = at_a_glance(&rep, &[a, b]);
+        let line = |m: &str| md.lines().find(|l| l.starts_with(&format!("| {m} |"))).unwrap().to_string();
+        // Full framing: fofnet wins close, inflation wins divergent PSNR and IoU; the oracle is never bold.
+        assert_eq!(line("geometric+fofnet"), "| geometric+fofnet | **18.00** | 15.00 | 0.450 | - | - | - |");
+        assert_eq!(
+            line("geometric+inflation"),
+            "| geometric+inflation | 17.00 | **16.00** | **0.500** | **14.00** | **15.00** | **0.490** |"
+        );
+        assert_eq!(line("geometric+gt-fof"), "| geometric+gt-fof | 27.00 | 24.00 | 0.960 | - | - | - |");
+        assert!(md.contains("| method | synthetic/full: PSNR frame close | divergent | mask IoU | synthetic/upper:"));
+        assert_eq!(at_a_glance(&rep, &[]), "");
+    }
 }

@@ -86,6 +86,11 @@ pub struct LoadedImage {
 /// - Radiance HDR: old-style run-length markers of 4 bytes repeat the previous pixel up to 255 times, and
 ///   consecutive markers multiply (a whole scanline in a few markers): counted as 1024 pixels per byte.
 /// - GIF: a 12-bit LZW code stands for at most 4096 pixels.
+/// - TGA: a run-length packet of at least 2 bytes (header and an 8-bit pixel) stands for at most 128 pixels.
+/// - BMP: 256. Encoders write at most 255 pixels per 2-byte RLE run (uncompressed 1-bit BMPs hold 8 per byte);
+///   RLE's end-of-bitmap and delta escapes can leave any number of pixels unset, which no texture writer does.
+/// - WebP: 65536. Lossless WebP codes a single-colour image at almost 0 bits per pixel: libwebp writes a uniform
+///   4096x4096 or 8192x8192 image in about 25,000 pixels per byte (lossy: about 560).
 /// - Other formats: no bound (`u64::MAX`); the side limit still applies.
 ///
 /// A constant 4096 pixels are always allowed, so small valid images never hit the bound.
@@ -95,6 +100,9 @@ pub fn max_plausible_pixels(format: Option<ImageFormat>, len: u64) -> u64 {
         Some(ImageFormat::Jpeg) => 8 * 64 / 2,
         Some(ImageFormat::Hdr) => 1024,
         Some(ImageFormat::Gif) => 4096 * 8 / 12,
+        Some(ImageFormat::Tga) => 128 / 2,
+        Some(ImageFormat::Bmp) => 256,
+        Some(ImageFormat::WebP) => 65536,
         _ => return u64::MAX,
     };
     len.saturating_mul(per_byte).saturating_add(4096)
@@ -131,6 +139,59 @@ pub fn check_plausible(format: Option<ImageFormat>, width: u32, height: u32, len
     Ok(())
 }
 
+/// Checks that every frame of a WebP file fits its canvas: the canvas size (the `VP8X` chunk) is what the
+/// header reports and what [`check_dimensions`] bounds, but the `image` crate's decoder allocates each `VP8 `/
+/// `VP8L` frame at the size that frame's own header claims (a 182-byte file with a 24x16 canvas and a frame
+/// claiming 16152x4369 made it allocate 106 MiB; found by `tests/fuzz.rs`, input in `tests/corpus/scan_image`).
+/// Animation frames (`ANMF`) are checked the same way, and so is a chunk cut short by the end of the file (the
+/// decoder reads what there is: truncated copies of that input allocated 381 MiB). Files that are not RIFF/WebP
+/// are left to the decoder.
+pub fn check_webp_frames(bytes: &[u8]) -> Result<(), String> {
+    if bytes.len() < 12 || &bytes[..4] != b"RIFF" || &bytes[8..12] != b"WEBP" {
+        return Ok(());
+    }
+    let u24 = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], 0]) + 1;
+    let mut canvas: Option<(u32, u32)> = None;
+    // Chunk lists to walk: the file's, then each animation frame's with the frame's size.
+    type Size = (u32, u32);
+    let mut stack: Vec<(&[u8], Option<Size>)> = vec![(&bytes[12..], None)];
+    while let Some((mut data, frame)) = stack.pop() {
+        while data.len() >= 8 {
+            let tag = &data[..4];
+            let size = u32::from_le_bytes([data[4], data[5], data[6], data[7]]) as usize;
+            // A chunk cut short by the end of the file is still read by the decoder: check what it holds.
+            let body = &data[8..data.len().min(8 + size)];
+            let claimed = match tag {
+                b"VP8X" if body.len() >= 10 && frame.is_none() => {
+                    canvas = Some((u24(&body[4..7]), u24(&body[7..10])));
+                    None
+                }
+                b"ANMF" if body.len() >= 16 => {
+                    let size = (u24(&body[6..9]), u24(&body[9..12]));
+                    stack.push((&body[16..], Some(size)));
+                    Some(("ANMF", size))
+                }
+                b"VP8 " if body.len() >= 10 && body[3..6] == [0x9D, 0x01, 0x2A] => {
+                    let dim = |b: &[u8]| u16::from_le_bytes([b[0], b[1]]) as u32 & 0x3FFF;
+                    Some(("VP8", (dim(&body[6..8]), dim(&body[8..10]))))
+                }
+                b"VP8L" if body.len() >= 5 && body[0] == 0x2F => {
+                    let bits = u32::from_le_bytes([body[1], body[2], body[3], body[4]]);
+                    Some(("VP8L", ((bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1)))
+                }
+                _ => None,
+            };
+            if let (Some((kind, (w, h))), Some((cw, ch))) = (claimed, frame.or(canvas)) {
+                if w > cw || h > ch {
+                    return Err(format!("its {kind} frame claims {w}x{h} pixels, larger than its {cw}x{ch} canvas"));
+                }
+            }
+            data = data.get(8 + size + size % 2..).unwrap_or(&[]);
+        }
+    }
+    Ok(())
+}
+
 /// Decodes an image with the size checks of [`check_dimensions`] applied to its header first. `open` gives a
 /// fresh reader at the start of the data (it is called twice: header, then pixels); `len` is the data's size.
 fn decode_checked<R: std::io::BufRead + std::io::Seek>(
@@ -144,6 +205,11 @@ fn decode_checked<R: std::io::BufRead + std::io::Seek>(
     let format = header.format();
     let (width, height) = header.into_dimensions().map_err(decode_err)?;
     check_dimensions(path, format, width, height, len)?;
+    if format == Some(ImageFormat::WebP) {
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut open().map_err(read_err)?.into_inner(), &mut bytes).map_err(read_err)?;
+        check_webp_frames(&bytes).map_err(|reason| IoError::Decode { path: path.to_owned(), reason })?;
+    }
     let mut reader = open().and_then(|r| r.with_guessed_format()).map_err(read_err)?;
     let mut limits = Limits::default();
     limits.max_image_width = Some(MAX_INPUT_SIDE);
@@ -152,7 +218,7 @@ fn decode_checked<R: std::io::BufRead + std::io::Seek>(
     reader.decode().map_err(decode_err)
 }
 
-/// Decodes an image file (PNG, JPEG, HDR, GIF) after checking its declared size ([`check_dimensions`]).
+/// Decodes an image file (PNG, JPEG, HDR, GIF, BMP, TGA, WebP) after checking its declared size ([`check_dimensions`]).
 pub fn decode_file(path: &Path) -> Result<image::DynamicImage, IoError> {
     let len = std::fs::metadata(path).map_err(|e| IoError::Read { path: path.to_owned(), source: e })?.len();
     decode_checked(path, len, || ImageReader::open(path))
@@ -373,6 +439,9 @@ mod tests {
         // Closed forms of the bound: 1-bit PNG at deflate's 1032:1, 2 bits per JPEG block, plus 4096 pixels.
         assert_eq!(max_plausible_pixels(Some(ImageFormat::Png), 10), 10 * 8 * 1032 + 4096);
         assert_eq!(max_plausible_pixels(Some(ImageFormat::Jpeg), 1000), 256_000 + 4096);
+        assert_eq!(max_plausible_pixels(Some(ImageFormat::Tga), 100), 6400 + 4096);
+        assert_eq!(max_plausible_pixels(Some(ImageFormat::Bmp), 100), 25_600 + 4096);
+        assert_eq!(max_plausible_pixels(Some(ImageFormat::WebP), 100), 6_553_600 + 4096);
         assert_eq!(max_plausible_pixels(Some(ImageFormat::Tiff), 1), u64::MAX);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("forged.png");

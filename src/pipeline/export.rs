@@ -33,6 +33,11 @@ pub const DEFAULT_HEIGHT_M: f32 = 1.75;
 /// about 1/7.
 pub const CROWN_TO_NECK_FRACTION: f32 = 1.0 / 7.0;
 
+/// Crown to the neck's narrowest row over the head's widest row (with hair) in a frontal silhouette: about
+/// 0.25 m over 0.19 m. A portrait's head is taken to be at least this many times as tall as it is wide, which
+/// catches a "neck" found too high — at the jaw, when a collar, a scarf or a suit ring hides the real neck.
+pub const HEAD_ASPECT: f32 = 1.3;
+
 /// Heights accepted for `--height`, metres.
 pub const HEIGHT_RANGE_M: std::ops::RangeInclusive<f32> = 0.3..=3.0;
 
@@ -94,13 +99,17 @@ impl Default for ExportOptions {
 pub enum HeightCue {
     /// The person ends above the photo's bottom edge: the whole person is in view.
     WholePerson,
-    /// The person is cut by the bottom edge (a portrait): the visible part is scaled by the crown-to-neck distance
-    /// ([`CROWN_TO_NECK_FRACTION`] of the standing height).
+    /// The person is cut by the bottom edge (a portrait): the visible part is scaled by the head, crown to neck
+    /// ([`CROWN_TO_NECK_FRACTION`] of the standing height), taken as `max(neck_rows, HEAD_ASPECT * head_width)`.
     CutAtNeckScale {
         /// Rows from the crown to the bottom of the person.
         visible_rows: usize,
         /// Rows from the crown to the narrowest row of the neck.
         neck_rows: usize,
+        /// The head's largest (smoothed) width above the neck, pixels.
+        head_width: usize,
+        /// The head's height used for the scale, rows: the larger of `neck_rows` and [`HEAD_ASPECT`] `* head_width`.
+        head_rows: usize,
     },
     /// Cut by the bottom edge, but no neck was found in the silhouette: assumed to be the whole person.
     CutNoNeck,
@@ -119,9 +128,10 @@ impl std::fmt::Display for VisibleHeight {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self.cue {
             HeightCue::WholePerson => write!(f, "{:.2} m (the whole person is in the photo)", self.metres),
-            HeightCue::CutAtNeckScale { visible_rows, neck_rows } => write!(
+            HeightCue::CutAtNeckScale { visible_rows, neck_rows, head_width, head_rows } => write!(
                 f,
-                "{:.2} m (the photo shows the top of the person: {visible_rows} rows, crown to neck {neck_rows} rows)",
+                "{:.2} m (the photo shows the top of the person: {visible_rows} rows; head {head_rows} rows, from \
+                 crown to neck {neck_rows} rows and width {head_width} px)",
                 self.metres
             ),
             HeightCue::CutNoNeck => {
@@ -133,10 +143,11 @@ impl std::fmt::Display for VisibleHeight {
 
 /// How tall the part of the person that `mask` (the photo's person mask, values `>= 0.5` = person) shows is,
 /// for a person `standing_m` metres tall. A person that ends above the photo's bottom edge is the whole person. A
-/// person cut by the bottom edge is scaled by the neck: walking down the silhouette's row widths (smoothed), the
-/// first narrowing after the head that the shoulders then exceed is the neck, and crown-to-neck is
-/// [`CROWN_TO_NECK_FRACTION`] of the standing height; the result is clamped to `[that, standing_m]`.
-/// `None` for an empty mask.
+/// person cut by the bottom edge is scaled by the head: walking down the silhouette's row widths (smoothed), the
+/// first narrowing after the head that the shoulders then exceed is the neck; the head is taken to reach from the
+/// crown to the neck, but at least [`HEAD_ASPECT`] times its largest width above the neck (a neck found at the jaw
+/// would make it too short), and that height is [`CROWN_TO_NECK_FRACTION`] of the standing height. The result is
+/// clamped to `[that, standing_m]`. `None` for an empty mask.
 pub fn visible_height(mask: &GrayImage, standing_m: f32) -> Option<VisibleHeight> {
     let (w, h) = (mask.width, mask.height);
     let widths: Vec<f32> =
@@ -172,10 +183,12 @@ pub fn visible_height(mask: &GrayImage, standing_m: f32) -> Option<VisibleHeight
     }
     let Some(neck) = neck else { return Some(VisibleHeight { metres: standing_m, cue: HeightCue::CutNoNeck }) };
     let neck_rows = neck + 1 - top;
-    let metres = standing_m * CROWN_TO_NECK_FRACTION * rows as f32 / neck_rows as f32;
+    let head_width = peak.round() as usize;
+    let head_rows = neck_rows.max((HEAD_ASPECT * peak).round() as usize);
+    let metres = standing_m * CROWN_TO_NECK_FRACTION * rows as f32 / head_rows as f32;
     Some(VisibleHeight {
         metres: metres.clamp(standing_m * CROWN_TO_NECK_FRACTION, standing_m),
-        cue: HeightCue::CutAtNeckScale { visible_rows: rows, neck_rows },
+        cue: HeightCue::CutAtNeckScale { visible_rows: rows, neck_rows, head_width, head_rows },
     })
 }
 
@@ -452,18 +465,51 @@ mod tests {
         assert!(visible_height(&Image::new(10, 10, 0.0), 1.75).is_none());
     }
 
+    /// A silhouette like [`bust`] whose head is an ellipse `(top row, half width, half height)`.
+    fn tall_head_bust((w, h): (usize, usize), (top, rx, ry): (usize, f32, f32), nw: f32, sw: f32) -> GrayImage {
+        let cx = w as f32 / 2.0;
+        let neck_end = top + (2.0 * ry) as usize + 15;
+        Image::from_fn(w, h, |c, r| {
+            let (x, y) = (c as f32 + 0.5 - cx, r as f32 + 0.5);
+            let head = (x / rx).powi(2) + ((y - top as f32 - ry) / ry).powi(2) <= 1.0;
+            let neck = r >= top && r < neck_end && x.abs() <= nw / 2.0;
+            let body = r >= neck_end && x.abs() <= sw / 2.0;
+            if head || neck || body {
+                1.0
+            } else {
+                0.0
+            }
+        })
+    }
+
     #[test]
-    fn portrait_is_scaled_by_the_neck() {
+    fn portrait_is_scaled_by_the_head() {
         // Head from row 20 (radius 30: down to row 80), neck 24 px wide to row 100, shoulders to the bottom (300).
         // The narrowest smoothed row is in the neck, just below where the head disc has shrunk to the neck width
-        // (row ~76); crown-to-neck ~ 57 rows, visible 280 rows: 1.75 / 7 * 280 / 57 ~ 1.23 m.
+        // (row ~76): crown-to-neck ~ 57 rows. The head is 60 px wide, so at least 1.3 * 60 = 78 rows tall: the
+        // width decides. Visible 280 rows: 1.75 / 7 * 280 / 78 ~ 0.90 m.
         let m = bust((200, 300), (20, 30.0), (100, 24.0), (160.0, 300));
         let v = visible_height(&m, 1.75).unwrap();
-        let HeightCue::CutAtNeckScale { visible_rows, neck_rows } = v.cue else { panic!("{v:?}") };
+        let HeightCue::CutAtNeckScale { visible_rows, neck_rows, head_width, head_rows } = v.cue else {
+            panic!("{v:?}")
+        };
         assert_eq!(visible_rows, 280);
         assert!((54..=81).contains(&neck_rows), "{neck_rows}");
-        let expect = 1.75 / 7.0 * 280.0 / neck_rows as f32;
+        assert!((57..=61).contains(&head_width), "{head_width}");
+        assert_eq!(head_rows, (HEAD_ASPECT * head_width as f32).round() as usize);
+        let expect = 1.75 / 7.0 * 280.0 / head_rows as f32;
         assert!((v.metres - expect).abs() < 1e-5, "{v:?}");
+        // A head taller than 1.3 times its width (an ellipse 50 wide, 90 tall; a hat, a long face): the neck
+        // decides. Crown to neck ~ 90 rows > 1.3 * 50 = 65.
+        let m = tall_head_bust((200, 400), (10, 25.0, 45.0), 20.0, 150.0);
+        let v = visible_height(&m, 1.75).unwrap();
+        let HeightCue::CutAtNeckScale { visible_rows, neck_rows, head_width, head_rows } = v.cue else {
+            panic!("{v:?}")
+        };
+        assert_eq!(visible_rows, 390);
+        assert!((80..=100).contains(&neck_rows) && (48..=51).contains(&head_width), "{v:?}");
+        assert_eq!(head_rows, neck_rows);
+        assert!((v.metres - 1.75 / 7.0 * 390.0 / neck_rows as f32).abs() < 1e-5, "{v:?}");
         // Linear in the standing height.
         let v2 = visible_height(&m, 1.5).unwrap();
         assert!((v2.metres / v.metres - 1.5 / 1.75).abs() < 1e-5);

@@ -6,10 +6,15 @@
 //! the body, if any.
 //!
 //! The limits separate what was measured here (`r2human eval --photos assets/photos` reports the same measures
-//! per photo and method, `r2human eval` per synthetic subject set): ground-truth FOFs of synthetic people have at most 4.4 % of their columns with more
-//! shells than the inflation prior (arms in front of the body) and no detached volume; the shipped FOF net on the
-//! four real photos of `assets/photos` gave 50-66 % doubled columns and 20-29 % detached volume on the three
-//! upper-body photos, 0 % and 0.5 % on the full-body one.
+//! per photo and method, `r2human eval` per synthetic subject set): ground-truth FOFs of unclothed synthetic people
+//! have at most 4.4 % of their columns with more shells than the inflation prior (arms in front of the body) and no
+//! detached volume, but **clothed** ones have many more — a skirt or an open jacket around the legs or torso, a
+//! backpack behind it, hair over the shoulders are real second shells: over 120 clothed subjects of `r2human
+//! dataset --framing mixed` (seed 11, 128 px, 128 depth samples) the median is 12 %, the 90th percentile 41 % (full
+//! body 6 % / 87 %, three-quarter 12 % / 35 %, upper body 20 % / 41 %); a limit of 10 % rejected every clothed
+//! subject's FOF-net output in `r2human eval`, so the limit is 45 %. The FOF net of an earlier version on the four
+//! real photos of `assets/photos` gave 50-66 % doubled columns and 20-29 % detached volume on the three
+//! upper-body photos (rejected by both limits), 0 % and 0.5 % on the full-body one.
 
 use crate::buffer::GrayImage;
 use crate::geometry::fof::Fof;
@@ -29,7 +34,7 @@ pub struct GuardLimits {
 
 impl Default for GuardLimits {
     fn default() -> Self {
-        Self { max_doubled: 0.10, max_detached: 0.05 }
+        Self { max_doubled: 0.45, max_detached: 0.05 }
     }
 }
 
@@ -101,6 +106,7 @@ mod tests {
     fn limits_accept_plausible_and_reject_broken_geometry() {
         let l = GuardLimits::default();
         assert_eq!(report(0.044, 0.0).rejection(&l), None, "arms in front of the body");
+        assert_eq!(report(0.41, 0.0).rejection(&l), None, "clothes: the 90th percentile of clothed ground truth");
         assert_eq!(report(0.0, 0.016).rejection(&l), None, "specks");
         let r = report(0.5, 0.0).rejection(&l).unwrap();
         assert!(r.contains("50 %") && r.contains("second shell"), "{r}");

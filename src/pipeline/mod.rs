@@ -402,8 +402,11 @@ pub fn compute_geometry(
             body.as_ref(),
         )
     });
-    // What the network refined: the guard measures against it and falls back to it.
-    let base = body.unwrap_or(prior);
+    // What the network refined (its residual base): the guard measures against it and falls back to it.
+    let base = match (net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).base(), body) {
+        (crate::neural::FofInput::Body, Some(body)) => body,
+        _ => prior,
+    };
     match (refined, opts.geometry) {
         (Ok(fof), _) => {
             let (fof, rejected) = timings.time("geometry (guard)", || {

@@ -388,15 +388,7 @@ impl fmt::Display for SessionReport {
         }
         let h = &self.frame_intervals;
         if h.count() > 0 {
-            let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
-            writeln!(
-                f,
-                "frame interval (ms): median {:.2}, p99 {:.2}, max {:.2} over {} intervals",
-                ms(h.median()),
-                ms(h.quantile(0.99)),
-                ms(h.max()),
-                h.count()
-            )?;
+            writeln!(f, "frame interval (ms) over {} intervals: {}", h.count(), h.summary())?;
         }
         if self.scene_uploads > 1 {
             writeln!(f, "input frames uploaded to the GPU: {}", self.scene_uploads)?;
