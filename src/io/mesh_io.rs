@@ -121,7 +121,7 @@ pub enum TextureError {
     /// The `image` crate cannot read or decode it (unknown format, corrupt data, a side over
     /// [`MAX_TEXTURE_SIDE`]).
     #[error("{0}")]
-    Decode(#[source] image::ImageError),
+    Decode(#[source] Box<image::ImageError>),
 }
 
 /// What is wrong with a glTF or GLB file ([`MeshIoError::Gltf`]'s cause).
@@ -133,12 +133,13 @@ pub enum GltfError {
     /// The document is not glTF JSON.
     #[error("JSON: {0}")]
     Json(#[source] gltf::json::Error),
-    /// The `gltf` crate's validation refused the document.
+    /// The `gltf` crate's validation refused the document. (`gltf` and `image` errors are boxed: they are large,
+    /// and every `Result` that carries a `MeshIoError` pays for its largest variant.)
     #[error("{0}")]
-    Invalid(#[source] gltf::Error),
+    Invalid(#[source] Box<gltf::Error>),
     /// A buffer cannot be loaded (missing file, bad `data:` URI, too short).
     #[error("buffers: {0}")]
-    Buffers(#[source] gltf::Error),
+    Buffers(#[source] Box<gltf::Error>),
     /// A primitive uses an accessor the file does not have.
     #[error("mesh {mesh} primitive {primitive} uses accessor {accessor} but there are {count}")]
     MissingAccessor {
@@ -458,14 +459,14 @@ fn decode_texture(bytes: &[u8], hint: Option<image::ImageFormat>) -> Result<imag
     if let Some(f) = format {
         header.set_format(f);
     }
-    let (w, h) = header.into_dimensions().map_err(TextureError::Decode)?;
+    let (w, h) = header.into_dimensions().map_err(|e| TextureError::Decode(Box::new(e)))?;
     check_plausible(format, w, h, bytes.len() as u64).map_err(TextureError::Header)?;
     check_webp_frames(bytes).map_err(TextureError::Header)?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_TEXTURE_SIDE);
     limits.max_image_height = Some(MAX_TEXTURE_SIDE);
     reader.limits(limits);
-    Ok(reader.decode().map_err(TextureError::Decode)?.to_rgb8())
+    Ok(reader.decode().map_err(|e| TextureError::Decode(Box::new(e)))?.to_rgb8())
 }
 
 fn resolve_texture(dir: &Path, given: &Path) -> Option<PathBuf> {
@@ -821,7 +822,7 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     };
     let root = gltf::json::Root::from_slice(json).map_err(|e| gerr(GltfError::Json(e)))?;
     check_gltf_references(&root).map_err(gerr)?;
-    let document = gltf::Document::from_json(root).map_err(|e| gerr(GltfError::Invalid(e)))?;
+    let document = gltf::Document::from_json(root).map_err(|e| gerr(GltfError::Invalid(Box::new(e))))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     // Name a missing external texture or buffer before the importer fails with a generic message.
     for image in document.images() {
@@ -835,7 +836,8 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             }
         }
     }
-    let buffers = gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(GltfError::Buffers(e)))?;
+    let buffers =
+        gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(GltfError::Buffers(Box::new(e))))?;
 
     struct Prim {
         base: u32,
