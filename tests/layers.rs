@@ -200,21 +200,31 @@ fn printing_is_found_outside_comments_and_tests() {
     );
 }
 
+/// Every Rust file under src/, sorted: its path relative to src/ and its text.
+fn sources() -> Vec<(PathBuf, String)> {
+    let src = root().join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    files.sort();
+    files
+        .into_iter()
+        .map(|file| {
+            let text = std::fs::read_to_string(&file).expect("a readable source file");
+            (file.strip_prefix(&src).unwrap_or(&file).to_path_buf(), text)
+        })
+        .collect()
+}
+
 /// One warning channel: below `cli`, the library never prints. Warnings and progress notes go through `tracing`
 /// (the CLI's subscriber writes them to stderr); results go back to the CLI, which prints the summaries it means
 /// to print and its error sentence.
 #[test]
 fn only_the_cli_prints() {
-    let src = root().join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
     let mut found = Vec::new();
-    for file in files {
-        let rel = file.strip_prefix(&src).unwrap_or(&file).to_path_buf();
+    for (rel, text) in sources() {
         if rel.starts_with("cli") || rel == Path::new("main.rs") {
             continue;
         }
-        let text = std::fs::read_to_string(&file).expect("a readable source file");
         for line in printing_lines(&text) {
             found.push(format!("src/{}:{line}", rel.display()));
         }
@@ -312,14 +322,9 @@ const STRING_ERRORS_ALLOWED: [(&str, &str, &str); 6] = [
 /// longer matches anything fails too, so the list cannot go stale.
 #[test]
 fn errors_are_typed_not_strings() {
-    let src = root().join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
     let mut found = Vec::new();
     let mut used = [false; STRING_ERRORS_ALLOWED.len()];
-    for file in files {
-        let rel = file.strip_prefix(&src).unwrap_or(&file).to_path_buf();
-        let text = std::fs::read_to_string(&file).expect("a readable source file");
+    for (rel, text) in sources() {
         let lines: Vec<&str> = text.lines().collect();
         for n in string_error_lines(&text) {
             let allowed = STRING_ERRORS_ALLOWED
@@ -421,14 +426,9 @@ fn unsafe_lines_are_found_with_and_without_their_reason() {
 /// handle's lifetime, the synchronisation, the bounds), and every `unsafe fn` states its caller's contract.
 #[test]
 fn every_unsafe_says_why_it_is_sound() {
-    let src = root().join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
-    files.sort();
     let mut found = Vec::new();
-    for file in files {
-        let text = std::fs::read_to_string(&file).expect("a readable source file");
-        let rel = file.strip_prefix(root()).unwrap_or(&file).display().to_string();
+    for (rel, text) in sources() {
+        let rel = format!("src/{}", rel.display());
         for line in unexplained_unsafe(&text) {
             found.push(format!("{rel}:{line}: unsafe without a `// SAFETY:` comment above it"));
         }
