@@ -25,7 +25,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 use spade::{AngleLimit, ConstrainedDelaunayTriangulation, Point2, RefinementParameters, Triangulation};
 
-use super::fof::{Fof, FofError, MAX_RESOLUTION};
+use super::fof::{CosineTable, Fof, FofError, MAX_RESOLUTION};
 use crate::buffer::GrayImage;
 
 /// Errors of the inflation prior; every message says what to do next.
@@ -192,6 +192,43 @@ pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfa
 pub fn inflate_to_fof(mask: &GrayImage, n: usize, params: &InflateParams) -> Result<Fof, InflateError> {
     let s = inflate(mask, params)?;
     Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
+}
+
+/// The fraction of the mask's interior pixels whose FOF column reaches occupancy 0.5 at some depth (decoded at
+/// `4 n` depths), or `None` when the mask has no interior pixel. Interior: above 0.5 with every pixel within
+/// `margin` pixels (a square window) inside the image and above 0.5 too; the rim of the outline is left out
+/// because a band-limited FOF cannot show a sliver thinner than its depth resolution. An inflation prior that
+/// covers the person scores 1; an empty one 0.
+pub fn mask_coverage(fof: &Fof, mask: &GrayImage, margin: usize) -> Option<f32> {
+    let (w, h) = (mask.width, mask.height);
+    if fof.width != w || fof.height != h || mask.data.len() != w * h {
+        return None;
+    }
+    let fg = |c: usize, r: usize| mask.data[r * w + c] > 0.5;
+    let interior = |c: usize, r: usize| {
+        c >= margin
+            && r >= margin
+            && c + margin < w
+            && r + margin < h
+            && (r - margin..=r + margin).all(|rr| (c - margin..=c + margin).all(|cc| fg(cc, rr)))
+    };
+    let table = CosineTable::new(fof.n, 4 * fof.n);
+    let (covered, total) = (0..h)
+        .into_par_iter()
+        .map(|r| {
+            let mut out = vec![0.0f32; table.samples];
+            let (mut covered, mut total) = (0usize, 0usize);
+            for c in (0..w).filter(|&c| interior(c, r)) {
+                total += 1;
+                fof.decode_column_with(&table, c, r, &mut out);
+                if out.iter().any(|&o| o >= 0.5) {
+                    covered += 1;
+                }
+            }
+            (covered, total)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    (total > 0).then(|| covered as f32 / total as f32)
 }
 
 /// Connected components of `value` pixels (4-connected if `four`, else 8-connected): labels and sizes.
@@ -458,8 +495,97 @@ fn build_cdt(loops: &[Vec<(i64, i64)>], w: usize, h: usize, max_vertices: usize)
     Ok((cdt, conflict))
 }
 
+/// Winding numbers of points with respect to closed loops on the pixel-corner lattice (Sunday's crossing
+/// rule), the loop edges bucketed by the lattice row they span so that a query reads one row's edges.
+struct Winding {
+    rows: Vec<Vec<[(i64, i64); 2]>>,
+}
+
+impl Winding {
+    fn new(loops: &[Vec<(i64, i64)>], h: usize) -> Self {
+        let mut rows = vec![Vec::new(); h];
+        for ring in loops {
+            for k in 0..ring.len() {
+                let (a, b) = (ring[k], ring[(k + 1) % ring.len()]);
+                let (lo, hi) = (a.1.min(b.1).max(0), a.1.max(b.1).min(h as i64));
+                for row in lo..hi {
+                    rows[row as usize].push([a, b]);
+                }
+            }
+        }
+        Self { rows }
+    }
+
+    /// The winding number of lattice point `(x, y)` (0 outside every loop; 0 inside a hole).
+    fn at(&self, x: f64, y: f64) -> i32 {
+        let row = y.floor();
+        if !(row >= 0.0 && (row as usize) < self.rows.len()) {
+            return 0;
+        }
+        let mut wn = 0;
+        for &[a, b] in &self.rows[row as usize] {
+            let (ax, ay, bx, by) = (a.0 as f64, a.1 as f64, b.0 as f64, b.1 as f64);
+            let left = (bx - ax) * (y - ay) - (x - ax) * (by - ay);
+            if ay <= y {
+                if by > y && left > 0.0 {
+                    wn += 1;
+                }
+            } else if by <= y && left < 0.0 {
+                wn -= 1;
+            }
+        }
+        wn
+    }
+}
+
+/// Labels every face of the CDT as inside (`true`) or outside, indexed by the face's fixed index: inside where
+/// the winding number of the face's centroid with respect to the triangulated (oriented) loops is not zero.
+///
+/// The triangulation's own parity rule (crossing a constraint edge flips inside/outside) breaks on outlines
+/// that are simple as curves but degenerate as edge sets: an edge walked out and back, two collinear pieces that
+/// overlap, or an edge that passes through another vertex of the outline (a hand touching the arm through a
+/// diagonal pixel contact, after simplification). Each such crossing flips every face behind it, and the prior
+/// comes out empty or inverted. The winding number does not depend on how the CDT splits or merges those
+/// edges: an edge walked both ways cancels, so it cannot flip.
+fn label_faces(cdt: &Cdt, winding: &Winding, w: usize, h: usize) -> Vec<bool> {
+    let mut inside = vec![false; cdt.num_all_faces()];
+    for face in cdt.inner_faces() {
+        let p = face.positions();
+        let (cx, cy) = ((p[0].x + p[1].x + p[2].x) / 3.0, (p[0].y + p[1].y + p[2].y) / 3.0);
+        let (i, j) = ((cx + 1.0) * 0.5 * w as f64, (1.0 - cy) * 0.5 * h as f64);
+        inside[face.fix().index()] = winding.at(i, j) != 0;
+    }
+    inside
+}
+
+/// Unmarks every constraint edge whose two sides carry the same label ([`label_faces`]): such an edge is not
+/// part of the boundary between person and background (an out-and-back spike, an overlapping piece). Afterwards
+/// every constraint edge separates inside from outside, so the parity rule that the refinement uses to skip
+/// outer faces agrees with the winding labels, and no vertex inside the person is pinned to `u = 0`. Returns how
+/// many edges were unmarked.
+fn drop_spurious_constraints(cdt: &mut Cdt, winding: &Winding, w: usize, h: usize) -> usize {
+    let label = label_faces(cdt, winding, w, h);
+    let side = |f: spade::handles::FaceHandle<'_, spade::handles::PossiblyOuterTag, _, _, _, _>| {
+        f.as_inner().is_some_and(|f| label[f.fix().index()])
+    };
+    let spurious: Vec<_> = cdt
+        .undirected_edges()
+        .filter(|e| cdt.is_constraint_edge(e.fix()))
+        .filter(|e| {
+            let d = e.as_directed();
+            side(d.face()) == side(d.rev().face())
+        })
+        .map(|e| e.fix())
+        .collect();
+    for &e in &spurious {
+        cdt.remove_constraint_edge(e);
+    }
+    spurious.len()
+}
+
 /// Solves `-Δu = 4`, `u = 0` on the outline over the refined CDT and samples `u` at every pixel centre
-/// (0 where no inner triangle covers the centre).
+/// (0 where no inner triangle covers the centre). Inside and outside come from the loops' winding numbers
+/// ([`label_faces`]), not from the parity of constraint edges.
 fn solve_inflation(
     loops: &[Vec<(i64, i64)>],
     w: usize,
@@ -469,6 +595,7 @@ fn solve_inflation(
     let tol = params.simplify_tolerance as f64;
     let simplified: Vec<Vec<(i64, i64)>> = loops.par_iter().map(|l| simplify_loop(l, tol)).collect();
     let (mut cdt, conflict) = build_cdt(&simplified, w, h, params.max_outline_vertices)?;
+    let mut outline: &[Vec<(i64, i64)>] = &simplified;
     if conflict {
         // Simplification made two outlines cross: the exact pixel outlines never cross, use them.
         tracing::debug!("inflate: simplified outline self-intersects, using the exact outline");
@@ -477,10 +604,16 @@ fn solve_inflation(
             return Err(InflateError::Triangulation("the mask outline crosses itself".into()));
         }
         cdt = exact;
+        outline = loops;
+    }
+    let winding = Winding::new(outline, h);
+    let dropped = drop_spurious_constraints(&mut cdt, &winding, w, h);
+    if dropped > 0 {
+        tracing::debug!("inflate: {dropped} outline edges do not separate the person from the background; unmarked");
     }
     let px_area = (2.0 / w as f64) * (2.0 / h as f64);
     let initial = cdt.num_vertices();
-    let result = cdt.refine(
+    cdt.refine(
         RefinementParameters::<f64>::new()
             .exclude_outer_faces(true)
             .with_angle_limit(AngleLimit::from_deg(20.0))
@@ -488,10 +621,7 @@ fn solve_inflation(
             .with_min_required_area(0.02 * px_area)
             .with_max_additional_vertices(initial * 20 + 20_000),
     );
-    let mut outer = vec![false; cdt.num_all_faces()];
-    for f in &result.excluded_faces {
-        outer[f.index()] = true;
-    }
+    let inside = label_faces(&cdt, &winding, w, h);
     let nv = cdt.num_vertices();
     let mut boundary = vec![false; nv];
     for e in cdt.undirected_edges() {
@@ -503,7 +633,7 @@ fn solve_inflation(
     }
     let pos: Vec<[f64; 2]> = cdt.vertices().map(|v| [v.position().x, v.position().y]).collect();
     let faces: Vec<[usize; 3]> =
-        cdt.inner_faces().filter(|f| !outer[f.fix().index()]).map(|f| f.vertices().map(|v| v.fix().index())).collect();
+        cdt.inner_faces().filter(|f| inside[f.fix().index()]).map(|f| f.vertices().map(|v| v.fix().index())).collect();
 
     // Unknowns: vertices of inner faces that are not on the outline.
     let mut unknown = vec![usize::MAX; nv];
@@ -851,6 +981,83 @@ mod tests {
         assert!(thick * 2 > area, "most of the person is inflated: {thick} of {area} pixels");
     }
 
+    fn load_mask(name: &str) -> GrayImage {
+        let path = format!("{}/tests/data/inflate/{name}", env!("CARGO_MANIFEST_DIR"));
+        let img = image::open(&path).expect("test mask").to_luma8();
+        GrayImage {
+            width: img.width() as usize,
+            height: img.height() as usize,
+            data: img.pixels().map(|p| p.0[0] as f32 / 255.0).collect(),
+        }
+    }
+
+    #[test]
+    fn a_hand_touching_the_arm_diagonally_does_not_empty_the_inflation() {
+        // The unclothed synthetic subject of seed 9293172410827453255 at 256 px, arm raised with a hanging hand:
+        // a two-pixel fingertip lobe hangs on two diagonal pixel touches. Simplified, the outline runs
+        // (195,65) -> (193,63) -> (196,66): the way back passes through (195,65) and overlaps the way out, so the
+        // CDT holds one constraint edge that the outline walks twice, which flipped the parity of every face
+        // (an empty prior, every FOF column empty). Faces are now labelled by winding number.
+        let mask = load_mask("arm_raised_seed9293172410827453255_256.png");
+        let s = inflate(&mask, &InflateParams::default()).unwrap();
+        let inside: Vec<usize> = (0..s.mask.data.len()).filter(|&i| s.mask.data[i] > 0.5).collect();
+        let min_half = 2.0 / mask.width as f32;
+        let thick = inside.iter().filter(|&&i| s.front.data[i] - s.back.data[i] > 4.0 * min_half).count();
+        assert!(thick * 10 > inside.len() * 8, "most of the person is inflated: {thick} of {}", inside.len());
+        let fof = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+        let coverage = mask_coverage(&fof, &mask, 2).unwrap();
+        assert!(coverage >= 0.99, "the decoded prior covers the person: {coverage}");
+    }
+
+    #[test]
+    fn winding_numbers_of_loops_with_holes_spikes_and_overlaps() {
+        // A square 0..4 and a hole 1..3 of opposite orientation (inside: a non-zero winding number; its sign is the
+        // orientation, which does not matter).
+        let outer = vec![(0, 0), (0, 4), (4, 4), (4, 0)];
+        let hole = vec![(1, 1), (3, 1), (3, 3), (1, 3)];
+        let wn = Winding::new(&[outer.clone(), hole], 4);
+        assert_eq!(wn.at(0.5, 0.5).abs(), 1);
+        assert_eq!(wn.at(2.0, 2.0).abs(), 0, "inside the hole");
+        assert_eq!(wn.at(3.5, 2.0).abs(), 1);
+        assert_eq!(wn.at(5.0, 2.0).abs(), 0);
+        assert_eq!(wn.at(2.0, -1.0).abs(), 0);
+        assert_eq!(wn.at(2.0, 9.0).abs(), 0);
+        // An out-and-back spike, and a return edge through a vertex overlapping the way out (the shape that
+        // emptied the prior): the region's winding number is unchanged, on either side of the doubled piece.
+        let spike = vec![(0, 0), (0, 4), (4, 4), (4, 2), (6, 2), (4, 2), (4, 0)];
+        let overlap = vec![(0, 0), (0, 4), (4, 4), (4, 2), (6, 2), (5, 2), (4, 0)];
+        for l in [spike, overlap] {
+            let wn = Winding::new(&[l], 4);
+            assert_eq!(wn.at(2.0, 2.5).abs(), 1);
+            assert_eq!(wn.at(2.0, 1.5).abs(), 1);
+            assert_eq!(wn.at(5.0, 1.5).abs(), 0);
+            assert_eq!(wn.at(5.0, 2.5).abs(), 0);
+        }
+    }
+
+    #[test]
+    fn coverage_of_full_empty_and_half_priors() {
+        let mask = disc_mask(64, 32.0, 32.0, 20.0);
+        let full = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+        assert_eq!(mask_coverage(&full, &mask, 2), Some(1.0));
+        let empty = Fof::zeros(32, 64, 64).unwrap();
+        assert_eq!(mask_coverage(&empty, &mask, 2), Some(0.0));
+        // Zero the columns of the left half (x < 32): about half the interior is covered.
+        let mut half = full.clone();
+        for r in 0..64 {
+            for c in 0..32 {
+                let i = (r * 64 + c) * 32;
+                half.coeffs[i..i + 32].fill(0.0);
+            }
+        }
+        let got = mask_coverage(&half, &mask, 2).unwrap();
+        assert!((got - 0.5).abs() < 0.03, "{got}");
+        // No interior pixel (a one-pixel line), or a prior of another size: no measure.
+        let line = GrayImage::from_fn(64, 64, |c, r| if r == 30 && c > 5 && c < 60 { 1.0 } else { 0.0 });
+        assert_eq!(mask_coverage(&full, &line, 1), None);
+        assert_eq!(mask_coverage(&Fof::zeros(32, 32, 32).unwrap(), &mask, 2), None);
+    }
+
     #[test]
     fn loops_follow_holes_and_saddles() {
         // Two pixels touching diagonally: two separate loops sharing a corner.
@@ -880,3 +1087,4 @@ mod tests {
         );
     }
 }
+
