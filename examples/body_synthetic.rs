@@ -169,7 +169,7 @@ fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyho
         dot((fitted.x + 1.0) * 0.5 * size as f32, (1.0 - fitted.y) * 0.5 * size as f32, Vec3::new(0.0, 1.0, 1.0));
         if let ModelPoint::Joint(b) = point {
             let truth = s.joints[b];
-            pairs.push((fitted, truth, !(truth.y < cut)));
+            pairs.push((fitted, truth, truth.y >= cut));
         }
     }
     let above: Vec<_> = pairs.iter().filter(|p| p.2).collect();
