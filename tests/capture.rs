@@ -13,7 +13,7 @@ use r2human::app::live::{
     normalised_rgba, render_video, Completed, FrameProcessor, LiveOptions, LivePipeline, NormaliseProcessor,
 };
 use r2human::buffer::GrayImage;
-use r2human::capture::camera::{BackendOpener, CameraBackend, CameraRequest, CameraSource};
+use r2human::capture::camera::{BackendOpener, CameraBackend, CameraLoss, CameraRequest, CameraSource, DeviceError};
 use r2human::capture::morph::{iou_soft, threshold};
 use r2human::capture::segment::{AlphaSegmenter, CleanPlateSegmenter, Segmenter};
 use r2human::capture::stats::StageStats;
@@ -402,14 +402,14 @@ impl CameraBackend for FakeCamera {
     fn name(&self) -> String {
         "fake cam".into()
     }
-    fn formats(&mut self) -> Result<Vec<CameraFormat>, String> {
+    fn formats(&mut self) -> Result<Vec<CameraFormat>, DeviceError> {
         Ok(self.formats.clone())
     }
-    fn start(&mut self, format: CameraFormat) -> Result<(), String> {
+    fn start(&mut self, format: CameraFormat) -> Result<(), DeviceError> {
         self.started = Some(format);
         Ok(())
     }
-    fn frame(&mut self) -> Result<(Vec<u8>, usize, usize), String> {
+    fn frame(&mut self) -> Result<(Vec<u8>, usize, usize), DeviceError> {
         let f = self.started.ok_or("not started")?;
         if self.frames_left == 0 {
             return Err("VIDIOC_DQBUF: No such device (os error 19)".into());
@@ -429,7 +429,7 @@ fn fake_opener(plan: Vec<Result<(usize, Vec<CameraFormat>), String>>) -> (Backen
             Ok((frames_left, formats)) => {
                 Ok(Box::new(FakeCamera { frames_left, formats, started: None }) as Box<dyn CameraBackend>)
             }
-            Err(e) => Err(e),
+            Err(e) => Err(e.into()),
         }
     });
     (opener, opened)
@@ -465,6 +465,7 @@ fn camera_that_disappears_mid_stream_is_reopened() {
     assert_eq!(frames, 5, "{messages:?}");
     assert_eq!(opened.load(Ordering::SeqCst), 3);
     assert!(messages[0].contains("camera 0 stopped sending frames") && messages[0].contains("No such device"));
+    assert!(messages[0].contains("(VIDIOC_DQBUF: No such device (os error 19)); check the cable"), "{}", messages[0]);
     assert!(messages.iter().any(|m| m.contains("reopening failed")), "{messages:?}");
     // After the reconnection it streams in what the device now offers.
     assert!(cam.describe().contains("160x120 YUYV"), "{}", cam.describe());
@@ -493,6 +494,15 @@ fn camera_without_a_supported_format_gives_a_clear_message() {
     let e2 = cam.next_frame().unwrap_err();
     assert!(e1.is_recoverable() && e2.is_recoverable());
     assert!(e2.to_string().contains("no supported format"), "{e2}");
+    // The cause chain keeps what happened: a read that failed, then a device that came back unusable.
+    assert!(matches!(&e1, CaptureError::CameraLost { source: CameraLoss::Read(DeviceError::Other(_)), .. }), "{e1:?}");
+    let restart = match &e2 {
+        CaptureError::CameraLost { source: CameraLoss::Restart(inner), .. } => inner,
+        other => panic!("{other:?}"),
+    };
+    assert!(matches!(**restart, CaptureError::NoSupportedFormat { .. }), "{restart:?}");
+    let cause = std::error::Error::source(&e2).and_then(std::error::Error::source).expect("two causes deep");
+    assert!(cause.to_string().starts_with("camera 0 (fake cam) offers no supported format (32x24 MJPEG 30 fps)"));
     assert!(matches!(cam.next_frame(), Ok(SourceEvent::Frame(_))));
 }
 

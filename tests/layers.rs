@@ -200,21 +200,31 @@ fn printing_is_found_outside_comments_and_tests() {
     );
 }
 
+/// Every Rust file under src/, sorted: its path relative to src/ and its text.
+fn sources() -> Vec<(PathBuf, String)> {
+    let src = root().join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    files.sort();
+    files
+        .into_iter()
+        .map(|file| {
+            let text = std::fs::read_to_string(&file).expect("a readable source file");
+            (file.strip_prefix(&src).unwrap_or(&file).to_path_buf(), text)
+        })
+        .collect()
+}
+
 /// One warning channel: below `cli`, the library never prints. Warnings and progress notes go through `tracing`
 /// (the CLI's subscriber writes them to stderr); results go back to the CLI, which prints the summaries it means
 /// to print and its error sentence.
 #[test]
 fn only_the_cli_prints() {
-    let src = root().join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
     let mut found = Vec::new();
-    for file in files {
-        let rel = file.strip_prefix(&src).unwrap_or(&file).to_path_buf();
+    for (rel, text) in sources() {
         if rel.starts_with("cli") || rel == Path::new("main.rs") {
             continue;
         }
-        let text = std::fs::read_to_string(&file).expect("a readable source file");
         for line in printing_lines(&text) {
             found.push(format!("src/{}:{line}", rel.display()));
         }
@@ -224,6 +234,121 @@ fn only_the_cli_prints() {
         "library code prints (warnings: `tracing::warn!`; results: return them to `cli`, which prints):\n{}",
         found.join("\n")
     );
+}
+
+/// Lines (1-based) of `text`'s shipped code that name a `Result` whose error type (its last top-level generic
+/// argument) is `String`: `-> Result<T, String>`, `Result<(A, B), String>` in a closure or type alias,
+/// `OnceLock<Result<T, String>>`. `io::Result<String>` (one argument) and `Result<String, E>` are not.
+fn string_error_lines(text: &str) -> Vec<usize> {
+    let mut out = Vec::new();
+    for (i, line) in shipped_code(text).lines().enumerate() {
+        let c = code(line);
+        let found = c.match_indices("Result<").any(|(at, _)| {
+            // The generic arguments, split at the commas of the top level (not inside `<>`, `()` or `[]`).
+            let mut args = vec![String::new()];
+            let mut depth = 0usize;
+            let mut prev = ' ';
+            for ch in c[at + "Result<".len()..].chars() {
+                match ch {
+                    '<' | '(' | '[' => depth += 1,
+                    '>' if prev == '-' => {} // the arrow of a `Fn(..) -> T` bound
+                    '>' | ')' | ']' if depth == 0 => break,
+                    '>' | ')' | ']' => depth -= 1,
+                    ',' if depth == 0 => {
+                        args.push(String::new());
+                        prev = ch;
+                        continue;
+                    }
+                    _ => {}
+                }
+                if let Some(last) = args.last_mut() {
+                    last.push(ch);
+                }
+                prev = ch;
+            }
+            let error = args.last().map(|a| a.trim()).unwrap_or("");
+            args.len() > 1 && (error == "String" || error == "std::string::String")
+        });
+        if found {
+            out.push(i + 1);
+        }
+    }
+    out
+}
+
+#[test]
+fn string_errors_are_found_in_signatures_closures_and_fields() {
+    let text = "fn a(s: &str) -> Result<u32, String> {\n\
+                fn b() -> std::io::Result<String> {\n\
+                fn c() -> Result<String, MyError> {\n\
+                type Opener = Box<dyn FnMut(u32) -> Result<Box<dyn Cam>, String> + Send>;\n\
+                let f = |v: &View| -> Result<(Vec<u8>, usize), String> { v };\n\
+                static CELL: OnceLock<Result<Model, std::string::String>> = OnceLock::new();\n\
+                // fn d() -> Result<(), String> in a comment\n\
+                fn e() -> Result<HashMap<String, String>, Error> {\n\
+                #[cfg(test)]\nmod tests {\n    fn t() -> Result<(), String> {}\n}\n";
+    assert_eq!(string_error_lines(text), [1, 4, 5, 6]);
+}
+
+/// The `Result<_, String>`s that stay, each with its reason: (file under src/, text of the line, why).
+const STRING_ERRORS_ALLOWED: [(&str, &str, &str); 6] = [
+    (
+        "cli/data.rs",
+        "pub fn parse_framing_choice(s: &str)",
+        "a clap value parser at the edge: clap prints the String as the argument's error",
+    ),
+    ("cli/data.rs", "pub fn parse_framing(s: &str)", "a clap value parser at the edge, as above"),
+    (
+        "xr/check.rs",
+        "pub system: Result<SystemSummary, String>",
+        "a report field: why there is no headset, as the sentence `r2human xr --check` prints",
+    ),
+    (
+        "app/live.rs",
+        "pub result: Result<PathBuf, String>",
+        "a report field of `render --video` (the app edge): the PNG written or why the frame was skipped",
+    ),
+    (
+        "body/model.rs",
+        "static CELL: OnceLock<Result<BodyModel, String>>",
+        "a process-wide cache of a load failure: errors are not Clone, so the message is kept and each call gets \
+         a fresh `BodyError::Asset`",
+    ),
+    ("synth/mod.rs", "static CELL: OnceLock<Result<SynthAssets, String>>", "the same cache for `SynthError::Asset`"),
+];
+
+/// One error style: below the edge, failures are typed (thiserror enums with the file and the cause chain), not
+/// `String`s. The few that stay are listed with their reason in [`STRING_ERRORS_ALLOWED`]; an entry that no
+/// longer matches anything fails too, so the list cannot go stale.
+#[test]
+fn errors_are_typed_not_strings() {
+    let mut found = Vec::new();
+    let mut used = [false; STRING_ERRORS_ALLOWED.len()];
+    for (rel, text) in sources() {
+        let lines: Vec<&str> = text.lines().collect();
+        for n in string_error_lines(&text) {
+            let allowed = STRING_ERRORS_ALLOWED
+                .iter()
+                .position(|(f, line, _)| rel == Path::new(f) && lines[n - 1].contains(line));
+            match allowed {
+                Some(k) => used[k] = true,
+                None => found.push(format!("src/{}:{n}: {}", rel.display(), lines[n - 1].trim())),
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "`Result<_, String>` below the edge: return the module's thiserror enum (keep the file name and the cause \
+         as `#[source]`), or add the line to STRING_ERRORS_ALLOWED with the reason it must stay:\n{}",
+        found.join("\n")
+    );
+    let stale: Vec<String> = STRING_ERRORS_ALLOWED
+        .iter()
+        .zip(used)
+        .filter(|(_, u)| !u)
+        .map(|((f, line, _), _)| format!("src/{f}: {line}"))
+        .collect();
+    assert!(stale.is_empty(), "STRING_ERRORS_ALLOWED lists lines that are gone; remove them:\n{}", stale.join("\n"));
 }
 
 /// Lines (1-based) of `text` that open an `unsafe` block or `unsafe impl` without a `// SAFETY:` comment: on the
@@ -301,14 +426,9 @@ fn unsafe_lines_are_found_with_and_without_their_reason() {
 /// handle's lifetime, the synchronisation, the bounds), and every `unsafe fn` states its caller's contract.
 #[test]
 fn every_unsafe_says_why_it_is_sound() {
-    let src = root().join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
-    files.sort();
     let mut found = Vec::new();
-    for file in files {
-        let text = std::fs::read_to_string(&file).expect("a readable source file");
-        let rel = file.strip_prefix(root()).unwrap_or(&file).display().to_string();
+    for (rel, text) in sources() {
+        let rel = format!("src/{}", rel.display());
         for line in unexplained_unsafe(&text) {
             found.push(format!("{rel}:{line}: unsafe without a `// SAFETY:` comment above it"));
         }

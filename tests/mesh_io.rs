@@ -90,8 +90,9 @@ fn bad_obj_inputs_are_clear_errors() {
     write(d, "m.mtl", "newmtl skin\nmap_Kd missing.png\n");
     let p = write(d, "a.obj", OBJ);
     let e = read_mesh(&p).unwrap_err();
-    assert!(matches!(e, MeshIoError::Texture { .. }), "{e}");
+    assert!(matches!(e, MeshIoError::Texture { source: TextureError::NotFound, .. }), "{e}");
     err_names_file(&e, "missing.png");
+    assert!(e.to_string().ends_with("cannot be used: file not found"), "{e}");
     // Missing MTL.
     let p = write(d, "b.obj", &OBJ.replace("m.mtl", "nope.mtl"));
     err_names_file(&read_mesh(&p).unwrap_err(), "nope.mtl");
@@ -207,14 +208,17 @@ fn glb_container_is_checked_before_any_length_is_trusted() {
     let cases = cases.into_iter().chain([(v1, "GLB version 1")]);
     let dir = tempfile::tempdir().unwrap();
     for (i, (data, expected)) in cases.enumerate() {
-        let e = glb_chunks(&data).unwrap_err();
+        let e = glb_chunks(&data).unwrap_err().to_string();
         assert!(e.contains(expected), "case {i}: {e:?} does not say {expected:?}");
         // Through the reader: a glTF error naming the file.
         let p = dir.path().join(format!("case{i}.glb"));
         std::fs::write(&p, &data).unwrap();
         let e = read_mesh(&p).unwrap_err();
-        assert!(matches!(e, MeshIoError::Gltf { .. }), "case {i}: {e}");
+        assert!(matches!(e, MeshIoError::Gltf { source: GltfError::Container(_), .. }), "case {i}: {e}");
         err_names_file(&e, &format!("case{i}.glb"));
+        // The cause chain keeps the container's own error under the file's.
+        let cause = std::error::Error::source(&e).expect("a cause").to_string();
+        assert!(cause.contains(expected), "case {i}: {cause:?}");
     }
 }
 

@@ -14,6 +14,67 @@ use super::{frame_from_srgb8, CaptureError, Frame, FrameSource, SourceEvent};
 /// Smallest accepted frame side: below this the segmentation and geometry have nothing to work with.
 pub const MIN_SIDE: u32 = 64;
 
+/// A camera device's own error: nokhwa's (V4L2 on Linux), or another backend's ([`CameraBackend`] test doubles).
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// nokhwa's error (opening, querying, streaming, decoding a frame).
+    #[error("{0}")]
+    Driver(#[source] nokhwa::NokhwaError),
+    /// Another backend's error.
+    #[error("{0}")]
+    Other(#[source] Box<dyn std::error::Error + Send + Sync>),
+}
+
+impl From<nokhwa::NokhwaError> for DeviceError {
+    fn from(e: nokhwa::NokhwaError) -> Self {
+        DeviceError::Driver(e)
+    }
+}
+
+impl From<&str> for DeviceError {
+    fn from(message: &str) -> Self {
+        DeviceError::Other(message.into())
+    }
+}
+
+impl From<String> for DeviceError {
+    fn from(message: String) -> Self {
+        DeviceError::Other(message.into())
+    }
+}
+
+/// Why a camera stopped delivering frames ([`CaptureError::CameraLost`]).
+#[derive(Debug, thiserror::Error)]
+pub enum CameraLoss {
+    /// Reading a frame failed (the device was unplugged, the driver gave up).
+    #[error("{0}")]
+    Read(#[source] DeviceError),
+    /// Reopening the device failed (still unplugged).
+    #[error("reopening failed: {0}")]
+    Reopen(#[source] DeviceError),
+    /// The device came back but could not be started again (no usable format any more, refused stream).
+    #[error("{0}")]
+    Restart(#[source] Box<CaptureError>),
+    /// No device is open.
+    #[error("no device")]
+    NoDevice,
+}
+
+/// A camera offers no usable format ([`choose_format`]): what it offers, for the message.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{}", describe_offered(.0))]
+pub struct NoUsableFormat(pub Vec<CameraFormat>);
+
+/// "none offered", or every offered format as `WxH FORMAT R fps`, comma-separated.
+fn describe_offered(offered: &[CameraFormat]) -> String {
+    if offered.is_empty() {
+        return "none offered".into();
+    }
+    let list: Vec<String> =
+        offered.iter().map(|f| format!("{}x{} {} {} fps", f.width(), f.height(), f.format(), f.frame_rate())).collect();
+    list.join(", ")
+}
+
 /// One camera as listed by the operating system.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DeviceInfo {
@@ -35,7 +96,7 @@ pub fn list_devices() -> Result<Vec<DeviceInfo>, CaptureError> {
             tracing::debug!("camera query failed without /dev/video*: {e}");
             Vec::new()
         }
-        Err(e) => return Err(CaptureError::Camera { index: 0, reason: format!("cannot list cameras: {e}") }),
+        Err(e) => return Err(CaptureError::CameraList { source: e.into() }),
     };
     Ok(infos
         .iter()
@@ -126,19 +187,9 @@ fn format_rank(f: FrameFormat) -> u32 {
 }
 
 /// Picks the offered format closest to the request: size first (sum of side differences; without a request the
-/// largest not above 1280x720, else the smallest), then rate, then pixel format. `Err` lists what was offered.
-pub fn choose_format(offered: &[CameraFormat], request: &CameraRequest) -> Result<CameraFormat, String> {
+/// largest not above 1280x720, else the smallest), then rate, then pixel format. `Err` holds what was offered.
+pub fn choose_format(offered: &[CameraFormat], request: &CameraRequest) -> Result<CameraFormat, NoUsableFormat> {
     let usable: Vec<&CameraFormat> = offered.iter().filter(|f| is_supported(f)).collect();
-    if usable.is_empty() {
-        if offered.is_empty() {
-            return Err("none offered".into());
-        }
-        let list: Vec<String> = offered
-            .iter()
-            .map(|f| format!("{}x{} {} {} fps", f.width(), f.height(), f.format(), f.frame_rate()))
-            .collect();
-        return Err(list.join(", "));
-    }
     let size_cost = |f: &CameraFormat| -> i64 {
         match request.resolution {
             Some((w, h)) => (f.width() as i64 - w as i64).abs() + (f.height() as i64 - h as i64).abs(),
@@ -166,7 +217,7 @@ pub fn choose_format(offered: &[CameraFormat], request: &CameraRequest) -> Resul
         }
     };
     let best = usable.into_iter().min_by_key(|f| (size_cost(f), fps_cost(f), fmt_cost(f))).copied();
-    best.ok_or_else(|| "none offered".into())
+    best.ok_or_else(|| NoUsableFormat(offered.to_vec()))
 }
 
 /// One camera device: what [`CameraSource`] needs from it. Not `Send`: V4L2 handles stay on the thread that
@@ -175,11 +226,11 @@ pub trait CameraBackend {
     /// Human-readable name.
     fn name(&self) -> String;
     /// All formats the device offers.
-    fn formats(&mut self) -> Result<Vec<CameraFormat>, String>;
+    fn formats(&mut self) -> Result<Vec<CameraFormat>, DeviceError>;
     /// Starts streaming in `format`.
-    fn start(&mut self, format: CameraFormat) -> Result<(), String>;
+    fn start(&mut self, format: CameraFormat) -> Result<(), DeviceError>;
     /// Blocks for the next frame: 8-bit sRGB, 3 channels, row-major, with its size.
-    fn frame(&mut self) -> Result<(Vec<u8>, usize, usize), String>;
+    fn frame(&mut self) -> Result<(Vec<u8>, usize, usize), DeviceError>;
 }
 
 /// The real device, through nokhwa.
@@ -189,9 +240,9 @@ pub struct NokhwaBackend {
 
 impl NokhwaBackend {
     /// Opens camera `index` (no stream yet).
-    pub fn open(index: u32) -> Result<Self, String> {
+    pub fn open(index: u32) -> Result<Self, DeviceError> {
         let request = RequestedFormat::new::<RgbFormat>(RequestedFormatType::AbsoluteHighestFrameRate);
-        let camera = nokhwa::Camera::new(CameraIndex::Index(index), request).map_err(|e| e.to_string())?;
+        let camera = nokhwa::Camera::new(CameraIndex::Index(index), request)?;
         Ok(Self { camera })
     }
 }
@@ -201,19 +252,19 @@ impl CameraBackend for NokhwaBackend {
         self.camera.info().human_name()
     }
 
-    fn formats(&mut self) -> Result<Vec<CameraFormat>, String> {
-        self.camera.compatible_camera_formats().map_err(|e| e.to_string())
+    fn formats(&mut self) -> Result<Vec<CameraFormat>, DeviceError> {
+        Ok(self.camera.compatible_camera_formats()?)
     }
 
-    fn start(&mut self, format: CameraFormat) -> Result<(), String> {
+    fn start(&mut self, format: CameraFormat) -> Result<(), DeviceError> {
         let request = RequestedFormat::new::<RgbFormat>(RequestedFormatType::Exact(format));
-        self.camera.set_camera_requset(request).map_err(|e| e.to_string())?;
-        self.camera.open_stream().map_err(|e| e.to_string())
+        self.camera.set_camera_requset(request)?;
+        Ok(self.camera.open_stream()?)
     }
 
-    fn frame(&mut self) -> Result<(Vec<u8>, usize, usize), String> {
-        let buffer = self.camera.frame().map_err(|e| e.to_string())?;
-        let img = buffer.decode_image::<RgbFormat>().map_err(|e| e.to_string())?;
+    fn frame(&mut self) -> Result<(Vec<u8>, usize, usize), DeviceError> {
+        let buffer = self.camera.frame()?;
+        let img = buffer.decode_image::<RgbFormat>()?;
         let (w, h) = (img.width() as usize, img.height() as usize);
         Ok((img.into_raw(), w, h))
     }
@@ -226,7 +277,7 @@ impl Drop for NokhwaBackend {
 }
 
 /// Opens a backend for a camera index; called again to reconnect after a loss.
-pub type BackendOpener = Box<dyn FnMut(u32) -> Result<Box<dyn CameraBackend>, String> + Send>;
+pub type BackendOpener = Box<dyn FnMut(u32) -> Result<Box<dyn CameraBackend>, DeviceError> + Send>;
 
 /// A camera as a frame source. A failing frame read drops the device and returns [`CaptureError::CameraLost`];
 /// the next calls try to reopen it (at most every `retry_interval`), so the session never ends because of it.
@@ -260,7 +311,7 @@ impl CameraSource {
     /// Opens a camera through any backend (tests use fake devices).
     pub fn with_backend(request: &CameraRequest, mut opener: BackendOpener) -> Result<Self, CaptureError> {
         let index = request.index;
-        let mut backend = opener(index).map_err(|reason| CaptureError::Camera { index, reason })?;
+        let mut backend = opener(index).map_err(|source| CaptureError::Camera { index, source })?;
         let format = start_backend(backend.as_mut(), request)?;
         Ok(Self {
             request: request.clone(),
@@ -287,9 +338,10 @@ impl CameraSource {
             std::thread::sleep(wait);
         }
         self.last_attempt = Some(Instant::now());
-        let lost = |reason: String| CaptureError::CameraLost { index, reason };
-        let mut backend = (self.opener)(index).map_err(|e| lost(format!("reopening failed: {e}")))?;
-        self.format = start_backend(backend.as_mut(), &self.request).map_err(|e| lost(e.to_string()))?;
+        let lost = |source: CameraLoss| CaptureError::CameraLost { index, source };
+        let mut backend = (self.opener)(index).map_err(|e| lost(CameraLoss::Reopen(e)))?;
+        self.format =
+            start_backend(backend.as_mut(), &self.request).map_err(|e| lost(CameraLoss::Restart(Box::new(e))))?;
         tracing::info!("camera {index} reconnected");
         self.backend = Some(backend);
         Ok(())
@@ -298,16 +350,19 @@ impl CameraSource {
 
 fn start_backend(backend: &mut dyn CameraBackend, request: &CameraRequest) -> Result<CameraFormat, CaptureError> {
     let index = request.index;
-    let offered = backend.formats().map_err(|reason| CaptureError::Camera { index, reason })?;
+    let offered = backend.formats().map_err(|source| CaptureError::Camera { index, source })?;
     let format = choose_format(&offered, request).map_err(|offered| CaptureError::NoSupportedFormat {
         index,
         name: backend.name(),
         offered,
         min: MIN_SIDE,
     })?;
-    backend.start(format).map_err(|reason| CaptureError::Camera {
+    backend.start(format).map_err(|source| CaptureError::CameraStart {
         index,
-        reason: format!("cannot start {}x{} {}: {reason}", format.width(), format.height(), format.format()),
+        width: format.width(),
+        height: format.height(),
+        format: format.format(),
+        source,
     })?;
     Ok(format)
 }
@@ -332,13 +387,13 @@ impl FrameSource for CameraSource {
             self.reconnect()?;
         }
         let Some(backend) = self.backend.as_mut() else {
-            return Err(CaptureError::CameraLost { index, reason: "no device".into() });
+            return Err(CaptureError::CameraLost { index, source: CameraLoss::NoDevice });
         };
         let (bytes, w, h) = match backend.frame() {
             Ok(f) => f,
-            Err(reason) => {
+            Err(e) => {
                 self.backend = None;
-                return Err(CaptureError::CameraLost { index, reason });
+                return Err(CaptureError::CameraLost { index, source: CameraLoss::Read(e) });
             }
         };
         let frame_index = self.next;
@@ -384,9 +439,12 @@ mod tests {
         assert_eq!(choose_format(&offered, &req).unwrap(), offered[3]);
         let req = CameraRequest { resolution: Some((1280, 720)), fps: Some(10), ..Default::default() };
         assert_eq!(choose_format(&offered, &req).unwrap(), offered[2]);
-        assert_eq!(choose_format(&[], &req).unwrap_err(), "none offered");
+        assert_eq!(choose_format(&[], &req).unwrap_err().to_string(), "none offered");
         let err = choose_format(&offered[5..], &req).unwrap_err();
-        assert!(err.contains("32x32 MJPEG 30 fps"), "{err}");
+        assert_eq!(err, NoUsableFormat(offered[5..].to_vec()));
+        assert_eq!(err.to_string(), "32x32 MJPEG 30 fps");
+        let two = NoUsableFormat(vec![offered[5], f(16, 8, FrameFormat::GRAY, 0)]).to_string();
+        assert_eq!(two, "32x32 MJPEG 30 fps, 16x8 GRAY 0 fps");
     }
 
     #[test]

@@ -50,6 +50,14 @@ pub enum CaptureError {
         /// What the operating system said.
         reason: String,
     },
+    /// A `synthetic:` spec given as the path that does not parse.
+    #[error("cannot open `{path}`: {source}. Check the path given to --video")]
+    LiveSpec {
+        /// The path as given.
+        path: PathBuf,
+        /// What is wrong with it.
+        source: synthetic::BadLiveSpec,
+    },
     /// An image-sequence folder without any image in it.
     #[error(
         "folder `{0}` contains no images (.png, .jpg, .jpeg, .gif, .hdr); put the frames there or pass a video file"
@@ -104,26 +112,46 @@ pub enum CaptureError {
         index: u32,
         /// Camera name.
         name: String,
-        /// What it offers, for the message.
-        offered: String,
+        /// What it offers ("none offered", or every format).
+        offered: camera::NoUsableFormat,
         /// The minimum side length accepted.
         min: u32,
     },
-    /// Any other camera failure (opening, starting the stream).
-    #[error("camera {index}: {reason}")]
+    /// Listing the cameras failed (the query itself, not an empty list).
+    #[error("camera 0: cannot list cameras: {source}")]
+    CameraList {
+        /// The driver's error.
+        source: camera::DeviceError,
+    },
+    /// A camera that cannot be opened or whose formats cannot be read.
+    #[error("camera {index}: {source}")]
     Camera {
         /// Camera index.
         index: u32,
-        /// The driver's message.
-        reason: String,
+        /// The driver's error.
+        source: camera::DeviceError,
+    },
+    /// A camera that refuses to stream in the format chosen for it.
+    #[error("camera {index}: cannot start {width}x{height} {format}: {source}")]
+    CameraStart {
+        /// Camera index.
+        index: u32,
+        /// Chosen width.
+        width: u32,
+        /// Chosen height.
+        height: u32,
+        /// Chosen pixel format.
+        format: nokhwa::utils::FrameFormat,
+        /// The driver's error.
+        source: camera::DeviceError,
     },
     /// A camera that stopped delivering frames mid-stream: the source keeps trying to reopen it.
-    #[error("camera {index} stopped sending frames ({reason}); check the cable — reconnecting, the last good frame stays on screen")]
+    #[error("camera {index} stopped sending frames ({source}); check the cable — reconnecting, the last good frame stays on screen")]
     CameraLost {
         /// Camera index.
         index: u32,
-        /// The driver's message.
-        reason: String,
+        /// Why: the failed read, or the failed reconnection.
+        source: camera::CameraLoss,
     },
     /// The frame cannot be segmented by the chosen method (no alpha channel, no clean plate yet…).
     #[error("segmentation ({method}): {reason}")]
@@ -228,7 +256,7 @@ pub fn is_image_path(path: &Path) -> bool {
 /// stand-in for soak runs, optionally stalling, vanishing and changing resolution on a fixed cycle.
 pub fn open_video_path(path: &Path, fps: f32) -> Result<Box<dyn FrameSource>, CaptureError> {
     if let Some(spec) = path.to_str().and_then(synthetic::LiveSpec::parse) {
-        let spec = spec.map_err(|reason| CaptureError::Open { path: path.into(), reason })?;
+        let spec = spec.map_err(|source| CaptureError::LiveSpec { path: path.into(), source })?;
         return Ok(Box::new(synthetic::LiveWalkerSource::new(spec)));
     }
     let meta = std::fs::metadata(path).map_err(|e| CaptureError::Open { path: path.into(), reason: e.to_string() })?;

@@ -222,14 +222,22 @@ pub struct LiveSpec {
     pub faults: bool,
 }
 
+/// A `synthetic:` source spec that does not parse ([`LiveSpec::parse`]).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{spec:?}: {problem}; expected synthetic:[WxH][@FPS][+faults], e.g. synthetic:320x240@30+faults")]
+pub struct BadLiveSpec {
+    /// The spec as given.
+    pub spec: String,
+    /// Which part is wrong and what it must be.
+    pub problem: &'static str,
+}
+
 impl LiveSpec {
     /// Parses `synthetic:[WxH][@FPS][+faults]` (e.g. `synthetic:`, `synthetic:640x480@30`,
     /// `synthetic:320x240+faults`); `None` when `spec` does not start with [`LIVE_PREFIX`].
-    pub fn parse(spec: &str) -> Option<Result<LiveSpec, String>> {
+    pub fn parse(spec: &str) -> Option<Result<LiveSpec, BadLiveSpec>> {
         let rest = spec.strip_prefix(LIVE_PREFIX)?;
-        let bad = |why: &str| {
-            Err(format!("{spec:?}: {why}; expected synthetic:[WxH][@FPS][+faults], e.g. synthetic:320x240@30+faults"))
-        };
+        let bad = |problem: &'static str| Err(BadLiveSpec { spec: spec.to_string(), problem });
         let (rest, faults) = match rest.strip_suffix("+faults") {
             Some(r) => (r, true),
             None => (rest, false),
@@ -405,6 +413,8 @@ mod tests {
         assert_eq!((s.width, s.height, s.fps, s.faults), (160, 120, 15.0, true));
         for bad in ["synthetic:0x5", "synthetic:100", "synthetic:64x64@0", "synthetic:64x64@x", "synthetic:+fault"] {
             let e = LiveSpec::parse(bad).unwrap().unwrap_err();
+            assert_eq!(e.spec, bad);
+            let e = e.to_string();
             assert!(e.contains(bad) && e.contains("synthetic:[WxH]"), "{e}");
         }
     }

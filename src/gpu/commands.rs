@@ -1,6 +1,7 @@
-//! One re-recorded command buffer with its own pool and fence ([`CommandSlot`]): the submission pattern of the
-//! display-side GPU work (the XR eye upload, the desktop mirror) — wait for the previous submission, record, submit
-//! to one of the context's queues under its lock.
+//! One re-recorded command buffer with its own pool and fence ([`CommandSlot`]): the one submission pattern of the
+//! GPU work — wait for the previous submission, record, submit to one of the context's queues under its lock, and
+//! (for the renderer's frames) wait for it with a timeout. Used by `gpu::Renderer`, the XR eye upload and the
+//! desktop mirror.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -97,24 +98,26 @@ impl CommandSlot {
     }
 
     /// Ends the recording and submits it to queue `queue` of the context (see [`Context::queue_at`]), waiting on
-    /// `waits` (semaphore, stage) and signalling `signals`. The time spent waiting for the queue's lock is added to
-    /// `waited`. Returns the fence that signals completion.
+    /// `wait` (semaphore, stage) and signalling `signal`. The time spent waiting for the queue's lock is added to
+    /// `waited`. Returns the fence that signals completion. Allocates nothing (the per-frame paths count heap
+    /// allocations).
     pub fn submit(
         &mut self,
         queue: usize,
-        waits: &[(vk::Semaphore, vk::PipelineStageFlags)],
-        signals: &[vk::Semaphore],
+        wait: Option<(vk::Semaphore, vk::PipelineStageFlags)>,
+        signal: Option<vk::Semaphore>,
         waited: &mut Duration,
     ) -> Result<vk::Fence, GpuError> {
         let device = self.ctx.device();
-        let semaphores: Vec<vk::Semaphore> = waits.iter().map(|w| w.0).collect();
-        let stages: Vec<vk::PipelineStageFlags> = waits.iter().map(|w| w.1).collect();
+        let semaphores = wait.map(|w| [w.0]);
+        let stages = wait.map(|w| [w.1]);
+        let signals = signal.map(|s| [s]);
         let cmds = [self.cmd];
         let submit = vk::SubmitInfo::default()
-            .wait_semaphores(&semaphores)
-            .wait_dst_stage_mask(&stages)
+            .wait_semaphores(semaphores.as_ref().map_or(&[], |s| &s[..]))
+            .wait_dst_stage_mask(stages.as_ref().map_or(&[], |s| &s[..]))
             .command_buffers(&cmds)
-            .signal_semaphores(signals);
+            .signal_semaphores(signals.as_ref().map_or(&[], |s| &s[..]));
         // SAFETY: the buffer is in the recording state (`begin`); the queue is locked for the submission.
         unsafe {
             device.end_command_buffer(self.cmd).map_err(GpuError::vk("end a command buffer"))?;
@@ -123,6 +126,30 @@ impl CommandSlot {
         }
         self.submitted = true;
         Ok(self.fence)
+    }
+
+    /// [`CommandSlot::submit`], then waits for the submission at most `timeout`: a device that does not finish
+    /// in that time is reported as lost ([`GpuError::DeviceLost`]; the submission stays pending, so the next
+    /// [`CommandSlot::begin`] waits for it again rather than reset a buffer the GPU may still read).
+    pub fn submit_and_wait(
+        &mut self,
+        queue: usize,
+        wait: Option<(vk::Semaphore, vk::PipelineStageFlags)>,
+        signal: Option<vk::Semaphore>,
+        timeout: Duration,
+    ) -> Result<(), GpuError> {
+        let mut lock_wait = Duration::ZERO;
+        self.submit(queue, wait, signal, &mut lock_wait)?;
+        let nanos = u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX);
+        // SAFETY: our own fence, submitted once since its last reset (just above).
+        match unsafe { self.ctx.device().wait_for_fences(&[self.fence], true, nanos) } {
+            Ok(()) => {
+                self.submitted = false;
+                Ok(())
+            }
+            Err(vk::Result::TIMEOUT) => Err(GpuError::DeviceLost),
+            Err(e) => Err(GpuError::vk("wait for a submission")(e)),
+        }
     }
 }
 

@@ -489,9 +489,13 @@ impl Context {
         &self.device
     }
 
+    /// Index of the renderer's queue for [`Context::queue_at`] and [`Context::lock_queue_at`]: the family's last
+    /// queue (an index past the end means the last one).
+    pub const RENDER_QUEUE: usize = usize::MAX;
+
     /// The renderer's queue (graphics + compute, + present for a surface context): the family's last queue.
     pub fn queue(&self) -> vk::Queue {
-        self.queue_at(self.queues.len() - 1)
+        self.queue_at(Self::RENDER_QUEUE)
     }
 
     /// Queue `index` of the family (the last one for an index past the end).
@@ -564,7 +568,7 @@ impl Context {
     /// the same lock around its own submissions), so several threads can share the queue. Hold it only for the
     /// call.
     pub fn lock_queue(&self) -> MutexGuard<'_, ()> {
-        self.lock_queue_at(self.queues.len() - 1)
+        self.lock_queue_at(Self::RENDER_QUEUE)
     }
 
     /// Locks queue `index` (see [`Context::queue_at`]); hold it around every call that may use that queue,

@@ -34,7 +34,7 @@ impl SwapchainOptions {
         formats: &[vk::Format::B8G8R8A8_UNORM, vk::Format::R8G8B8A8_UNORM],
         format_features: vk::FormatFeatureFlags::empty(),
         present_modes: &[vk::PresentModeKHR::FIFO],
-        queue: usize::MAX,
+        queue: Context::RENDER_QUEUE,
     };
 
     /// The XR desktop mirror: sRGB first (the blit from the linear float eye images encodes it), blittable,

@@ -32,6 +32,15 @@ pub enum IoError {
         /// What the decoder said.
         reason: String,
     },
+    /// The image's header (or a WebP frame's) claims a size its bytes cannot hold ([`check_plausible`],
+    /// [`check_webp_frames`]): refused before any pixel buffer is allocated.
+    #[error("cannot decode {path} as an image ({source}); is it a complete PNG, JPEG or Radiance .hdr file?")]
+    Header {
+        /// The file.
+        path: PathBuf,
+        /// What the header claims.
+        source: HeaderError,
+    },
     /// The image is larger than [`MAX_INPUT_SIDE`].
     #[error("{path} is {width}x{height} pixels; the limit is {max}x{max}: downscale it first (e.g. `convert IN -resize 4096x4096 OUT`)")]
     TooLarge {
@@ -66,6 +75,47 @@ pub enum IoError {
         /// The cause.
         reason: String,
     },
+}
+
+/// What [`check_plausible`] and [`check_webp_frames`] find wrong in an image's header, before anything is decoded.
+/// The loaders wrap it with the file's name ([`IoError::Header`], `MeshIoError::Texture`).
+#[derive(Debug, thiserror::Error)]
+pub enum HeaderError {
+    /// The header claims more pixels than a file of this size and format can encode ([`max_plausible_pixels`]).
+    #[error(
+        "its header claims {width}x{height} pixels, more than a {len}-byte {} file can hold: it is truncated or \
+         corrupt",
+        format_name(*format)
+    )]
+    Implausible {
+        /// The format the content was recognised as.
+        format: Option<ImageFormat>,
+        /// Claimed width.
+        width: u32,
+        /// Claimed height.
+        height: u32,
+        /// The file's size in bytes.
+        len: u64,
+    },
+    /// A WebP frame claims to be larger than the canvas it is drawn on.
+    #[error("its {kind} frame claims {width}x{height} pixels, larger than its {canvas_width}x{canvas_height} canvas")]
+    FrameLargerThanCanvas {
+        /// The frame's chunk (`ANMF`, `VP8`, `VP8L`).
+        kind: &'static str,
+        /// Claimed frame width.
+        width: u32,
+        /// Claimed frame height.
+        height: u32,
+        /// The canvas width (`VP8X`, or the enclosing animation frame's).
+        canvas_width: u32,
+        /// The canvas height.
+        canvas_height: u32,
+    },
+}
+
+/// An image format's name in messages (`PNG`, `WEBP`); empty when the format is unknown.
+fn format_name(format: Option<ImageFormat>) -> String {
+    format.map(|f| format!("{f:?}").to_uppercase()).unwrap_or_default()
 }
 
 /// A decoded photo: linear RGB (straight, not premultiplied) and its alpha channel when the file has one.
@@ -123,18 +173,14 @@ pub fn check_dimensions(
     if width == 0 || height == 0 {
         return Err(IoError::Decode { path: path.to_owned(), reason: "the image has no pixels".into() });
     }
-    check_plausible(format, width, height, len).map_err(|reason| IoError::Decode { path: path.to_owned(), reason })
+    check_plausible(format, width, height, len).map_err(|source| IoError::Header { path: path.to_owned(), source })
 }
 
 /// Checks only that `width x height` is plausible for `len` bytes of `format` ([`max_plausible_pixels`]); the
 /// error says why (for loaders with their own size limits, such as mesh textures).
-pub fn check_plausible(format: Option<ImageFormat>, width: u32, height: u32, len: u64) -> Result<(), String> {
+pub fn check_plausible(format: Option<ImageFormat>, width: u32, height: u32, len: u64) -> Result<(), HeaderError> {
     if width as u64 * height as u64 > max_plausible_pixels(format, len) {
-        return Err(format!(
-            "its header claims {width}x{height} pixels, more than a {len}-byte {} file can hold: it is truncated or \
-             corrupt",
-            format.map(|f| format!("{f:?}").to_uppercase()).unwrap_or_default()
-        ));
+        return Err(HeaderError::Implausible { format, width, height, len });
     }
     Ok(())
 }
@@ -146,7 +192,7 @@ pub fn check_plausible(format: Option<ImageFormat>, width: u32, height: u32, len
 /// Animation frames (`ANMF`) are checked the same way, and so is a chunk cut short by the end of the file (the
 /// decoder reads what there is: truncated copies of that input allocated 381 MiB). Files that are not RIFF/WebP
 /// are left to the decoder.
-pub fn check_webp_frames(bytes: &[u8]) -> Result<(), String> {
+pub fn check_webp_frames(bytes: &[u8]) -> Result<(), HeaderError> {
     if bytes.len() < 12 || &bytes[..4] != b"RIFF" || &bytes[8..12] != b"WEBP" {
         return Ok(());
     }
@@ -183,7 +229,13 @@ pub fn check_webp_frames(bytes: &[u8]) -> Result<(), String> {
             };
             if let (Some((kind, (w, h))), Some((cw, ch))) = (claimed, frame.or(canvas)) {
                 if w > cw || h > ch {
-                    return Err(format!("its {kind} frame claims {w}x{h} pixels, larger than its {cw}x{ch} canvas"));
+                    return Err(HeaderError::FrameLargerThanCanvas {
+                        kind,
+                        width: w,
+                        height: h,
+                        canvas_width: cw,
+                        canvas_height: ch,
+                    });
                 }
             }
             data = data.get(8 + size + size % 2..).unwrap_or(&[]);
@@ -208,7 +260,7 @@ fn decode_checked<R: std::io::BufRead + std::io::Seek>(
     if format == Some(ImageFormat::WebP) {
         let mut bytes = Vec::new();
         std::io::Read::read_to_end(&mut open().map_err(read_err)?.into_inner(), &mut bytes).map_err(read_err)?;
-        check_webp_frames(&bytes).map_err(|reason| IoError::Decode { path: path.to_owned(), reason })?;
+        check_webp_frames(&bytes).map_err(|source| IoError::Header { path: path.to_owned(), source })?;
     }
     let mut reader = open().and_then(|r| r.with_guessed_format()).map_err(read_err)?;
     let mut limits = Limits::default();

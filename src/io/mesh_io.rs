@@ -13,6 +13,7 @@ use serde_json::json;
 
 use crate::buffer::{linear_to_srgb, srgb_to_linear};
 use crate::geometry::mesh::{MeshError, TriMesh};
+use crate::io::image_io::{check_plausible, check_webp_frames, HeaderError};
 
 /// Errors reading or writing mesh files. Each names the file concerned.
 #[derive(Debug, thiserror::Error)]
@@ -50,22 +51,22 @@ pub enum MeshIoError {
         message: String,
     },
     /// The glTF/GLB file is corrupt, truncated or uses something this reader does not support.
-    #[error("{path}: invalid glTF: {message}")]
+    #[error("{path}: invalid glTF: {source}")]
     Gltf {
         /// The file.
         path: PathBuf,
         /// What is wrong.
-        message: String,
+        source: GltfError,
     },
     /// A texture the mesh references is missing or cannot be decoded.
-    #[error("{path}: texture {texture:?} cannot be used: {message}")]
+    #[error("{path}: texture {texture:?} cannot be used: {source}")]
     Texture {
         /// The mesh (or material) file that references the texture.
         path: PathBuf,
         /// The texture as referenced.
         texture: String,
         /// What is wrong.
-        message: String,
+        source: TextureError,
     },
     /// The mesh has no triangles.
     #[error("{path}: the mesh has no triangles")]
@@ -91,6 +92,208 @@ pub enum MeshIoError {
         /// What is wrong.
         message: String,
     },
+}
+
+/// Why a texture a mesh references cannot be used ([`MeshIoError::Texture`]'s cause).
+#[derive(Debug, thiserror::Error)]
+pub enum TextureError {
+    /// No file by that name (nor its bare name, nor another case of it) next to the mesh.
+    #[error("file not found")]
+    NotFound,
+    /// The file exists but cannot be read.
+    #[error("{0}")]
+    Read(#[source] std::io::Error),
+    /// A glTF texture names an image the file does not have.
+    #[error("does not exist")]
+    NoSuchImage,
+    /// A glTF `data:` URI without the comma that starts its payload.
+    #[error("a data: URI without a comma")]
+    DataUriWithoutComma,
+    /// A glTF `data:` URI whose base64 payload does not decode.
+    #[error("data: URI: {0}")]
+    DataUriBase64(#[source] base64::DecodeError),
+    /// An embedded glTF image whose buffer view lies outside its buffer.
+    #[error("its buffer view is past the end of the buffer")]
+    ViewPastBuffer,
+    /// The header claims a size its bytes cannot hold (checked before anything is decoded).
+    #[error("{0}")]
+    Header(#[source] HeaderError),
+    /// The `image` crate cannot read or decode it (unknown format, corrupt data, a side over
+    /// [`MAX_TEXTURE_SIDE`]).
+    #[error("{0}")]
+    Decode(#[source] Box<image::ImageError>),
+}
+
+/// What is wrong with a glTF or GLB file ([`MeshIoError::Gltf`]'s cause).
+#[derive(Debug, thiserror::Error)]
+pub enum GltfError {
+    /// The GLB container around the document is broken ([`glb_chunks`]).
+    #[error("{0}")]
+    Container(#[source] GlbError),
+    /// The document is not glTF JSON.
+    #[error("JSON: {0}")]
+    Json(#[source] gltf::json::Error),
+    /// The `gltf` crate's validation refused the document. (`gltf` and `image` errors are boxed: they are large,
+    /// and every `Result` that carries a `MeshIoError` pays for its largest variant.)
+    #[error("{0}")]
+    Invalid(#[source] Box<gltf::Error>),
+    /// A buffer cannot be loaded (missing file, bad `data:` URI, too short).
+    #[error("buffers: {0}")]
+    Buffers(#[source] Box<gltf::Error>),
+    /// A primitive uses an accessor the file does not have.
+    #[error("mesh {mesh} primitive {primitive} uses accessor {accessor} but there are {count}")]
+    MissingAccessor {
+        /// Mesh index.
+        mesh: usize,
+        /// Primitive index within the mesh.
+        primitive: usize,
+        /// The accessor index used.
+        accessor: usize,
+        /// How many accessors there are.
+        count: usize,
+    },
+    /// An image stored in a buffer view without its `mimeType`.
+    #[error("image {0} is in a buffer view but has no mimeType")]
+    ImageWithoutMimeType(usize),
+    /// An image with neither a `uri` nor a `bufferView`.
+    #[error("image {0} has neither a uri nor a bufferView")]
+    ImageWithoutSource(usize),
+    /// An accessor this reader cannot read safely.
+    #[error("accessor {index} ({what}) {problem}")]
+    Accessor {
+        /// Accessor index.
+        index: usize,
+        /// What the primitive uses it for (`Positions`, `indices`…).
+        what: String,
+        /// What is wrong with it.
+        problem: AccessorProblem,
+    },
+    /// A node reached twice while walking the scene (a cycle or a shared child).
+    #[error("node {0} appears twice in the node hierarchy (a cycle)")]
+    NodeTwice(usize),
+    /// A node hierarchy deeper than the reader walks.
+    #[error("the node hierarchy is deeper than 256 levels")]
+    TooDeep,
+    /// A triangle index past its primitive's vertices.
+    #[error("primitive index {index} past its {count} vertices")]
+    IndexPastVertices {
+        /// The index.
+        index: u32,
+        /// The primitive's vertex count.
+        count: usize,
+    },
+    /// The merged mesh is inconsistent (materials, UVs or colours do not match its vertices).
+    #[error("{0}")]
+    Mesh(#[source] MeshError),
+}
+
+/// What is wrong with one glTF accessor ([`GltfError::Accessor`]).
+#[derive(Debug, thiserror::Error)]
+pub enum AccessorProblem {
+    /// A component type or shape the `gltf` reader does not handle.
+    #[error("is {0:?} {1:?}, which this reader does not take")]
+    Kind(gltf::accessor::DataType, gltf::accessor::Dimensions),
+    /// Elements overlap: the view's stride is shorter than an element.
+    #[error("has a byte stride of {stride}, less than its {size}-byte elements")]
+    Stride {
+        /// The buffer view's byte stride.
+        stride: usize,
+        /// The element size in bytes.
+        size: usize,
+    },
+    /// The elements end past the buffer view (or the view past its buffer).
+    #[error("reads {count} elements past the end of buffer view {view}")]
+    PastView {
+        /// Elements read.
+        count: usize,
+        /// Buffer view index.
+        view: usize,
+    },
+    /// `count` is 0 (glTF requires at least 1).
+    #[error("has a count of 0 (glTF requires at least 1)")]
+    ZeroCount,
+    /// A sparse accessor with no elements.
+    #[error("is sparse with no elements")]
+    EmptySparse,
+}
+
+/// What is wrong with a GLB container ([`glb_chunks`]) or why one cannot be written ([`glb_container`]). Each
+/// message gives the offsets involved.
+#[derive(Debug, thiserror::Error)]
+pub enum GlbError {
+    /// Fewer bytes than the header.
+    #[error("GLB: the file is {0} bytes, shorter than the 12-byte GLB header")]
+    Short(usize),
+    /// The magic is not `glTF`.
+    #[error("GLB: the file starts with {}, not the magic \"glTF\"", show_tag(.0))]
+    Magic([u8; 4]),
+    /// A container version other than 2.
+    #[error("GLB version {0}; only version 2 is supported")]
+    Version(u32),
+    /// The declared total length cannot hold a header and one chunk header.
+    #[error("GLB: the header declares a total length of {0} bytes, less than the 20 of a header and one chunk header")]
+    DeclaredTooShort(usize),
+    /// The declared total length is past the end of the data.
+    #[error("GLB: the header declares a total length of {declared} bytes but the file has {len}: it is truncated")]
+    Truncated {
+        /// Declared total length.
+        declared: usize,
+        /// Actual length.
+        len: usize,
+    },
+    /// Bytes left before the declared end that cannot hold a chunk header.
+    #[error("GLB: {left} bytes at offset {at} are too few for a chunk header (8)")]
+    ChunkHeader {
+        /// Bytes left.
+        left: usize,
+        /// Their offset.
+        at: usize,
+    },
+    /// A chunk longer than what remains before the declared end.
+    #[error(
+        "GLB: chunk {index} ({}) at offset {at} declares {length} bytes but only {remain} remain before the declared \
+         end ({declared})",
+        show_tag(tag)
+    )]
+    ChunkTooLong {
+        /// Chunk position.
+        index: usize,
+        /// Chunk type.
+        tag: [u8; 4],
+        /// Chunk header offset.
+        at: usize,
+        /// Declared chunk length.
+        length: usize,
+        /// Bytes remaining after the chunk header.
+        remain: usize,
+        /// Declared total length.
+        declared: usize,
+    },
+    /// The first chunk is not JSON.
+    #[error("GLB: the first chunk is {}, not JSON", show_tag(.0))]
+    FirstNotJson([u8; 4]),
+    /// A second JSON chunk.
+    #[error("GLB: a second JSON chunk (chunk {index}, offset {at})")]
+    SecondJson {
+        /// Chunk position.
+        index: usize,
+        /// Its offset.
+        at: usize,
+    },
+    /// A BIN chunk anywhere but right after JSON.
+    #[error("GLB: a BIN chunk at position {index} (offset {at}); it must directly follow JSON")]
+    MisplacedBin {
+        /// Chunk position.
+        index: usize,
+        /// Its offset.
+        at: usize,
+    },
+    /// No JSON chunk at all.
+    #[error("GLB: no JSON chunk")]
+    NoJson,
+    /// A container to write that would be 4 GiB or more (GLB lengths are 32-bit).
+    #[error("file larger than 4 GiB")]
+    TooLarge,
 }
 
 /// Albedo of a surface with neither a material nor vertex colours (linear grey).
@@ -231,22 +434,22 @@ pub fn srgb8_to_linear(v: u8) -> f32 {
 /// then case-insensitively there (scans often carry absolute paths of the machine that made them, or a
 /// different case). `referrer` (the mesh or MTL file) labels errors.
 pub fn load_texture(dir: &Path, name: &str, referrer: &Path) -> Result<Arc<image::RgbImage>, MeshIoError> {
-    let err = |texture: &Path, message: String| MeshIoError::Texture {
+    let err = |texture: &Path, source: TextureError| MeshIoError::Texture {
         path: referrer.to_path_buf(),
         texture: texture.display().to_string(),
-        message,
+        source,
     };
     let given = dir.join(name.replace('\\', "/"));
-    let path = resolve_texture(dir, &given).ok_or_else(|| err(&given, "file not found".into()))?;
-    let bytes = std::fs::read(&path).map_err(|e| err(&path, e.to_string()))?;
+    let path = resolve_texture(dir, &given).ok_or_else(|| err(&given, TextureError::NotFound))?;
+    let bytes = std::fs::read(&path).map_err(|e| err(&path, TextureError::Read(e)))?;
     decode_texture(&bytes, image::ImageFormat::from_path(&path).ok()).map(Arc::new).map_err(|e| err(&path, e))
 }
 
 /// Decodes an encoded texture (format from the content, else `hint`: TGA has no signature), at most
 /// [`MAX_TEXTURE_SIDE`] a side, to 8-bit RGB.
-fn decode_texture(bytes: &[u8], hint: Option<image::ImageFormat>) -> Result<image::RgbImage, String> {
+fn decode_texture(bytes: &[u8], hint: Option<image::ImageFormat>) -> Result<image::RgbImage, TextureError> {
     let mut reader =
-        image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string())?;
+        image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(TextureError::Read)?;
     if let (None, Some(format)) = (reader.format(), hint) {
         reader.set_format(format);
     }
@@ -256,14 +459,14 @@ fn decode_texture(bytes: &[u8], hint: Option<image::ImageFormat>) -> Result<imag
     if let Some(f) = format {
         header.set_format(f);
     }
-    let (w, h) = header.into_dimensions().map_err(|e| e.to_string())?;
-    crate::io::image_io::check_plausible(format, w, h, bytes.len() as u64)?;
-    crate::io::image_io::check_webp_frames(bytes)?;
+    let (w, h) = header.into_dimensions().map_err(|e| TextureError::Decode(Box::new(e)))?;
+    check_plausible(format, w, h, bytes.len() as u64).map_err(TextureError::Header)?;
+    check_webp_frames(bytes).map_err(TextureError::Header)?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_TEXTURE_SIDE);
     limits.max_image_height = Some(MAX_TEXTURE_SIDE);
     reader.limits(limits);
-    Ok(reader.decode().map_err(|e| e.to_string())?.to_rgb8())
+    Ok(reader.decode().map_err(|e| TextureError::Decode(Box::new(e)))?.to_rgb8())
 }
 
 fn resolve_texture(dir: &Path, given: &Path) -> Option<PathBuf> {
@@ -308,7 +511,7 @@ pub(crate) fn check_mesh(path: &Path, textured: &TexturedMesh) -> Result<(), Mes
         let p = mesh.positions[index];
         return Err(MeshIoError::NonFinite { path: path.to_path_buf(), index, value: p.to_array() });
     }
-    textured.validate().map_err(|e| MeshIoError::Gltf { path: path.to_path_buf(), message: e.to_string() })
+    textured.validate().map_err(|e| MeshIoError::Gltf { path: path.to_path_buf(), source: GltfError::Mesh(e) })
 }
 
 // ------------------------------------------------------------------------------------------------------------
@@ -484,7 +687,7 @@ pub fn read_obj(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 return Err(MeshIoError::Texture {
                     path: mtl.clone(),
                     texture: mtl_dir.join(map).display().to_string(),
-                    message: "file not found".into(),
+                    source: TextureError::NotFound,
                 });
             }
         }
@@ -604,12 +807,12 @@ fn strip_map_options(rest: &str) -> String {
 /// `COLOR_0` becomes [`TriMesh::colors`] (1 where a primitive has none), multiplying the material as glTF
 /// specifies. Primitives without a material get glTF's default (white).
 pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
-    let gerr = |message: String| MeshIoError::Gltf { path: path.to_path_buf(), message };
+    let gerr = |source: GltfError| MeshIoError::Gltf { path: path.to_path_buf(), source };
     let bytes = std::fs::read(path).map_err(|source| MeshIoError::Io { path: path.to_path_buf(), source })?;
     // The GLB container is split here, not by `gltf` (its reader panics on a declared length below 12 bytes and
     // refuses chunk types the specification says to skip).
     let (json, blob) = if bytes.starts_with(b"glTF") {
-        let chunks = glb_chunks(&bytes).map_err(gerr)?;
+        let chunks = glb_chunks(&bytes).map_err(|e| gerr(GltfError::Container(e)))?;
         if chunks.trailing > 0 {
             tracing::warn!("{}: {} bytes after the GLB's declared length ignored", path.display(), chunks.trailing);
         }
@@ -617,9 +820,9 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     } else {
         (&bytes[..], None)
     };
-    let root = gltf::json::Root::from_slice(json).map_err(|e| gerr(format!("JSON: {e}")))?;
+    let root = gltf::json::Root::from_slice(json).map_err(|e| gerr(GltfError::Json(e)))?;
     check_gltf_references(&root).map_err(gerr)?;
-    let document = gltf::Document::from_json(root).map_err(|e| gerr(e.to_string()))?;
+    let document = gltf::Document::from_json(root).map_err(|e| gerr(GltfError::Invalid(Box::new(e))))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     // Name a missing external texture or buffer before the importer fails with a generic message.
     for image in document.images() {
@@ -628,12 +831,13 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
                 return Err(MeshIoError::Texture {
                     path: path.to_path_buf(),
                     texture: uri.to_string(),
-                    message: "file not found".into(),
+                    source: TextureError::NotFound,
                 });
             }
         }
     }
-    let buffers = gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(format!("buffers: {e}")))?;
+    let buffers =
+        gltf::import_buffers(&document, Some(dir), blob).map_err(|e| gerr(GltfError::Buffers(Box::new(e))))?;
 
     struct Prim {
         base: u32,
@@ -663,10 +867,10 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
     while let Some((node, parent, depth)) = stack.pop() {
         match visited.get_mut(node.index()) {
             Some(seen) if !*seen => *seen = true,
-            _ => return Err(gerr(format!("node {} appears twice in the node hierarchy (a cycle)", node.index()))),
+            _ => return Err(gerr(GltfError::NodeTwice(node.index()))),
         }
         if depth > 256 {
-            return Err(gerr("the node hierarchy is deeper than 256 levels".into()));
+            return Err(gerr(GltfError::TooDeep));
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         for child in node.children() {
@@ -726,7 +930,7 @@ pub fn read_gltf(path: &Path) -> Result<TexturedMesh, MeshIoError> {
             let flip = world.determinant() < 0.0;
             let mut push = |a: u32, b: u32, c: u32| {
                 if a.max(b).max(c) as usize >= n {
-                    return Err(gerr(format!("primitive index {} past its {n} vertices", a.max(b).max(c))));
+                    return Err(gerr(GltfError::IndexPastVertices { index: a.max(b).max(c), count: n }));
                 }
                 triangles.push(if flip { [base + a, base + c, base + b] } else { [base + a, base + b, base + c] });
                 triangle_materials.push(id);
@@ -783,8 +987,8 @@ fn decode_gltf_image(
     path: &Path,
 ) -> Result<image::RgbImage, MeshIoError> {
     let terr =
-        |message: String| MeshIoError::Texture { path: path.to_path_buf(), texture: format!("image {i}"), message };
-    let image = document.images().nth(i).ok_or_else(|| terr("does not exist".into()))?;
+        |source: TextureError| MeshIoError::Texture { path: path.to_path_buf(), texture: format!("image {i}"), source };
+    let image = document.images().nth(i).ok_or_else(|| terr(TextureError::NoSuchImage))?;
     // Every source goes through `decode_texture` (every format it reads, bounded size, header checked against the
     // bytes): external files, buffer views and `data:` URIs (decoded here: the glTF importer's decoder has none of
     // these checks).
@@ -792,10 +996,9 @@ fn decode_gltf_image(
         gltf::image::Source::Uri { uri, mime_type } => match uri.strip_prefix("data:") {
             None => load_texture(dir, &percent_decode(uri), path).map(|t| (*t).clone()),
             Some(data) => {
-                let (header, payload) =
-                    data.split_once(',').ok_or_else(|| terr("a data: URI without a comma".into()))?;
+                let (header, payload) = data.split_once(',').ok_or_else(|| terr(TextureError::DataUriWithoutComma))?;
                 let bytes = if header.ends_with(";base64") {
-                    base64::decode(payload).map_err(|e| terr(format!("data: URI: {e}")))?
+                    base64::decode(payload).map_err(|e| terr(TextureError::DataUriBase64(e)))?
                 } else {
                     percent_decode(payload).into_bytes()
                 };
@@ -806,7 +1009,7 @@ fn decode_gltf_image(
         gltf::image::Source::View { view, mime_type } => {
             let data = buffers.get(view.buffer().index()).map(|d| &d.0[..]).unwrap_or(&[]);
             let bytes = data.get(view.offset()..view.offset().saturating_add(view.length()));
-            let bytes = bytes.ok_or_else(|| terr("its buffer view is past the end of the buffer".into()))?;
+            let bytes = bytes.ok_or_else(|| terr(TextureError::ViewPastBuffer))?;
             decode_texture(bytes, image::ImageFormat::from_mime_type(mime_type)).map_err(terr)
         }
     }
@@ -832,30 +1035,24 @@ const GLB_CHUNK_HEADER: usize = 8;
 /// header and is not past the end of the data, every chunk's length within the declared length, a JSON chunk
 /// first, at most one BIN chunk and only right after it. Chunks of other types are skipped, as the
 /// specification requires. The error says what is wrong, with the offsets involved.
-pub fn glb_chunks(bytes: &[u8]) -> Result<GlbChunks<'_>, String> {
+pub fn glb_chunks(bytes: &[u8]) -> Result<GlbChunks<'_>, GlbError> {
     let word = |at: usize| bytes.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
     if bytes.len() < GLB_HEADER {
-        return Err(format!("GLB: the file is {} bytes, shorter than the 12-byte GLB header", bytes.len()));
+        return Err(GlbError::Short(bytes.len()));
     }
     if !bytes.starts_with(b"glTF") {
-        return Err(format!("GLB: the file starts with {}, not the magic \"glTF\"", show_tag(&bytes[..4])));
+        return Err(GlbError::Magic(tag_at(bytes, 0)));
     }
     let version = word(4).unwrap_or(0);
     if version != 2 {
-        return Err(format!("GLB version {version}; only version 2 is supported"));
+        return Err(GlbError::Version(version));
     }
     let declared = word(8).unwrap_or(0) as usize;
     if declared < GLB_HEADER + GLB_CHUNK_HEADER {
-        return Err(format!(
-            "GLB: the header declares a total length of {declared} bytes, less than the 20 of a header and one chunk \
-             header"
-        ));
+        return Err(GlbError::DeclaredTooShort(declared));
     }
     if declared > bytes.len() {
-        return Err(format!(
-            "GLB: the header declares a total length of {declared} bytes but the file has {}: it is truncated",
-            bytes.len()
-        ));
+        return Err(GlbError::Truncated { declared, len: bytes.len() });
     }
     let mut json = None;
     let mut bin = None;
@@ -864,51 +1061,49 @@ pub fn glb_chunks(bytes: &[u8]) -> Result<GlbChunks<'_>, String> {
     while at < declared {
         let left = declared - at;
         if left < GLB_CHUNK_HEADER {
-            return Err(format!("GLB: {left} bytes at offset {at} are too few for a chunk header (8)"));
+            return Err(GlbError::ChunkHeader { left, at });
         }
         let length = word(at).unwrap_or(0) as usize;
-        let tag = &bytes[at + 4..at + 8];
+        let tag = tag_at(bytes, at + 4);
         let data_at = at + GLB_CHUNK_HEADER;
         if length > declared - data_at {
-            return Err(format!(
-                "GLB: chunk {index} ({}) at offset {at} declares {length} bytes but only {} remain before the \
-                 declared end ({declared})",
-                show_tag(tag),
-                declared - data_at
-            ));
+            return Err(GlbError::ChunkTooLong { index, tag, at, length, remain: declared - data_at, declared });
         }
         let data = &bytes[data_at..data_at + length];
-        match (tag, index) {
+        match (&tag, index) {
             (b"JSON", 0) => json = Some(data),
-            (_, 0) => return Err(format!("GLB: the first chunk is {}, not JSON", show_tag(tag))),
-            (b"JSON", _) => return Err(format!("GLB: a second JSON chunk (chunk {index}, offset {at})")),
+            (_, 0) => return Err(GlbError::FirstNotJson(tag)),
+            (b"JSON", _) => return Err(GlbError::SecondJson { index, at }),
             (b"BIN\0", 1) => bin = Some(data),
-            (b"BIN\0", _) => {
-                return Err(format!("GLB: a BIN chunk at position {index} (offset {at}); it must directly follow JSON"))
-            }
+            (b"BIN\0", _) => return Err(GlbError::MisplacedBin { index, at }),
             _ => {} // an extension's chunk: skipped
         }
         at = data_at + length;
         index += 1;
     }
-    let json = json.ok_or_else(|| "GLB: no JSON chunk".to_string())?;
+    let json = json.ok_or(GlbError::NoJson)?;
     Ok(GlbChunks { json, bin, trailing: bytes.len() - declared })
 }
 
 /// A 4-byte GLB tag for messages, quoted (printable ASCII as is, other bytes escaped: `"BIN\x00"`).
-fn show_tag(tag: &[u8]) -> String {
+fn show_tag(tag: &[u8; 4]) -> String {
     format!("\"{}\"", tag.escape_ascii())
+}
+
+/// The 4 bytes at `at` (the caller has checked they exist).
+fn tag_at(bytes: &[u8], at: usize) -> [u8; 4] {
+    [bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]
 }
 
 /// A GLB container around a JSON chunk and an optional BIN chunk, each padded to 4 bytes (JSON with spaces, BIN
 /// with zeros) as the specification requires.
-pub fn glb_container(json: &[u8], bin: Option<&[u8]>) -> Result<Vec<u8>, String> {
+pub fn glb_container(json: &[u8], bin: Option<&[u8]>) -> Result<Vec<u8>, GlbError> {
     let padded = |n: usize| n.div_ceil(4) * 4;
     let total = GLB_HEADER
         + GLB_CHUNK_HEADER
         + padded(json.len())
         + bin.map(|b| GLB_CHUNK_HEADER + padded(b.len())).unwrap_or(0);
-    let total32 = u32::try_from(total).map_err(|_| "file larger than 4 GiB".to_string())?;
+    let total32 = u32::try_from(total).map_err(|_| GlbError::TooLarge)?;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());
@@ -926,24 +1121,25 @@ pub fn glb_container(json: &[u8], bin: Option<&[u8]>) -> Result<Vec<u8>, String>
 /// Checks what `gltf` 1.4's validation does not but its reader relies on (each of these made it panic in
 /// `tests/fuzz.rs`; the inputs are in `tests/corpus/glb`, `tests/corpus/gltf`): before validation, that every
 /// primitive's accessors exist (validation indexes them) and that images say where their bytes are.
-fn check_gltf_references(root: &gltf::json::Root) -> Result<(), String> {
+fn check_gltf_references(root: &gltf::json::Root) -> Result<(), GltfError> {
     for (m, mesh) in root.meshes.iter().enumerate() {
         for (p, prim) in mesh.primitives.iter().enumerate() {
             for index in prim.attributes.values().chain(prim.indices.iter()) {
                 if index.value() >= root.accessors.len() {
-                    return Err(format!(
-                        "mesh {m} primitive {p} uses accessor {} but there are {}",
-                        index.value(),
-                        root.accessors.len()
-                    ));
+                    return Err(GltfError::MissingAccessor {
+                        mesh: m,
+                        primitive: p,
+                        accessor: index.value(),
+                        count: root.accessors.len(),
+                    });
                 }
             }
         }
     }
     for (i, image) in root.images.iter().enumerate() {
         match (&image.buffer_view, &image.mime_type, &image.uri) {
-            (Some(_), None, _) => return Err(format!("image {i} is in a buffer view but has no mimeType")),
-            (None, _, None) => return Err(format!("image {i} has neither a uri nor a bufferView")),
+            (Some(_), None, _) => return Err(GltfError::ImageWithoutMimeType(i)),
+            (None, _, None) => return Err(GltfError::ImageWithoutSource(i)),
             _ => {}
         }
     }
@@ -953,7 +1149,7 @@ fn check_gltf_references(root: &gltf::json::Root) -> Result<(), String> {
 /// After validation: the accessors this reader reads (positions, the first UVs and colours, indices) have the
 /// component types and shapes the `gltf` reader handles (others reach an `unreachable!`) and lie inside their
 /// buffer views (so the number of elements read is bounded by the file's size).
-fn check_primitive_accessors(prim: &gltf::Primitive<'_>) -> Result<(), String> {
+fn check_primitive_accessors(prim: &gltf::Primitive<'_>) -> Result<(), GltfError> {
     use gltf::accessor::{DataType as T, Dimensions as D};
     use gltf::Semantic;
     for (semantic, acc) in prim.attributes() {
@@ -982,22 +1178,25 @@ fn check_accessor(
     acc: &gltf::Accessor<'_>,
     what: &str,
     allowed: &[(gltf::accessor::DataType, gltf::accessor::Dimensions)],
-) -> Result<(), String> {
+) -> Result<(), GltfError> {
+    let problem = accessor_problem(acc, allowed);
+    problem.map_or(Ok(()), |problem| Err(GltfError::Accessor { index: acc.index(), what: what.to_string(), problem }))
+}
+
+/// What [`check_accessor`] finds wrong with `acc`, if anything.
+fn accessor_problem(
+    acc: &gltf::Accessor<'_>,
+    allowed: &[(gltf::accessor::DataType, gltf::accessor::Dimensions)],
+) -> Option<AccessorProblem> {
     let kind = (acc.data_type(), acc.dimensions());
     if !allowed.contains(&kind) {
-        return Err(format!(
-            "accessor {} ({what}) is {:?} {:?}, which this reader does not take",
-            acc.index(),
-            kind.0,
-            kind.1
-        ));
+        return Some(AccessorProblem::Kind(kind.0, kind.1));
     }
-    let out = |detail: String| format!("accessor {} ({what}) {detail}", acc.index());
     // The byte range of `count` elements of `size` bytes at `stride` from `offset` must fit the view.
-    let fits = |view: &gltf::buffer::View<'_>, offset: usize, count: usize, size: usize| -> Result<(), String> {
+    let fits = |view: &gltf::buffer::View<'_>, offset: usize, count: usize, size: usize| {
         let stride = view.stride().unwrap_or(size);
         if stride < size {
-            return Err(out(format!("has a byte stride of {stride}, less than its {size}-byte elements")));
+            return Some(AccessorProblem::Stride { stride, size });
         }
         let end = match count {
             0 => Some(offset),
@@ -1005,27 +1204,25 @@ fn check_accessor(
         };
         let view_end = view.offset().checked_add(view.length());
         match (end, view_end) {
-            (Some(e), Some(v)) if e <= view.length() && v <= view.buffer().length() => Ok(()),
-            _ => Err(out(format!("reads {count} elements past the end of buffer view {}", view.index()))),
+            (Some(e), Some(v)) if e <= view.length() && v <= view.buffer().length() => None,
+            _ => Some(AccessorProblem::PastView { count, view: view.index() }),
         }
     };
     // glTF requires count >= 1; gltf 1.4.1's reader computes `count - 1` (found by the fuzz harness, input in
     // tests/corpus/glb/accessor-count-zero.glb.bin).
     if acc.count() == 0 {
-        return Err(out("has a count of 0 (glTF requires at least 1)".into()));
+        return Some(AccessorProblem::ZeroCount);
     }
-    if let Some(view) = acc.view() {
-        fits(&view, acc.offset(), acc.count(), acc.size())?;
+    if let Some(problem) = acc.view().and_then(|view| fits(&view, acc.offset(), acc.count(), acc.size())) {
+        return Some(problem);
     }
-    if let Some(sparse) = acc.sparse() {
-        if sparse.count() == 0 {
-            return Err(out("is sparse with no elements".into()));
-        }
-        let indices = sparse.indices();
-        fits(&indices.view(), indices.offset(), sparse.count(), indices.index_type().size())?;
-        fits(&sparse.values().view(), sparse.values().offset(), sparse.count(), acc.size())?;
+    let sparse = acc.sparse()?;
+    if sparse.count() == 0 {
+        return Some(AccessorProblem::EmptySparse);
     }
-    Ok(())
+    let indices = sparse.indices();
+    fits(&indices.view(), indices.offset(), sparse.count(), indices.index_type().size())
+        .or_else(|| fits(&sparse.values().view(), sparse.values().offset(), sparse.count(), acc.size()))
 }
 
 fn percent_decode(uri: &str) -> String {
@@ -1195,7 +1392,7 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     root["accessors"] = json!(accessors);
     root["buffers"] = json!([{"byteLength": bin.len()}]);
     let js = serde_json::to_vec(&root).map_err(|e| enc(e.to_string()))?;
-    glb_container(&js, Some(&bin)).map_err(enc)
+    glb_container(&js, Some(&bin)).map_err(|e| enc(e.to_string()))
 }
 
 /// Writes a mesh as `.glb` (see [`glb_bytes`]) atomically: a temporary file in the same folder, then a rename.

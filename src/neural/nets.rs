@@ -148,7 +148,9 @@ impl FofNet {
         let (r, n) = (net.info.resolution as i64, net.info.fof_n as i64);
         check_tensor(&net.session, path, false, "image", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
         let inputs = match optional_key(&net.session, path, "r2human.fof_inputs")? {
-            Some(text) => parse_fof_inputs(&text).map_err(|p| metadata_problem(path, "r2human.fof_inputs", p))?,
+            Some(text) => {
+                parse_fof_inputs(&text).map_err(|p| metadata_problem(path, "r2human.fof_inputs", p.to_string()))?
+            }
             None if net.session.inputs().iter().any(|i| i.name() == "prior") => vec![FofInput::Prior],
             None => Vec::new(),
         };
@@ -306,10 +308,15 @@ fn check_coefficients(
     Ok(())
 }
 
+/// A `r2human.fof_inputs` value that is not `image` followed by `body` and/or `prior` once each.
+#[derive(Debug, PartialEq, thiserror::Error)]
+#[error("is `{0}`; expected `image` followed by `body` and/or `prior` (e.g. `image,body,prior`)")]
+struct BadFofInputs(String);
+
 /// Parses `r2human.fof_inputs`: `image`, then `body` and/or `prior` once each.
-fn parse_fof_inputs(text: &str) -> Result<Vec<FofInput>, String> {
+fn parse_fof_inputs(text: &str) -> Result<Vec<FofInput>, BadFofInputs> {
     let names: Vec<&str> = text.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
-    let bad = || format!("is `{text}`; expected `image` followed by `body` and/or `prior` (e.g. `image,body,prior`)");
+    let bad = || BadFofInputs(text.to_string());
     if names.first() != Some(&"image") {
         return Err(bad());
     }
@@ -885,4 +892,21 @@ fn lookup_tensor_value(p: Vec4) -> Vec3 {
     }
     let c = p.truncate() / p.w;
     Vec3::new(linear_to_srgb(c.x), linear_to_srgb(c.y), linear_to_srgb(c.z)) * 2.0 - 1.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fof_inputs_are_image_then_body_and_or_prior_once_each() {
+        assert_eq!(parse_fof_inputs("image"), Ok(vec![]));
+        assert_eq!(parse_fof_inputs(" image , body,prior "), Ok(vec![FofInput::Body, FofInput::Prior]));
+        assert_eq!(parse_fof_inputs("image,prior"), Ok(vec![FofInput::Prior]));
+        for bad in ["", "body,image", "image,prior,prior", "image,depth"] {
+            let e = parse_fof_inputs(bad).unwrap_err();
+            assert_eq!(e, BadFofInputs(bad.to_string()));
+            assert!(e.to_string().starts_with(&format!("is `{bad}`; expected `image` followed by")), "{e}");
+        }
+    }
 }

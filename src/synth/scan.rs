@@ -50,26 +50,38 @@ pub enum Facing {
     MinusX,
 }
 
+/// An `--up` or `--facing` value that names no axis ([`UpAxis`], [`Facing`]).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{what} {given:?}: use {expected}")]
+pub struct BadAxis {
+    /// `up axis` or `facing`.
+    pub what: &'static str,
+    /// The value given (lower case).
+    pub given: String,
+    /// The accepted values.
+    pub expected: &'static str,
+}
+
 impl FromStr for UpAxis {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = BadAxis;
+    fn from_str(s: &str) -> Result<Self, BadAxis> {
         match s.to_ascii_lowercase().as_str() {
             "y" | "+y" => Ok(Self::Y),
             "z" | "+z" => Ok(Self::Z),
-            other => Err(format!("up axis {other:?}: use y or z")),
+            other => Err(BadAxis { what: "up axis", given: other.to_string(), expected: "y or z" }),
         }
     }
 }
 
 impl FromStr for Facing {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = BadAxis;
+    fn from_str(s: &str) -> Result<Self, BadAxis> {
         match s.to_ascii_lowercase().as_str() {
             "+z" | "z" => Ok(Self::PlusZ),
             "-z" => Ok(Self::MinusZ),
             "+x" | "x" => Ok(Self::PlusX),
             "-x" => Ok(Self::MinusX),
-            other => Err(format!("facing {other:?}: use +z, -z, +x or -x")),
+            other => Err(BadAxis { what: "facing", given: other.to_string(), expected: "+z, -z, +x or -x" }),
         }
     }
 }
@@ -457,6 +469,8 @@ mod tests {
         assert_eq!("Z".parse::<UpAxis>(), Ok(UpAxis::Z));
         assert_eq!("-x".parse::<Facing>(), Ok(Facing::MinusX));
         assert!("w".parse::<UpAxis>().is_err() && "up".parse::<Facing>().is_err());
+        assert_eq!("W".parse::<UpAxis>().unwrap_err().to_string(), "up axis \"w\": use y or z");
+        assert_eq!("up".parse::<Facing>().unwrap_err().to_string(), "facing \"up\": use +z, -z, +x or -x");
         // Z up: +Z becomes +Y and Blender's front (-Y) becomes +z.
         assert!((UpAxis::Z.to_y_up() * Vec3::Z - Vec3::Y).length() < 1e-6);
         assert!((UpAxis::Z.to_y_up() * -Vec3::Y - Vec3::Z).length() < 1e-6);

@@ -275,8 +275,8 @@ impl Mirror {
         let mut waited = Duration::ZERO;
         self.commands.submit(
             SwapchainOptions::MIRROR.queue,
-            &[(ready, vk::PipelineStageFlags::TRANSFER)],
-            &[rendered],
+            Some((ready, vk::PipelineStageFlags::TRANSFER)),
+            Some(rendered),
             &mut waited,
         )?;
         if self.swapchain.present(index)? {

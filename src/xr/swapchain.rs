@@ -371,7 +371,7 @@ impl EyeUploader {
                 );
             }
         }
-        let fence = self.commands.submit(SESSION_QUEUE, &[], &[], waited)?;
+        let fence = self.commands.submit(SESSION_QUEUE, None, None, waited)?;
         // A read-back not collected yet stays valid: its buffers are only rewritten by uploads with `capture`.
         self.capture_pending |= capture;
         for eye in eyes.iter_mut() {

@@ -10,7 +10,7 @@ use super::{
 };
 use crate::geometry::zmap::VISIBILITY_LAMBDA;
 use crate::gpu::resources::{shader_module, Buffer, Image2d};
-use crate::gpu::{shaders, Context, GpuError};
+use crate::gpu::{shaders, CommandSlot, Context, GpuError};
 use crate::pipeline::warp::OcclusionFill;
 
 impl Renderer {
@@ -115,33 +115,7 @@ impl Renderer {
             pipelines.push(create_compute_pipeline(&ctx, pipeline_layout, spv)?);
         }
 
-        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
-        // after every owner is gone; the pool uses the context's queue family and is destroyed in `Drop`.
-        let command_pool = unsafe {
-            device.create_command_pool(
-                &vk::CommandPoolCreateInfo::default()
-                    .queue_family_index(ctx.queue_family())
-                    .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
-                None,
-            )
-        }
-        .map_err(GpuError::vk("create a command pool"))?;
-        // SAFETY: the pool was just created on this device; its one buffer is only recorded by `&mut self` methods
-        // (one thread).
-        let command_buffer = unsafe {
-            device.allocate_command_buffers(
-                &vk::CommandBufferAllocateInfo::default()
-                    .command_pool(command_pool)
-                    .level(vk::CommandBufferLevel::PRIMARY)
-                    .command_buffer_count(1),
-            )
-        }
-        .map_err(GpuError::vk("allocate a command buffer"))?[0];
-        // SAFETY: the device is alive: the renderer holds an `Arc` of its `Context`, which destroys the device only
-        // after every owner is gone; the fence is unsignalled, waited for after every submission, and destroyed in
-        // `Drop`.
-        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
-            .map_err(GpuError::vk("create a fence"))?;
+        let commands = CommandSlot::new(&ctx)?;
 
         let v4 = px * 16;
         let levels = pyramid_levels(w, h);
@@ -191,9 +165,7 @@ impl Renderer {
             last_fused_input: None,
             dirty: true,
             uniforms: FrameUniforms { params: [0.0, 0.0, VISIBILITY_LAMBDA, 0.0], ..Default::default() },
-            command_pool,
-            command_buffer,
-            fence,
+            commands,
             timer: None,
             counters: RendererCounters {
                 resources_created: 20,

@@ -23,7 +23,7 @@ use glam::{Mat4, Vec3, Vec4};
 
 use super::overlay::OverlayMask;
 use super::resources::{Buffer, Image2d};
-use super::{shaders, Context, GpuError};
+use super::{shaders, CommandSlot, Context, GpuError};
 use crate::buffer::{Image, RgbImage, RgbaImage};
 use crate::compose::{Mode, RenderedFrame};
 use crate::geometry::raster::GBuffer;
@@ -271,10 +271,9 @@ pub struct Renderer {
     /// An input changed since the last frame (mesh, source, fill): the cached frame is stale.
     dirty: bool,
     uniforms: FrameUniforms,
-    // Submission.
-    command_pool: vk::CommandPool,
-    command_buffer: vk::CommandBuffer,
-    fence: vk::Fence,
+    /// The frame's command buffer and fence: `run` records into it, submits and waits. Fields drop after
+    /// `Drop::drop`, which has idled the queue, so its pool is never destroyed under a pending submission.
+    commands: CommandSlot,
     // Instrumentation.
     timer: Option<StageTimer>,
     counters: RendererCounters,
@@ -841,8 +840,6 @@ impl Drop for Renderer {
                 let _queue = self.ctx.lock_queue();
                 let _ = device.queue_wait_idle(self.ctx.queue());
             }
-            device.destroy_fence(self.fence, None);
-            device.destroy_command_pool(self.command_pool, None);
             if let Some(t) = self.timer.take() {
                 device.destroy_query_pool(t.pool, None);
             }

@@ -1,6 +1,8 @@
 //! Recording and submission of a frame: the [`Step`]s of a frame recorded into the renderer's one command
 //! buffer (raster, compute passes, hole fill, present copy) with the barriers between them, submitted and waited
-//! for on one fence.
+//! for through the renderer's [`CommandSlot`](crate::gpu::CommandSlot).
+
+use std::time::Duration;
 
 use ash::vk;
 
@@ -8,8 +10,11 @@ use super::{gpu_camera, LevelConstants, Pass, PresentTarget, Renderer, TIMESTAMP
 use crate::compose::background_camera;
 use crate::geometry::raster::BACKGROUND_DEPTH;
 use crate::geometry::Camera;
-use crate::gpu::{present, GpuError};
+use crate::gpu::{present, Context, GpuError};
 use crate::pipeline::warp::OcclusionFill;
+
+/// How long a frame may take on the GPU before the device is reported lost.
+const FRAME_TIMEOUT: Duration = Duration::from_secs(10);
 
 impl Renderer {
     pub(super) fn set_target(&mut self, camera: &Camera) {
@@ -24,6 +29,8 @@ impl Renderer {
 
     /// Records `steps`, submits, and waits for completion.
     pub(super) fn run(&mut self, steps: &[Step], present: Option<PresentTarget>) -> Result<(), GpuError> {
+        // Waits for the previous frame first: it may still read the uniforms written below.
+        let cb = self.commands.begin()?;
         if let Some(p) = present {
             self.uniforms.output_format[0] = u32::from(p.bgra);
         }
@@ -32,21 +39,11 @@ impl Renderer {
         self.uniforms.target.info[2] = self.height as f32;
         self.frame.write(std::slice::from_ref(&self.uniforms));
         let device = self.ctx.device();
-        let cb = self.command_buffer;
-        // SAFETY: `&mut self` makes this the only recording of `cb`; the previous `run` waited for its submission on
-        // the fence (or reported the device lost), so the buffer may be reset; every bound set, pipeline, buffer and
-        // image belongs to this renderer and outlives the submission, which is waited for below; the queue is used
-        // under its lock.
+        // SAFETY: `begin` waited for the previous submission and put `cb` in the recording state; `&mut self` makes
+        // this the only recording of it; every bound set, pipeline, buffer and image belongs to this renderer and
+        // outlives the submission, which `submit_and_wait` waits for (or reports the device lost, leaving the
+        // submission pending for the next `begin` to wait on).
         unsafe {
-            device
-                .reset_command_buffer(cb, vk::CommandBufferResetFlags::empty())
-                .map_err(GpuError::vk("reset the command buffer"))?;
-            device
-                .begin_command_buffer(
-                    cb,
-                    &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-                )
-                .map_err(GpuError::vk("begin the command buffer"))?;
             if let Some(t) = &self.timer {
                 device.cmd_reset_query_pool(cb, t.pool, 0, TIMESTAMPS);
                 device.cmd_write_timestamp(cb, vk::PipelineStageFlags::TOP_OF_PIPE, t.pool, 0);
@@ -95,29 +92,9 @@ impl Renderer {
                 device.cmd_dispatch(cb, self.width.div_ceil(WORKGROUP), self.height.div_ceil(WORKGROUP), 1);
                 self.record_present_copy(cb, p.image);
             }
-            device.end_command_buffer(cb).map_err(GpuError::vk("end the command buffer"))?;
-            let cbs = [cb];
-            let waits = present.map(|p| [p.wait]);
-            let signals = present.map(|p| [p.signal]);
-            let stages = [vk::PipelineStageFlags::TRANSFER];
-            let count = usize::from(present.is_some());
-            let submit = vk::SubmitInfo::default()
-                .command_buffers(&cbs)
-                .wait_semaphores(waits.as_ref().map_or(&[], |w| &w[..]))
-                .wait_dst_stage_mask(&stages[..count])
-                .signal_semaphores(signals.as_ref().map_or(&[], |s| &s[..]));
-            {
-                let _queue = self.ctx.lock_queue();
-                device.queue_submit(self.ctx.queue(), &[submit], self.fence).map_err(GpuError::vk("submit a frame"))?;
-            }
-            let waited = device.wait_for_fences(&[self.fence], true, 10_000_000_000);
-            device.reset_fences(&[self.fence]).map_err(GpuError::vk("reset the frame fence"))?;
-            match waited {
-                Ok(()) => {}
-                Err(vk::Result::TIMEOUT) => return Err(GpuError::DeviceLost),
-                Err(e) => return Err(GpuError::vk("wait for a frame")(e)),
-            }
         }
+        let wait = present.map(|p| (p.wait, vk::PipelineStageFlags::TRANSFER));
+        self.commands.submit_and_wait(Context::RENDER_QUEUE, wait, present.map(|p| p.signal), FRAME_TIMEOUT)?;
         self.read_timestamps(steps);
         Ok(())
     }
