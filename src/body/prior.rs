@@ -125,8 +125,11 @@ pub fn body_fof(
     inflate_params: &InflateParams,
 ) -> Result<Fof, BodyError> {
     let body = intervals_from_mesh(mesh, mask.width, mask.height, sheet_thickness(n));
-    let params =
-        ReconcileParams { thickness: inflate_params.thickness, min_half_thickness: inflate_params.min_half_thickness };
+    let params = ReconcileParams {
+        thickness: inflate_params.thickness,
+        min_half_thickness: inflate_params.min_half_thickness,
+        ..Default::default()
+    };
     let out = reconcile(&body, mask, frame, &params);
     Fof::from_intervals(&out, n).map_err(|e| BodyError::Model(format!("body FOF: {e}")))
 }
