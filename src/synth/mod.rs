@@ -308,6 +308,7 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
     }
     let positions: Vec<Vec3> = positions.iter().map(|&p| normalization.apply(p)).collect();
     let mut mesh = TriMesh::new(positions, triangles);
+    let normalization = normalization.shifted_in_depth(normalize::centre_depth(&mut mesh));
     mesh.uvs = uvs;
     mesh.validate().map_err(|e| fail(e.to_string()))?;
 
