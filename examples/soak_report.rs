@@ -3,9 +3,10 @@
 //! and the display loop's frame times (histogram CSV and PNG).
 //!
 //! `cargo run --example soak_report -- DIR NAME` reads
-//! - `DIR/NAME_rss.csv` (`seconds,rss_kib` per sample, from the script),
+//! - `DIR/NAME_rss.csv` (`seconds,rss_kib[,anon_kib,file_kib,shmem_kib]` per sample, from the script),
 //! - `DIR/NAME.log`: the run's output (`view`'s or `xr`'s report: frame count, validation messages, the frame-time
 //!   line of `DurationHistogram::summary`, how the session ended) and the script's `exit status: N` line,
+//! - `DIR/NAME_heap.csv` when present (`seconds,in_use_kib,held_kib`: the C heap, `R2HUMAN_HEAP_LOG`),
 //! - `DIR/NAME_frames.csv` when present (the window's `--frame-log`: per-frame times, a fine histogram),
 //!
 //! and writes `DIR/NAME_summary.txt` (also printed), `DIR/NAME_summary.json`, `DIR/NAME_histogram.csv` and
@@ -100,6 +101,18 @@ fn read_log(path: &Path) -> Result<LogFacts> {
     Ok(facts)
 }
 
+/// Quarter `q` (0-3) of the time window `(start, end)`, as `(from, to)` seconds.
+fn quarter(window: (f64, f64), q: usize) -> (f64, f64) {
+    let step = (window.1 - window.0) / 4.0;
+    (window.0 + step * q as f64, window.0 + step * (q + 1) as f64)
+}
+
+/// Mean of the values (NaN when there are none).
+fn mean(values: impl Iterator<Item = f64>) -> f64 {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    sum / n as f64
+}
+
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [dir, name] = args.as_slice() else { bail!("usage: soak_report DIR NAME") };
@@ -118,6 +131,27 @@ fn main() -> Result<()> {
     let steady: Vec<(f64, f64)> = points.iter().copied().filter(|p| p.0 >= warmup).collect();
     let (slope, _) = linear_fit(&steady).context("memory samples without spread in time")?;
     let max = points.iter().map(|p| p.1).fold(0.0, f64::max);
+    // The fit window split in quarters (mean resident memory of each) and the slope of its second half alone: a
+    // leak keeps its slope to the end, allocator and driver pools level off.
+    let window = (steady.first().map_or(warmup, |p| p.0), end);
+    let quarter_means: Vec<f64> = (0..4)
+        .map(|q| {
+            let (lo, hi) = quarter(window, q);
+            mean(steady.iter().filter(|p| p.0 >= lo && (p.0 < hi || q == 3)).map(|p| p.1))
+        })
+        .collect();
+    let late: Vec<(f64, f64)> = steady.iter().copied().filter(|p| p.0 >= quarter(window, 2).0).collect();
+    let late_slope = linear_fit(&late).map(|f| f.0);
+    // Memory by kind (the script's extra columns: anonymous, file-backed, shared), each fitted over the window.
+    let kinds: Vec<(&str, f64)> = ["anonymous", "file", "shared"]
+        .iter()
+        .enumerate()
+        .filter_map(|(k, name)| {
+            let pts: Vec<(f64, f64)> =
+                rss.iter().filter(|r| r.len() >= 5 && r[0] >= window.0).map(|r| (r[0], r[2 + k] / 1024.0)).collect();
+            linear_fit(&pts).map(|f| (*name, f.0 * 3600.0))
+        })
+        .collect();
 
     // Frame times: the window's per-frame log when there is one, else the report's coarse histogram.
     let frames_path = dir.join(format!("{name}_frames.csv"));
@@ -148,6 +182,30 @@ fn main() -> Result<()> {
     let frames = log.frames.unwrap_or(0);
     let fps = fps.or_else(|| (end > 0.0 && frames > 0).then(|| frames as f64 / end));
     let per_1000 = fps.map(|fps| slope / fps * 1000.0);
+    let late_per_1000 = fps.zip(late_slope).map(|(fps, s)| s / fps * 1000.0);
+    // The C heap (`R2HUMAN_HEAP_LOG`: bytes malloc handed out and holds), over the same window: flat bytes in use
+    // under growing resident memory is the allocator keeping freed memory, growing bytes in use is a leak.
+    let heap_path = dir.join(format!("{name}_heap.csv"));
+    let heap = if heap_path.is_file() {
+        let rows = read_csv(&heap_path)?;
+        let column = |c: usize| -> Vec<(f64, f64)> {
+            rows.iter().filter(|r| r.len() >= 3 && r[0] >= window.0).map(|r| (r[0], r[c] / 1024.0)).collect()
+        };
+        let fit = |pts: &[(f64, f64)]| {
+            let quarters: Vec<f64> = (0..4)
+                .map(|q| {
+                    let (lo, hi) = quarter(window, q);
+                    mean(pts.iter().filter(|p| p.0 >= lo && (p.0 < hi || q == 3)).map(|p| p.1))
+                })
+                .collect();
+            (linear_fit(pts).map(|f| f.0 * 3600.0), quarters)
+        };
+        Some((fit(&column(1)), fit(&column(2))))
+    } else {
+        None
+    };
+    let quarters = |q: &[f64]| q.iter().map(|m| format!("{m:.1}")).collect::<Vec<_>>().join(" -> ");
+    let per_hour = |s: Option<f64>| s.map_or("?".into(), |s| format!("{s:+.2}"));
     out.push_str(&format!(
         "{name}: {frames} frames in {end:.0} s ({}); {} memory samples; resident {:.1} MiB at the start, {:.1} MiB \
          at the end, {:.1} MiB at most; slope after {warmup:.0} s of warm-up {:+.2} MiB/hour = {} MiB per 1000 \
@@ -160,6 +218,32 @@ fn main() -> Result<()> {
         slope * 3600.0,
         per_1000.map_or("?".into(), |s| format!("{s:+.3}")),
     ));
+    out.push_str(&format!(
+        "{name}: fit window {:.0}-{:.0} s; its quarters' mean resident memory {} MiB; second half alone {} MiB/hour \
+         = {} MiB per 1000 frames{}\n",
+        window.0,
+        window.1,
+        quarters(&quarter_means),
+        per_hour(late_slope.map(|s| s * 3600.0)),
+        late_per_1000.map_or("?".into(), |s| format!("{s:+.3}")),
+        if kinds.is_empty() {
+            String::new()
+        } else {
+            let parts: Vec<String> = kinds.iter().map(|(k, s)| format!("{k} {s:+.1}")).collect();
+            format!("; slope by kind (MiB/hour): {}", parts.join(", "))
+        }
+    ));
+    if let Some(((in_use, in_use_q), (held, held_q))) = &heap {
+        out.push_str(&format!(
+            "{name}: C heap over the fit window: in use {} MiB (quarters' means), {} MiB/hour = {} MiB per 1000 \
+             frames; held from the system {} MiB, {} MiB/hour\n",
+            quarters(in_use_q),
+            per_hour(*in_use),
+            fps.zip(*in_use).map_or("?".into(), |(fps, s)| format!("{:+.3}", s / 3600.0 / fps * 1000.0)),
+            quarters(held_q),
+            per_hour(*held),
+        ));
+    }
     out.push_str(&format!(
         "{name}: validation messages {}; ended: {} ({})\n",
         log.validation.map_or("not reported".into(), |n| n.to_string()),
@@ -179,8 +263,19 @@ fn main() -> Result<()> {
         "frames_per_second": fps,
         "rss_mib": {"start": points[0].1, "end": points.last().map(|p| p.1), "max": max},
         "warmup_seconds": warmup,
+        "fit_window_seconds": [window.0, window.1],
         "slope_mib_per_hour": slope * 3600.0,
         "slope_mib_per_1000_frames": per_1000,
+        "quarter_mean_rss_mib": quarter_means,
+        "second_half_slope_mib_per_hour": late_slope.map(|s| s * 3600.0),
+        "second_half_slope_mib_per_1000_frames": late_per_1000,
+        "slope_by_kind_mib_per_hour": kinds.iter().map(|(k, s)| ((*k).to_string(), serde_json::json!(s))).collect::<serde_json::Map<_, _>>(),
+        "heap_mib": heap.as_ref().map(|((in_use, in_use_q), (held, held_q))| serde_json::json!({
+            "in_use_quarter_means": in_use_q,
+            "in_use_slope_per_hour": in_use,
+            "held_quarter_means": held_q,
+            "held_slope_per_hour": held,
+        })),
         "validation_messages": log.validation,
         "ended": log.ended,
         "clean_end": log.clean_end,

@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Soak runs (issue 16): the desktop window under Xvfb and the OpenXR session against Monado, each for N frames
-# with the live synthetic source, Vulkan (and OpenXR) validation on. Resident memory is sampled every second;
-# examples/soak_report.rs summarises each run (NAME_summary.txt/.json): the memory slope (least squares after a
-# 10 % warm-up, MiB/hour and MiB per 1000 frames), the validation message count (must be 0), whether the run
-# ended as asked (exit status 0, the XR session on its frame budget: not dropped) and the display loop's
-# frame-time histogram (CSV and PNG). The script exits non-zero when a run was dropped or validation spoke.
+# with the live synthetic source, Vulkan (and OpenXR) validation on. Resident memory is sampled every second, and
+# the process logs its C heap (bytes malloc has handed out and holds: R2HUMAN_HEAP_LOG) every second;
+# examples/soak_report.rs summarises each run (NAME_summary.txt/.json): the memory slopes (least squares after a
+# 10 % warm-up, MiB/hour and MiB per 1000 frames, for resident memory and for the heap in use), the validation
+# message count (must be 0), whether the run ended as asked (exit status 0, the XR session on its frame budget:
+# not dropped) and the display loop's frame-time histogram (CSV and PNG). The script exits non-zero when a run was
+# dropped or validation spoke.
 #
 # Usage: scripts/soak.sh [--frames N] [--view-only | --xr-only] [--faults] [--release] [--out DIR]
 #   --frames N   frames per run (default 10000: about 10-20 minutes on this 2-core machine)
@@ -40,14 +42,17 @@ BIN=$PWD/target/$PROFILE/r2human
 REPORT=$PWD/target/$PROFILE/examples/soak_report
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 
-# Samples VmRSS of PID every second into FILE (seconds,rss_kib) until the process exits.
+# Samples the resident memory of PID every second into FILE until the process exits: seconds, VmRSS and its
+# parts (RssAnon: heap and anonymous maps; RssFile: mapped files; RssShmem: shared memory such as the memfd
+# buffers a Vulkan driver shares with the compositor), all in KiB.
 sample_rss() {
     local pid=$1 file=$2 t0
     t0=$(date +%s.%N)
-    echo "seconds,rss_kib" > "$file"
+    echo "seconds,rss_kib,anon_kib,file_kib,shmem_kib" > "$file"
     while kill -0 "$pid" 2>/dev/null; do
         local rss
-        rss=$(awk '/^VmRSS:/ {print $2}' "/proc/$pid/status" 2>/dev/null || true)
+        rss=$(awk '/^VmRSS:/ {r = $2} /^RssAnon:/ {a = $2} /^RssFile:/ {f = $2} /^RssShmem:/ {s = $2}
+            END { if (r != "") print r "," a "," f "," s }' "/proc/$pid/status" 2>/dev/null || true)
         [ -n "$rss" ] && awk -v now="$(date +%s.%N)" -v t0="$t0" -v rss="$rss" \
             'BEGIN { printf "%.2f,%s\n", now - t0, rss }' >> "$file"
         sleep 1
@@ -61,7 +66,8 @@ if [ "$RUN_VIEW" = 1 ]; then
     trap 'kill "$XVFB_PID" 2>/dev/null || true' EXIT
     for _ in $(seq 100); do [ -e "/tmp/.X11-unix/X$DISPLAY_NUM" ] && break; sleep 0.05; done
     echo "soak: view, $FRAMES frames of $SOURCE under Xvfb :$DISPLAY_NUM (validation on)"
-    DISPLAY=":$DISPLAY_NUM" R2HUMAN_VULKAN_VALIDATION=1 R2HUMAN_LOG=warn "$BIN" view --video "$SOURCE" \
+    DISPLAY=":$DISPLAY_NUM" R2HUMAN_VULKAN_VALIDATION=1 R2HUMAN_LOG=warn R2HUMAN_HEAP_LOG="$OUT/view_heap.csv" \
+        "$BIN" view --video "$SOURCE" \
         --segment alpha --frames "$FRAMES" --size 256 --spin 0.5 --frame-log "$OUT/view_frames.csv" \
         > "$OUT/view.log" 2>&1 &
     VIEW_PID=$!
@@ -82,8 +88,10 @@ if [ "$RUN_XR" = 1 ]; then
         echo "soak: XR skipped: needs root and the Monado root (bash scripts/xr/make-root.sh)"
     else
         echo "soak: xr, $FRAMES frames of $SOURCE against Monado (null compositor, OpenXR and Vulkan validation on)"
+        # The XR process runs in the Monado root, which sees the checkout but not $OUT: its heap log goes to target/.
+        HEAP_LOG=$PWD/target/soak-xr-heap.$$.csv
         XR_ENABLE_API_LAYERS=XR_APILAYER_LUNARG_core_validation VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation \
-            R2HUMAN_LOG=warn scripts/xr/run-in-root.sh "$BIN" xr --video "$SOURCE" --segment alpha \
+            R2HUMAN_LOG=warn R2HUMAN_HEAP_LOG="$HEAP_LOG" scripts/xr/run-in-root.sh "$BIN" xr --video "$SOURCE" --segment alpha \
             --frames "$FRAMES" --eye-size 192 --no-mirror > "$OUT/xr.log" 2>&1 &
         RUNNER=$!
         XR_PID=""
@@ -101,6 +109,7 @@ if [ "$RUN_XR" = 1 ]; then
         wait "$RUNNER" || XR_STATUS=$?
         [ -n "$XR_PID" ] && { wait "$SAMPLER" || true; }
         echo "exit status: $XR_STATUS" >> "$OUT/xr.log"
+        [ -f "$HEAP_LOG" ] && mv "$HEAP_LOG" "$OUT/xr_heap.csv"
         grep -E "^(frames submitted|frame interval|validation messages|session ended|input frames|exit status)" \
             "$OUT/xr.log" || true
         if [ -n "$XR_PID" ]; then "$REPORT" "$OUT" xr || FAILED=1; else echo "soak: the xr process never started"; FAILED=1; fi

@@ -191,12 +191,22 @@ fn the_fit_never_returns_nan() {
     far.landmarks.iter_mut().for_each(|l| l.pixel *= 1e6);
     let empty = GrayImage::new(RES, RES, 0.0);
     let bad_start = Pose { scale: f64::NAN, ..Pose::rest(0.1, glam::DVec3::ZERO) };
+    // Frames that cut everything: NaN, inverted, a sliver at the top (every landmark beyond a cut edge).
+    let mut nan_frame = landmarks_of(&t.points);
+    nan_frame.frame_max = Vec2::NAN;
+    let mut inverted = landmarks_of(&t.points);
+    (inverted.frame_min, inverted.frame_max) = (inverted.frame_max, inverted.frame_min);
+    let mut sliver = landmarks_of(&t.points);
+    sliver.frame_max.y = 3.0;
     for (what, lm, mask, start) in [
         ("no visible landmark", &none, &t.mask, None),
         ("NaN landmarks", &nan, &t.mask, None),
         ("landmarks far outside", &far, &t.mask, None),
         ("empty mask", &landmarks_of(&t.points), &empty, None),
         ("NaN warm start", &landmarks_of(&t.points), &t.mask, Some(&bad_start)),
+        ("NaN frame", &nan_frame, &t.mask, None),
+        ("inverted frame", &inverted, &t.mask, None),
+        ("a sliver of a frame", &sliver, &t.mask, None),
     ] {
         let fit = fit_body(model, &FitTarget::new(lm, mask), start, &FitOptions::default());
         assert!(fit.pose.is_finite() && fit.cost.is_finite(), "{what}: {:?}", fit.pose);
@@ -274,5 +284,103 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
         let (b, i) = (fof_occupancy_iou(&body, &gt, RES), fof_occupancy_iou(&inflated, &gt, RES));
         println!("seed {seed}: volumetric IoU body {b:.3}, inflation {i:.3}");
         assert!(body.coeffs.iter().all(|c| c.is_finite()) && b > 0.0);
+    }
+}
+
+/// Partial views through the pose network: clothed subjects cropped like photos (`synth::framing`, the frame ending
+/// at the cut) give a body that fits what the photo shows — the visible joints near the subject's own, no legs
+/// invented inside the photo (the fitted knees and ankles lie below its bottom edge), a finite pose — and a
+/// network landmark hidden with a wrong guess does not pull the visible ones.
+#[test]
+fn framed_subjects_fit_what_the_photo_shows() {
+    use r2human::body::model::ModelPoint;
+    use r2human::body::pose::PoseEstimator;
+    use r2human::synth::framing::{crop, Framing};
+    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
+    if !model_file.is_file() {
+        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
+        return;
+    }
+    let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
+    let model = BodyModel::shared().expect("body model data");
+    let mut net = PoseEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
+    // Subjects 23 (upper body) and 10 (three-quarter) of `r2human eval --subjects 24`. Known failures, not asserted
+    // here (README, body prior): on subject 11 (upper) the fit is 0.63 times the subject's size, on 14 and 20
+    // (upper) the network sees only two of the arm and hip joints, on 7 (three-quarter) it puts the knees inside
+    // the photo, above the cut. (Before the fold check counted hidden feet, the upper crop of subject 2 folded a
+    // whole tiny body into the head: fitted scale 0.08 instead of 0.23.)
+    let cases = [(23usize, Framing::Upper), (10, Framing::ThreeQuarter)];
+    for (index, framing) in cases {
+        let seed = r2human::eval::dataset::subject_seed(0, index);
+        let full = synth::generate(assets, &SubjectParams::sample(seed), 64).expect("subject");
+        let s = crop(&full, framing, &assets.rig).expect("crop");
+        assert_eq!(s.crop.framing, framing, "seed {seed}: the crop fell back");
+        let view = render_ground_truth(&s.mesh, &Camera::source(RES));
+        let rgb = Image { width: RES, height: RES, data: view.albedo.clone() };
+        let mask = Image { width: RES, height: RES, data: view.mask.iter().map(|&m| m as u8 as f32).collect() };
+        let frame = s.source_frame(RES);
+        assert!(frame.1.y < RES as f32 - 4.0, "a cropped subject's photo ends at the cut: {frame:?}");
+        let lm = net.estimate(&rgb, &mask, Some(frame)).expect("runs").expect("a pose");
+        let fit = fit_body(model, &FitTarget::new(&lm, &mask), None, &FitOptions::default());
+        assert!(fit.pose.is_finite(), "seed {seed}");
+        let got = fitted_points(model, &fit.pose);
+        // The subject's own joint for every landmark that is a joint, and whether the photo shows it.
+        let truth: Vec<Option<Vec3>> = model
+            .landmark_points
+            .iter()
+            .map(|p| match p {
+                Some(ModelPoint::Joint(b)) => Some(s.joints[*b]),
+                _ => None,
+            })
+            .collect();
+        let half = RES as f32 * 0.5;
+        let in_photo = |p: Vec3| (1.0 - p.y) * half < frame.1.y;
+        let visible: Vec<usize> = [11usize, 12, 13, 14, 15, 16, 23, 24]
+            .into_iter()
+            .filter(|&i| truth[i].is_some_and(in_photo) && lm.landmarks[i].visibility >= 0.5)
+            .collect();
+        let (e3, e2) = errors(&got, &truth, &visible);
+        // What the photo cannot show must not be fitted inside it: an upper-body photo shows neither knees nor
+        // ankles, one cut at mid-thigh no ankles (its knees lie just below the cut, where a few pixels of the
+        // network's error can put them either side).
+        let legs: &[usize] = if framing == Framing::Upper { &[25, 26, 27, 28] } else { &[27, 28] };
+        let legs_inside: Vec<usize> =
+            legs.iter().copied().filter(|&i| got[i].is_some_and(|p| (1.0 - p.y) * half < frame.1.y - 2.0)).collect();
+        // The fit follows the network's visible landmarks (cube x, y).
+        let follow =
+            visible.iter().map(|&i| got[i].unwrap().truncate().distance(lm.cube(i, RES).truncate())).sum::<f32>()
+                / visible.len().max(1) as f32;
+        println!(
+            "seed {seed} ({}): {} visible joints, error against the subject's joints 3-D {e3:.3} 2-D {e2:.3}, against \
+             the network's {follow:.3}; scale {:.3} (subject {:.3}); legs inside the photo {legs_inside:?}",
+            framing.label(),
+            visible.len(),
+            fit.pose.scale,
+            s.normalization.scale
+        );
+        assert!(visible.len() >= 3, "seed {seed}: {visible:?}");
+        // The network's landmarks on a zoomed crop are some 0.1 units from the rig's joints (0.05 in the full-body
+        // cube); a folded pose is a whole unit off at a third of the scale.
+        let ratio = fit.pose.scale / s.normalization.scale as f64;
+        assert!((0.8..1.25).contains(&ratio), "seed {seed}: fitted scale {ratio} x the subject's");
+        assert!(follow < 0.1, "seed {seed}: the fit leaves the network's landmarks by {follow}");
+        assert!(e2 < 0.2 && e3 < 0.3, "seed {seed}: visible joints off by {e2} (2-D), {e3} (3-D)");
+        assert!(legs_inside.is_empty(), "seed {seed}: fitted legs inside the photo {legs_inside:?}");
+
+        // One visible arm's elbow and wrist hidden, with a wrong guess: the other visible joints stay put.
+        let arm = if lm.landmarks[13].visibility >= lm.landmarks[14].visibility { [14usize, 16] } else { [13, 15] };
+        let mut hidden_lm = lm.clone();
+        for i in arm {
+            hidden_lm.landmarks[i].visibility = 0.05;
+            hidden_lm.landmarks[i].pixel += Vec2::new(30.0, -40.0);
+        }
+        let hidden = fit_body(model, &FitTarget::new(&hidden_lm, &mask), None, &FitOptions::default());
+        assert!(hidden.pose.is_finite());
+        let rest: Vec<usize> =
+            visible.iter().copied().filter(|i| !arm.contains(i) && ![arm[0] - 2, arm[1] - 2].contains(i)).collect();
+        let (before, _) = errors(&got, &truth, &rest);
+        let (after, _) = errors(&fitted_points(model, &hidden.pose), &truth, &rest);
+        println!("seed {seed}: arm {arm:?} hidden: the other visible joints {before:.3} -> {after:.3}");
+        assert!(after < before + 0.02, "seed {seed}: hiding {arm:?} moved the visible joints {before} -> {after}");
     }
 }

@@ -160,7 +160,12 @@ fn subjects_are_reproducible_normalised_and_in_the_cube() {
         assert!((lo.y + 0.9).abs() < 1e-4 && (hi.y - 0.9).abs() < 1e-4, "seed {seed}: {lo} {hi}");
         let xz: Vec<Vec2> = p.iter().map(|q| Vec2::new(q.x, q.z)).collect();
         let (c, r) = min_enclosing_circle(&xz);
-        assert!(c.length() < 1e-3, "seed {seed}: circle centre {c}");
+        // x: the enclosing circle's centre (the reference's normalisation); z: the occupied volume's centroid (the
+        // body cube's depth convention), inside the cube.
+        assert!(c.x.abs() < 1e-3, "seed {seed}: circle centre {c}");
+        let (centroid, z_lo, z_hi) = r2human::geometry::depth_centre::mesh_depth_extent(&s.mesh.mesh).unwrap();
+        assert!(centroid.abs() < 1e-3, "seed {seed}: volume centroid at z = {centroid}");
+        assert!(z_lo >= -1.0 && z_hi <= 1.0, "seed {seed}: z from {z_lo} to {z_hi}");
         assert!(r <= 1.0 && lo.x >= -1.0 && hi.x <= 1.0, "seed {seed}: radius {r}");
         assert!(s.mesh.mesh.validate().is_ok() && s.mesh.mesh.normals.iter().all(|n| n.is_finite()));
         // Subjects face the source camera (+z): the nose region is in front.

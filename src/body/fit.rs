@@ -9,6 +9,10 @@
 //! - **Relative depths** of the world landmarks: the model points' depths about their weighted mean follow the
 //!   world landmarks' (metres, scaled to cube units by the least-squares ratio of the 2-D landmarks to the world
 //!   landmarks' x, y).
+//! - **Beyond the frame**: a landmark the network places beyond an edge of the photo's frame that cuts the person
+//!   (the mask reaches it: the legs of a photo cut at the waist) must not come back inside the frame: one-sided, by how far inside the frame the model puts its point. Without
+//!   it nothing stops a thigh of a cut photo from pointing at the camera (its knee then projects inside the photo,
+//!   behind the visible body, where the one-sided silhouette term does not see it).
 //! - **Silhouette**: sampled body vertices that fall outside the person's mask (and inside the photo) are pulled
 //!   in by the mask's distance transform (one-sided: clothes and hair make the mask larger than the body).
 //! - **Prior**: every joint rotation is pulled toward the rest pose, the shape toward the neutral body, the hip
@@ -83,14 +87,37 @@ pub struct FitTarget<'a> {
     pub resolution: usize,
     /// Distance (pixels) to the person's mask.
     pub outside: DistanceField,
+    /// Which edges of the photo's frame cut the person (the mask reaches them): left, top, right, bottom.
+    pub cut_edges: [bool; 4],
 }
 
 impl<'a> FitTarget<'a> {
     /// The target of landmarks and the person's mask (`[0, 1]`, threshold 0.5) in the same source view.
     pub fn new(landmarks: &'a PoseLandmarks, mask: &GrayImage) -> Self {
         let outside = DistanceField::new(mask.width, mask.height, |i| mask.data[i] >= 0.5);
-        Self { landmarks, resolution: mask.width.max(1), outside }
+        let cut_edges = cut_edges(mask, landmarks.frame_min, landmarks.frame_max);
+        Self { landmarks, resolution: mask.width.max(1), outside, cut_edges }
     }
+}
+
+/// Which edges of the frame `(lo, hi)` (pixels) the mask reaches (a mask pixel in the first or last pixel row or
+/// column inside the frame): left, top, right, bottom.
+pub fn cut_edges(mask: &GrayImage, lo: Vec2, hi: Vec2) -> [bool; 4] {
+    let (w, h) = (mask.width as i64, mask.height as i64);
+    if w == 0 || h == 0 || !(lo.is_finite() && hi.is_finite()) {
+        return [false; 4];
+    }
+    let clamp_c = |x: f32| (x.floor() as i64).clamp(0, w - 1) as usize;
+    let clamp_r = |y: f32| (y.floor() as i64).clamp(0, h - 1) as usize;
+    let (c0, c1) = (clamp_c(lo.x), clamp_c(hi.x - 1.0));
+    let (r0, r1) = (clamp_r(lo.y), clamp_r(hi.y - 1.0));
+    let on = |c: usize, r: usize| *mask.get(c, r) >= 0.5;
+    [
+        (r0..=r1).any(|r| on(c0, r)),
+        (c0..=c1).any(|c| on(c, r0)),
+        (r0..=r1).any(|r| on(c1, r)),
+        (c0..=c1).any(|c| on(c, r1)),
+    ]
 }
 
 /// The result of a fit.
@@ -119,6 +146,8 @@ struct Problem<'a> {
     model: &'a BodyModel,
     target: &'a FitTarget<'a>,
     terms: Vec<Term>,
+    /// Model points of the landmarks the network places outside the photo's frame.
+    beyond: Vec<ModelPoint>,
     options: FitOptions,
     params: DVector<f64>,
     residual_count: usize,
@@ -156,6 +185,12 @@ impl Problem<'_> {
         let res = self.target.resolution;
         let px = 2.0 / res as f64;
         let lm = self.target.landmarks;
+        // Landmarks beyond the photo's frame stay beyond it (one-sided: how far inside the frame the model puts them).
+        for &b in &self.beyond {
+            let (u, w) = to_pixel(model.point(b, &pose.shape, &heads, &g), res);
+            let inside = (u - lm.frame_min.x).min(w - lm.frame_min.y).min(lm.frame_max.x - u).min(lm.frame_max.y - w);
+            out.push(inside.max(0.0) as f64 * px / o.sigma_2d);
+        }
         for &v in &model.samples {
             let p = model.skin_vertex(v, &pose.shape, &g);
             let (u, w) = to_pixel(p, res);
@@ -308,10 +343,21 @@ pub fn fit_body(model: &BodyModel, target: &FitTarget<'_>, start: Option<&Pose>,
         _ => initial_pose(model, target, options),
     };
     let used: Vec<(usize, f64)> = usable.iter().map(|&i| (i, lm.landmarks[i].visibility as f64)).collect();
+    // Landmarks beyond an edge that cuts the person (beyond an edge the person does not reach, a landmark is
+    // just a wrong guess).
+    let beyond = (0..LANDMARK_COUNT)
+        .filter(|&i| {
+            let p = lm.landmarks[i].pixel;
+            let past = [p.x < lm.frame_min.x, p.y < lm.frame_min.y, p.x > lm.frame_max.x, p.y > lm.frame_max.y];
+            p.is_finite() && past.iter().zip(&target.cut_edges).any(|(&a, &b)| a && b)
+        })
+        .filter_map(|i| model.landmark_points[i])
+        .collect();
     let mut problem = Problem {
         model,
         target,
         terms,
+        beyond,
         options: options.clone(),
         params: DVector::from_row_slice(&start.to_vec()),
         residual_count: 0,

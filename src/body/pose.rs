@@ -308,13 +308,15 @@ impl PoseLandmarks {
         (centre.is_finite() && side.is_finite() && side > 1.0).then_some(PoseRegion { centre, side })
     }
 
-    /// Whether a foot (ankle, heel or toe) is visible inside the photo's frame more than `margin` (a fraction of
-    /// the frame's height) above its bottom edge. In a photo whose mask runs off the bottom edge this means the
-    /// network folded a whole body into the visible part (a full body standing on the edge has its feet there).
+    /// Whether the network places a foot (ankle, heel or toe) inside the photo's frame more than `margin` (a
+    /// fraction of the frame's height) above its bottom edge, seen or hidden. In a photo whose mask runs off the
+    /// bottom edge this means the network folded a whole body into the visible part (a full body standing on the
+    /// edge has its feet there; a body the photo cuts has them below it). Hidden feet count: a folded body often
+    /// hides them behind the visible part (measured on an upper-body synthetic crop: the whole body inside the
+    /// head, feet at visibility 0.1–0.35).
     pub fn legs_above_cut(&self, margin: f32) -> bool {
         let limit = self.frame_max.y - margin * (self.frame_max.y - self.frame_min.y);
-        (index::LEFT_ANKLE..LANDMARK_COUNT)
-            .any(|i| self.landmarks[i].visibility >= 0.5 && self.in_frame(i, 0.0) && self.landmarks[i].pixel.y < limit)
+        (index::LEFT_ANKLE..LANDMARK_COUNT).any(|i| self.in_frame(i, 0.0) && self.landmarks[i].pixel.y < limit)
     }
 
     /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` pixels).
@@ -383,6 +385,32 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
         }
     }
     out
+}
+
+/// Smallest width of a straight bottom edge of the mask that [`cut_frame`] takes for a cut, as a fraction of the
+/// mask's height: the two thighs of a photo cut at mid-thigh span about 0.2 of it, the shoes of a standing person
+/// well under 0.1.
+pub const CUT_EDGE_WIDTH: f32 = 0.15;
+
+/// The photo's `frame` with its bottom edge raised to the mask's bottom row when that row is a straight cut: at
+/// least [`CUT_EDGE_WIDTH`] of the mask's height wide and at least 0.8 of the row two above it (a person's own
+/// outline rounds off toward the bottom; a person cropped out of a larger picture, or standing behind a table, ends
+/// in a straight line). Below such an edge the body continues, out of sight, exactly as below a photo's own edge.
+/// `frame` unchanged otherwise (and for an empty mask).
+pub fn cut_frame(mask: &GrayImage, frame: PhotoFrame) -> PhotoFrame {
+    let count = |r: usize| mask.rows().nth(r).map_or(0, |row| row.iter().filter(|&&m| m >= 0.5).count());
+    let rows: Vec<usize> = (0..mask.height).filter(|&r| count(r) > 0).collect();
+    let (Some(&top), Some(&bottom)) = (rows.first(), rows.last()) else { return frame };
+    let height = (bottom + 1 - top) as f32;
+    let edge = count(bottom) as f32;
+    let above = if bottom >= top + 2 { count(bottom - 2) as f32 } else { f32::INFINITY };
+    let straight = edge >= CUT_EDGE_WIDTH * height && edge >= 0.8 * above;
+    let edge_y = (bottom + 1) as f32;
+    if straight && edge_y < frame.1.y {
+        (frame.0, Vec2::new(frame.1.x, edge_y))
+    } else {
+        frame
+    }
 }
 
 /// Whether the person's mask touches the bottom edge of the photo's `frame` (the photo cuts the body there).
@@ -627,6 +655,40 @@ mod tests {
     }
 
     #[test]
+    fn a_straight_bottom_edge_of_the_mask_is_a_cut() {
+        let frame = (Vec2::ZERO, Vec2::new(40.0, 40.0));
+        // A torso 20 rows high, cut straight 14 wide at row 29: the frame ends there.
+        let torso =
+            Image::from_fn(40, 40, |c, r| if (10..30).contains(&r) && (13..27).contains(&c) { 1.0 } else { 0.0 });
+        assert_eq!(cut_frame(&torso, frame), (Vec2::ZERO, Vec2::new(40.0, 30.0)));
+        // Two narrow feet at the bottom of a tall body: not a cut.
+        let standing = Image::from_fn(40, 40, |c, r| {
+            let body = (2..34).contains(&r) && (17..23).contains(&c);
+            let feet = (34..37).contains(&r) && (c == 15 || c == 24);
+            if body || feet {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        assert_eq!(cut_frame(&standing, frame), frame);
+        // A rounded bottom (a disc): not a cut.
+        let disc = Image::from_fn(40, 40, |c, r| {
+            let (x, y) = (c as f32 - 20.0, r as f32 - 20.0);
+            if x * x + y * y <= 100.0 {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        assert_eq!(cut_frame(&disc, frame), frame);
+        // The frame's own edge below the mask stays when the mask reaches it; an empty mask changes nothing.
+        let touching = Image::from_fn(40, 40, |c, r| if r >= 10 && (13..27).contains(&c) { 1.0 } else { 0.0 });
+        assert_eq!(cut_frame(&touching, frame), frame);
+        assert_eq!(cut_frame(&Image::new(40, 40, 0.0), frame), frame);
+    }
+
+    #[test]
     fn feet_well_above_a_cut_edge_mean_a_folded_body() {
         let region = PoseRegion { centre: Vec2::splat(50.0), side: 100.0 };
         let frame = (Vec2::ZERO, Vec2::new(100.0, 100.0));
@@ -637,8 +699,9 @@ mod tests {
                 *l = Landmark { pixel: Vec2::new(50.0, y), depth: 0.0, visibility, presence: 1.0 };
             }
         };
-        // Feet 20 % above the bottom edge: folded. 5 %: a full body standing on the edge. Below the edge or not
-        // visible: nothing to say.
+        // Feet 20 % above the bottom edge: folded, seen or not (a folded body often has them hidden behind the
+        // visible part: an upper-body crop with the whole tiny body inside the head). 5 %: a full body standing on
+        // the edge. Below the edge: nothing to say.
         put(&mut p, 80.0, 0.9);
         assert!(p.legs_above_cut(FOLD_MARGIN));
         put(&mut p, 95.0, 0.9);
@@ -646,6 +709,8 @@ mod tests {
         put(&mut p, 130.0, 0.9);
         assert!(!p.legs_above_cut(FOLD_MARGIN));
         put(&mut p, 80.0, 0.2);
+        assert!(p.legs_above_cut(FOLD_MARGIN));
+        put(&mut p, 130.0, 0.2);
         assert!(!p.legs_above_cut(FOLD_MARGIN));
     }
 

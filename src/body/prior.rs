@@ -14,7 +14,7 @@ use glam::{DVec3, Vec2};
 
 use super::fit::{fit_body, BodyFit, FitOptions, FitTarget};
 use super::model::{BodyModel, Pose};
-use super::pose::{PhotoFrame, PoseEstimator, PoseLandmarks};
+use super::pose::{cut_frame, PhotoFrame, PoseEstimator, PoseLandmarks};
 use super::reconcile::{reconcile, ReconcileParams};
 use super::BodyError;
 use crate::buffer::{GrayImage, RgbImage};
@@ -96,6 +96,7 @@ impl BodyEstimator {
         timings: &mut dyn FnMut(&'static str, std::time::Duration),
     ) -> Result<Option<BodyPrior>, BodyError> {
         let t = std::time::Instant::now();
+        let frame = Some(effective_frame(mask, frame));
         let previous = if warm { self.previous.as_ref() } else { None };
         let landmarks = self.pose.estimate_tracked(rgb, mask, frame, previous.map(|p| &p.0))?;
         timings("pose landmarks", t.elapsed());
@@ -114,6 +115,14 @@ impl BodyEstimator {
     }
 }
 
+/// The photo's frame the body prior works in: `frame` (the whole grid when `None`) with a straight cut of the mask
+/// as its bottom edge ([`super::pose::cut_frame`]), so a person cropped out of a larger picture is fitted and
+/// reconciled as cut there, like one the photo's own edge cuts.
+pub fn effective_frame(mask: &GrayImage, frame: Option<PhotoFrame>) -> PhotoFrame {
+    let whole = (glam::Vec2::ZERO, glam::Vec2::new(mask.width as f32, mask.height as f32));
+    cut_frame(mask, frame.unwrap_or(whole))
+}
+
 /// The body FOF reconciled with the silhouette ([`super::reconcile`]): `mesh` (body cube) and `mask` (`[0, 1]`,
 /// threshold 0.5) on the mask's grid, `frame` where the photo lies in it (`None`: the whole grid), `n`
 /// coefficients; the inflation profile's κ and smallest thickness from `inflate_params`.
@@ -125,8 +134,11 @@ pub fn body_fof(
     inflate_params: &InflateParams,
 ) -> Result<Fof, BodyError> {
     let body = intervals_from_mesh(mesh, mask.width, mask.height, sheet_thickness(n));
-    let params =
-        ReconcileParams { thickness: inflate_params.thickness, min_half_thickness: inflate_params.min_half_thickness };
-    let out = reconcile(&body, mask, frame, &params);
+    let params = ReconcileParams {
+        thickness: inflate_params.thickness,
+        min_half_thickness: inflate_params.min_half_thickness,
+        ..Default::default()
+    };
+    let out = reconcile(&body, mask, Some(effective_frame(mask, frame)), &params);
     Fof::from_intervals(&out, n).map_err(|e| BodyError::Model(format!("body FOF: {e}")))
 }

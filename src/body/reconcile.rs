@@ -22,7 +22,16 @@
 //!   mean depth); one between the body and the outline bulges like the inflation of the gap, starting from the
 //!   body's own thickness, so the surface is continuous where body and silhouette meet.
 //!
-//! Both are solved with Jacobi-preconditioned conjugate gradients on the 5-point stencil, started from the
+//! - the **silhouette floor**: the inflation profile of the silhouette alone, as the inflation prior has it
+//!   (`-Δu_s = 4` over the whole mask, `u_s = 0` on the outline and at the cut), `h_s = κ sqrt(u_s)`, times [`ReconcileParams::silhouette_floor`]. Every
+//!   column is at least that thick about its own centre: body columns get the union of their intervals with
+//!   `[c - h_s, c + h_s]` (`c` the middle of their outermost interval), free columns `max(h, h_s)`. Clothes make
+//!   the person thicker than the bare body wherever the silhouette is wider than it; the silhouette's own inflation
+//!   is what the photo says about that thickness. Measured on the evaluation's clothed subjects
+//!   (`cargo run --example body_synthetic`): the volumetric IoU of a perfectly posed bare body rises from 0.55 to
+//!   0.68 with the floor, the fitted body's from 0.39 to 0.53 (both with depth aligned).
+//!
+//! All three are solved with Jacobi-preconditioned conjugate gradients on the 5-point stencil, started from the
 //! solution of the same problem on a grid half as fine (a cascade down to about 64 pixels a side, bilinear in
 //! between), with a fixed small number of iterations on the finer levels: they remove the interpolation's local
 //! error; what remains is a smooth offset of a few hundredths of a unit. A tiny screening term pulls `c` toward the body's mean depth and `u` toward 0 so a
@@ -53,12 +62,15 @@ pub struct ReconcileParams {
     pub thickness: f32,
     /// Smallest half thickness of a free column, in pixels.
     pub min_half_thickness: f32,
+    /// Every column is at least this fraction of the silhouette's own inflation thickness (see the module docs;
+    /// 0 turns the floor off).
+    pub silhouette_floor: f32,
 }
 
 impl Default for ReconcileParams {
     fn default() -> Self {
         let p = crate::geometry::inflate::InflateParams::default();
-        Self { thickness: p.thickness, min_half_thickness: p.min_half_thickness }
+        Self { thickness: p.thickness, min_half_thickness: p.min_half_thickness, silhouette_floor: 1.0 }
     }
 }
 
@@ -352,14 +364,7 @@ pub fn reconcile(
             count += 1;
         }
     }
-    for ((o, l), cell) in out.data.iter_mut().zip(&body.data).zip(&cells) {
-        if *cell == Cell::Body {
-            o.clone_from(l);
-        }
-    }
-    if !cells.contains(&Cell::Free) {
-        return out;
-    }
+    let floor = if params.silhouette_floor.is_finite() { params.silhouette_floor.max(0.0) as f64 } else { 0.0 };
     let mean_centre = if count > 0 { sum / count as f64 } else { 0.0 };
     let base = GridProblem {
         width: w,
@@ -373,19 +378,61 @@ pub fn reconcile(
         inv_dy2: (h as f64 / 2.0).powi(2),
     };
     let u_problem = GridProblem { fixed: u_fixed, outline: Some(0.0), source: 4.0, target: 0.0, ..base.clone() };
-    let (centre, u) = rayon::join(|| base.solve_cascade(), || u_problem.solve_cascade());
+    // The silhouette alone, like the inflation prior: every mask column free, the outline everywhere (the cut too:
+    // a region the frame closes on every side would otherwise have nothing to hold it).
+    let silhouette_cells = base
+        .cells
+        .iter()
+        .map(|&c| match c {
+            Cell::Body | Cell::Free => Cell::Free,
+            Cell::Outside | Cell::Cut => Cell::Outside,
+        })
+        .collect();
+    let s_problem = GridProblem { cells: silhouette_cells, fixed: vec![0.0; w * h], ..u_problem.clone() };
+    let any_free = base.cells.contains(&Cell::Free);
+    let solve = |p: &GridProblem, needed: bool| if needed { p.solve_cascade() } else { vec![p.target; w * h] };
+    let (centre, (u, u_s)) = rayon::join(
+        || solve(&base, any_free),
+        || rayon::join(|| solve(&u_problem, any_free), || solve(&s_problem, floor > 0.0)),
+    );
     let h_min = params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64;
     for i in 0..w * h {
-        if base.cells[i] == Cell::Free {
-            let half = (kappa * u[i].max(0.0).sqrt()).max(h_min);
-            let c = centre[i];
-            let (a, b) = ((c - half).clamp(-1.0, 1.0) as f32, (c + half).clamp(-1.0, 1.0) as f32);
-            if a.is_finite() && b.is_finite() && b > a {
-                out.data[i] = vec![(a, b)];
+        let h_s = floor * kappa * u_s[i].max(0.0).sqrt();
+        match base.cells[i] {
+            Cell::Free => {
+                let half = (kappa * u[i].max(0.0).sqrt()).max(h_s).max(h_min);
+                let c = centre[i];
+                let (a, b) = ((c - half).clamp(-1.0, 1.0) as f32, (c + half).clamp(-1.0, 1.0) as f32);
+                if a.is_finite() && b.is_finite() && b > a {
+                    out.data[i] = vec![(a, b)];
+                }
             }
+            Cell::Body => {
+                let c = base.fixed[i];
+                let floor_interval = ((c - h_s).clamp(-1.0, 1.0) as f32, (c + h_s).clamp(-1.0, 1.0) as f32);
+                out.data[i] = union_with(&body.data[i], floor_interval);
+            }
+            Cell::Outside | Cell::Cut => {}
         }
     }
     out
+}
+
+/// Sorted disjoint intervals `list` united with `extra` (ignored when empty or not finite).
+fn union_with(list: &[(f32, f32)], extra: (f32, f32)) -> Vec<(f32, f32)> {
+    let mut all = list.to_vec();
+    if extra.0.is_finite() && extra.1.is_finite() && extra.1 > extra.0 {
+        all.push(extra);
+        all.sort_by(|a, b| a.0.total_cmp(&b.0));
+    }
+    let mut merged: Vec<(f32, f32)> = Vec::with_capacity(all.len());
+    for (a, b) in all {
+        match merged.last_mut() {
+            Some(m) if a <= m.1 => m.1 = m.1.max(b),
+            _ => merged.push((a, b)),
+        }
+    }
+    merged
 }
 
 #[cfg(test)]
@@ -406,7 +453,7 @@ mod tests {
             x * x + y * y <= radius * radius
         });
         let body = Image::new(n, n, Vec::new());
-        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0 };
+        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 1.0 };
         let out = reconcile(&body, &mask, None, &params);
         let px = 2.0 / n as f32;
         for (c, r) in [(48usize, 48usize), (60, 48), (48, 70), (30, 40)] {
@@ -438,7 +485,8 @@ mod tests {
             body.set(last, r, vec![(0.3, 0.5)]);
         }
         let frame = Some((Vec2::new(first as f32, 0.0), Vec2::new(last as f32 + 1.0, h as f32)));
-        let out = reconcile(&body, &mask, frame, &ReconcileParams::default());
+        let params = ReconcileParams { silhouette_floor: 0.0, ..Default::default() };
+        let out = reconcile(&body, &mask, frame, &params);
         let kappa = ReconcileParams::default().thickness as f64;
         let dx = 2.0 / w as f64;
         let l = (last - first) as f64 * dx;
@@ -459,6 +507,59 @@ mod tests {
     }
 
     #[test]
+    fn every_column_is_at_least_as_thick_as_the_silhouettes_inflation() {
+        // A disc of radius R with a thin body slab (half depth 0.02 about z = 0.1) over its middle third and one
+        // thick body column: the slab's columns become the inflation sphere's interval about their own centre,
+        // u_s = R² - r², h = κ sqrt(u_s); the thick column keeps its own interval; free columns are at least the
+        // sphere. Without the floor the slab stays as thin as the body.
+        let (n, radius) = (96usize, 30.0f32);
+        let inside = |c: usize, r: usize| {
+            let (x, y) = (c as f32 + 0.5 - 48.0, r as f32 + 0.5 - 48.0);
+            x * x + y * y <= radius * radius
+        };
+        let mask = mask_of(n, n, inside);
+        let mut body = Image::new(n, n, Vec::new());
+        for r in 0..n {
+            for c in 38..58 {
+                if inside(c, r) {
+                    body.set(c, r, vec![(0.08, 0.12)]);
+                }
+            }
+        }
+        body.set(48, 48, vec![(-0.9, 0.9)]);
+        let kappa = 0.7f32;
+        let params = ReconcileParams { thickness: kappa, min_half_thickness: 0.0, silhouette_floor: 1.0 };
+        let out = reconcile(&body, &mask, None, &params);
+        let px = 2.0 / n as f32;
+        let sphere = |c: usize, r: usize| {
+            let (x, y) = (c as f32 + 0.5 - 48.0, r as f32 + 0.5 - 48.0);
+            kappa * (radius * radius - x * x - y * y).max(0.0).sqrt() * px
+        };
+        for (c, r) in [(40usize, 48usize), (50, 30), (45, 60)] {
+            let (a, b) = out.get(c, r)[0];
+            assert_eq!(out.get(c, r).len(), 1);
+            assert!((0.5 * (a + b) - 0.1).abs() < 1e-5, "({c},{r}) centred on the slab: {a} {b}");
+            let expected = sphere(c, r);
+            assert!((0.5 * (b - a) - expected).abs() < 0.03 * expected, "({c},{r}): {} vs {expected}", 0.5 * (b - a));
+        }
+        assert_eq!(out.get(48, 48), &vec![(-0.9, 0.9)]);
+        for (c, r) in [(25usize, 48usize), (70, 40)] {
+            let (a, b) = out.get(c, r)[0];
+            assert!(0.5 * (b - a) >= sphere(c, r) * 0.97, "free ({c},{r}): {} vs {}", 0.5 * (b - a), sphere(c, r));
+        }
+        let bare = reconcile(&body, &mask, None, &ReconcileParams { silhouette_floor: 0.0, ..params });
+        assert_eq!(bare.get(40, 48), &vec![(0.08, 0.12)]);
+    }
+
+    #[test]
+    fn intervals_unite_with_the_floor() {
+        assert_eq!(union_with(&[(0.0, 0.1), (0.5, 0.6)], (0.05, 0.55)), vec![(0.0, 0.6)]);
+        assert_eq!(union_with(&[(0.0, 0.1), (0.5, 0.6)], (0.2, 0.3)), vec![(0.0, 0.1), (0.2, 0.3), (0.5, 0.6)]);
+        assert_eq!(union_with(&[(0.0, 0.1)], (f32::NAN, 0.3)), vec![(0.0, 0.1)]);
+        assert_eq!(union_with(&[(0.0, 0.1)], (0.3, 0.3)), vec![(0.0, 0.1)]);
+    }
+
+    #[test]
     fn the_cut_is_not_an_outline_and_outside_the_mask_is_empty() {
         // A strip of half width a whose bottom is the photo's frame: far from the top the thickness is the infinite
         // strip's (u = 2 (a² - x²)) right down to the cut, instead of closing there.
@@ -467,7 +568,7 @@ mod tests {
         let mask = mask_of(w, h, |c, r| (8..56).contains(&r) && (c as f32 + 0.5 - 32.0).abs() <= a_px);
         let body = Image::new(w, h, Vec::new());
         let frame = Some((Vec2::ZERO, Vec2::new(64.0, 56.0)));
-        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0 };
+        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 0.0 };
         let out = reconcile(&body, &mask, frame, &params);
         let px = 2.0 / w as f32;
         let expected = (2.0f32).sqrt() * a_px * px;

@@ -47,6 +47,7 @@ pub enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging();
+    start_heap_log();
     let result = match cli.command {
         Command::Render(args) => render::run_render(&args),
         Command::Export(args) => render::run_export(&args),
@@ -90,9 +91,86 @@ fn init_logging() {
         tracing_subscriber::fmt().with_env_filter(filter).with_target(false).with_writer(std::io::stderr).try_init();
 }
 
+/// `R2HUMAN_HEAP_LOG=FILE` (soak runs, `scripts/soak.sh`): once a second, appends the C heap's figures to FILE as
+/// `seconds,in_use_kib,held_kib` — bytes handed out by `malloc` (Rust's allocations, the Vulkan driver's, the
+/// OpenXR runtime client's) and bytes the allocator holds from the system, from glibc's `mallinfo2`. Resident
+/// memory that grows while the bytes in use stay flat is the allocator keeping freed memory, not a leak.
+fn start_heap_log() {
+    let Some(path) = std::env::var_os("R2HUMAN_HEAP_LOG") else { return };
+    let path = std::path::PathBuf::from(path);
+    let file = std::fs::OpenOptions::new().create(true).truncate(true).write(true).open(&path);
+    let mut file = match file {
+        Ok(f) => f,
+        Err(e) => {
+            tracing::warn!("R2HUMAN_HEAP_LOG: cannot write {}: {e}; no heap log", path.display());
+            return;
+        }
+    };
+    let Some(first) = heap_figures() else {
+        tracing::warn!("R2HUMAN_HEAP_LOG: this C library has no mallinfo2 (glibc only); no heap log");
+        return;
+    };
+    let start = std::time::Instant::now();
+    let spawned = std::thread::Builder::new().name("r2human-heap-log".into()).spawn(move || {
+        use std::io::Write;
+        let written = (|| -> std::io::Result<()> {
+            writeln!(file, "seconds,in_use_kib,held_kib")?;
+            let mut figures = Some(first);
+            while let Some(f) = figures {
+                writeln!(file, "{:.2},{},{}", start.elapsed().as_secs_f64(), f.in_use / 1024, f.held / 1024)?;
+                std::thread::sleep(std::time::Duration::from_secs(1));
+                figures = heap_figures();
+            }
+            Ok(())
+        })();
+        if let Err(e) = written {
+            tracing::warn!("R2HUMAN_HEAP_LOG: writing {} failed: {e}; the heap log stops", path.display());
+        }
+    });
+    if let Err(e) = spawned {
+        tracing::warn!("R2HUMAN_HEAP_LOG: cannot start the heap log thread: {e}");
+    }
+}
+
+/// The C heap: bytes in use (arenas + mmapped chunks) and bytes held from the system (the same, plus free space).
+#[derive(Clone, Copy, Debug)]
+struct HeapFigures {
+    in_use: usize,
+    held: usize,
+}
+
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn heap_figures() -> Option<HeapFigures> {
+    // SAFETY: mallinfo2 takes no arguments, returns a plain struct by value and only reads the allocator's state
+    // under its own locks (glibc 2.33 and later; the symbol is missing before, and the program would not start).
+    let m = unsafe { libc::mallinfo2() };
+    Some(HeapFigures { in_use: m.uordblks + m.hblkhd, held: m.arena + m.hblkhd })
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn heap_figures() -> Option<HeapFigures> {
+    None
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    #[test]
+    fn heap_figures_follow_an_allocation_and_its_release() {
+        let before = heap_figures().unwrap();
+        assert!(before.held >= before.in_use, "{before:?}");
+        // 256 MiB (an mmapped chunk, counted in both figures); the margins leave room for other tests' allocations
+        // running at the same time.
+        let block = vec![1u8; 256 << 20];
+        let during = heap_figures().unwrap();
+        assert!(during.in_use >= before.in_use + (192 << 20), "{before:?} -> {during:?}");
+        assert!(during.held >= during.in_use, "{during:?}");
+        drop(std::hint::black_box(block));
+        let after = heap_figures().unwrap();
+        assert!(after.in_use + (192 << 20) <= during.in_use, "{during:?} -> {after:?}");
+    }
 
     #[test]
     fn error_sentence_names_each_cause_once() {

@@ -392,8 +392,12 @@ impl SubjectSource {
         let popts = &self.prepare;
         let which = if kind == 0 { "inflation prior" } else { "ground-truth FOF" };
         let fof = match kind {
-            0 => inflate_to_fof(&self.mask, popts.fof_order, &InflateParams::default())
-                .map_err(|e| EvalError::stage(which, e))?,
+            0 => {
+                // Placed in depth like every pipeline geometry (its centroid is at z = 0 by symmetry already).
+                let fof = inflate_to_fof(&self.mask, popts.fof_order, &InflateParams::default())
+                    .map_err(|e| EvalError::stage(which, e))?;
+                crate::geometry::depth_centre::centre_fof(fof).0
+            }
             1 => {
                 Fof::from_mesh(&mesh.mesh, self.mask.width, popts.fof_order).map_err(|e| EvalError::stage(which, e))?
             }

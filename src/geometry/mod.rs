@@ -3,6 +3,7 @@
 
 pub mod camera;
 pub mod circle;
+pub mod depth_centre;
 pub mod fof;
 pub mod inflate;
 pub mod marching;

@@ -304,10 +304,11 @@ pub fn body_prior_fof(
     }
 }
 
-/// Places a fitted body (a mesh in the body cube seen by the source camera of `mask`'s grid) in depth like the
-/// ground truth of a framed photo: the minimal enclosing circle of the xz projection of the part the photo shows
-/// (vertices that project inside the mask) is centred on z = 0 ([`crate::synth::framing::photo_normalization`]
-/// does this for the synthetic subjects, the reference's preprocessing for whole bodies). The body prior centres
+/// Places a fitted body (a mesh in the body cube seen by the source camera of `mask`'s grid) in depth before it is
+/// reconciled with the silhouette (whose inflation prior is centred on z = 0): the minimal enclosing circle of
+/// the xz projection of the part the photo shows (vertices that project inside the mask) is centred on z = 0.
+/// The result is placed by the depth convention afterwards, like every geometry ([`compute_geometry`]). The body
+/// prior centres
 /// the whole fitted body; for a photo cut at the waist the legs it fits below the frame moved the visible part
 /// off centre by up to 0.3 cube units (measured on synthetic three-quarter subjects). The mesh is unchanged when
 /// no vertex projects inside the mask.
@@ -351,8 +352,20 @@ fn body_geometry(
 
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
 /// into `timings`: the inflation prior, then (FOF net modes) the network's correction at the prior's resolution
-/// ([`FofNet::refine`]).
+/// ([`FofNet::refine`]) or (body mode) the body prior; last, whatever was chosen is placed in depth by the body
+/// cube's convention ([`crate::geometry::depth_centre::centre_fof`]: the occupied volume's centroid at z = 0, the
+/// rule the ground truth follows too), so every geometry mode turns the person about the same axis.
 pub fn compute_geometry(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    timings: &mut StageTimings,
+) -> Result<Fof, PipelineError> {
+    let fof = chosen_geometry(normalised, opts, timings)?;
+    Ok(timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0))
+}
+
+/// [`compute_geometry`] before the depth centring.
+fn chosen_geometry(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     timings: &mut StageTimings,

@@ -205,6 +205,24 @@ pub struct Subject {
     pub crop: Crop,
 }
 
+impl Subject {
+    /// Where the photo this subject's source view stands for lies in a `resolution`² source view (source pixels,
+    /// like [`crate::pipeline::input::NormalisedInput::frame`]): the whole view for a full body; for a cropped
+    /// subject ([`framing::crop`]) the view down to the cut, which is the bottom edge of that photo (the body
+    /// continues below it, so the body prior fits and reconciles it as a cut person, not as one that ends there).
+    pub fn source_frame(&self, resolution: usize) -> (glam::Vec2, glam::Vec2) {
+        let side = resolution as f32;
+        let mut frame = (glam::Vec2::ZERO, glam::Vec2::splat(side));
+        if self.crop.cut_y.is_finite() {
+            let cut = self.crop.scale * (self.crop.cut_y - self.crop.center[1]);
+            if cut.is_finite() {
+                frame.1.y = ((1.0 - cut) * 0.5 * side).clamp(0.0, side);
+            }
+        }
+        frame
+    }
+}
+
 /// Where a garment piece sits in a subject's mesh.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct GarmentPiece {
@@ -290,6 +308,7 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
     }
     let positions: Vec<Vec3> = positions.iter().map(|&p| normalization.apply(p)).collect();
     let mut mesh = TriMesh::new(positions, triangles);
+    let normalization = normalization.shifted_in_depth(normalize::centre_depth(&mut mesh));
     mesh.uvs = uvs;
     mesh.validate().map_err(|e| fail(e.to_string()))?;
 

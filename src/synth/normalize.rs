@@ -1,5 +1,7 @@
 //! Normalisation into the body cube like the reference's FOF preprocessing: height scaled to 1.8 (y in
-//! `[-0.9, 0.9]`), x and z centred on the minimal enclosing circle of the xz projection (Welzl's algorithm).
+//! `[-0.9, 0.9]`), x and z centred on the minimal enclosing circle of the xz projection (Welzl's algorithm) —
+//! then z re-centred on the occupied volume by the project's depth convention
+//! ([`crate::geometry::depth_centre`], [`centre_depth`]), which every predicted geometry follows too.
 
 use glam::{Vec2, Vec3};
 
@@ -21,6 +23,13 @@ pub struct Normalization {
 }
 
 impl Normalization {
+    /// The same normalisation followed by a shift of `dz` along z (body-cube units).
+    pub fn shifted_in_depth(self, dz: f32) -> Self {
+        let mut center = self.center;
+        center[2] -= dz / self.scale;
+        Self { center, ..self }
+    }
+
     /// Applies the transform to a point.
     pub fn apply(&self, p: Vec3) -> Vec3 {
         self.scale * (p - Vec3::from(self.center))
@@ -41,6 +50,17 @@ pub fn compute(points: &[Vec3]) -> Option<Normalization> {
     let (c, r) = min_enclosing_circle(&xz);
     let scale = BODY_HEIGHT / height;
     Some(Normalization { scale, center: [c.x, 0.5 * (ymin + ymax), c.y], xz_radius: r * scale })
+}
+
+/// Moves a normalised mesh (body-cube coordinates) along z by the depth convention
+/// ([`crate::geometry::depth_centre::mesh_centring_shift`]): the centroid of its occupied volume to z = 0, as far
+/// as the cube allows. Returns the shift (0 for a mesh that covers nothing).
+pub fn centre_depth(mesh: &mut crate::geometry::TriMesh) -> f32 {
+    let dz = crate::geometry::depth_centre::mesh_centring_shift(mesh).unwrap_or(0.0);
+    if dz != 0.0 {
+        mesh.positions.iter_mut().for_each(|p| p.z += dz);
+    }
+    dz
 }
 
 #[cfg(test)]

@@ -362,7 +362,8 @@ pub fn detect_orientation(points: &[Vec3]) -> DetectedOrientation {
     }
 }
 
-/// Normalises an upright mesh in place: height 1.8 and xz centred like the reference; a mesh wider than the body
+/// Normalises an upright mesh in place: height 1.8 and xz centred like the reference, then z centred on the
+/// occupied volume ([`normalize::centre_depth`]); a mesh wider than the body
 /// cube at that height is scaled down until its xz radius is [`FIT_RADIUS`], with one warning. `path` labels
 /// errors.
 pub fn normalize_scan(path: &Path, m: &mut TexturedMesh) -> Result<Normalization, SynthError> {
@@ -395,6 +396,7 @@ pub fn normalize_scan(path: &Path, m: &mut TexturedMesh) -> Result<Normalization
     for p in &mut m.mesh.positions {
         *p = n.apply(*p);
     }
+    let n = n.shifted_in_depth(normalize::centre_depth(&mut m.mesh));
     m.mesh.compute_normals();
     Ok(n)
 }

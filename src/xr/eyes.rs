@@ -21,6 +21,7 @@ use glam::Vec4;
 
 use super::pacing::{EyeError, EyeRenderer, EyeRequest};
 use super::placement::Placement;
+use crate::capture::stats::DurationHistogram;
 use crate::compose::{Mode, RenderedFrame};
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
@@ -60,10 +61,11 @@ pub struct NeuralEyeStats {
     /// Over both eyes: eye images drawn by the decoder (reused layers included), decoder runs, reused layers
     /// (same pose, same input), fallbacks (eye images the neural renderer failed on, drawn geometrically).
     pub counters: NeuralCounters,
-    /// Per decoder run: GPU raster + flow/Z-map including the read-back into host memory.
-    pub gpu_inputs: Vec<Duration>,
-    /// Per decoder run: colour lookup, feature sampling and the decoder on ONNX Runtime.
-    pub decoder: Vec<Duration>,
+    /// Per decoder run: GPU raster + flow/Z-map including the read-back into host memory (a histogram: fixed
+    /// memory however long the session runs).
+    pub gpu_inputs: DurationHistogram,
+    /// Per decoder run: colour lookup, feature sampling and the decoder on ONNX Runtime (a histogram).
+    pub decoder: DurationHistogram,
 }
 
 impl NeuralEyeStats {
@@ -73,7 +75,7 @@ impl NeuralEyeStats {
         if c.views + c.fallbacks == 0 {
             return None;
         }
-        let ms = |v: &[Duration]| super::pacing::median_ms(v).unwrap_or(0.0);
+        let ms = |h: &DurationHistogram| h.median().as_secs_f64() * 1e3;
         Some(format!(
             "neural (decoder on ONNX Runtime through host memory: GPU raster + flow read back, decoded on the host, \
              uploaded for compositing): {} eye images, {} decoder runs (median GPU inputs {:.1} ms, lookup + \
@@ -233,8 +235,8 @@ impl EyeRenderer for GpuEyes {
                 let drawn = policy.counters().since(before);
                 if drawn.decoder_runs > 0 {
                     let times = policy.last_times();
-                    self.neural_stats.gpu_inputs.push(times.gpu_inputs);
-                    self.neural_stats.decoder.push(times.decoder);
+                    self.neural_stats.gpu_inputs.record(times.gpu_inputs);
+                    self.neural_stats.decoder.record(times.decoder);
                 }
                 self.neural_stats.counters += drawn;
             }
@@ -291,6 +293,21 @@ mod tests {
                 assert!(du.min(1.0 - du) < 1e-5 && (got.1 - want.1).abs() < 1e-5, "{base} {turn} {d}: {got:?}");
             }
         }
+    }
+
+    #[test]
+    fn neural_eye_times_are_summarised_by_their_medians() {
+        let mut stats = NeuralEyeStats::default();
+        assert_eq!(stats.summary(), None);
+        stats.counters.views = 3;
+        stats.counters.decoder_runs = 3;
+        for ms in [4, 1, 2] {
+            stats.gpu_inputs.record(Duration::from_millis(ms));
+            stats.decoder.record(Duration::from_millis(10 * ms));
+        }
+        let line = stats.summary().unwrap();
+        assert!(line.contains("median GPU inputs 2.0 ms, lookup + decoder 20.0 ms"), "{line}");
+        assert_eq!((stats.gpu_inputs.count(), stats.decoder.count()), (3, 3));
     }
 
     #[test]

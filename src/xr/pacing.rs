@@ -325,24 +325,6 @@ impl PacingStats {
     }
 }
 
-/// Median of a list (mean of the middle two for even lengths); `None` when empty.
-pub fn median_i64(values: &[i64]) -> Option<f64> {
-    let mut v = values.to_vec();
-    v.sort_unstable();
-    let n = v.len();
-    match n {
-        0 => None,
-        _ if n % 2 == 1 => Some(v[n / 2] as f64),
-        _ => Some((v[n / 2 - 1] as f64 + v[n / 2] as f64) / 2.0),
-    }
-}
-
-/// Median of durations in milliseconds; `None` when empty.
-pub fn median_ms(values: &[Duration]) -> Option<f64> {
-    let ns: Vec<i64> = values.iter().map(|d| d.as_nanos().min(i64::MAX as u128) as i64).collect();
-    median_i64(&ns).map(|m| m / 1e6)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -407,11 +389,7 @@ mod tests {
     }
 
     #[test]
-    fn medians_and_shares_are_closed_form() {
-        assert_eq!(median_i64(&[]), None);
-        assert_eq!(median_i64(&[5, 1, 3]), Some(3.0));
-        assert_eq!(median_i64(&[4, 1, 3, 2]), Some(2.5));
-        assert_eq!(median_ms(&[Duration::from_millis(3), Duration::from_millis(1)]), Some(2.0));
+    fn fresh_shares_and_latencies_are_closed_form() {
         let mut s = PacingStats::default();
         assert_eq!(s.fresh_share(), 0.0);
         s.record(true, 50_000_000, Some(10_000_000));

@@ -1,0 +1,280 @@
+//! Where the body prior's shape goes wrong on the evaluation's synthetic subjects:
+//! `cargo run --example body_synthetic -- OUT_DIR [SUBJECTS] [SIZE] [SEED] [--whole-view]` (defaults 9, 256, 0:
+//! the subjects, framings and source views of `r2human eval --subjects 9 --size 256`).
+//!
+//! The photo frame is the one a photo of the subject would have ([`r2human::synth::Subject::source_frame`]: a
+//! cropped subject's photo ends at the cut); `--whole-view` gives the body prior the whole source view instead.
+//! Per subject, volumetric IoU against the ground-truth FOF of four geometries: the inflation prior; the body
+//! prior as `--geometry body` computes it (pose network, fit, body FOF); the **oracle body** (the subject's own
+//! body surface, garments left out, through the same reconciliation with the silhouette: what a perfect fit
+//! would give); and the oracle body without the silhouette floor (`body::reconcile`). Each as `raw -> aligned
+//! (shift)`: aligned shifts the prediction in depth (whole depth samples) so that the centroids of the two
+//! occupancies agree, which takes the depth convention out of the comparison. Then the fitted joints' 3-D error
+//! against the subject's own (mean depth offset removed) for joints above the cut ("in") and below it ("out").
+//! Pictures `OUT_DIR/subject_NNNN.png`: the source view with the landmarks the network sees (magenta) and the
+//! fitted body's points for every landmark (cyan), then per geometry the side projection (depth across, the
+//! camera on the left; height down) and the top projection (x across, depth down, the camera at the top) of the
+//! occupancy after the alignment, ground truth green, the geometry red, both yellow.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use glam::Vec3;
+use r2human::body::model::{BodyModel, ModelPoint};
+use r2human::body::prior::{body_fof, BodyPrior};
+use r2human::body::reconcile::{reconcile, ReconcileParams};
+use r2human::buffer::{GrayImage, Image, RgbImage};
+use r2human::eval::dataset::subject_seed;
+use r2human::eval::ground_truth::render_ground_truth;
+use r2human::geometry::camera::Camera;
+use r2human::geometry::fof::{intervals_from_mesh, sheet_thickness};
+use r2human::geometry::fof::{CosineTable, Fof};
+use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
+use r2human::geometry::marching::ISO_LEVEL;
+use r2human::geometry::mesh::TriMesh;
+use r2human::io::image_io::save_rgb_png;
+use r2human::neural::RuntimeOptions;
+use r2human::pipeline::input::NormalisedInput;
+use r2human::pipeline::{body_prior_fof, load_body, GeometryMode, PrepareOptions, StageTimings};
+use r2human::synth::framing::{self, FramingChoice};
+use r2human::synth::{self, Subject, SubjectParams, SynthAssets};
+
+const SAMPLES: usize = 128;
+
+/// Decoded occupancy `[row][col][sample]` thresholded at the marching level.
+struct Occupancy {
+    w: usize,
+    h: usize,
+    cells: Vec<bool>,
+}
+
+impl Occupancy {
+    fn of(fof: &Fof) -> Self {
+        let table = CosineTable::new(fof.n, SAMPLES);
+        let mut cells = vec![false; fof.width * fof.height * SAMPLES];
+        let mut col = vec![0.0f32; SAMPLES];
+        for r in 0..fof.height {
+            for c in 0..fof.width {
+                if fof.is_empty_column(c, r) {
+                    continue;
+                }
+                fof.decode_column_with(&table, c, r, &mut col);
+                let base = (r * fof.width + c) * SAMPLES;
+                for (k, v) in col.iter().enumerate() {
+                    cells[base + k] = *v >= ISO_LEVEL;
+                }
+            }
+        }
+        Self { w: fof.width, h: fof.height, cells }
+    }
+
+    fn at(&self, r: usize, c: usize, k: isize) -> bool {
+        k >= 0 && (k as usize) < SAMPLES && self.cells[(r * self.w + c) * SAMPLES + k as usize]
+    }
+
+    /// Mean depth sample of the occupied cells.
+    fn centroid(&self) -> f64 {
+        let (mut s, mut n) = (0.0, 0.0);
+        for (i, &o) in self.cells.iter().enumerate() {
+            if o {
+                s += (i % SAMPLES) as f64;
+                n += 1.0;
+            }
+        }
+        if n > 0.0 {
+            s / n
+        } else {
+            SAMPLES as f64 * 0.5
+        }
+    }
+
+    /// IoU with `truth` when this occupancy is read `shift` samples further back.
+    fn iou(&self, truth: &Occupancy, shift: isize) -> f64 {
+        let (mut inter, mut union) = (0u64, 0u64);
+        for r in 0..self.h {
+            for c in 0..self.w {
+                for k in 0..SAMPLES as isize {
+                    let (a, b) = (self.at(r, c, k - shift), truth.at(r, c, k));
+                    inter += (a && b) as u64;
+                    union += (a || b) as u64;
+                }
+            }
+        }
+        if union == 0 {
+            1.0
+        } else {
+            inter as f64 / union as f64
+        }
+    }
+
+    /// The side projection (depth across, rows down) and the top projection (columns across, depth down) of this
+    /// (red) and `truth` (green), `shift` as in [`Occupancy::iou`].
+    fn panels(&self, truth: &Occupancy, shift: isize) -> (RgbImage, RgbImage) {
+        let mut side = Image { width: SAMPLES, height: self.h, data: vec![Vec3::ZERO; SAMPLES * self.h] };
+        let mut top = Image { width: self.w, height: SAMPLES, data: vec![Vec3::ZERO; SAMPLES * self.w] };
+        for r in 0..self.h {
+            for c in 0..self.w {
+                for k in 0..SAMPLES as isize {
+                    let (a, b) = (self.at(r, c, k - shift), truth.at(r, c, k));
+                    // Depth sample 0 is the back: the camera side is on the left (side view) and at the top (top view).
+                    let sp = &mut side.data[r * SAMPLES + (SAMPLES - 1 - k as usize)];
+                    let tp = &mut top.data[(SAMPLES - 1 - k as usize) * self.w + c];
+                    for p in [sp, tp] {
+                        if a {
+                            p.x = 1.0;
+                        }
+                        if b {
+                            p.y = 0.8;
+                        }
+                    }
+                }
+            }
+        }
+        (side, top)
+    }
+}
+
+/// The triangles of `mesh` whose vertices all lie before `end` (the body of a subject: garments come after it).
+fn body_only(mesh: &TriMesh, end: usize) -> TriMesh {
+    let triangles = mesh.triangles.iter().filter(|t| t.iter().all(|&i| (i as usize) < end)).copied().collect();
+    TriMesh::new(mesh.positions.clone(), triangles)
+}
+
+/// The fitted body's point for every landmark drawn on `source` (cyan; the landmarks the network sees magenta),
+/// and the mean 3-D error of the fitted joints against the subject's own, the mean depth offset of the joints above
+/// the cut removed: `(above the cut, below it)`.
+fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyhow::Result<(f32, f32)> {
+    let model = BodyModel::shared()?;
+    let size = source.width;
+    let heads = model.rest_heads(&prior.fit.pose.shape);
+    let g = model.skinning(&prior.fit.pose, &heads);
+    let mut dot = |x: f32, y: f32, colour: Vec3| {
+        for dy in -1..=1i64 {
+            for dx in -1..=1i64 {
+                let (c, r) = (x as i64 + dx, y as i64 + dy);
+                if c >= 0 && r >= 0 && (c as usize) < size && (r as usize) < source.height {
+                    source.set(c as usize, r as usize, colour);
+                }
+            }
+        }
+    };
+    let cut = s.crop.scale * (s.crop.cut_y - s.crop.center[1]);
+    let mut pairs = Vec::new();
+    for (k, l) in prior.landmarks.landmarks.iter().enumerate() {
+        let Some(point) = model.landmark_points[k] else { continue };
+        let fitted = model.point(point, &prior.fit.pose.shape, &heads, &g).as_vec3();
+        if l.visibility >= 0.5 {
+            dot(l.pixel.x, l.pixel.y, Vec3::new(1.0, 0.0, 1.0));
+        }
+        dot((fitted.x + 1.0) * 0.5 * size as f32, (1.0 - fitted.y) * 0.5 * size as f32, Vec3::new(0.0, 1.0, 1.0));
+        if let ModelPoint::Joint(b) = point {
+            let truth = s.joints[b];
+            pairs.push((fitted, truth, truth.y >= cut));
+        }
+    }
+    let above: Vec<_> = pairs.iter().filter(|p| p.2).collect();
+    let dz = above.iter().map(|p| p.1.z - p.0.z).sum::<f32>() / above.len().max(1) as f32;
+    let err = |wanted: bool| {
+        let e: Vec<f32> = pairs.iter().filter(|p| p.2 == wanted).map(|p| (p.0 + Vec3::Z * dz - p.1).length()).collect();
+        e.iter().sum::<f32>() / e.len().max(1) as f32
+    };
+    Ok((err(true), err(false)))
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let whole_view = args.iter().any(|a| a == "--whole-view");
+    args.retain(|a| a != "--whole-view");
+    let usage = "usage: body_synthetic OUT_DIR [SUBJECTS] [SIZE] [SEED] [--whole-view]";
+    let out = PathBuf::from(args.first().context(usage)?);
+    let subjects: usize = args.get(1).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(9);
+    let size: usize = args.get(2).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(256);
+    let seed: u64 = args.get(3).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(0);
+    std::fs::create_dir_all(&out)?;
+    let assets = SynthAssets::shared()?;
+    let body = load_body(GeometryMode::Body, &RuntimeOptions::default())?.context("body prior")?;
+    let opts = PrepareOptions { resolution: size, depth_samples: size, ..Default::default() };
+    let inflate_params = InflateParams::default();
+    let bare = ReconcileParams {
+        thickness: inflate_params.thickness,
+        min_half_thickness: inflate_params.min_half_thickness,
+        silhouette_floor: 0.0,
+    };
+    let names = ["inflation", "body", "oracle body", "oracle, no floor"];
+    let mut sums = [[0.0f64; 2]; 4];
+    println!("subject framing      {}   joints in / out", names.map(|n| format!("{n:>22}")).join(""));
+    for i in 0..subjects {
+        let s = synth::generate(assets, &SubjectParams::sample(subject_seed(seed, i)), 256)?;
+        let s = framing::crop(&s, FramingChoice::Mixed.of(i), &assets.rig)?;
+        let view = render_ground_truth(&s.mesh, &Camera::source(size));
+        let rgb: RgbImage = view.to_linear_rgba().map(|p| p.truncate());
+        let mask: GrayImage =
+            Image { width: size, height: size, data: view.mask.iter().map(|&m| m as u8 as f32).collect() };
+        let mut input = NormalisedInput::in_source_view(rgb.clone(), mask.clone());
+        if !whole_view {
+            input.frame = s.source_frame(size);
+        }
+        let n = opts.fof_order;
+        let truth = Fof::from_mesh(&s.mesh.mesh, size, n)?;
+        let prior = inflate_to_fof(&mask, n, &inflate_params)?;
+        let (fitted, fallback) = body_prior_fof(&input, &opts, &body, prior.clone(), &mut StageTimings::default());
+        // The same (deterministic) estimate again, for its landmarks and pose.
+        let estimate = body.lock().map_err(|_| anyhow::anyhow!("body prior lock poisoned"))?.estimate(
+            &input.rgb,
+            &input.mask,
+            Some(input.frame),
+            false,
+            &mut |_, _| {},
+        )?;
+        let end = s.garments.first().map(|g| g.vertices.start).unwrap_or(s.mesh.mesh.positions.len());
+        let own = body_only(&s.mesh.mesh, end);
+        let oracle = body_fof(&own, &mask, Some(input.frame), n, &inflate_params)?;
+        let own_intervals = intervals_from_mesh(&own, size, size, sheet_thickness(n));
+        let oracle_bare = Fof::from_intervals(&reconcile(&own_intervals, &mask, Some(input.frame), &bare), n)?;
+        let t = Occupancy::of(&truth);
+        let mut source = rgb;
+        let joints = match &estimate {
+            Some(p) => {
+                let (a, b) = fitted_joints(p, &s, &mut source)?;
+                format!("   {a:.3} / {b:.3}")
+            }
+            None => String::new(),
+        };
+        let mut panels = vec![source];
+        let mut line = format!("{i:7} {:13}", s.crop.framing.label());
+        for (k, fof) in [&prior, &fitted, &oracle, &oracle_bare].into_iter().enumerate() {
+            let o = Occupancy::of(fof);
+            let shift = (t.centroid() - o.centroid()).round() as isize;
+            let (raw, aligned) = (o.iou(&t, 0), o.iou(&t, shift));
+            sums[k][0] += raw;
+            sums[k][1] += aligned;
+            line += &format!("  {raw:.3} -> {aligned:.3} ({shift:+3})");
+            let (side, top) = o.panels(&t, shift);
+            panels.push(side);
+            panels.push(top);
+        }
+        line += &joints;
+        if let Some(why) = fallback {
+            line += &format!("  [body: {why}]");
+        }
+        println!("{line}");
+        let path = out.join(format!("subject_{i:04}.png"));
+        let width: usize = panels.iter().map(|p| p.width).sum();
+        let height = panels.iter().map(|p| p.height).max().unwrap_or(1);
+        let mut sheet = Image { width, height, data: vec![Vec3::splat(0.15); width * height] };
+        let mut x0 = 0;
+        for p in &panels {
+            for r in 0..p.height {
+                for c in 0..p.width {
+                    sheet.data[r * width + x0 + c] = p.data[r * p.width + c];
+                }
+            }
+            x0 += p.width;
+        }
+        save_rgb_png(&path, &sheet).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    let m = subjects.max(1) as f64;
+    let means: Vec<String> = sums.iter().map(|s| format!("  {:.3} -> {:.3}      ", s[0] / m, s[1] / m)).collect();
+    println!("mean                 {}", means.join(""));
+    Ok(())
+}
