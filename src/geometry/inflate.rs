@@ -93,7 +93,10 @@ pub enum InflateError {
 /// Parameters of the inflation prior (see the module docs for the profile).
 #[derive(Clone, Debug, PartialEq)]
 pub struct InflateParams {
-    /// κ in `h = κ sqrt(u)`: 1 turns a disc into a sphere; the default 0.7 makes limbs round.
+    /// κ in `h = κ sqrt(u)`: 1 turns a disc into a sphere; the default 0.7 makes limbs round. Measured
+    /// (`cargo run --release --example inflate_thickness`, volumetric IoU against the ground truth at 256²): 0.7 is
+    /// the best of 0.4…1.0 in steps of 0.1 on 30 clothed synthetic subjects in full and three-quarter framings
+    /// (tied with 0.6) and on the Mr. Fixit scan; upper-body crops prefer 0.8 (0.553 vs 0.544).
     pub thickness: f32,
     /// The centre plane `c` (body-cube z) around which front and back are symmetric.
     pub centre_z: f32,
