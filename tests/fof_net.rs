@@ -170,7 +170,8 @@ fn fofnet_without_a_usable_model_is_a_clear_error() {
 }
 
 /// The same through the binary: `render --geometry fofnet` with a model folder lacking fof.onnx fails with that
-/// sentence and writes nothing; `--geometry auto` renders with the prior.
+/// sentence and writes nothing; `--geometry auto` renders with what the evaluation chose (`AUTO_CHOICE`), says
+/// which at the info level, and does not warn (it is a choice, not a fall-back).
 #[test]
 fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     let dir = tempfile::tempdir().unwrap();
@@ -180,7 +181,7 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     std::fs::create_dir_all(&empty).unwrap();
     let run = |geometry: &str, out: &Path| {
         let o = Command::new(env!("CARGO_BIN_EXE_r2human"))
-            .env("R2HUMAN_LOG", "warn")
+            .env("R2HUMAN_LOG", "info")
             .args(["render", "--renderer", "geometric", "--size", "48", "--geometry", geometry, "--models"])
             .arg(&empty)
             .arg("--image")
@@ -198,7 +199,11 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     let out = dir.path().join("auto.png");
     let (ok, text) = run("auto", &out);
     assert!(ok && out.exists(), "{text}");
-    assert!(text.contains("inflation prior"), "auto must say it fell back: {text}");
+    let chosen = r2human::pipeline::AUTO_CHOICE.name();
+    assert!(text.contains(&format!("auto is `{chosen}`")), "auto must say what it uses: {text}");
+    if r2human::pipeline::AUTO_CHOICE == GeometryMode::Inflate {
+        assert!(!text.contains("WARN"), "choosing the prior is not a fall-back: {text}");
+    }
 }
 
 /// A synthetic subject's source view at `size`: linear premultiplied RGB, mask, and the ground-truth FOF. Without
