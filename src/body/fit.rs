@@ -324,10 +324,10 @@ impl Frames {
             let mut axes = [DVec3::ZERO; 3];
             if *dof == 3 {
                 let v = DVec3::new(pose.joints[k], pose.joints[k + 1], pose.joints[k + 2]);
-                let m = DMat3::from(world) * right_jacobian(v);
+                let m = world * right_jacobian(v);
                 axes = [m.x_axis, m.y_axis, m.z_axis];
             } else {
-                axes[0] = DMat3::from(world) * model.flex_axes[j];
+                axes[0] = world * model.flex_axes[j];
             }
             joints.push((centre, axes));
             k += dof;
