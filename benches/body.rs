@@ -1,7 +1,8 @@
 //! The body prior per input at 512² (a rendered synthetic subject, seed 3): pose landmarks (two network runs on a
 //! still photo, one when tracking), the cold fit, a warm-started fit (the next live frame: landmarks moved by a
 //! few pixels), the body FOF reconciled with the silhouette (N = 32), the mesh from it (512 depth samples), and
-//! the whole still-photo path (pose + fit + body FOF + mesh).
+//! the whole still-photo path (pose + fit + body FOF + mesh). The two fits also run with the forward-difference
+//! Jacobian for comparison.
 //!
 //! Run: `cargo bench --bench body` (needs `.tools`: the pose model and the MakeHuman data, `bash scripts/setup.sh`).
 
@@ -9,7 +10,7 @@ use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::Vec2;
-use r2human::body::fit::{fit_body, FitOptions, FitTarget};
+use r2human::body::fit::{fit_body, FitOptions, FitTarget, JacobianKind};
 use r2human::body::model::BodyModel;
 use r2human::body::pose::PoseEstimator;
 use r2human::body::prior::{body_fof, centre_depth};
@@ -51,6 +52,14 @@ fn benches(c: &mut Criterion) {
     });
     g.bench_function("fit_cold", |b| b.iter(|| fit_body(model, black_box(&target), None, &options)));
     g.bench_function("fit_warm", |b| b.iter(|| fit_body(model, black_box(&moved_target), Some(&cold.pose), &options)));
+    // The same fits with the forward-difference Jacobian (the variant the analytic one replaced).
+    let difference = FitOptions { jacobian: JacobianKind::ForwardDifference, ..FitOptions::default() };
+    g.bench_function("fit_cold_difference_jacobian", |b| {
+        b.iter(|| fit_body(model, black_box(&target), None, &difference))
+    });
+    g.bench_function("fit_warm_difference_jacobian", |b| {
+        b.iter(|| fit_body(model, black_box(&moved_target), Some(&cold.pose), &difference))
+    });
     g.bench_function("distance_field_512", |b| b.iter(|| FitTarget::new(black_box(&landmarks), &mask)));
     g.bench_function("body_mesh_and_centre", |b| b.iter(|| centre_depth(model, black_box(&cold.pose))));
     g.bench_function("body_fof_512_n32", |b| b.iter(|| body_fof(black_box(&body_mesh), &mask, None, 32, &params)));

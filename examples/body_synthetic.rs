@@ -7,9 +7,10 @@
 //! Per subject, volumetric IoU against the ground-truth FOF of four geometries: the inflation prior; the body
 //! prior as `--geometry body` computes it (pose network, fit, body FOF); the **oracle body** (the subject's own
 //! body surface, garments left out, through the same reconciliation with the silhouette: what a perfect fit
-//! would give); and the oracle body without the silhouette floor (`body::reconcile`). Each as `raw -> aligned
-//! (shift)`: aligned shifts the prediction in depth (whole depth samples) so that the centroids of the two
-//! occupancies agree, which takes the depth convention out of the comparison. Then the fitted joints' 3-D error
+//! would give); and the oracle body without the silhouette floor (`body::reconcile`). Each as `centred -> aligned
+//! (shift)`: centred is the geometry placed in depth as `pipeline::compute_geometry` places it (the depth
+//! convention, [`r2human::geometry::depth_centre::centre_fof`]: what `r2human eval` scores); aligned then shifts it
+//! (whole depth samples) so that the centroids of the two thresholded occupancies agree. Then the fitted joints' 3-D error
 //! against the subject's own (mean depth offset removed) for joints above the cut ("in") and below it ("out").
 //! Pictures `OUT_DIR/subject_NNNN.png`: the source view with the landmarks the network sees (magenta) and the
 //! fitted body's points for every landmark (cyan), then per geometry the side projection (depth across, the
@@ -27,6 +28,7 @@ use r2human::buffer::{GrayImage, Image, RgbImage};
 use r2human::eval::dataset::subject_seed;
 use r2human::eval::ground_truth::render_ground_truth;
 use r2human::geometry::camera::Camera;
+use r2human::geometry::depth_centre::centre_fof;
 use r2human::geometry::fof::{intervals_from_mesh, sheet_thickness};
 use r2human::geometry::fof::{CosineTable, Fof};
 use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
@@ -243,7 +245,8 @@ fn main() -> anyhow::Result<()> {
         let mut panels = vec![source];
         let mut line = format!("{i:7} {:13}", s.crop.framing.label());
         for (k, fof) in [&prior, &fitted, &oracle, &oracle_bare].into_iter().enumerate() {
-            let o = Occupancy::of(fof);
+            // Placed in depth as `pipeline::compute_geometry` places every geometry.
+            let o = Occupancy::of(&centre_fof(fof.clone()).0);
             let shift = (t.centroid() - o.centroid()).round() as isize;
             let (raw, aligned) = (o.iou(&t, 0), o.iou(&t, shift));
             sums[k][0] += raw;

@@ -9,8 +9,9 @@
 //! - `DIR/NAME_heap.csv` when present (`seconds,in_use_kib,held_kib`: the C heap, `R2HUMAN_HEAP_LOG`),
 //! - `DIR/NAME_frames.csv` when present (the window's `--frame-log`: per-frame times, a fine histogram),
 //!
-//! and writes `DIR/NAME_summary.txt` (also printed), `DIR/NAME_summary.json`, `DIR/NAME_histogram.csv` and
-//! `DIR/NAME_frame_times.png`. It exits with an error when the run was dropped or validation reported anything.
+//! and writes `DIR/NAME_summary.txt` (also printed), `DIR/NAME_summary.json`, `DIR/NAME_histogram.csv`,
+//! `DIR/NAME_frame_times.png` and `DIR/NAME_memory.png` (resident memory and the C heap against time, with the
+//! warm-up and the fitted line). It exits with an error when the run was dropped or validation reported anything.
 
 use std::path::Path;
 use std::time::Duration;
@@ -129,7 +130,7 @@ fn main() -> Result<()> {
     // run over 10 minutes.
     let warmup = if end > 600.0 { (0.1 * end).max(60.0) } else { 0.1 * end };
     let steady: Vec<(f64, f64)> = points.iter().copied().filter(|p| p.0 >= warmup).collect();
-    let (slope, _) = linear_fit(&steady).context("memory samples without spread in time")?;
+    let (slope, intercept) = linear_fit(&steady).context("memory samples without spread in time")?;
     let max = points.iter().map(|p| p.1).fold(0.0, f64::max);
     // The fit window split in quarters (mean resident memory of each) and the slope of its second half alone: a
     // leak keeps its slope to the end, allocator and driver pools level off.
@@ -186,8 +187,8 @@ fn main() -> Result<()> {
     // The C heap (`R2HUMAN_HEAP_LOG`: bytes malloc handed out and holds), over the same window: flat bytes in use
     // under growing resident memory is the allocator keeping freed memory, growing bytes in use is a leak.
     let heap_path = dir.join(format!("{name}_heap.csv"));
-    let heap = if heap_path.is_file() {
-        let rows = read_csv(&heap_path)?;
+    let heap_rows = if heap_path.is_file() { Some(read_csv(&heap_path)?) } else { None };
+    let heap = if let Some(rows) = &heap_rows {
         let column = |c: usize| -> Vec<(f64, f64)> {
             rows.iter().filter(|r| r.len() >= 3 && r[0] >= window.0).map(|r| (r[0], r[c] / 1024.0)).collect()
         };
@@ -256,6 +257,20 @@ fn main() -> Result<()> {
         out.push_str(&format!("  {range:>18}: {n}\n"));
     }
     plot(&dir.join(format!("{name}_frame_times.png")), &ranges, name)?;
+    let heap_series = match &heap_rows {
+        Some(rows) => {
+            let column = |c: usize| -> Vec<(f64, f64)> {
+                rows.iter().filter(|r| r.len() >= 3).map(|r| (r[0], r[c] / 1024.0)).collect()
+            };
+            vec![("C heap held from the system", column(2)), ("C heap in use", column(1))]
+        }
+        None => Vec::new(),
+    };
+    let anonymous: Vec<(f64, f64)> = rss.iter().filter(|r| r.len() >= 5).map(|r| (r[0], r[2] / 1024.0)).collect();
+    let mut series = vec![("resident (VmRSS)", points.clone()), ("resident, anonymous", anonymous)];
+    series.extend(heap_series);
+    let fit_line = [(window.0, slope * window.0 + intercept), (window.1, slope * window.1 + intercept)];
+    plot_memory(&dir.join(format!("{name}_memory.png")), name, &series, warmup, Some(fit_line))?;
     let json = serde_json::json!({
         "name": name,
         "frames": frames,
@@ -331,6 +346,73 @@ fn plot(path: &Path, ranges: &[(f64, Option<f64>, u64)], name: &str) -> Result<(
             .draw_series(ranges.iter().enumerate().map(|(i, r)| {
                 Rectangle::new([(i as f64 - 0.4, 0.0), (i as f64 + 0.4, r.2 as f64)], BLUE.mix(0.6).filled())
             }))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf).context("plot buffer")?;
+    img.save(path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+/// Memory against time: each `(label, points in (seconds, MiB))` series as a line (empty series are left out),
+/// the end of the warm-up as a vertical line and the fitted resident-memory line over the fit window.
+fn plot_memory(
+    path: &Path,
+    name: &str,
+    series: &[(&str, Vec<(f64, f64)>)],
+    warmup: f64,
+    fit: Option<[(f64, f64); 2]>,
+) -> Result<()> {
+    use plotters::prelude::*;
+    let (w, h) = (900u32, 450u32);
+    let all = || series.iter().flat_map(|(_, pts)| pts.iter());
+    let end_min = all().map(|p| p.0).fold(0.0, f64::max) / 60.0;
+    let top = all().map(|p| p.1).fold(0.0, f64::max) * 1.15;
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(format!("{name}: memory against time"), ("sans-serif", 20))
+            .margin(15)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0f64..end_min.max(1.0 / 60.0), 0f64..top.max(1.0))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        chart
+            .configure_mesh()
+            .x_desc("minutes")
+            .y_desc("MiB")
+            .light_line_style(BLACK.mix(0.04))
+            .draw()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let colours = [BLUE, CYAN, RED, MAGENTA];
+        for ((label, pts), colour) in series.iter().filter(|(_, pts)| !pts.is_empty()).zip(colours.iter().cycle()) {
+            let colour = *colour;
+            chart
+                .draw_series(LineSeries::new(pts.iter().map(|&(t, m)| (t / 60.0, m)), colour.stroke_width(1)))
+                .map_err(|e| anyhow::anyhow!("{e}"))?
+                .label(*label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
+        }
+        chart
+            .draw_series(LineSeries::new([(warmup / 60.0, 0.0), (warmup / 60.0, top)], BLACK.mix(0.5).stroke_width(2)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label("end of warm-up")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.5).stroke_width(2)));
+        if let Some(line) = fit {
+            chart
+                .draw_series(LineSeries::new(line.iter().map(|&(t, m)| (t / 60.0, m)), BLACK.stroke_width(2)))
+                .map_err(|e| anyhow::anyhow!("{e}"))?
+                .label("resident: least-squares fit")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
     }

@@ -3,6 +3,9 @@
 # runs the whole test suite (unit, integration, Vulkan parity on lavapipe, the XR client against Monado).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Disk first: the suite needs ~6 GB (target/debug ~4 GB with small debug info, the Monado root ~1.3 GB, temporary
+# files); say how much there is, so that a run that dies of a full disk is recognised as such.
+df -h . "${TMPDIR:-/tmp}" || true
 bash scripts/setup.sh
 # Incremental caches are useless on a fresh CI checkout and take gigabytes beside ~25 linked binaries.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"

@@ -170,7 +170,8 @@ fn fofnet_without_a_usable_model_is_a_clear_error() {
 }
 
 /// The same through the binary: `render --geometry fofnet` with a model folder lacking fof.onnx fails with that
-/// sentence and writes nothing; `--geometry auto` renders with the prior.
+/// sentence and writes nothing; `--geometry auto` renders with what the evaluation chose (`AUTO_CHOICE`), says
+/// which at the info level, and does not warn (it is a choice, not a fall-back).
 #[test]
 fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     let dir = tempfile::tempdir().unwrap();
@@ -180,7 +181,7 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     std::fs::create_dir_all(&empty).unwrap();
     let run = |geometry: &str, out: &Path| {
         let o = Command::new(env!("CARGO_BIN_EXE_r2human"))
-            .env("R2HUMAN_LOG", "warn")
+            .env("R2HUMAN_LOG", "info")
             .args(["render", "--renderer", "geometric", "--size", "48", "--geometry", geometry, "--models"])
             .arg(&empty)
             .arg("--image")
@@ -198,7 +199,11 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     let out = dir.path().join("auto.png");
     let (ok, text) = run("auto", &out);
     assert!(ok && out.exists(), "{text}");
-    assert!(text.contains("inflation prior"), "auto must say it fell back: {text}");
+    let chosen = r2human::pipeline::AUTO_CHOICE.name();
+    assert!(text.contains(&format!("auto is `{chosen}`")), "auto must say what it uses: {text}");
+    if r2human::pipeline::AUTO_CHOICE == GeometryMode::Inflate {
+        assert!(!text.contains("WARN"), "choosing the prior is not a fall-back: {text}");
+    }
 }
 
 /// A synthetic subject's source view at `size`: linear premultiplied RGB, mask, and the ground-truth FOF. Without
@@ -499,26 +504,32 @@ fn dataset_writes_the_body_fof_of_the_rendered_source() {
     assert_eq!(manifest["body_fof_fallbacks"].as_array().map(|a| a.len()), Some(summary.body_fallbacks.len()));
 }
 
-/// The fitted body is placed in depth by the part the photo shows: the minimal enclosing circle of the xz
-/// projection of the vertices inside the mask is centred on z = 0 (closed form: the visible points lie on a circle
-/// of centre z = 0.3, the hidden ones far behind; every vertex moves by -0.3), and nothing moves when no vertex is
-/// inside the mask.
+/// The fitted body is placed in depth by the part the photo shows: the centroid of its occupied volume over the
+/// mask goes to z = 0. Closed form (box faces on pixel edges of the 128² measuring grid): a torso box of 64 x 56
+/// pixels spanning z 0.1..0.5 and an arm box of 8 x 8 pixels in front of it at z 0.55..0.95 have their centroid at
+/// (3584 * 0.3 + 64 * 0.75) / 3648; a box the mask does not show lies far behind and does not count; the xz
+/// circle of the extremities (the old rule) would have moved everything by about 0.5 instead. Nothing moves when
+/// no part of the body covers the mask.
 #[test]
 fn fitted_body_is_centred_on_its_visible_part() {
     use glam::Vec3;
     use r2human::geometry::TriMesh;
-    let mut positions = Vec::new();
-    for k in 0..16 {
-        let a = k as f32 * std::f32::consts::TAU / 16.0;
-        positions.push(Vec3::new(0.2 * a.cos(), 0.5, 0.3 + 0.2 * a.sin()));
+    let mut mesh = TriMesh::cuboid(Vec3::new(-0.5, 0.0625, 0.1), Vec3::new(0.5, 0.9375, 0.5));
+    for part in [
+        TriMesh::cuboid(Vec3::new(-0.0625, 0.3125, 0.55), Vec3::new(0.0625, 0.4375, 0.95)),
+        TriMesh::cuboid(Vec3::new(-0.3, -0.9, -0.9), Vec3::new(0.3, -0.1, -0.5)),
+    ] {
+        let offset = mesh.positions.len() as u32;
+        mesh.positions.extend(&part.positions);
+        mesh.triangles.extend(part.triangles.iter().map(|t| t.map(|i| i + offset)));
     }
-    positions.push(Vec3::new(0.0, -0.5, -0.9));
-    let mesh = TriMesh { positions: positions.clone(), ..Default::default() };
+    let shift = (3584.0 * 0.3 + 64.0 * 0.75) / 3648.0;
+    let positions = mesh.positions.clone();
     // The mask covers the top half of the view (y > 0) only.
     let mask = GrayImage::from_fn(32, 32, |_, r| if r < 16 { 1.0 } else { 0.0 });
     let centred = centre_visible_depth(mesh.clone(), &mask);
     for (a, b) in positions.iter().zip(&centred.positions) {
-        assert!((b.z - (a.z - 0.3)).abs() < 1e-5 && a.x == b.x && a.y == b.y, "{a} -> {b}");
+        assert!((b.z - (a.z - shift)).abs() < 1e-4 && a.x == b.x && a.y == b.y, "{a} -> {b}");
     }
     let empty = GrayImage::from_fn(32, 32, |_, _| 0.0);
     assert_eq!(centre_visible_depth(mesh.clone(), &empty).positions, positions);

@@ -99,24 +99,50 @@ impl DistanceField {
     /// Distance (pixels) at continuous pixel coordinates `(x, y)` (centres at `+0.5`), bilinear between pixel
     /// centres and clamped at the edges; infinity when there is no site.
     pub fn distance_at(&self, x: f32, y: f32) -> f32 {
+        self.distance_and_gradient_at(x, y).0
+    }
+
+    /// [`DistanceField::distance_at`] and its gradient `(d/dx, d/dy)` (the bilinear interpolation's, zero across
+    /// the clamped border). Infinite distance and a zero gradient for an empty field or a non-finite point.
+    pub fn distance_and_gradient_at(&self, x: f32, y: f32) -> (f32, (f32, f32)) {
         if self.width == 0 || self.height == 0 || !(x.is_finite() && y.is_finite()) {
-            return f32::INFINITY;
+            return (f32::INFINITY, (0.0, 0.0));
         }
-        let fx = (x - 0.5).clamp(0.0, (self.width - 1) as f32);
-        let fy = (y - 0.5).clamp(0.0, (self.height - 1) as f32);
+        let (x, y) = (x - 0.5, y - 0.5);
+        let fx = x.clamp(0.0, (self.width - 1) as f32);
+        let fy = y.clamp(0.0, (self.height - 1) as f32);
         let (c0, r0) = (fx as usize, fy as usize);
         let (c1, r1) = ((c0 + 1).min(self.width - 1), (r0 + 1).min(self.height - 1));
         let (tx, ty) = (fx - c0 as f32, fy - r0 as f32);
         let d = |c: usize, r: usize| self.dist2[r * self.width + c].sqrt();
-        let top = d(c0, r0) * (1.0 - tx) + d(c1, r0) * tx;
-        let bottom = d(c0, r1) * (1.0 - tx) + d(c1, r1) * tx;
-        top * (1.0 - ty) + bottom * ty
+        let (d00, d10, d01, d11) = (d(c0, r0), d(c1, r0), d(c0, r1), d(c1, r1));
+        let top = d00 * (1.0 - tx) + d10 * tx;
+        let bottom = d01 * (1.0 - tx) + d11 * tx;
+        let inside_x = x > 0.0 && x < (self.width - 1) as f32;
+        let inside_y = y > 0.0 && y < (self.height - 1) as f32;
+        let gx = if inside_x { (d10 - d00) * (1.0 - ty) + (d11 - d01) * ty } else { 0.0 };
+        let gy = if inside_y { bottom - top } else { 0.0 };
+        (top * (1.0 - ty) + bottom * ty, (gx, gy))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_gradient_is_the_interpolations() {
+        let f = DistanceField::new(20, 15, |i| i == 7 * 20 + 9 || i == 3 * 20 + 2);
+        let h = 1e-3f32;
+        for (x, y) in [(4.3f32, 6.7f32), (12.2, 3.9), (15.61, 11.17), (9.8, 7.2)] {
+            let (d, (gx, gy)) = f.distance_and_gradient_at(x, y);
+            assert_eq!(d, f.distance_at(x, y));
+            let nx = (f.distance_at(x + h, y) - f.distance_at(x - h, y)) / (2.0 * h);
+            let ny = (f.distance_at(x, y + h) - f.distance_at(x, y - h)) / (2.0 * h);
+            assert!((gx - nx).abs() < 1e-2 && (gy - ny).abs() < 1e-2, "({x},{y}): {gx},{gy} vs {nx},{ny}");
+        }
+        assert_eq!(f.distance_and_gradient_at(f32::NAN, 1.0).1, (0.0, 0.0));
+    }
 
     #[test]
     fn matches_brute_force_with_nearest_sites() {

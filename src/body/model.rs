@@ -166,6 +166,9 @@ pub struct BodyModel {
     pub landmark_points: Vec<Option<ModelPoint>>,
     /// Body vertices sampled for the silhouette term.
     pub samples: Vec<u32>,
+    /// Per rig bone, the posed joints (indices into [`JOINTS`]) whose rotation moves it: the joints at the bone
+    /// itself or at one of its ancestors (for the fitter's analytic derivatives).
+    pub moved_by: Vec<Vec<usize>>,
     heads: LinearShape,
     body: LinearShape,
     /// The rest hip centre of the neutral body (the pivot of the global rotation).
@@ -271,6 +274,17 @@ impl BodyModel {
         landmark_points[7] = pick(&ear_band, &|p| p.x).map(ModelPoint::Vertex);
         landmark_points[8] = pick(&ear_band, &|p| -p.x).map(ModelPoint::Vertex);
 
+        let moved_by: Vec<Vec<usize>> = (0..rig.bones.len())
+            .map(|b| {
+                let mut chain = Vec::new();
+                let mut at = Some(b);
+                while let Some(a) = at {
+                    chain.extend((0..joint_bones.len()).filter(|&j| joint_bones[j] == a));
+                    at = rig.bones[a].parent;
+                }
+                chain
+            })
+            .collect();
         let stride = (BODY_VERTEX_COUNT / SAMPLE_TARGET).max(1);
         let samples: Vec<u32> = (0..BODY_VERTEX_COUNT).step_by(stride).map(|i| i as u32).collect();
         let hip_centre = 0.5 * (rest_heads[bone("upperleg01.L")?] + rest_heads[bone("upperleg01.R")?]);
@@ -283,6 +297,7 @@ impl BodyModel {
             flex_axes,
             landmark_points,
             samples,
+            moved_by,
             heads,
             body,
             hip_centre,
@@ -351,6 +366,11 @@ impl BodyModel {
             g.push(parent * local);
         }
         g
+    }
+
+    /// A body vertex (base-mesh index `< BODY_VERTEX_COUNT`) of a shape in the rest pose (decimetres).
+    pub fn rest_vertex(&self, v: u32, shape: &[f64; SHAPE_COUNT]) -> DVec3 {
+        self.body.at(v as usize, shape)
     }
 
     /// A skinned body vertex (base-mesh index `< BODY_VERTEX_COUNT`) under the transforms `g`.
