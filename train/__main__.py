@@ -53,6 +53,9 @@ def main(argv=None):
                    help="the FOF input the net is residual on (default: body when among --inputs, else prior)")
     p.add_argument("--no-prior", action="store_true",
                    help="train the plain image -> FOF net (same as --inputs image --residual none)")
+    p.add_argument("--no-centre-output", action="store_true",
+                   help="compare the raw output with the ground truth (before session 7: the default now places "
+                        "the output by the depth convention first, as the pipeline does)")
 
     p = sub.add_parser("export", help="write encoder.onnx, decoder.onnx and/or fof.onnx with metadata and check them")
     p.add_argument("--renderer", default=None, help="renderer.pt from `fit` (writes encoder.onnx, decoder.onnx)")
@@ -70,6 +73,11 @@ def main(argv=None):
     p.add_argument("--data", required=True)
     p.add_argument("--renderer", default=None)
     p.add_argument("--fof", default=None)
+    p.add_argument("--fof-onnx", action="append", default=[], metavar="NAME=PATH",
+                   help="also evaluate an exported fof.onnx under row NAME (repeatable; e.g. "
+                        "fof_body=models/tiny/fof_body.onnx); with only these, the priors and the files are compared")
+    p.add_argument("--split", default="test", choices=["test", "train", "all"],
+                   help="subjects to evaluate the FOF rows on (all: an unseen dataset)")
 
     p = sub.add_parser("synth", help="write a tiny synthetic dataset (for tests and smoke runs only)")
     p.add_argument("--out", required=True)
@@ -112,6 +120,8 @@ def main(argv=None):
             report.update(export_fof(f"{tmp}/f.pt", args.out))
         print(json.dumps(report, indent=1, sort_keys=True))
     elif args.cmd == "eval":
+        import os
+
         import torch
 
         from .fit import R2HumanNet, evaluate_fof, evaluate_renderer
@@ -123,11 +133,23 @@ def main(argv=None):
             m.load_state_dict(ck["model"])
             out["renderer"] = evaluate_renderer(m, args.data, ck["resolution"], torch.device("cpu"))
             out["renderer_zero_fof"] = evaluate_renderer(m, args.data, ck["resolution"], torch.device("cpu"), "zero")
-        if args.fof:
-            ck = torch.load(args.fof, map_location="cpu")
-            m = fof_net_from_checkpoint(ck)
-            m.load_state_dict(ck["model"])
-            out["fof"] = evaluate_fof(m, args.data, ck["resolution"], torch.device("cpu"), per_subject=True)
+        onnx = {}
+        for item in args.fof_onnx:
+            name, sep, path = item.partition("=")
+            if not sep or not name or not path:
+                raise SystemExit(f"--fof-onnx {item!r}: expected NAME=PATH")
+            if not os.path.isfile(path):
+                raise SystemExit(f"--fof-onnx {item!r}: no such file {path}")
+            onnx[name] = path
+        if args.fof or onnx:
+            m, res = None, None
+            if args.fof:
+                ck = torch.load(args.fof, map_location="cpu")
+                m = fof_net_from_checkpoint(ck)
+                m.load_state_dict(ck["model"])
+                res = ck["resolution"]
+            out["fof"] = evaluate_fof(m, args.data, res, torch.device("cpu"), per_subject=True, onnx=onnx,
+                                      split=args.split)
         print(json.dumps(out, indent=1))
     elif args.cmd == "synth":
         from .synth import write_dataset

@@ -95,7 +95,8 @@ class R2Dataset(torch.utils.data.Dataset):
     def __init__(self, root, split="train", resolution=None, seed=0, fixed_views=None, cache=True, with_views=True):
         self.root = root
         self.meta = load_meta(root)
-        self.subjects = list(self.meta["split"][split])
+        # `all`: every subject (an unseen dataset evaluated as a whole).
+        self.subjects = list(self.meta["subjects"] if split == "all" else self.meta["split"][split])
         if not self.subjects:
             raise ValueError(f"{root}: split {split!r} is empty")
         self.data_res = int(self.meta["resolution"])

@@ -16,6 +16,7 @@ import torch.nn as nn
 from torch.utils.data import DataLoader, DistributedSampler
 
 from . import losses
+from .depth_centre import centre_fof
 from .dataset import R2Dataset
 from .geometry import transfer, warp, warp_rgb
 from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters, fof_net_from_checkpoint, parse_fof_inputs
@@ -272,43 +273,78 @@ def occupancy_iou(pred, gt, mask, samples=64):
     return float((po & go).sum()) / max(float((po | go).sum()), 1.0)
 
 
+def onnx_fof_predictor(path):
+    """A FOF predictor (batch -> [B,N,H,W]) running an exported `fof.onnx` through ONNX Runtime on the batch's
+    inputs the file declares (`r2human.fof_inputs`, default image + prior): how the shipped files are compared."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    sess = ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
+    names = [i.name for i in sess.get_inputs()]
+
+    def run(b):
+        feeds = {}
+        for name in names:
+            if f"src_{name}" not in b:
+                raise SystemExit(f"{path} takes `{name}`, which the dataset does not hold")
+            feeds[name] = b[f"src_{name}"].cpu().numpy()
+        return torch.from_numpy(sess.run(None, feeds)[0])
+
+    return run
+
+
 @torch.no_grad()
-def evaluate_fof(model, data, resolution, device, per_subject=False):
+def evaluate_fof(model, data, resolution, device, per_subject=False, onnx=None, split="test"):
     """Held-out FOF accuracy of the FOF net next to the FOF priors the dataset holds (the inflation prior `prior_`,
-    the fitted body `body_`): coefficient L1 over the person, the volumetric IoU of the decoded 0.5 iso-surface
-    against ground truth, and the share of the silhouette's columns that hold body. With `per_subject`, also each
-    test subject's IoU per row (`per_subject`: name -> {row: iou})."""
-    model.eval()
-    ds = R2Dataset(data, "test", resolution=resolution, cache=False, with_views=False)
+    the fitted body `body_`) and any exported nets (`onnx`: name -> fof.onnx path, rows `NAME_`): coefficient L1
+    over the person, the volumetric IoU of the decoded 0.5 iso-surface against ground truth, and the share of the
+    silhouette's columns that hold body; every prediction is first placed by the depth convention
+    (`depth_centre.centre_fof`), as inference does. `model` may be None (priors and ONNX files only); `split`:
+    `test`, `train` or `all`. With `per_subject`, also each subject's IoU per row (`per_subject`: name -> {row:
+    iou}) and the mean IoU per framing (`by_framing`: framing -> {row: iou})."""
+    if model is not None:
+        model.eval()
+    ds = R2Dataset(data, split, resolution=resolution, cache=False, with_views=False)
+    framings = ds.meta.get("framings", {})
     out = {"subjects": len(ds)}
-    rows = {"net": ([], [], [])}
+    predictors = {}
+    if model is not None:
+        predictors["net"] = lambda b: model(*fof_inputs(model, b))
     if ds.has_prior:
-        rows["prior"] = ([], [], [])
+        predictors["prior"] = lambda b: b["src_prior"]
     if ds.has_body:
-        rows["body"] = ([], [], [])
+        predictors["body"] = lambda b: b["src_body"]
+    for name, path in (onnx or {}).items():
+        predictors[name] = onnx_fof_predictor(path)
+    rows = {k: ([], [], []) for k in predictors}
     each = {}
     for i in range(len(ds)):
         b = to_device({k: t[None] for k, t in ds[i].items()}, device)
         mask, gt = b["src_mask"], b["src_fof"]
-        preds = {"net": model(*fof_inputs(model, b)) * mask}
-        for k in ("prior", "body"):
-            if k in rows:
-                preds[k] = b[f"src_{k}"] * mask
-        for k, pred in preds.items():
+        for k, predict in predictors.items():
+            # Placed in depth as `pipeline::compute_geometry` places every geometry (the ground truth already is).
+            pred = centre_fof(predict(b).to(device) * mask, mask)[0] * mask
             rows[k][0].append(float(losses.masked_l1(pred, gt, mask)))
             rows[k][1].append(occupancy_iou(pred, gt, mask))
             # Silhouette kept: the share of the person's columns that hold some body (0.5 level).
             kept = ((decode_occupancy(pred, 64).max(1, keepdim=True).values > 0.5) & (mask > 0.5)).sum()
             rows[k][2].append(float(kept) / max(float((mask > 0.5).sum()), 1.0))
         each[ds.subjects[i]] = {k: round(rows[k][1][-1], 4) for k in rows}
-    model.train()
-    for k, prefix in (("net", ""), ("prior", "prior_"), ("body", "body_")):
-        if k in rows:
-            out[prefix + "coefficient_l1"] = float(np.mean(rows[k][0]))
-            out[prefix + "occupancy_iou"] = float(np.mean(rows[k][1]))
-            out[prefix + "silhouette_kept"] = float(np.mean(rows[k][2]))
+    if model is not None:
+        model.train()
+    for k in rows:
+        prefix = "" if k == "net" else k + "_"
+        out[prefix + "coefficient_l1"] = float(np.mean(rows[k][0]))
+        out[prefix + "occupancy_iou"] = float(np.mean(rows[k][1]))
+        out[prefix + "silhouette_kept"] = float(np.mean(rows[k][2]))
     if per_subject:
         out["per_subject"] = each
+        groups = {}
+        for name, ious in each.items():
+            groups.setdefault(framings.get(name, "unknown"), []).append(ious)
+        out["by_framing"] = {f: {"subjects": len(g), **{k: round(float(np.mean([x[k] for x in g])), 4) for k in rows}}
+                             for f, g in sorted(groups.items())}
     return out
 
 
@@ -325,11 +361,16 @@ def silhouette_loss(occ, mask):
     return (torch.relu(SILHOUETTE_LEVEL - peak) * mask).sum() / mask.sum().clamp_min(1.0)
 
 
-def fof_loss(net, model, b, lambda_occupancy, lambda_silhouette=0.0, samples=32):
+def fof_loss(net, model, b, lambda_occupancy, lambda_silhouette=0.0, samples=32, centre=False):
     """Masked L1 on the coefficients + `lambda_occupancy` x masked L1 on the decoded occupancy (what the mesh is
-    extracted from) + `lambda_silhouette` x [`silhouette_loss`]. `net` runs the model (it may be its DDP wrapper)."""
+    extracted from) + `lambda_silhouette` x [`silhouette_loss`]. `net` runs the model (it may be its DDP wrapper).
+    With `centre`, the prediction is first placed by the depth convention (`depth_centre.centre_fof`, as
+    `pipeline::compute_geometry` places the net's output), so its depth offset, which one photo cannot show, costs
+    nothing."""
     pred = net(*fof_inputs(model, b))
     gt, mask = b["src_fof"], b["src_mask"]
+    if centre:
+        pred = centre_fof(pred, mask)[0]
     coef = losses.masked_l1(pred, gt, mask)
     occ_pred = decode_occupancy(pred, samples)
     occ = losses.masked_l1(occ_pred, decode_occupancy(gt, samples), mask)
@@ -363,6 +404,7 @@ def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
                       "zero-initialised") if model.residual else f"plain: ({ins}) -> fof"
     rec["fof_inputs"] = list(model.inputs)
     rec["augmentation"] = "left-right flip (p = 0.5)"
+    rec["loss_on_centred_output"] = not getattr(args, "no_centre_output", False)
     rec.pop("decoder", None)
     rec.pop("fof_dropout", None)
     if evaluation is not None:
@@ -437,7 +479,8 @@ def fit_fof(args):
             sampler.set_epoch(epoch)
         for b in loader:
             b = to_device(flip_batch(b, gen), device)
-            loss, parts = fof_loss(net, model, b, args.lambda_occupancy, args.lambda_silhouette)
+            loss, parts = fof_loss(net, model, b, args.lambda_occupancy, args.lambda_silhouette,
+                                   centre=not args.no_centre_output)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

@@ -120,12 +120,12 @@ pub enum GeometryMode {
     Body,
 }
 
-/// What [`GeometryMode::Auto`] draws. Measured with the release evaluation of this session (8 clothed synthetic
-/// subjects in three framings at 512², the scan check, the four shipped photos; README "Which geometry, where"):
-/// the silhouette-inflation prior has the best volumetric IoU (0.562 vs 0.544 for `fof.onnx` and 0.442 for the
-/// body prior), the best or equal divergent mask IoU on upper-body framings, no check failing on the real photos
-/// and is the fastest; the FOF net is rejected by its guard on most cropped inputs and photos, and the body prior,
-/// better on full and three-quarter silhouettes, breaks up on upper-body framings and one photo.
+/// What [`GeometryMode::Auto`] draws. Measured with the release evaluation (8 clothed synthetic subjects in three
+/// framings at 512², the Mr. Fixit scan, the four shipped photos; README "Which geometry, where"): the body prior
+/// wins every synthetic framing's divergent silhouettes (volumetric IoU 0.560, the inflation prior 0.562, the FOF
+/// net 0.544) but loses the independent scan (0.385 vs 0.644) and draws streaks on three of the four photos from
+/// the side; the FOF net is rejected by its guard on most cropped inputs and photos. A synthetic win counts only
+/// when the scan and the photos agree, so `auto` is the silhouette-inflation prior, also the fastest.
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
 
 impl GeometryMode {

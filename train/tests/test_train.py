@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from train import losses
+from train.depth_centre import centre_fof, centring_shift, fof_centroid_z, fof_depth_range, shift_fof
 from train.dataset import R2Dataset, downsample_view, view_angle_deg
 from train.fit import R2HumanNet, decode_occupancy
 from train.geometry import linear_to_srgb, srgb_to_linear, transfer, visibility, warp_rgb
@@ -181,6 +182,72 @@ class FofTest(unittest.TestCase):
               (np.array([[0.6]]), np.array([[0.7]]), np.array([[True]]))]
         c = fof_from_intervals(iv, 8)
         self.assertAlmostEqual(float(c[0, 0, 0]), 0.9 + 0.1, places=5)
+
+
+def interval_fof(lo, hi, n=32):
+    """[1,N,H,W] FOF of one interval [lo, hi] per pixel (arrays of the same shape; lo >= hi: empty)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c = fof_from_intervals([(lo, hi, hi > lo)], n)
+    return torch.from_numpy(c).permute(2, 0, 1)[None].float()
+
+
+def crossings(fof, samples=2048):
+    """z of the first and last 0.5 crossing of pixel (0, 0) of a [1,N,H,W] FOF."""
+    occ = decode_occupancy(fof, samples)[0, :, 0, 0]
+    inside = (occ >= 0.5).nonzero()[:, 0].float()
+    z = 2.0 * (inside + 0.5) / samples - 1.0
+    return float(z.min()), float(z.max())
+
+
+class DepthCentreTest(unittest.TestCase):
+    """train/depth_centre.py against the closed forms of src/geometry/depth_centre.rs."""
+
+    def test_centroid_of_intervals_is_their_volume_weighted_middle(self):
+        # Two columns: [-0.6, -0.2] (volume 0.4, middle -0.4) and [0.1, 0.9] (0.8, 0.5): centroid (0.4 * -0.4 +
+        # 0.8 * 0.5) / 1.2 = 0.2.
+        fof = interval_fof([[-0.6, 0.1]], [[-0.2, 0.9]])
+        self.assertAlmostEqual(float(fof_centroid_z(fof)[0]), 0.2, places=2)
+        self.assertTrue(math.isnan(float(fof_centroid_z(torch.zeros(1, 32, 2, 2))[0])))
+        # The mask leaves the second column out.
+        mask = torch.tensor([[[[1.0, 0.0]]]])
+        self.assertAlmostEqual(float(fof_centroid_z(fof, mask)[0]), -0.4, places=2)
+
+    def test_shift_moves_an_interval_and_keeps_its_volume(self):
+        fof = interval_fof([[-0.5]], [[0.1]])
+        for dz in (0.3, -0.35, 0.0):
+            moved = shift_fof(fof, torch.tensor([dz]))
+            lo, hi = crossings(moved)
+            self.assertAlmostEqual(lo, -0.5 + dz, delta=0.01)
+            self.assertAlmostEqual(hi, 0.1 + dz, delta=0.01)
+            self.assertAlmostEqual(float(moved[0, 0, 0, 0]), float(fof[0, 0, 0, 0]), places=5)
+        # There and back: the projection onto the N stored terms loses a little (the shifted truncated series is
+        # not itself truncated), 1.5e-3 of coefficients of order 1 at N = 32.
+        back = shift_fof(shift_fof(fof, torch.tensor([0.2])), torch.tensor([-0.2]))
+        self.assertLess(float((back - fof).abs().max()), 3e-3)
+
+    def test_centring_shift_rule(self):
+        t = lambda *v: torch.tensor(v, dtype=torch.float32)
+        # Plain: the centroid to 0.
+        self.assertAlmostEqual(float(centring_shift(t(0.3), t(-0.2), t(0.8))[0]), -0.3, places=6)
+        # Limited: -0.5 would put z_min -0.7 at -1.2; the smallest shift keeping it inside is -0.3.
+        self.assertAlmostEqual(float(centring_shift(t(0.5), t(-0.7), t(0.9))[0]), -0.3, places=6)
+        # Wider than the cube: its middle to 0. NaN input: no shift.
+        self.assertAlmostEqual(float(centring_shift(t(0.5), t(-1.2), t(1.0))[0]), 0.1, places=6)
+        self.assertEqual(float(centring_shift(t(float("nan")), t(-0.2), t(0.3))[0]), 0.0)
+
+    def test_centre_fof_puts_the_centroid_at_zero_and_is_differentiable(self):
+        fof = interval_fof([[0.2, 0.3]], [[0.8, 0.6]]).requires_grad_(True)
+        centred, dz = centre_fof(fof)
+        self.assertAlmostEqual(float(fof_centroid_z(centred.detach())[0]), 0.0, delta=0.01)
+        self.assertAlmostEqual(float(dz.detach()[0]), -float(fof_centroid_z(fof.detach())[0]), delta=1e-5)
+        lo, hi = fof_depth_range(centred.detach())
+        self.assertTrue(-1.0 <= float(lo[0]) < float(hi[0]) <= 1.0)
+        centred.sum().backward()
+        self.assertTrue(torch.isfinite(fof.grad).all())
+        # Empty and all-zero input: unchanged, no NaN.
+        zero = torch.zeros(2, 8, 3, 3)
+        out, dz = centre_fof(zero)
+        self.assertTrue(torch.equal(out, zero) and torch.equal(dz, torch.zeros(2)))
 
 
 class LossTest(unittest.TestCase):
@@ -358,6 +425,21 @@ class TrainExportTest(unittest.TestCase):
         self.assertEqual([i.name for i in f.graph.input], ["image", "body", "prior"])
         self.assertEqual((meta["r2human.fof_inputs"], meta["r2human.residual"]), ("image,body,prior", "body"))
         self.assertLess(json.load(open(os.path.join(body_run, "export_report.json")))["fof"]["max_abs_diff"], 1e-3)
+        # `train eval --fof-onnx`: the exported file scores what its checkpoint scores, next to the priors, per
+        # framing, on every subject (`--split all`).
+        r = subprocess.run(base + ["eval", "--data", data(), "--fof", os.path.join(body_run, "fof.pt"), "--fof-onnx",
+                                   f"exported={os.path.join(body_run, 'fof.onnx')}", "--split", "all"], check=True,
+                           env=env, capture_output=True, text=True)
+        ev = json.loads(r.stdout)["fof"]
+        self.assertEqual(ev["subjects"], 4)
+        self.assertAlmostEqual(ev["exported_occupancy_iou"], ev["occupancy_iou"], places=4)
+        self.assertIn("prior_occupancy_iou", ev)
+        self.assertEqual(sum(g["subjects"] for g in ev["by_framing"].values()), 4)
+        self.assertEqual(set(next(iter(ev["per_subject"].values()))), {"net", "prior", "body", "exported"})
+        bad = subprocess.run(base + ["eval", "--data", data(), "--fof-onnx", "nofile"], env=env, capture_output=True,
+                             text=True)
+        self.assertNotEqual(bad.returncode, 0)
+        self.assertIn("expected NAME=PATH", bad.stderr)
         bad = subprocess.run(base + ["fit-fof", *common, "--inputs", "image,body", "--residual", "prior", "--out",
                                      os.path.join(out, "bad")], env=env, capture_output=True, text=True)
         self.assertNotEqual(bad.returncode, 0)
