@@ -166,7 +166,8 @@ fn fofnet_without_a_usable_model_is_a_clear_error() {
     assert!(load_fof_net(GeometryMode::Auto, Some(tmp.path()), 32, &cpu()).unwrap().is_none());
     std::fs::write(tmp.path().join("fof.onnx"), b"not an onnx file").unwrap();
     let e = load_fof_net(GeometryMode::FofNet, Some(tmp.path()), N, &cpu()).expect_err("corrupt");
-    assert!(matches!(e, PipelineError::NoFofNet(_)) && e.to_string().contains("corrupt"), "{e}");
+    assert!(matches!(e, PipelineError::FofNetLoad(_)) && e.to_string().contains("corrupt"), "{e}");
+    assert!(std::error::Error::source(&e).is_some(), "the load error is kept as the cause: {e:?}");
 }
 
 /// The same through the binary: `render --geometry fofnet` with a model folder lacking fof.onnx fails with that

@@ -56,6 +56,14 @@ pub enum LiveError {
         /// Why.
         reason: String,
     },
+    /// A frame's PNG could not be written.
+    #[error("cannot write `{path}`: {source}")]
+    WriteFrame {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: crate::io::image_io::IoError,
+    },
     /// The source produced no usable frame at all.
     #[error("no frame of `{0}` could be processed; see the messages above")]
     NothingRendered(String),
@@ -700,7 +708,7 @@ pub fn render_video<P: FrameProcessor>(
             Ok(SourceEvent::End) => break,
             Err(e) => {
                 let index = match &e {
-                    CaptureError::CorruptFrame { index, .. } => *index,
+                    CaptureError::CorruptFrame { index, .. } | CaptureError::CorruptImage { index, .. } => *index,
                     _ => u64::MAX,
                 };
                 let name = source.frame_name(index);
@@ -775,7 +783,7 @@ pub fn render_video<P: FrameProcessor>(
         let path = out_dir.join(format!("frame_{:05}.png", frame.index));
         stats
             .time("write", || crate::io::image_io::save_rgba_png(&path, &image))
-            .map_err(|e| LiveError::Output { path: path.clone(), reason: e.to_string() })?;
+            .map_err(|source| LiveError::WriteFrame { path: path.clone(), source })?;
         stats.record("frame", started.elapsed());
         report.written.push(path.clone());
         report.frames.push(FrameOutcome { result: Ok(path), ..outcome });

@@ -33,6 +33,12 @@ pub enum BodyError {
     /// The pose landmark model is missing, cannot be loaded or failed on an input (says what to do).
     #[error("pose landmarks: {0}")]
     Model(String),
+    /// The fitted body's intervals do not make a valid Fourier occupancy field.
+    #[error("pose landmarks: body FOF: {0}")]
+    Fof(#[source] crate::geometry::fof::FofError),
+    /// The pose landmark model cannot be loaded (ONNX Runtime missing, the file corrupt or unreadable).
+    #[error("pose landmarks: {0}")]
+    ModelLoad(#[source] crate::neural::NeuralError),
 }
 
 /// Where the registry data lives: `$R2HUMAN_TOOLS_DIR`, else `<crate root>/.tools`.

@@ -452,8 +452,8 @@ impl PoseEstimator {
     /// Loads the model (see [`model_path`]) on the execution provider of `options`.
     pub fn load(model: Option<&Path>, options: &RuntimeOptions) -> Result<Self, BodyError> {
         let path = model_path(model)?;
-        let (session, _) = crate::neural::create_session(&path, "pose landmark model", options)
-            .map_err(|e| BodyError::Model(e.to_string()))?;
+        let (session, _) =
+            crate::neural::create_session(&path, "pose landmark model", options).map_err(BodyError::ModelLoad)?;
         let outputs: Vec<String> = session.outputs().iter().map(|o| o.name().to_string()).collect();
         for needed in ["Identity", "Identity_1", "Identity_4"] {
             if !outputs.iter().any(|o| o == needed) {

@@ -140,5 +140,5 @@ pub fn body_fof(
         ..Default::default()
     };
     let out = reconcile(&body, mask, Some(effective_frame(mask, frame)), &params);
-    Fof::from_intervals(&out, n).map_err(|e| BodyError::Model(format!("body FOF: {e}")))
+    Fof::from_intervals(&out, n).map_err(BodyError::Fof)
 }

@@ -58,6 +58,14 @@ pub enum CaptureError {
         /// What is wrong with it.
         source: synthetic::BadLiveSpec,
     },
+    /// An image given as input (a still, a sequence frame, a clean plate) cannot be read or decoded.
+    #[error("cannot open `{path}`: {source}. Check the path given to --video")]
+    Image {
+        /// The path.
+        path: PathBuf,
+        /// Why it cannot be read.
+        source: Box<crate::io::image_io::IoError>,
+    },
     /// An image-sequence folder without any image in it.
     #[error(
         "folder `{0}` contains no images (.png, .jpg, .jpeg, .gif, .hdr); put the frames there or pass a video file"
@@ -72,6 +80,16 @@ pub enum CaptureError {
         path: PathBuf,
         /// The decoder's message.
         reason: String,
+    },
+    /// One image of a sequence could not be read or decoded: the frame is skipped, the stream goes on.
+    #[error("frame {index} (`{path}`) could not be read: {source}; it was skipped")]
+    CorruptImage {
+        /// Position of the frame in its source.
+        index: u64,
+        /// The image file.
+        path: PathBuf,
+        /// Why it cannot be read.
+        source: Box<crate::io::image_io::IoError>,
     },
     /// A video stream ended early (truncated file, decoder died): what was read is kept.
     #[error("the video stream from `{path}` stopped after frame {index}: {reason}")]
@@ -93,6 +111,14 @@ pub enum CaptureError {
         path: PathBuf,
         /// ffprobe's message.
         reason: String,
+    },
+    /// ffprobe's description of the file cannot be used.
+    #[error("`{path}` has no readable video stream: {source}. Pass a video file (mp4, mkv, webm, avi…) or a folder of images")]
+    Probe {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with ffprobe's description.
+        source: Box<video::ProbeError>,
     },
     /// No camera at all.
     #[error("no camera was found: connect a webcam (V4L2, /dev/video*), or use --video PATH with a video file or an image folder")]
@@ -164,6 +190,14 @@ pub enum CaptureError {
     /// The ONNX segmentation model or runtime cannot be loaded or run.
     #[error("segmentation model: {0}")]
     Model(String),
+    /// The ONNX segmentation model cannot be loaded (ONNX Runtime missing, the file corrupt or unreadable).
+    #[error("segmentation model: cannot load `{}`: {source}", path.display())]
+    ModelLoad {
+        /// The model file.
+        path: PathBuf,
+        /// Why it cannot be loaded.
+        source: Box<crate::neural::NeuralError>,
+    },
 }
 
 impl CaptureError {
@@ -172,6 +206,7 @@ impl CaptureError {
         matches!(
             self,
             CaptureError::CorruptFrame { .. }
+                | CaptureError::CorruptImage { .. }
                 | CaptureError::StreamLost { .. }
                 | CaptureError::CameraLost { .. }
                 | CaptureError::Segment { .. }

@@ -134,8 +134,8 @@ impl OnnxSegmenter {
             intra_threads: Some(std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2)),
             ..Default::default()
         };
-        let (session, _) =
-            crate::neural::create_session(&path, "segmentation model", &options).map_err(|e| fail(e.to_string()))?;
+        let (session, _) = crate::neural::create_session(&path, "segmentation model", &options)
+            .map_err(|e| CaptureError::ModelLoad { path: path.clone(), source: Box::new(e) })?;
         let input_name =
             session.inputs().first().map(|i| i.name().to_string()).ok_or_else(|| fail("no inputs".into()))?;
         let pose_output = session.outputs().iter().position(|o| o.name() == "Identity_2");

@@ -87,7 +87,7 @@ impl SegmentMethod {
             Self::Alpha => Ok(Box::new(AlphaSegmenter)),
             Self::CleanPlate { plate: Some(path), .. } => {
                 let (rgb, _) = super::load_image_frame(path)
-                    .map_err(|e| CaptureError::Open { path: path.clone(), reason: e.to_string() })?;
+                    .map_err(|e| CaptureError::Image { path: path.clone(), source: Box::new(e) })?;
                 Ok(Box::new(CleanPlateSegmenter::with_plate(CleanPlate::from_frames(&[rgb])?)))
             }
             Self::CleanPlate { plate: None, plate_frames } => {

@@ -108,10 +108,10 @@ impl FrameSource for ImageSequenceSource {
         };
         let index = self.next as u64;
         self.next += 1;
-        let (rgb, alpha) = load_image_frame(&path).map_err(|e| CaptureError::CorruptFrame {
+        let (rgb, alpha) = load_image_frame(&path).map_err(|e| CaptureError::CorruptImage {
             index,
             path: path.clone(),
-            reason: e.to_string(),
+            source: Box::new(e),
         })?;
         let timestamp = Duration::from_secs_f64(index as f64 / self.fps as f64);
         Ok(SourceEvent::Frame(Frame { index, timestamp, rgb, alpha }))
@@ -137,7 +137,7 @@ impl StillImageSource {
     /// Decodes the image now, so a bad file is reported when the source is opened.
     pub fn open(path: &Path) -> Result<Self, CaptureError> {
         let (rgb, alpha) =
-            load_image_frame(path).map_err(|e| CaptureError::Open { path: path.into(), reason: e.to_string() })?;
+            load_image_frame(path).map_err(|e| CaptureError::Image { path: path.into(), source: Box::new(e) })?;
         Ok(Self { path: path.into(), frame: Some(Frame { index: 0, timestamp: Duration::ZERO, rgb, alpha }) })
     }
 }

@@ -108,7 +108,7 @@ pub fn parse_ffprobe_json(json: &str) -> Result<VideoInfo, ProbeError> {
 /// The stream description of `path` from ffprobe's JSON output (`stdout`); errors name the file.
 pub fn info_from_ffprobe(path: &Path, stdout: &[u8]) -> Result<VideoInfo, CaptureError> {
     parse_ffprobe_json(&String::from_utf8_lossy(stdout))
-        .map_err(|e| CaptureError::NoVideoStream { path: path.into(), reason: e.to_string() })
+        .map_err(|e| CaptureError::Probe { path: path.into(), source: Box::new(e) })
 }
 
 /// Runs ffprobe on `path`.

@@ -140,9 +140,7 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
     let assets = SynthAssets::shared()?;
     let body = if opts.body_fof {
         let options = crate::neural::RuntimeOptions::default();
-        crate::pipeline::load_body(crate::pipeline::GeometryMode::Body, &options).map_err(|e| {
-            EvalError::InvalidOptions(format!("body_fof.npy needs the body prior: {e} (or pass --no-body-fof)"))
-        })?
+        crate::pipeline::load_body(crate::pipeline::GeometryMode::Body, &options).map_err(EvalError::NoBodyPrior)?
     } else {
         None
     };

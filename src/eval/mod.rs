@@ -17,6 +17,9 @@ pub enum EvalError {
     /// Options out of range.
     #[error("invalid options: {0}")]
     InvalidOptions(String),
+    /// `body_fof.npy` was asked for but the body prior cannot be loaded.
+    #[error("invalid options: body_fof.npy needs the body prior: {0} (or pass --no-body-fof)")]
+    NoBodyPrior(#[source] crate::pipeline::PipelineError),
     /// Subject generation or scan loading failed.
     #[error(transparent)]
     Synth(#[from] crate::synth::SynthError),
@@ -35,6 +38,24 @@ pub enum EvalError {
         stage: &'static str,
         /// Why.
         message: String,
+    },
+    /// A photo could not be read or segmented ([`crate::capture::segment::segment_photo`]).
+    #[error("{path}: {source}")]
+    Photo {
+        /// The photo.
+        path: PathBuf,
+        /// Why.
+        source: Box<crate::capture::segment::PhotoError>,
+    },
+    /// A method of the photo checks failed on a photo (geometry, mesh, encoder or rendering).
+    #[error("{path}: {method}: {source}")]
+    Method {
+        /// The photo, as named in the report.
+        path: PathBuf,
+        /// The method's label.
+        method: String,
+        /// The pipeline's or the network's error.
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
     },
     /// No subject could be written.
     #[error("every subject failed; the first error was {0}")]

@@ -180,7 +180,7 @@ pub fn photo_files(dir: &Path) -> Result<Vec<PathBuf>, EvalError> {
 /// ([`crate::capture::segment::segment_photo`]).
 pub fn segment_photo(path: &Path, method: &SegmentMethod) -> Result<(RgbImage, GrayImage, String), EvalError> {
     let p = crate::capture::segment::segment_photo(path, None, method)
-        .map_err(|e| EvalError::io(path, std::io::Error::other(e.to_string())))?;
+        .map_err(|e| EvalError::Photo { path: path.to_path_buf(), source: Box::new(e) })?;
     Ok((p.photo.rgb, p.mask, p.origin.short_name()))
 }
 
@@ -250,7 +250,11 @@ fn run_method(
     opts: &PhotoEvalOptions,
     nets: PhotoNets<'_>,
 ) -> Result<(PhotoRow, Vec<RgbaImage>), EvalError> {
-    let fail = |e: String| EvalError::io(Path::new(name), std::io::Error::other(format!("{}: {e}", method.label)));
+    let fail = |e: Box<dyn std::error::Error + Send + Sync>| EvalError::Method {
+        path: PathBuf::from(name),
+        method: method.label.clone(),
+        source: e,
+    };
     let prepare = PrepareOptions {
         fof_net: nets.fof_net.cloned(),
         body: nets.body.cloned(),
@@ -263,18 +267,17 @@ fn run_method(
         (GeometryMode::Body, Some(body)) => (body.0.clone(), body.1.clone(), true),
         _ => {
             let mut timings = StageTimings::default();
-            let fof =
-                compute_geometry(&reference.normalised, &prepare, &mut timings).map_err(|e| fail(e.to_string()))?;
+            let fof = compute_geometry(&reference.normalised, &prepare, &mut timings).map_err(|e| fail(e.into()))?;
             (fof, timings, false)
         }
     };
     let reused = reference.normalise.total() + if reused { timings.total() } else { Duration::ZERO };
     timings.0.splice(0..0, reference.normalise.0.iter().copied());
-    let input = PreparedInput::from_fof(reference.normalised.clone(), fof, &prepare, timings)
-        .map_err(|e| fail(e.to_string()))?;
+    let input =
+        PreparedInput::from_fof(reference.normalised.clone(), fof, &prepare, timings).map_err(|e| fail(e.into()))?;
     let mut renderer = if method.neural {
         let net = nets.neural.ok_or_else(|| fail("the neural renderer did not load".into()))?;
-        let encoded = net.lock().unwrap_or_else(|p| p.into_inner()).encode(&input).map_err(|e| fail(e.to_string()))?;
+        let encoded = net.lock().unwrap_or_else(|p| p.into_inner()).encode(&input).map_err(|e| fail(e.into()))?;
         ViewRenderer::with_neural(&input, OcclusionFill::default(), false, std::sync::Arc::clone(net), encoded)
     } else {
         ViewRenderer::new(&input, OcclusionFill::default(), false)
@@ -284,7 +287,7 @@ fn run_method(
     let mut detached = Vec::with_capacity(PHOTO_YAWS.len());
     for &yaw in &PHOTO_YAWS {
         let person =
-            renderer.render_person(&Camera::orbit(yaw, 0.0, opts.size, opts.size)).map_err(|e| fail(e.to_string()))?;
+            renderer.render_person(&Camera::orbit(yaw, 0.0, opts.size, opts.size)).map_err(|e| fail(e.into()))?;
         let m =
             Image { width: person.width, height: person.height, data: person.data.iter().map(|p| p.w > 0.5).collect() };
         detached.push(detached_fraction(&m));

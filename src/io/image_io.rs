@@ -68,12 +68,22 @@ pub enum IoError {
         image_h: usize,
     },
     /// Writing an output failed; nothing was left at the destination.
-    #[error("cannot write {path}: {reason}")]
+    #[error("cannot write {path}: {source}")]
     Write {
         /// The destination.
         path: PathBuf,
         /// The cause.
-        reason: String,
+        source: std::io::Error,
+    },
+    /// The destination's folder could not be created; nothing was written.
+    #[error("cannot write {path}: cannot create folder {}: {source}", folder.display())]
+    CreateFolder {
+        /// The destination.
+        path: PathBuf,
+        /// The folder that could not be created.
+        folder: PathBuf,
+        /// The cause.
+        source: std::io::Error,
     },
 }
 
@@ -356,20 +366,20 @@ fn q8(linear: f32) -> u8 {
 /// Writes `path` atomically: `write` fills a temporary file in the destination folder, which is then renamed
 /// over `path`. On any error the temporary file is removed and `path` is untouched.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>) -> Result<(), IoError> {
-    let err = |reason: String| IoError::Write { path: path.to_owned(), reason };
+    let err = |source: std::io::Error| IoError::Write { path: path.to_owned(), source };
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
         _ => PathBuf::from("."),
     };
-    std::fs::create_dir_all(&dir).map_err(|e| err(format!("cannot create folder {}: {e}", dir.display())))?;
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".r2human-")
-        .suffix(".part")
-        .tempfile_in(&dir)
-        .map_err(|e| err(e.to_string()))?;
-    write(tmp.as_file_mut()).map_err(|e| err(e.to_string()))?;
-    tmp.as_file_mut().flush().map_err(|e| err(e.to_string()))?;
-    tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
+    std::fs::create_dir_all(&dir).map_err(|source| IoError::CreateFolder {
+        path: path.to_owned(),
+        folder: dir.clone(),
+        source,
+    })?;
+    let mut tmp = tempfile::Builder::new().prefix(".r2human-").suffix(".part").tempfile_in(&dir).map_err(err)?;
+    write(tmp.as_file_mut()).map_err(err)?;
+    tmp.as_file_mut().flush().map_err(err)?;
+    tmp.persist(path).map_err(|e| err(e.error))?;
     Ok(())
 }
 

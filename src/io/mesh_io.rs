@@ -84,6 +84,22 @@ pub enum MeshIoError {
         /// The offending position.
         value: [f32; 3],
     },
+    /// The mesh to encode is inconsistent (a non-finite vertex, an index past the vertices…).
+    #[error("{path}: cannot encode: {source}")]
+    InvalidMesh {
+        /// The destination file.
+        path: PathBuf,
+        /// What is wrong with the mesh.
+        source: MeshError,
+    },
+    /// The encoded glTF does not fit a GLB container.
+    #[error("{path}: cannot encode: {source}")]
+    Container {
+        /// The destination file.
+        path: PathBuf,
+        /// What does not fit.
+        source: GlbError,
+    },
     /// The mesh cannot be encoded (e.g. more vertices than 32-bit indices allow, or a bad texture).
     #[error("{path}: cannot encode: {message}")]
     Encode {
@@ -1256,7 +1272,7 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     if m.is_empty() {
         return Err(MeshIoError::Empty { path: name.to_path_buf() });
     }
-    mesh.validate().map_err(|e| enc(e.to_string()))?;
+    mesh.validate().map_err(|source| MeshIoError::InvalidMesh { path: name.to_path_buf(), source })?;
     if u32::try_from(nv).is_err() {
         return Err(enc("too many vertices for 32-bit indices".into()));
     }
@@ -1392,7 +1408,7 @@ pub fn glb_bytes(mesh: &TexturedMesh, name: &Path) -> Result<Vec<u8>, MeshIoErro
     root["accessors"] = json!(accessors);
     root["buffers"] = json!([{"byteLength": bin.len()}]);
     let js = serde_json::to_vec(&root).map_err(|e| enc(e.to_string()))?;
-    glb_container(&js, Some(&bin)).map_err(|e| enc(e.to_string()))
+    glb_container(&js, Some(&bin)).map_err(|source| MeshIoError::Container { path: name.to_path_buf(), source })
 }
 
 /// Writes a mesh as `.glb` (see [`glb_bytes`]) atomically: a temporary file in the same folder, then a rename.

@@ -131,6 +131,14 @@ pub enum NeuralError {
         /// What is wrong.
         problem: String,
     },
+    /// A network's output does not make a valid Fourier occupancy field.
+    #[error("bad input to the {model}: {source}")]
+    BadFof {
+        /// Which model.
+        model: &'static str,
+        /// What is wrong with the field.
+        source: crate::geometry::fof::FofError,
+    },
     /// ONNX Runtime failed while running a model.
     #[error("running the {model} failed: {reason}")]
     Run {

@@ -474,7 +474,7 @@ impl FofNet {
             ran.as_secs_f64() * 1e3,
             (start.elapsed() - ran).as_secs_f64() * 1e3
         );
-        Fof::new(n, w, h, coeffs).map_err(|e| NeuralError::BadInput { model, problem: e.to_string() })
+        Fof::new(n, w, h, coeffs).map_err(|source| NeuralError::BadFof { model, source })
     }
 }
 

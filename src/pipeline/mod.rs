@@ -82,11 +82,22 @@ pub enum PipelineError {
     /// The body prior (`--geometry body`) cannot be used: the pose model or the body model data is missing.
     #[error("body prior: {0}. Install them with `bash scripts/setup.sh`, or use --geometry inflate")]
     NoBody(String),
+    /// The FOF network's file is there but cannot be loaded (`--geometry fofnet`): ONNX Runtime is missing, or the
+    /// file is corrupt or not a FOF network. Worded as [`PipelineError::NoFofNet`]; the cause is the source.
+    #[error(
+        "FOF network: {0}. Pass --models DIR with a fof.onnx (train it with `python -m train fit-fof`, see \
+         train/README.md), or use --geometry inflate"
+    )]
+    FofNetLoad(#[source] NeuralError),
+    /// The body prior's pose model or body data cannot be loaded (`--geometry body`). Worded as
+    /// [`PipelineError::NoBody`]; the cause is the source.
+    #[error("body prior: {0}. Install them with `bash scripts/setup.sh`, or use --geometry inflate")]
+    BodyLoad(#[source] crate::body::BodyError),
     /// The FOF network (`--geometry fofnet`) failed on this input (a run error or non-finite coefficients).
     #[error(
         "FOF network failed on this input: {0}. Use --geometry auto (falls back to the inflation prior) or inflate"
     )]
-    FofNetFailed(NeuralError),
+    FofNetFailed(#[source] NeuralError),
 }
 
 /// Where the per-input geometry comes from (`--geometry`).
@@ -212,7 +223,7 @@ pub fn load_fof_net(
             if !path.is_file() {
                 Err(PipelineError::NoFofNet(format!("`{}` does not exist", path.display())))
             } else {
-                FofNet::load(&path, options).map_err(|e| PipelineError::NoFofNet(e.to_string())).and_then(|net| {
+                FofNet::load(&path, options).map_err(PipelineError::FofNetLoad).and_then(|net| {
                     if net.info().fof_n == fof_order {
                         Ok(net)
                     } else {
@@ -255,7 +266,7 @@ pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<
     if mode.resolved() != GeometryMode::Body {
         return Ok(None);
     }
-    let body = BodyEstimator::load(None, options).map_err(|e| PipelineError::NoBody(e.to_string()))?;
+    let body = BodyEstimator::load(None, options).map_err(PipelineError::BodyLoad)?;
     tracing::info!("geometry: body prior (pose model `{}`)", crate::body::pose::MODEL_FILE);
     Ok(Some(Arc::new(Mutex::new(body))))
 }

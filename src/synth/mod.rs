@@ -66,6 +66,14 @@ pub enum SynthError {
         /// What is wrong.
         message: String,
     },
+    /// A generated subject's mesh is inconsistent (a bug, reported rather than written).
+    #[error("subject {seed}: {source}")]
+    InvalidMesh {
+        /// The seed.
+        seed: u64,
+        /// What is wrong with the mesh.
+        source: crate::geometry::mesh::MeshError,
+    },
     /// A generated subject failed a sanity check (a bug, reported rather than written).
     #[error("subject {seed}: {message}")]
     Generation {
@@ -310,7 +318,7 @@ pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usiz
     let mut mesh = TriMesh::new(positions, triangles);
     let normalization = normalization.shifted_in_depth(normalize::centre_depth(&mut mesh));
     mesh.uvs = uvs;
-    mesh.validate().map_err(|e| fail(e.to_string()))?;
+    mesh.validate().map_err(|source| SynthError::InvalidMesh { seed: params.seed, source })?;
 
     let mut canvas = texture::Canvas::new(if dressed { 2 * size } else { size }, size);
     texture::paint_body(&mut canvas, &assets.base, &body_uvs, &assets.parts, &assets.landmarks, a);

@@ -73,6 +73,9 @@ pub enum XrError {
     /// The person renderer failed.
     #[error("rendering an eye image failed: {0}")]
     Render(String),
+    /// The GPU person renderer for the eyes cannot be set up.
+    #[error("rendering an eye image failed: cannot set up the GPU renderer: {0}")]
+    RenderSetup(#[source] crate::gpu::GpuError),
 }
 
 /// Adds the name of the failing OpenXR call to an `openxr` result.

@@ -692,7 +692,7 @@ pub fn run_session(
         format!("its own device on {} (staged through host memory)", render_ctx.device_name())
     };
     let mut renderer = GpuEyes::new(vk.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
-        .map_err(|e| XrError::Render(format!("cannot set up the GPU renderer: {e}")))?;
+        .map_err(XrError::RenderSetup)?;
     let mut uploader = EyeUploader::new(&vk)?;
     let passthrough = if blend.passthrough_fb {
         let p =
