@@ -34,11 +34,10 @@ impl From<FillArg> for OcclusionFill {
 #[derive(Args, Debug, Clone)]
 pub struct GeometryArgs {
     /// Where the geometry comes from: inflate (silhouette-inflation prior), fofnet (the FOF network in the model
-    /// folder correcting that prior; an error without fof.onnx) or auto (fofnet when fof.onnx loads, else inflate
-    /// with one warning), or body (the body prior: pose landmarks -> fitted MakeHuman body -> its FOF reconciled with
-    /// the silhouette, no FOF network; needs the pose model of scripts/setup.d/live.sh). Default auto: the shipped
-    /// FOF net beats the prior in `r2human eval` on geometry and image error (models/tiny/README.md); inflate is
-    /// about 0.3 s per input faster on this CPU.
+    /// folder correcting that prior; an error without fof.onnx), body (the body prior: pose landmarks -> fitted
+    /// MakeHuman body -> its FOF reconciled with the silhouette, no FOF network; needs the pose model of
+    /// scripts/setup.d/live.sh) or auto (the default: the geometry that wins the whole evaluation, today inflate;
+    /// README "Which geometry, where").
     #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]
     pub geometry: GeometryMode,
     /// How surfaces the photo does not show are coloured.
