@@ -405,23 +405,28 @@ impl Problem<'_> {
         p
     }
 
-    /// The Jacobian of [`Problem::residuals_of`] at `x` by forward differences in every parameter.
-    fn difference_jacobian_at(&self, x0: &[f64]) -> DMatrix<f64> {
+    /// Forward-difference columns `d residuals / d x[j]` at `x0` for the parameters `js` (in parallel), `base`
+    /// being the residuals at `x0`. Step `1e-6 max(|x_j|, 1)`, a tenth of it for parameter 0.
+    fn difference_columns(&self, x0: &[f64], base: &[f64], js: std::ops::Range<usize>) -> Vec<Vec<f64>> {
         use rayon::prelude::*;
-        let mut base = Vec::with_capacity(self.residual_count);
-        self.residuals_of(x0, &mut base);
-        let m = base.len();
-        let columns: Vec<Vec<f64>> = (0..x0.len())
-            .into_par_iter()
+        js.into_par_iter()
             .map(|j| {
                 let h = 1e-6 * x0[j].abs().max(1.0) * if j == 0 { 0.1 } else { 1.0 };
                 let mut x = x0.to_vec();
                 x[j] += h;
-                let mut r = Vec::with_capacity(m);
+                let mut r = Vec::with_capacity(base.len());
                 self.residuals_of(&x, &mut r);
-                r.iter().zip(&base).map(|(a, b)| (a - b) / h).collect()
+                r.iter().zip(base).map(|(a, b)| (a - b) / h).collect()
             })
-            .collect();
+            .collect()
+    }
+
+    /// The Jacobian of [`Problem::residuals_of`] at `x` by forward differences in every parameter.
+    fn difference_jacobian_at(&self, x0: &[f64]) -> DMatrix<f64> {
+        let mut base = Vec::with_capacity(self.residual_count);
+        self.residuals_of(x0, &mut base);
+        let m = base.len();
+        let columns = self.difference_columns(x0, &base, 0..x0.len());
         DMatrix::from_fn(m, x0.len(), |i, j| columns[j][i])
     }
 
@@ -429,22 +434,11 @@ impl Problem<'_> {
     /// about the joint centres, the silhouette distance's bilinear gradient), forward differences in the four
     /// shape sliders (they move the rest mesh and the joint centres together).
     fn jacobian_at(&self, x0: &[f64]) -> DMatrix<f64> {
-        use rayon::prelude::*;
         let mut base = Vec::with_capacity(self.residual_count);
         self.residuals_of(x0, &mut base);
         let m = base.len();
         let mut jac = DMatrix::zeros(m, PARAM_COUNT);
-        let shape_columns: Vec<Vec<f64>> = (POSE_PARAMS..PARAM_COUNT)
-            .into_par_iter()
-            .map(|j| {
-                let h = 1e-6 * x0[j].abs().max(1.0);
-                let mut x = x0.to_vec();
-                x[j] += h;
-                let mut r = Vec::with_capacity(m);
-                self.residuals_of(&x, &mut r);
-                r.iter().zip(&base).map(|(a, b)| (a - b) / h).collect()
-            })
-            .collect();
+        let shape_columns = self.difference_columns(x0, &base, POSE_PARAMS..PARAM_COUNT);
         for (c, column) in shape_columns.iter().enumerate() {
             for (i, v) in column.iter().enumerate() {
                 jac[(i, POSE_PARAMS + c)] = *v;

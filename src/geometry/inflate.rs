@@ -227,21 +227,23 @@ pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfa
 /// `cargo run --release --example inflate_sweep`) covers 0.993 or more of the interior ([`mask_coverage`]).
 pub const MIN_INFLATED_FRACTION: f32 = 0.9;
 
+/// Whether pixel `(c, r)` of a `w` x `h` image lies in the interior of the foreground `fg(c, r)`: it and every
+/// pixel within `margin` pixels (a square window) are inside the image and foreground.
+fn is_interior(fg: impl Fn(usize, usize) -> bool, c: usize, r: usize, w: usize, h: usize, margin: usize) -> bool {
+    c >= margin
+        && r >= margin
+        && c + margin < w
+        && r + margin < h
+        && (r - margin..=r + margin).all(|rr| (c - margin..=c + margin).all(|cc| fg(cc, rr)))
+}
+
 /// The fraction of the mask's interior pixels (foreground with every pixel within 2 pixels, a 5x5 window, also
 /// foreground) where the solved height `u` is positive, or 1 when the mask has no interior pixel (a sliver has
 /// nothing to inflate and nothing to miss).
 fn inflated_fraction(fg: &[bool], u: &[f32], w: usize, h: usize) -> f32 {
-    const MARGIN: usize = 2;
-    let interior = |c: usize, r: usize| {
-        c >= MARGIN
-            && r >= MARGIN
-            && c + MARGIN < w
-            && r + MARGIN < h
-            && (r - MARGIN..=r + MARGIN).all(|rr| (c - MARGIN..=c + MARGIN).all(|cc| fg[rr * w + cc]))
-    };
     let (mut total, mut inflated) = (0usize, 0usize);
     for r in 0..h {
-        for c in (0..w).filter(|&c| interior(c, r)) {
+        for c in (0..w).filter(|&c| is_interior(|cc, rr| fg[rr * w + cc], c, r, w, h, 2)) {
             total += 1;
             inflated += usize::from(u[r * w + c] > 0.0);
         }
@@ -270,13 +272,7 @@ pub fn mask_coverage(fof: &Fof, mask: &GrayImage, margin: usize) -> Option<f32> 
         return None;
     }
     let fg = |c: usize, r: usize| mask.data[r * w + c] > 0.5;
-    let interior = |c: usize, r: usize| {
-        c >= margin
-            && r >= margin
-            && c + margin < w
-            && r + margin < h
-            && (r - margin..=r + margin).all(|rr| (c - margin..=c + margin).all(|cc| fg(cc, rr)))
-    };
+    let interior = |c: usize, r: usize| is_interior(fg, c, r, w, h, margin);
     let table = CosineTable::new(fof.n, 4 * fof.n);
     let (covered, total) = (0..h)
         .into_par_iter()
