@@ -210,8 +210,7 @@ fn main() -> anyhow::Result<()> {
         let s = framing::crop(&s, FramingChoice::Mixed.of(i), &assets.rig)?;
         let view = render_ground_truth(&s.mesh, &Camera::source(size));
         let rgb: RgbImage = view.to_linear_rgba().map(|p| p.truncate());
-        let mask: GrayImage =
-            Image { width: size, height: size, data: view.mask.iter().map(|&m| m as u8 as f32).collect() };
+        let mask: GrayImage = view.mask_image();
         let mut input = NormalisedInput::in_source_view(rgb.clone(), mask.clone());
         if !whole_view {
             input.frame = s.source_frame(size);

@@ -9,7 +9,6 @@
 //! full-body mask; the sweep is how such a bug is found before a user meets it.
 
 use anyhow::Context;
-use r2human::buffer::GrayImage;
 use r2human::eval::dataset::subject_seed;
 use r2human::eval::ground_truth::render_ground_truth;
 use r2human::geometry::camera::Camera;
@@ -40,11 +39,7 @@ fn main() -> anyhow::Result<()> {
                 let subject = framing::crop(&subject, framing, &assets.rig)?;
                 for (k, &size) in sizes.iter().enumerate() {
                     let gt = render_ground_truth(&subject.mesh, &Camera::source(size));
-                    let mask = GrayImage {
-                        width: size,
-                        height: size,
-                        data: gt.mask.iter().map(|&m| m as u8 as f32).collect(),
-                    };
+                    let mask = gt.mask_image();
                     let label = format!(
                         "seed {s} {} {} {size}px",
                         if clothed { "clothed" } else { "unclothed" },

@@ -11,7 +11,6 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use r2human::buffer::GrayImage;
 use r2human::eval::dataset::subject_seed;
 use r2human::eval::ground_truth::render_ground_truth;
 use r2human::eval::runner::fof_occupancy_iou;
@@ -29,7 +28,7 @@ const N: usize = 32;
 /// IoU of the inflation prior of `mesh`'s source-view mask for every κ of [`KAPPAS`].
 fn ious(mesh: &TexturedMesh, size: usize) -> anyhow::Result<Vec<f32>> {
     let gt_view = render_ground_truth(mesh, &Camera::source(size));
-    let mask = GrayImage { width: size, height: size, data: gt_view.mask.iter().map(|&m| m as u8 as f32).collect() };
+    let mask = gt_view.mask_image();
     let gt = Fof::from_mesh(&mesh.mesh, size, N)?;
     KAPPAS
         .iter()

@@ -52,7 +52,7 @@ fn truth_textured(seed: u64, texture: usize) -> Truth {
         })
         .collect();
     let view = render_ground_truth(&subject.mesh, &Camera::source(RES));
-    let mask = Image { width: RES, height: RES, data: view.mask.iter().map(|&m| m as u8 as f32).collect() };
+    let mask = view.mask_image();
     Truth { subject, mask, points }
 }
 
@@ -317,7 +317,7 @@ fn framed_subjects_fit_what_the_photo_shows() {
         assert_eq!(s.crop.framing, framing, "seed {seed}: the crop fell back");
         let view = render_ground_truth(&s.mesh, &Camera::source(RES));
         let rgb = Image { width: RES, height: RES, data: view.albedo.clone() };
-        let mask = Image { width: RES, height: RES, data: view.mask.iter().map(|&m| m as u8 as f32).collect() };
+        let mask = view.mask_image();
         let frame = s.source_frame(RES);
         assert!(frame.1.y < RES as f32 - 4.0, "a cropped subject's photo ends at the cut: {frame:?}");
         let lm = net.estimate(&rgb, &mask, Some(frame)).expect("runs").expect("a pose");

@@ -10,7 +10,7 @@ use std::process::Command;
 use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
-use r2human::buffer::{GrayImage, Image, RgbImage};
+use r2human::buffer::{GrayImage, RgbImage};
 use r2human::eval::dataset::subject_seed;
 use r2human::eval::ground_truth::render_ground_truth;
 use r2human::eval::runner::fof_occupancy_iou;
@@ -217,7 +217,7 @@ fn subject_source(seed: u64, size: usize) -> (RgbImage, GrayImage, Fof) {
     let subject = synth::generate(assets, &params, 128).unwrap();
     let gt = render_ground_truth(&subject.mesh, &Camera::source(size));
     let rgb = gt.to_linear_rgba().map(|p| p.truncate());
-    let mask = Image { width: size, height: size, data: gt.mask.iter().map(|&m| m as u8 as f32).collect() };
+    let mask = gt.mask_image();
     let fof = Fof::from_mesh(&subject.mesh.mesh, size, 32).unwrap();
     (rgb, mask, fof)
 }

@@ -22,7 +22,7 @@ use serde_json::json;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
 use super::EvalError;
-use crate::buffer::{GrayImage, RgbImage};
+use crate::buffer::RgbImage;
 use crate::geometry::camera::{Camera, Projection, SOURCE_RESOLUTION};
 use crate::geometry::fof::Fof;
 use crate::geometry::inflate::{inflate_to_fof, InflateParams};
@@ -347,7 +347,7 @@ fn fof_grid(size: usize) -> usize {
 /// [`prior_fof`] of an already rendered source view at [`fof_grid`]`(size)`.
 fn prior_from_render(gt: &GroundTruthView, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
     let hi = gt.width;
-    let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
+    let mask = gt.mask_image();
     let fof =
         inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::stage("inflation prior", e))?;
     Ok(box_downsample(&fof.coeffs, hi, n, hi / size.max(1)))
@@ -366,7 +366,7 @@ pub fn body_fof(
 ) -> Result<(Vec<f32>, Option<String>), EvalError> {
     let hi = gt.width;
     let rgb: RgbImage = gt.to_linear_rgba().map(|p| p.truncate());
-    let mask = GrayImage { width: hi, height: hi, data: gt.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect() };
+    let mask = gt.mask_image();
     let normalised = NormalisedInput::in_source_view(rgb, mask);
     let opts = PrepareOptions { resolution: hi, fof_order: n, ..Default::default() };
     let prior =

@@ -4,7 +4,7 @@
 
 use glam::{Vec3, Vec4};
 
-use crate::buffer::{premultiply, RgbaImage};
+use crate::buffer::{premultiply, GrayImage, RgbaImage};
 use crate::geometry::camera::Camera;
 use crate::geometry::raster::{rasterize, rasterize_with_triangles, GBuffer};
 use crate::io::mesh_io::{linear_to_srgb8, TexturedMesh};
@@ -30,6 +30,11 @@ pub struct GroundTruthView {
 }
 
 impl GroundTruthView {
+    /// The coverage mask as a 0/1 float image (what the pipeline takes as the person's mask).
+    pub fn mask_image(&self) -> GrayImage {
+        GrayImage { width: self.width, height: self.height, data: self.mask.iter().map(|&m| m as u8 as f32).collect() }
+    }
+
     /// 8-bit sRGB with straight alpha (alpha = mask), as written to `rgba.png`.
     pub fn to_srgba8(&self) -> image::RgbaImage {
         let mut img = image::RgbaImage::new(self.width as u32, self.height as u32);

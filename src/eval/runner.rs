@@ -35,7 +35,7 @@ use super::ground_truth::{render_ground_truth, GroundTruthView};
 use super::memory::{process_peak_mib, PhaseMemory};
 use super::metrics::{depth_l1, mask_iou, psnr, psnr_frame, ssim, ssim_frame, union_mask, SrgbImage};
 use super::EvalError;
-use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
+use crate::buffer::{GrayImage, RgbImage, RgbaImage};
 use crate::geometry::camera::Camera;
 use crate::geometry::fof::Fof;
 use crate::geometry::inflate::{inflate_to_fof, InflateParams};
@@ -368,9 +368,8 @@ impl SubjectSource {
     fn of(mesh: &TexturedMesh, size: usize) -> Self {
         let gt_src = render_ground_truth(mesh, &Camera::source(size));
         let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
-        let data = gt_src.mask.iter().map(|&m| m as u8 as f32).collect();
         let prepare = PrepareOptions { resolution: size, depth_samples: size, ..Default::default() };
-        Self { rgb, mask: Image { width: size, height: size, data }, prepare }
+        Self { rgb, mask: gt_src.mask_image(), prepare }
     }
 
     fn normalised(&self) -> NormalisedInput {
