@@ -682,6 +682,9 @@ impl<'a> Engine<'a> {
     /// Picks up a newly completed live frame (never blocks); uploads it once when the GPU renders.
     fn update(&mut self, renderer: &mut Renderer) -> anyhow::Result<()> {
         let PersonInput::Live(live) = &mut self.input else { return Ok(()) };
+        // Asked before reading the latest frame: the worker publishes its last frame before it reports being
+        // finished, so a source seen as ended here has its last frame picked up just below.
+        let ended = live.pipeline.is_finished();
         if let Some(done) = live.reader.get() {
             if live.current.as_ref().is_none_or(|c| c.sequence != done.sequence) {
                 live.current = Some(Arc::clone(done));
@@ -695,7 +698,7 @@ impl<'a> Engine<'a> {
             self.uploaded = Some(current.sequence);
             self.uploads += 1;
         }
-        if !live.finished && live.pipeline.is_finished() {
+        if !live.finished && ended {
             live.finished = true;
             tracing::info!("the source ended: the last person stays on screen");
         }
@@ -733,7 +736,10 @@ impl<'a> Engine<'a> {
     fn live_done(&self) -> Option<bool> {
         match &self.input {
             PersonInput::Still(_) => None,
-            PersonInput::Live(live) => Some(live.camera || live.pipeline.is_finished()),
+            // The end latched by `update` for this frame, not a fresh look at the worker: a source that ends
+            // between `update` and the frame would otherwise end the loop before a single frame was drawn
+            // after its end.
+            PersonInput::Live(live) => Some(live.camera || live.finished),
         }
     }
 
