@@ -43,6 +43,9 @@ struct Input {
     mask: r2human::buffer::GrayImage,
 }
 
+/// Per (geometry, input): every iteration's stage times ([`PreparedInput::timings`]).
+type Recorded = BTreeMap<(usize, usize), Vec<Vec<(&'static str, Duration)>>>;
+
 fn inputs() -> Vec<Input> {
     let assets = SynthAssets::shared().expect("synthetic-subject data: run bash scripts/setup.sh");
     let subject = synth::generate(assets, &SubjectParams::sample(3), 1024).expect("subject");
@@ -94,7 +97,7 @@ fn benches(c: &mut Criterion) {
     ];
     let inputs = inputs();
     // Per (mode, input): every iteration's stage times.
-    let mut recorded: BTreeMap<(usize, usize), Vec<Vec<(&'static str, Duration)>>> = BTreeMap::new();
+    let mut recorded = Recorded::new();
     let mut g = c.benchmark_group("still");
     g.sample_size(10);
     g.warm_up_time(Duration::from_secs(1));
@@ -115,11 +118,7 @@ fn benches(c: &mut Criterion) {
 }
 
 /// The medians of every stage per (mode, input), in markdown.
-fn print_table(
-    modes: &[&str],
-    inputs: &[Input],
-    recorded: &BTreeMap<(usize, usize), Vec<Vec<(&'static str, Duration)>>>,
-) {
+fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
     // Stage names in the order they first ran.
     let mut stages: Vec<&'static str> = Vec::new();
     for runs in recorded.values() {
