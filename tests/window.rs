@@ -47,36 +47,30 @@ fn find_xvfb() -> Option<PathBuf> {
     std::env::var_os("PATH")?.to_str()?.split(':').map(|d| Path::new(d).join("Xvfb")).find(|p| p.is_file())
 }
 
+/// Starts Xvfb on a display it picks itself (`-displayfd`: the server binds the first free display and writes its
+/// number once it accepts connections), so test runs, soak runs and other engineers' servers on the same machine
+/// never race for one display number.
 fn start_xvfb() -> Option<(Xvfb, String)> {
     let bin = find_xvfb()?;
-    // A display number unlikely to collide with other test runs on the machine.
-    for n in 0..20 {
-        let display = 140 + (std::process::id() as usize + n * 7) % 300;
-        if Path::new(&format!("/tmp/.X11-unix/X{display}")).exists()
-            || Path::new(&format!("/tmp/.X{display}-lock")).exists()
-        {
-            continue;
-        }
-        let child = Command::new(&bin)
-            .arg(format!(":{display}"))
-            .args(["-screen", "0", "640x480x24", "-nolisten", "tcp"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .ok()?;
-        let mut guard = Xvfb(child);
-        let start = Instant::now();
-        while start.elapsed() < Duration::from_secs(10) {
-            if let Ok(Some(_)) = guard.0.try_wait() {
-                break; // this server died (display taken): try the next number
-            }
-            if Path::new(&format!("/tmp/.X11-unix/X{display}")).exists() {
-                return Some((guard, format!(":{display}")));
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    }
-    None
+    let mut child = Command::new(&bin)
+        .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .ok()?;
+    let stdout = child.stdout.take()?;
+    let guard = Xvfb(child);
+    // The number comes on one line; read it on a thread so a server that never answers cannot hang the test.
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut line = String::new();
+        let _ = std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line);
+        let _ = tx.send(line);
+    });
+    let line = rx.recv_timeout(Duration::from_secs(60)).ok()?;
+    let display: u32 = line.trim().parse().ok()?;
+    Some((guard, format!(":{display}")))
 }
 
 /// Runs `body` in a child process of this test binary under Xvfb (see the module docs); in the child, runs it.
@@ -86,10 +80,11 @@ fn in_window_child(name: &str, body: impl FnOnce()) {
         return;
     }
     let _serial = SERIAL.lock().unwrap_or_else(|p| p.into_inner());
-    let Some((_xvfb, display)) = start_xvfb() else {
+    if find_xvfb().is_none() {
         eprintln!("SKIPPED: no Xvfb binary on PATH (install xvfb)");
         return;
-    };
+    }
+    let (_xvfb, display) = start_xvfb().expect("Xvfb started but reported no display within 60 s");
     let xdg = std::env::temp_dir().join("r2human-xdg");
     std::fs::create_dir_all(&xdg).unwrap();
     let out = Command::new(std::env::current_exe().unwrap())
@@ -367,10 +362,12 @@ fn person_figure(w: u32, h: u32) -> image::RgbaImage {
     })
 }
 
-/// `E` during a live stream (a folder of 40 frames played at 8 fps, 5 s) writes the person of the frame on
+/// `E` during a live stream (a folder of 40 frames played at 4 fps, 10 s) writes the person of the frame on
 /// screen: E is pressed every third presented frame, with a 400 ms pause before each press so the source moves on
 /// between them; every file written reads back, and its texture has the colour of the source frame that was on
 /// screen when E was pressed (the frames cycle through six colours). The presses hold more than one source frame.
+/// (The source plays from before the window opens: its 10 s leave the presses seconds of stream even when a loaded
+/// machine takes seconds to open the window.)
 #[test]
 fn e_during_a_live_stream_exports_the_person_on_screen() {
     in_window_child("e_during_a_live_stream_exports_the_person_on_screen", || {
@@ -381,7 +378,7 @@ fn e_during_a_live_stream_exports_the_person_on_screen() {
         let stats = run(WindowOptions {
             video: Some(frames),
             segment: SegmentMethod::Alpha,
-            fps: 8.0,
+            fps: 4.0,
             mode: Mode::Ar,
             backend: Backend::Cpu,
             frames: Some(30),
@@ -457,8 +454,10 @@ fn faulty_live_source_stalls_vanishes_resizes_and_the_window_recovers() {
             .collect();
         assert_eq!(rows.len() as u64, stats.frames);
         // The display loop never waited for the source: no gap between frames near the 2 s outages.
-        let gap = rows.windows(2).map(|w| w[1].0 - w[0].0).fold(0.0, f64::max);
-        assert!(gap < 1500.0, "the window stalled for {gap:.0} ms");
+        let (at, gap) =
+            rows.windows(2).map(|w| (w[0].0, w[1].0 - w[0].0)).fold((0.0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+        eprintln!("{} frames; longest gap between frames {gap:.0} ms, at {at:.0} ms", rows.len());
+        assert!(gap < 1500.0, "the window stalled for {gap:.0} ms at {at:.0} ms");
         // New live frames: full size, then half size, then full size again, each after a pause of over 1.5 s
         // without a new frame (the stall or the outage) followed by more new frames.
         let mut new_frames: Vec<(f64, usize)> = Vec::new();
@@ -472,7 +471,12 @@ fn faulty_live_source_stalls_vanishes_resizes_and_the_window_recovers() {
         assert!(sizes[..half].contains(&160) && sizes[half..].contains(&160), "sizes shown: {sizes:?}");
         let pauses = new_frames.windows(2).filter(|w| w[1].0 - w[0].0 > 1500.0).count();
         assert!(pauses >= 1, "no outage seen in {new_frames:?}");
-        assert!(stats.live_uploads as usize == new_frames.len() + 1, "{} uploads", stats.live_uploads);
+        // Each new frame was uploaded once: as many uploads as live frames shown. (Counted from the log, not from
+        // the changes above: whether the first presented frame already had a person depends on how fast the window
+        // opened, and only a change from a person counts there.)
+        let mut shown: Vec<u64> = rows.iter().map(|r| r.1).filter(|&s| s != 0).collect();
+        shown.dedup();
+        assert_eq!(stats.live_uploads as usize, shown.len(), "uploads vs live frames shown");
     });
 }
 

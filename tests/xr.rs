@@ -303,7 +303,7 @@ fn runtime_going_away_ends_the_session_cleanly() {
         std::thread::sleep(Duration::from_millis(20));
     }
     let exe = std::env::current_exe().unwrap();
-    let child = Command::new(exe)
+    let mut child = Command::new(exe)
         .args(["--ignored", "--exact", "child_session_until_the_runtime_dies", "--nocapture"])
         .env("XDG_RUNTIME_DIR", xdg.path())
         .env("R2HUMAN_XR_CHILD", "1")
@@ -312,33 +312,68 @@ fn runtime_going_away_ends_the_session_cleanly() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("child starts");
-    // Let the child reach FOCUSED and submit frames, then kill the runtime without warning.
-    std::thread::sleep(Duration::from_secs(4));
+    // The child's output, line by line as it comes (its log says when the session is FOCUSED).
+    let lines = std::sync::Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let (focused_tx, focused_rx) = std::sync::mpsc::channel::<()>();
+    let readers: Vec<_> = [
+        Box::new(child.stdout.take().unwrap()) as Box<dyn std::io::Read + Send>,
+        Box::new(child.stderr.take().unwrap()),
+    ]
+    .into_iter()
+    .map(|pipe| {
+        let (lines, focused_tx) = (std::sync::Arc::clone(&lines), focused_tx.clone());
+        std::thread::spawn(move || {
+            for line in std::io::BufRead::lines(std::io::BufReader::new(pipe)).map_while(Result::ok) {
+                if line.contains(FOCUSED_LOG) {
+                    let _ = focused_tx.send(());
+                }
+                lines.lock().unwrap().push(line);
+            }
+        })
+    })
+    .collect();
+    drop(focused_tx);
+    let output = |readers: Vec<std::thread::JoinHandle<()>>| {
+        for r in readers {
+            let _ = r.join();
+        }
+        lines.lock().unwrap().join("\n")
+    };
+    // Kill the runtime without warning once the child is FOCUSED and has submitted frames for a second (waiting
+    // for the state, not a fixed time: a loaded machine can take many seconds to get there).
+    if focused_rx.recv_timeout(Duration::from_secs(90)).is_err() {
+        let _ = child.kill();
+        let _ = child.wait();
+        panic!("the child never reported a FOCUSED session:\n{}", output(readers));
+    }
+    std::thread::sleep(Duration::from_secs(1));
     monado.kill().expect("kill monado-service");
     let _ = monado.wait();
     let started = Instant::now();
-    let out = wait_with_timeout(child, Duration::from_secs(30));
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let status = wait_with_timeout(&mut child, Duration::from_secs(30));
+    let ended_after = started.elapsed();
+    let text = output(readers);
     println!("{text}");
-    assert!(out.status.success(), "the client did not end cleanly after the runtime died");
+    let status = status.unwrap_or_else(|| panic!("the client hung after the runtime went away:\n{text}"));
+    assert!(status.success(), "the client did not end cleanly after the runtime died");
     assert!(text.contains("CHILD-ENDED"), "no end report from the child");
-    assert!(started.elapsed() < Duration::from_secs(20));
+    assert!(ended_after < Duration::from_secs(20), "the client took {ended_after:?} to notice");
 }
 
-fn wait_with_timeout(mut child: std::process::Child, limit: Duration) -> std::process::Output {
+/// What the session logs when it enters FOCUSED (`xr::session`'s state change message).
+const FOCUSED_LOG: &str = "session state FOCUSED";
+
+/// Waits for `child` up to `limit`; kills it and returns `None` when it is still running then.
+fn wait_with_timeout(child: &mut std::process::Child, limit: Duration) -> Option<std::process::ExitStatus> {
     let deadline = Instant::now() + limit;
     loop {
         match child.try_wait() {
-            Ok(Some(_)) => return child.wait_with_output().expect("child output"),
+            Ok(Some(status)) => return Some(status),
             Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(50)),
             _ => {
                 let _ = child.kill();
-                let out = child.wait_with_output().expect("child output");
-                panic!(
-                    "the client hung after the runtime went away:\n{}{}",
-                    String::from_utf8_lossy(&out.stdout),
-                    String::from_utf8_lossy(&out.stderr)
-                );
+                let _ = child.wait();
+                return None;
             }
         }
     }
@@ -351,6 +386,11 @@ fn child_session_until_the_runtime_dies() {
     if std::env::var("R2HUMAN_XR_CHILD").is_err() {
         return;
     }
+    // The session's log on stdout: the parent waits for the FOCUSED state in it before killing the runtime.
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::new("r2human=info"))
+        .with_writer(std::io::stdout)
+        .try_init();
     let cfg =
         SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(15)), ..config(Mode::Vr, 0) };
     let report = run_session(&cfg, box_feed(), vr_env()).expect("session starts");
@@ -438,20 +478,29 @@ fn validation_layers_are_active_and_captured() {
 #[ignore = "needs a running OpenXR runtime and Xvfb; run via xr_suite_in_monado_root"]
 fn xvfb_mirror_window_shows_both_eyes() {
     assert!(std::env::var("DISPLAY").is_ok(), "run through run-in-root.sh --xvfb");
-    let shot = checkout().join("target/xr-captures/mirror.xwd");
-    let _ = std::fs::create_dir_all(shot.parent().unwrap());
-    let _ = std::fs::remove_file(&shot);
+    let dir = checkout().join("target/xr-captures");
+    let _ = std::fs::create_dir_all(&dir);
+    // Dump the mirror window with `xwd` every 300 ms for as long as the session runs (not once after a fixed time:
+    // on a loaded machine the session can take seconds to start); the dumps are looked at afterwards.
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let grabber = {
-        let shot = shot.clone();
+        let (dir, done) = (dir.clone(), std::sync::Arc::clone(&done));
         std::thread::spawn(move || {
-            // Grab the window once the session has shown a few images.
-            std::thread::sleep(Duration::from_secs(3));
-            Command::new("xwd")
-                .args(["-silent", "-name", "r2human XR mirror", "-out"])
-                .arg(&shot)
-                .status()
-                .map(|s| s.success())
-                .unwrap_or(false)
+            let mut shots = Vec::new();
+            while !done.load(std::sync::atomic::Ordering::SeqCst) && shots.len() < 10 {
+                let shot = dir.join(format!("mirror-{}.xwd", shots.len()));
+                let ok = Command::new("xwd")
+                    .args(["-silent", "-name", "r2human XR mirror", "-out"])
+                    .arg(&shot)
+                    .stderr(Stdio::null())
+                    .status()
+                    .is_ok_and(|s| s.success());
+                if ok {
+                    shots.push(shot);
+                }
+                std::thread::sleep(Duration::from_millis(300));
+            }
+            shots
         })
     };
     let cfg = SessionConfig {
@@ -460,31 +509,46 @@ fn xvfb_mirror_window_shows_both_eyes() {
         max_duration: Some(Duration::from_secs(6)),
         ..config(Mode::Ar, 0)
     };
-    let report = run_session(&cfg, box_feed(), None).expect("session runs");
+    let report = run_session(&cfg, box_feed(), None);
+    done.store(true, std::sync::atomic::Ordering::SeqCst);
+    let shots = grabber.join().unwrap();
+    let report = report.expect("session runs");
     println!("{report}");
-    assert!(grabber.join().unwrap(), "xwd could not capture the mirror window");
+    assert!(!shots.is_empty(), "xwd could not capture the mirror window");
     assert!(report.reached(openxr::SessionState::FOCUSED));
     assert_eq!(report.end, EndReason::TimeLimit);
     assert!(report.mirror_presented >= 5, "mirror showed {} images", report.mirror_presented);
     assert_eq!(report.vk_message_count, 0, "Vulkan validation: {:#?}", report.vk_messages);
     assert_eq!(report.xr_message_count, 0, "OpenXR validation: {:#?}", report.xr_messages);
-    // Convert the X window dump to PPM (netpbm) and look for the box's front colour in each half.
-    let ppm = Command::new("xwdtopnm").arg(&shot).stderr(Stdio::null()).output().expect("xwdtopnm");
-    let (w, h, pixels) = parse_ppm(&ppm.stdout).expect("a P6 image");
+    // Convert the X window dumps to PPM (netpbm) and look for the box's front colour in each half: the person is
+    // in both halves of the window once it shows the eyes (the dumps before its first image show nothing).
     let (ew, eh) = (report.eye_size.0 as usize, report.eye_size.1 as usize);
-    assert!(w >= 2 * ew && h >= eh, "window {w}x{h} smaller than two {ew}x{eh} eyes");
     let front = [231u8, 124, 89]; // FRONT in sRGB bytes
     let is_front = |p: &[u8]| p.iter().zip(front).all(|(&a, b)| a.abs_diff(b) <= 6);
-    let count = |x0: usize, x1: usize| {
-        (0..eh)
-            .flat_map(|y| (x0..x1).map(move |x| (x, y)))
-            .filter(|&(x, y)| is_front(&pixels[(y * w + x) * 3..][..3]))
-            .count()
-    };
-    let (left, right) = (count(0, ew), count(ew, 2 * ew));
-    println!("mirror {w}x{h}: front-coloured pixels left {left}, right {right}");
-    std::fs::write(checkout().join("target/xr-captures/mirror.ppm"), &ppm.stdout).unwrap();
-    assert!(left > 100 && right > 100, "the person is missing from a mirror half: {left} / {right}");
+    let mut seen = Vec::new();
+    let mut showing = None;
+    for shot in &shots {
+        let ppm = Command::new("xwdtopnm").arg(shot).stderr(Stdio::null()).output().expect("xwdtopnm");
+        let (w, h, pixels) = parse_ppm(&ppm.stdout).expect("a P6 image");
+        assert!(w >= 2 * ew && h >= eh, "window {w}x{h} smaller than two {ew}x{eh} eyes");
+        let count = |x0: usize, x1: usize| {
+            (0..eh)
+                .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                .filter(|&(x, y)| is_front(&pixels[(y * w + x) * 3..][..3]))
+                .count()
+        };
+        let (left, right) = (count(0, ew), count(ew, 2 * ew));
+        seen.push((left, right));
+        if left > 100 && right > 100 && showing.is_none() {
+            showing = Some((ppm.stdout, pixels));
+        }
+    }
+    println!("mirror dumps (front-coloured pixels left, right): {seen:?}");
+    for shot in &shots {
+        let _ = std::fs::remove_file(shot);
+    }
+    let (ppm, pixels) = showing.unwrap_or_else(|| panic!("no mirror dump shows the person in both halves: {seen:?}"));
+    std::fs::write(dir.join("mirror.ppm"), &ppm).unwrap();
     assert_eq!(&pixels[..3], &[0, 0, 0], "AR mirror background is black");
 }
 
@@ -622,10 +686,15 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
         r2human::io::image_io::save_rgba_png(&path, &frame).expect("write frame");
     }
     std::fs::write(dir.path().join("frame_003.png"), b"this is not a PNG").unwrap();
-    let geometric = r2human::app::neural::NeuralAvailability::none("geometric test");
-    let feed =
-        LiveFeed::start(video_source(dir.path(), 8.0), SegmentMethod::Alpha, PrepareOptions::default(), &geometric)
-            .expect("live source starts");
+    // The source starts when the eyes first ask for a person (so its frames complete while the session runs, however
+    // long a loaded machine takes to start the session), at 4 fps: its five frames complete over more than a second,
+    // several eye renders apart.
+    let source = dir.path().to_path_buf();
+    let feed = StartsOnFirstPoll::new(move || {
+        let geometric = r2human::app::neural::NeuralAvailability::none("geometric test");
+        LiveFeed::start(video_source(&source, 4.0), SegmentMethod::Alpha, PrepareOptions::default(), &geometric)
+            .expect("live source starts")
+    });
     let cfg =
         SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(8)), ..config(Mode::Ar, 0) };
     let report = run_session(&cfg, Box::new(feed), None).expect("session runs");
@@ -676,6 +745,32 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
     // With `--renderer neural` the worker encodes each new frame and the eyes are drawn by the decoder.
     let line = text.lines().find(|l| l.starts_with("person renderer:")).expect("the report names the renderer");
     assert!(line.starts_with("person renderer: neural") && line.contains(" 0 geometric fallbacks"), "{line}");
+}
+
+/// A scene feed that makes its inner feed on the first [`SceneFeed::poll`] (the render thread's first request, once
+/// the session shows frames) and passes everything through from then on.
+struct StartsOnFirstPoll<F: SceneFeed> {
+    make: Option<Box<dyn FnOnce() -> F + Send>>,
+    feed: Option<F>,
+}
+
+impl<F: SceneFeed> StartsOnFirstPoll<F> {
+    fn new(make: impl FnOnce() -> F + Send + 'static) -> Self {
+        Self { make: Some(Box::new(make)), feed: None }
+    }
+}
+
+impl<F: SceneFeed> SceneFeed for StartsOnFirstPoll<F> {
+    fn poll(&mut self) -> Option<std::sync::Arc<Scene>> {
+        if let Some(make) = self.make.take() {
+            self.feed = Some(make());
+        }
+        self.feed.as_mut()?.poll()
+    }
+
+    fn take_messages(&mut self) -> Vec<String> {
+        self.feed.as_mut().map(|f| f.take_messages()).unwrap_or_default()
+    }
 }
 
 /// Where the export test leaves its files for the validator run outside the root.

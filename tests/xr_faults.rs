@@ -93,6 +93,7 @@ fn xr_session_survives_a_faulty_live_source() {
     // scenes (one long pause when the worker is too slow to finish a frame between them); the last resolution
     // change above is a full-size person after the outage and the resize (the source is back at 12 s).
     let arrivals = arrivals.lock().unwrap().clone();
+    println!("new scenes at (s after the source started): {arrivals:.2?}");
     let pauses = arrivals.windows(2).filter(|w| w[1] - w[0] > 1.5).count();
     assert!(pauses >= 1, "no pause for the stall or the outage, arrivals at {arrivals:?}");
     assert_eq!(report.scene_uploads as usize, arrivals.len(), "every new scene was uploaded");
