@@ -250,7 +250,11 @@ fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &Share
     for (name, fof) in [("inflation", &prior), ("body", &fitted)] {
         let o = Occupancy::of(&centre_fof(fof.clone()).0);
         let shift = (truth.centroid() - o.centroid()).round() as isize;
-        println!("{name:10} volumetric IoU {:.3} (aligned {:.3}, shift {shift:+})", o.iou(&truth, 0), o.iou(&truth, shift));
+        println!(
+            "{name:10} volumetric IoU {:.3} (aligned {:.3}, shift {shift:+})",
+            o.iou(&truth, 0),
+            o.iou(&truth, shift)
+        );
         let (side, top) = o.panels(&truth, 0);
         panels.push(side);
         panels.push(top);

@@ -398,14 +398,8 @@ pub fn reconcile(
         inv_dx2: (w as f64 / 2.0).powi(2),
         inv_dy2: (h as f64 / 2.0).powi(2),
     };
-    let u_problem = GridProblem {
-        fixed: u_fixed,
-        outline: Some(0.0),
-        source: 4.0,
-        target: 0.0,
-        screen: SCREEN,
-        ..base.clone()
-    };
+    let u_problem =
+        GridProblem { fixed: u_fixed, outline: Some(0.0), source: 4.0, target: 0.0, screen: SCREEN, ..base.clone() };
     // The silhouette alone, like the inflation prior: every mask column free, the outline everywhere (the cut too:
     // a region the frame closes on every side would otherwise have nothing to hold it).
     let silhouette_cells = base
@@ -495,7 +489,8 @@ mod tests {
             x * x + y * y <= radius * radius
         });
         let body = Image::new(n, n, Vec::new());
-        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 1.0, ..Default::default() };
+        let params =
+            ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 1.0, ..Default::default() };
         let out = reconcile(&body, &mask, None, &params);
         let px = 2.0 / n as f32;
         for (c, r) in [(48usize, 48usize), (60, 48), (48, 70), (30, 40)] {
@@ -673,7 +668,8 @@ mod tests {
         }
         body.set(48, 48, vec![(-0.9, 0.9)]);
         let kappa = 0.7f32;
-        let params = ReconcileParams { thickness: kappa, min_half_thickness: 0.0, silhouette_floor: 1.0, ..Default::default() };
+        let params =
+            ReconcileParams { thickness: kappa, min_half_thickness: 0.0, silhouette_floor: 1.0, ..Default::default() };
         let out = reconcile(&body, &mask, None, &params);
         let px = 2.0 / n as f32;
         let sphere = |c: usize, r: usize| {
@@ -713,7 +709,8 @@ mod tests {
         let mask = mask_of(w, h, |c, r| (8..56).contains(&r) && (c as f32 + 0.5 - 32.0).abs() <= a_px);
         let body = Image::new(w, h, Vec::new());
         let frame = Some((Vec2::ZERO, Vec2::new(64.0, 56.0)));
-        let params = ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 0.0, ..Default::default() };
+        let params =
+            ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 0.0, ..Default::default() };
         let out = reconcile(&body, &mask, frame, &params);
         let px = 2.0 / w as f32;
         let expected = (2.0f32).sqrt() * a_px * px;
