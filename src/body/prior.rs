@@ -4,7 +4,7 @@
 //! Reconciliation ([`body_fof`], [`super::reconcile`]): the FOF intervals of the posed body mesh where the mask
 //! covers the pixel; none outside the mask (so whatever the photo does not show, past its frame or beyond the
 //! silhouette, is cut); mask pixels the body does not cover (hair, loose clothes, a held object) get one interval
-//! from a smooth centre field (harmonic from the body's depths) and the inflation profile with the body as its
+//! from a smooth centre field (the body's depths next to them, settling on the body's median depth further away) and the inflation profile with the body as its
 //! boundary, so they join the body without steps. The body is placed in depth like the reference's
 //! preprocessing: its xz minimal enclosing circle centred on z = 0.
 

@@ -129,21 +129,29 @@ pub fn fof_centroid_z(fof: &Fof) -> Option<f32> {
 pub fn fof_depth_range(fof: &Fof, step: usize, samples: usize) -> Option<(f32, f32)> {
     let step = step.max(1);
     let table = CosineTable::new(fof.n, samples.max(2));
-    let mut buf = vec![0.0f32; table.samples];
-    let (mut lo, mut hi) = (usize::MAX, 0usize);
-    for row in (0..fof.height).step_by(step) {
-        for col in (0..fof.width).step_by(step) {
-            if fof.is_empty_column(col, row) {
-                continue;
-            }
-            fof.decode_column_with(&table, col, row, &mut buf);
-            if let Some(first) = buf.iter().position(|&v| v >= ISO_LEVEL) {
-                let last = buf.iter().rposition(|&v| v >= ISO_LEVEL).unwrap_or(first);
-                lo = lo.min(first);
-                hi = hi.max(last);
-            }
-        }
-    }
+    // Rows in parallel (the result is a min and a max: the same whatever the order).
+    let (lo, hi) = (0..fof.height)
+        .into_par_iter()
+        .step_by(step)
+        .map_init(
+            || vec![0.0f32; table.samples],
+            |buf, row| {
+                let (mut lo, mut hi) = (usize::MAX, 0usize);
+                for col in (0..fof.width).step_by(step) {
+                    if fof.is_empty_column(col, row) {
+                        continue;
+                    }
+                    fof.decode_column_with(&table, col, row, buf);
+                    if let Some(first) = buf.iter().position(|&v| v >= ISO_LEVEL) {
+                        let last = buf.iter().rposition(|&v| v >= ISO_LEVEL).unwrap_or(first);
+                        lo = lo.min(first);
+                        hi = hi.max(last);
+                    }
+                }
+                (lo, hi)
+            },
+        )
+        .reduce(|| (usize::MAX, 0), |a, b| (a.0.min(b.0), a.1.max(b.1)));
     let z = |d: usize| 2.0 * (d as f32 + 0.5) / table.samples as f32 - 1.0;
     (lo <= hi).then(|| (z(lo), z(hi)))
 }
@@ -181,22 +189,42 @@ pub fn shift_matrix(n: usize, dz: f32) -> Vec<f64> {
 
 /// `fof` moved by `dz` along z (see [`shift_matrix`] for what is exact); empty columns stay empty.
 pub fn shift_fof(fof: &Fof, dz: f32) -> Fof {
-    let n = fof.n;
-    let m = shift_matrix(n, dz);
     let mut out = fof.clone();
-    out.coeffs.par_chunks_mut(n * fof.width).enumerate().for_each(|(row, out_row)| {
-        for (col, c_out) in out_row.chunks_exact_mut(n).enumerate() {
-            if fof.is_empty_column(col, row) {
-                continue;
-            }
-            let c = fof.column(col, row);
-            for (k, o) in c_out.iter_mut().enumerate() {
-                let r = &m[k * n..(k + 1) * n];
-                *o = r.iter().zip(c).map(|(&a, &b)| a * b as f64).sum::<f64>() as f32;
-            }
-        }
-    });
+    shift_fof_in_place(&mut out, dz);
     out
+}
+
+/// [`shift_fof`] on the field itself (no second field allocated: a 512² field of 32 coefficients is 32 MB, and
+/// allocating it cost more than the shift). Every output coefficient is the same f64 sum, in the same order, as
+/// the row-by-column product of [`shift_matrix`], so the result is bit-identical to it.
+pub fn shift_fof_in_place(fof: &mut Fof, dz: f32) {
+    let n = fof.n;
+    if n == 0 || fof.width == 0 {
+        return;
+    }
+    let m = shift_matrix(n, dz);
+    // Column-major copy of the matrix: `mt[j * n + k] = m[k * n + j]`, so one input coefficient updates every
+    // output at once (a vectorisable loop over k) while each output still sums over j in ascending order.
+    let mt: Vec<f64> = (0..n * n).map(|i| m[(i % n) * n + i / n]).collect();
+    let width = fof.width;
+    fof.coeffs.par_chunks_mut(n * width).for_each_init(
+        || (vec![0.0f64; n], vec![0.0f64; n]),
+        |(column, acc), row| {
+            for c in row.chunks_exact_mut(n) {
+                if Fof::is_empty_coefficients(c) {
+                    continue;
+                }
+                column.iter_mut().zip(c.iter()).for_each(|(d, &v)| *d = v as f64);
+                acc.fill(0.0);
+                for (&cj, mj) in column.iter().zip(mt.chunks_exact(n)) {
+                    for (a, &w) in acc.iter_mut().zip(mj) {
+                        *a += w * cj;
+                    }
+                }
+                c.iter_mut().zip(acc.iter()).for_each(|(o, &a)| *o = a as f32);
+            }
+        },
+    );
 }
 
 /// A predicted field centred by this module's convention, with the shift applied (0 when the field is empty or
@@ -208,7 +236,9 @@ pub fn centre_fof(fof: Fof) -> (Fof, f32) {
     if dz.abs() < MIN_SHIFT {
         return (fof, 0.0);
     }
-    (shift_fof(&fof, dz), dz)
+    let mut fof = fof;
+    shift_fof_in_place(&mut fof, dz);
+    (fof, dz)
 }
 
 #[cfg(test)]
@@ -296,6 +326,31 @@ mod tests {
         assert!(f.coeffs.iter().zip(&same.coeffs).all(|(a, b)| (a - b).abs() < 1e-6));
         let empty = Fof::zeros(n, 2, 2).unwrap();
         assert!(shift_fof(&empty, 0.4).coeffs.iter().all(|&c| c == 0.0));
+    }
+
+    #[test]
+    fn the_shift_is_the_matrix_times_each_column_exactly() {
+        // Every output coefficient is the f64 row-by-column product of `shift_matrix`, summed in ascending order
+        // (what the in-place, column-major loop must reproduce bit for bit); empty columns are left as they are.
+        let n = 32;
+        let f = field(3, n, &[(-0.55, -0.2), (0.1, 0.45)]);
+        let mut speck = f.clone();
+        speck.coeffs[n..2 * n].iter_mut().enumerate().for_each(|(k, c)| *c = 1e-3 / (k + 1) as f32);
+        for dz in [0.3f32, -0.17] {
+            let m = shift_matrix(n, dz);
+            let shifted = shift_fof(&speck, dz);
+            for col in 0..3 {
+                let c = speck.column(col, 0);
+                for k in 0..n {
+                    let want = if Fof::is_empty_coefficients(c) {
+                        c[k]
+                    } else {
+                        m[k * n..(k + 1) * n].iter().zip(c).map(|(&a, &b)| a * b as f64).sum::<f64>() as f32
+                    };
+                    assert_eq!(shifted.column(col, 0)[k].to_bits(), want.to_bits(), "column {col}, k {k}, dz {dz}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -110,6 +110,23 @@ impl CosineTable {
         }
         Self { n, samples, values }
     }
+
+    /// Decodes one column's coefficients `coeffs` at the table's depths into `out[..samples]` (fewer if `out` is
+    /// shorter; see [`Fof::decode_column_with`]).
+    pub fn decode(&self, coeffs: &[f32], out: &mut [f32]) {
+        let m = self.samples.min(out.len());
+        let out = &mut out[..m];
+        out.fill(0.0);
+        for (k, &ck) in coeffs.iter().enumerate().take(self.n) {
+            if ck == 0.0 {
+                continue;
+            }
+            let basis = &self.values[k * self.samples..k * self.samples + m];
+            for (o, &b) in out.iter_mut().zip(basis) {
+                *o += ck * b;
+            }
+        }
+    }
 }
 
 fn check_size(width: usize, height: usize) -> Result<(), FofError> {
@@ -278,24 +295,18 @@ impl Fof {
     /// Decodes pixel `(col, row)` with a precomputed table into `out[..table.samples]` (fewer if `out` is
     /// shorter). Coefficients past the table's order are ignored; a smaller table order truncates the series.
     pub fn decode_column_with(&self, table: &CosineTable, col: usize, row: usize, out: &mut [f32]) {
-        let m = table.samples.min(out.len());
-        let out = &mut out[..m];
-        out.fill(0.0);
-        for (k, &ck) in self.column(col, row).iter().enumerate().take(table.n) {
-            if ck == 0.0 {
-                continue;
-            }
-            let basis = &table.values[k * table.samples..k * table.samples + m];
-            for (o, &b) in out.iter_mut().zip(basis) {
-                *o += ck * b;
-            }
-        }
+        table.decode(self.column(col, row), out);
     }
 
     /// Whether pixel `(col, row)`'s occupancy stays strictly below 0.5 at every depth, proven by the bound
     /// `occ(s) <= 0.5 c_0 + sum_{k>=1} |c_k|` (exact for all-zero columns; conservative otherwise).
     pub fn is_empty_column(&self, col: usize, row: usize) -> bool {
-        let c = self.column(col, row);
+        Self::is_empty_coefficients(self.column(col, row))
+    }
+
+    /// [`Fof::is_empty_column`] of one column's coefficients `c` (at least one).
+    #[inline]
+    pub fn is_empty_coefficients(c: &[f32]) -> bool {
         let bound = 0.5 * c[0] + c[1..].iter().map(|v| v.abs()).sum::<f32>();
         bound < 0.5
     }

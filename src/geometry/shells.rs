@@ -100,8 +100,9 @@ pub fn doubled_fraction_beyond(fof: &Fof, references: &[&Fof], mask: &GrayImage,
     }
 }
 
-/// The occupied voxels of a FOF on a coarse grid, labelled by connected piece.
-struct Pieces {
+/// The occupied voxels of a FOF on a coarse grid, labelled by connected piece ([`detached_volume_fraction`],
+/// [`keep_largest_piece`]; [`Pieces::of`] once serves both).
+pub struct Pieces {
     /// Voxels a side in x and y, and depth samples.
     w: usize,
     h: usize,
@@ -120,7 +121,7 @@ struct Pieces {
 impl Pieces {
     /// Decodes every `step`-th column and row of `fof` at `width / step` depth samples (cubic voxels), occupancy at
     /// the marching-cubes level, and labels the pieces connected through faces, edges and corners.
-    fn of(fof: &Fof, step: usize) -> Self {
+    pub fn of(fof: &Fof, step: usize) -> Self {
         let step = step.max(1);
         let (w, h) = (fof.width.div_ceil(step), fof.height.div_ceil(step));
         let d = (fof.width / step).max(1);
@@ -194,29 +195,34 @@ impl Pieces {
     }
 }
 
-/// The in-bounds 26-neighbourhood of voxel `(x, y, z)` as indices `(y * w + x) * d + z`.
+/// The in-bounds 26-neighbourhood of voxel `(x, y, z)` as indices `(y * w + x) * d + z`, in the order dy, dx, dz
+/// (each -1, 0, 1). Filled into a fixed array (the flood fill visits every occupied voxel's neighbours: an
+/// iterator of nested closures cost most of the guard's time).
 fn neighbours26(x: usize, y: usize, z: usize, w: usize, h: usize, d: usize) -> impl Iterator<Item = usize> {
-    (-1i64..=1).flat_map(move |dy| {
-        (-1i64..=1).flat_map(move |dx| {
-            (-1i64..=1).filter_map(move |dz| {
-                let (nx, ny, nz) = (x as i64 + dx, y as i64 + dy, z as i64 + dz);
-                let inside = nx >= 0 && ny >= 0 && nz >= 0 && nx < w as i64 && ny < h as i64 && nz < d as i64;
-                (inside && (dx, dy, dz) != (0, 0, 0)).then(|| ((ny as usize * w) + nx as usize) * d + nz as usize)
-            })
-        })
-    })
+    let mut out = [0usize; 26];
+    let mut len = 0;
+    let (xs, xe) = (x.saturating_sub(1), (x + 1).min(w - 1));
+    let (ys, ye) = (y.saturating_sub(1), (y + 1).min(h - 1));
+    let (zs, ze) = (z.saturating_sub(1), (z + 1).min(d - 1));
+    for ny in ys..=ye {
+        for nx in xs..=xe {
+            let base = (ny * w + nx) * d;
+            for nz in zs..=ze {
+                if (nx, ny, nz) != (x, y, z) {
+                    out[len] = base + nz;
+                    len += 1;
+                }
+            }
+        }
+    }
+    out.into_iter().take(len)
 }
 
 /// Fraction of the occupied volume outside the largest connected piece: the FOF decoded on a voxel grid of every
 /// `step`-th column and row (`width / step` depth samples, so voxels are cubes), occupancy at the marching-cubes
 /// level, voxels connected through faces, edges and corners (26-neighbourhood). 0 for an empty field.
 pub fn detached_volume_fraction(fof: &Fof, step: usize) -> f32 {
-    let p = Pieces::of(fof, step);
-    if p.total == 0 {
-        0.0
-    } else {
-        (p.total - p.largest_size) as f32 / p.total as f32
-    }
+    Pieces::of(fof, step).detached_fraction()
 }
 
 /// The FOF with every piece but the largest removed (pieces found as in [`detached_volume_fraction`]): each
@@ -225,70 +231,88 @@ pub fn detached_volume_fraction(fof: &Fof, step: usize) -> f32 {
 /// keep their coefficients exactly. Runs thinner than the coarse grid's voxels stay. Returns the field and the
 /// number of columns changed.
 pub fn keep_largest_piece(fof: &Fof, step: usize) -> (Fof, usize) {
-    let pieces = Pieces::of(fof, step);
-    if pieces.total == pieces.largest_size {
-        return (fof.clone(), 0);
+    Pieces::of(fof, step).keep_largest(fof.clone())
+}
+
+impl Pieces {
+    /// [`detached_volume_fraction`] of the field these pieces were found in.
+    pub fn detached_fraction(&self) -> f32 {
+        if self.total == 0 {
+            0.0
+        } else {
+            (self.total - self.largest_size) as f32 / self.total as f32
+        }
     }
-    // Columns whose coarse neighbourhood holds a voxel of another piece: only these can change.
-    let (w, h, d) = (pieces.w, pieces.h, pieces.d);
-    let mut other_near = vec![false; w * h];
-    for (i, &l) in pieces.labels.iter().enumerate() {
-        if l != 0 && l != pieces.largest {
-            let (x, y) = ((i / d) % w, (i / d) / w);
-            for ny in y.saturating_sub(1)..(y + 2).min(h) {
-                for nx in x.saturating_sub(1)..(x + 2).min(w) {
-                    other_near[ny * w + nx] = true;
+
+    /// [`keep_largest_piece`] of `fof`, the field these pieces were found in (with the same `step`), changed in
+    /// place.
+    pub fn keep_largest(&self, fof: Fof) -> (Fof, usize) {
+        let pieces = self;
+        if pieces.total == pieces.largest_size {
+            return (fof, 0);
+        }
+        // Columns whose coarse neighbourhood holds a voxel of another piece: only these can change.
+        let (w, h, d) = (pieces.w, pieces.h, pieces.d);
+        let mut other_near = vec![false; w * h];
+        for (i, &l) in pieces.labels.iter().enumerate() {
+            if l != 0 && l != pieces.largest {
+                let (x, y) = ((i / d) % w, (i / d) / w);
+                for ny in y.saturating_sub(1)..(y + 2).min(h) {
+                    for nx in x.saturating_sub(1)..(x + 2).min(w) {
+                        other_near[ny * w + nx] = true;
+                    }
                 }
             }
         }
-    }
-    let samples = pieces.d * pieces.step;
-    let table = CosineTable::new(fof.n, samples);
-    let mut out = fof.clone();
-    let changed: usize = out
-        .coeffs
-        .par_chunks_mut(fof.n * fof.width)
-        .enumerate()
-        .map(|(row, coeffs)| {
-            let mut occ = vec![0.0f32; samples];
-            let mut changed = 0;
-            for col in 0..fof.width {
-                let coarse = ((row / pieces.step).min(h - 1)) * w + (col / pieces.step).min(w - 1);
-                if !other_near[coarse] || fof.is_empty_column(col, row) {
-                    continue;
-                }
-                fof.decode_column_with(&table, col, row, &mut occ);
-                let mut kept = Vec::new();
-                let mut dropped = false;
-                let mut start = None;
-                for (i, &o) in occ.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
-                    match (o >= ISO_LEVEL, start) {
-                        (true, None) => start = Some(i),
-                        (false, Some(s)) => {
-                            start = None;
-                            if pieces.run_in_largest(col, row, s, i) == Some(false) {
-                                dropped = true;
-                            } else {
-                                kept.push((s, i));
+        let samples = pieces.d * pieces.step;
+        let table = CosineTable::new(fof.n, samples);
+        let mut out = fof;
+        let (n, width) = (out.n, out.width);
+        let changed: usize = out
+            .coeffs
+            .par_chunks_mut(n * width)
+            .enumerate()
+            .map(|(row, coeffs)| {
+                let mut occ = vec![0.0f32; samples];
+                let mut changed = 0;
+                for col in 0..width {
+                    let coarse = ((row / pieces.step).min(h - 1)) * w + (col / pieces.step).min(w - 1);
+                    let c = &mut coeffs[col * n..(col + 1) * n];
+                    if !other_near[coarse] || Fof::is_empty_coefficients(c) {
+                        continue;
+                    }
+                    table.decode(c, &mut occ);
+                    let mut kept = Vec::new();
+                    let mut dropped = false;
+                    let mut start = None;
+                    for (i, &o) in occ.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
+                        match (o >= ISO_LEVEL, start) {
+                            (true, None) => start = Some(i),
+                            (false, Some(s)) => {
+                                start = None;
+                                if pieces.run_in_largest(col, row, s, i) == Some(false) {
+                                    dropped = true;
+                                } else {
+                                    kept.push((s, i));
+                                }
                             }
+                            _ => {}
                         }
-                        _ => {}
+                    }
+                    if dropped {
+                        c.fill(0.0);
+                        let z = |i: usize| 2.0 * i as f32 / samples as f32 - 1.0;
+                        for (s, e) in kept {
+                            accumulate_interval(z(s), z(e), c);
+                        }
+                        changed += 1;
                     }
                 }
-                if dropped {
-                    let c = &mut coeffs[col * fof.n..(col + 1) * fof.n];
-                    c.fill(0.0);
-                    let z = |i: usize| 2.0 * i as f32 / samples as f32 - 1.0;
-                    for (s, e) in kept {
-                        accumulate_interval(z(s), z(e), c);
-                    }
-                    changed += 1;
-                }
-            }
-            changed
-        })
-        .sum();
-    (out, changed)
+                changed
+            })
+            .sum();
+        (out, changed)
+    }
 }
 
 #[cfg(test)]

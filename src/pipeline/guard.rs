@@ -18,7 +18,7 @@
 
 use crate::buffer::GrayImage;
 use crate::geometry::fof::Fof;
-use crate::geometry::shells::{detached_volume_fraction, doubled_fraction_sampled, keep_largest_piece};
+use crate::geometry::shells::{doubled_fraction_sampled, Pieces};
 
 /// Column and row step of the guard's grids (512 / 4 = 128 columns a side, 128 depth samples).
 const GUARD_STEP: usize = 4;
@@ -50,11 +50,13 @@ pub struct GuardReport {
 impl GuardReport {
     /// Measures `fof` against the `prior` it refined, over the person's `mask` (all on one grid).
     pub fn measure(fof: &Fof, prior: &Fof, mask: &GrayImage) -> Self {
+        Self::with_pieces(fof, prior, mask, &Pieces::of(fof, GUARD_STEP))
+    }
+
+    /// [`GuardReport::measure`] with `fof`'s pieces already found (`Pieces::of(fof, GUARD_STEP)`).
+    fn with_pieces(fof: &Fof, prior: &Fof, mask: &GrayImage, pieces: &Pieces) -> Self {
         let doubled = doubled_fraction_sampled(fof, prior, mask, GUARD_STEP);
-        Self {
-            doubled: if doubled.is_finite() { doubled } else { 1.0 },
-            detached: detached_volume_fraction(fof, GUARD_STEP),
-        }
+        Self { doubled: if doubled.is_finite() { doubled } else { 1.0 }, detached: pieces.detached_fraction() }
     }
 
     /// `None` when within `limits`, else the reason in words (for the warning).
@@ -80,12 +82,14 @@ impl GuardReport {
 
 /// The FOF to use given a network's `predicted` one and the `prior` it refined: `prior` and the reason when the
 /// guard rejects the prediction (the caller warns); otherwise the prediction, with any small pieces floating
-/// apart from the body removed ([`keep_largest_piece`]).
+/// apart from the body removed ([`crate::geometry::shells::keep_largest_piece`]).
 pub fn guarded(predicted: Fof, prior: Fof, mask: &GrayImage, limits: &GuardLimits) -> (Fof, Option<String>) {
-    let report = GuardReport::measure(&predicted, &prior, mask);
+    // The pieces are found once: for the report and, when some float apart, to remove them.
+    let pieces = Pieces::of(&predicted, GUARD_STEP);
+    let report = GuardReport::with_pieces(&predicted, &prior, mask, &pieces);
     match report.rejection(limits) {
         Some(why) => (prior, Some(why)),
-        None if report.detached > 0.0 => (keep_largest_piece(&predicted, GUARD_STEP).0, None),
+        None if report.detached > 0.0 => (pieces.keep_largest(predicted).0, None),
         None => (predicted, None),
     }
 }
@@ -97,6 +101,7 @@ mod tests {
     use super::*;
     use crate::buffer::Image;
     use crate::geometry::mesh::TriMesh;
+    use crate::geometry::shells::detached_volume_fraction;
 
     fn report(doubled: f32, detached: f32) -> GuardReport {
         GuardReport { doubled, detached }

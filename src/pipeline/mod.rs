@@ -304,7 +304,7 @@ pub fn load_body_for(
 /// The body prior's FOF of a normalised input (see [`GeometryMode::Body`]) and, when it could not be used, why:
 /// the inflation prior `prior` is returned instead when no pose is found or the prior fails. This is the one place
 /// the body FOF is computed: `--geometry body`, the FOF net's `body` input and the dataset writer's
-/// `body_fof.npy` all come through it.
+/// `body_fof.npy` all come through it ([`body_prior_fof_or_why`]).
 pub fn body_prior_fof(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
@@ -312,6 +312,20 @@ pub fn body_prior_fof(
     prior: Fof,
     timings: &mut StageTimings,
 ) -> (Fof, Option<String>) {
+    match body_prior_fof_or_why(normalised, opts, body, timings) {
+        Ok(f) => (f, None),
+        Err(why) => (prior, Some(why)),
+    }
+}
+
+/// [`body_prior_fof`] without a fall-back at hand: the body FOF, or why there is none (no pose found, or the prior
+/// failed), so the caller computes its fall-back only when it is needed.
+fn body_prior_fof_or_why(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    timings: &mut StageTimings,
+) -> Result<Fof, String> {
     let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let mut stages: Vec<(&'static str, Duration)> = Vec::new();
     let found = estimator.estimate(
@@ -339,9 +353,9 @@ pub fn body_prior_fof(
         None => Ok(None),
     });
     match fof {
-        Ok(Some(f)) => (f, None),
-        Ok(None) => (prior, Some("no pose found in this input".into())),
-        Err(e) => (prior, Some(format!("it failed on this input ({e})"))),
+        Ok(Some(f)) => Ok(f),
+        Ok(None) => Err("no pose found in this input".into()),
+        Err(e) => Err(format!("it failed on this input ({e})")),
     }
 }
 
@@ -376,20 +390,23 @@ pub fn centre_visible_depth(mut mesh: TriMesh, mask: &GrayImage) -> TriMesh {
     mesh
 }
 
-/// [`body_prior_fof`] with its fall-back logged (one warning per process, then debug messages).
+/// [`body_prior_fof`] with its fall-back logged (one warning per process, then debug messages); the fall-back,
+/// `fallback()`, is computed only when it is used.
 fn body_geometry(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     body: &SharedBody,
-    prior: Fof,
+    fallback: impl FnOnce(&mut StageTimings) -> Result<Fof, PipelineError>,
     timings: &mut StageTimings,
-) -> Fof {
-    let (fof, fallback) = body_prior_fof(normalised, opts, body, prior, timings);
-    if let Some(why) = fallback {
-        static WARNED: AtomicBool = AtomicBool::new(false);
-        warn_once(&WARNED, &format!("body prior: {why}, using the silhouette-inflation prior"));
+) -> Result<Fof, PipelineError> {
+    match body_prior_fof_or_why(normalised, opts, body, timings) {
+        Ok(fof) => Ok(fof),
+        Err(why) => {
+            static WARNED: AtomicBool = AtomicBool::new(false);
+            warn_once(&WARNED, &format!("body prior: {why}, using the silhouette-inflation prior"));
+            fallback(timings)
+        }
     }
-    fof
 }
 
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
@@ -412,15 +429,19 @@ fn chosen_geometry(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<Fof, PipelineError> {
-    let prior = timings.time("geometry (inflate -> FOF)", || {
-        inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
-    })?;
+    let inflation = |timings: &mut StageTimings| -> Result<Fof, PipelineError> {
+        Ok(timings.time("geometry (inflate -> FOF)", || {
+            inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+        })?)
+    };
     if opts.geometry.resolved() == GeometryMode::Body {
         let Some(body) = &opts.body else {
             return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
         };
-        return Ok(body_geometry(normalised, opts, body, prior, timings));
+        // The inflation prior only as the fall-back: computed when no body is found.
+        return body_geometry(normalised, opts, body, inflation, timings);
     }
+    let prior = inflation(timings)?;
     let net = match (opts.geometry, &opts.fof_net) {
         (mode, _) if matches!(mode.resolved(), GeometryMode::Inflate | GeometryMode::Body) => return Ok(prior),
         (GeometryMode::FofNet, None) => {
@@ -435,7 +456,7 @@ fn chosen_geometry(
     // inflation prior, when no pose is found: what the training data holds for such inputs).
     let body = match (takes_body, &opts.body) {
         (false, _) => None,
-        (true, Some(body)) => Some(body_geometry(normalised, opts, body, prior.clone(), timings)),
+        (true, Some(body)) => Some(body_geometry(normalised, opts, body, |_| Ok(prior.clone()), timings)?),
         (true, None) if opts.geometry == GeometryMode::FofNet => {
             return Err(PipelineError::NoFofNet(
                 "the FOF net takes the body FOF, but no body prior was loaded (see load_body_for)".into(),

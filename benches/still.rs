@@ -1,0 +1,167 @@
+//! The whole still-photo path per input at 512², as `r2human render --image PHOTO` runs it
+//! ([`PreparedInput::prepare`]: normalise -> geometry -> depth centring -> mesh -> source raster), for three
+//! geometries: `fofnet` (the FOF net on the body prior: `models/tiny/fof_body.onnx`, inputs image + body FOF +
+//! inflation prior, so pose landmarks, the body fit, the reconciled body FOF, the inflation prior and the network
+//! all run), `body` (the body prior alone) and `inflate` (the silhouette-inflation prior, today's default).
+//! Inputs: a rendered synthetic subject (seed 3, the `body` bench's) and the shipped photos (`assets/photos`,
+//! segmented once up front as `render` does, `--segment auto`).
+//!
+//! Criterion times the whole `prepare`; every iteration's own stage times ([`PreparedInput::timings`]) are kept,
+//! and at the end a table of their medians is printed (markdown, the README's "Speed" table), with the issue's
+//! target sum: everything from the photo's normalised view to the mesh (inflation prior, pose landmarks, body fit,
+//! body FOF, FOF net, guard, depth centring, mesh; the median of the per-iteration sums).
+//!
+//! Run: `cargo bench --bench still` (all; about three minutes) or a subset, e.g. `cargo bench --bench still --
+//! fofnet/synthetic`. Needs `.tools` (`bash scripts/setup.sh`: ONNX Runtime, the pose and segmentation models,
+//! the MakeHuman data).
+
+use std::collections::BTreeMap;
+use std::hint::black_box;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use r2human::body::prior::BodyEstimator;
+use r2human::buffer::Image;
+use r2human::capture::segment::{segment_photo, SegmentMethod};
+use r2human::eval::ground_truth::render_ground_truth;
+use r2human::geometry::camera::Camera;
+use r2human::neural::FofNet;
+use r2human::pipeline::{GeometryMode, PrepareOptions, PreparedInput};
+use r2human::synth::{self, SubjectParams, SynthAssets};
+
+const RES: usize = 512;
+/// Stages that are not part of the target ("pose + fit + FOF net + mesh"): the photo's normalisation
+/// before the geometry and the source-view raster after the mesh (both per-input costs, reported separately).
+const OUTSIDE_TARGET: [&str; 2] = ["normalise", "source raster"];
+
+/// One input: a name and the photo (linear RGB) with its person mask.
+struct Input {
+    name: String,
+    rgb: r2human::buffer::RgbImage,
+    mask: r2human::buffer::GrayImage,
+}
+
+/// Per (geometry, input): every iteration's stage times ([`PreparedInput::timings`]).
+type Recorded = BTreeMap<(usize, usize), Vec<Vec<(&'static str, Duration)>>>;
+
+fn inputs() -> Vec<Input> {
+    let assets = SynthAssets::shared().expect("synthetic-subject data: run bash scripts/setup.sh");
+    let subject = synth::generate(assets, &SubjectParams::sample(3), 1024).expect("subject");
+    let view = render_ground_truth(&subject.mesh, &Camera::source(RES));
+    let mut out = vec![Input {
+        name: "synthetic".into(),
+        rgb: Image { width: RES, height: RES, data: view.albedo.clone() },
+        mask: view.mask_image(),
+    }];
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/photos");
+    let mut photos: Vec<_> = std::fs::read_dir(&dir)
+        .expect("assets/photos")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "jpg"))
+        .collect();
+    photos.sort();
+    for path in photos {
+        let person = segment_photo(&path, None, &SegmentMethod::Auto).expect("segmentation: run bash scripts/setup.sh");
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        out.push(Input { name, rgb: person.photo.rgb, mask: person.mask });
+    }
+    out
+}
+
+fn median(mut v: Vec<Duration>) -> f64 {
+    v.sort();
+    v[v.len() / 2].as_secs_f64() * 1e3
+}
+
+fn benches(c: &mut Criterion) {
+    let runtime = Default::default();
+    let fof_body = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny/fof_body.onnx");
+    let net = Arc::new(Mutex::new(FofNet::load(&fof_body, &runtime).expect("models/tiny/fof_body.onnx")));
+    let body =
+        Arc::new(Mutex::new(BodyEstimator::load(None, &runtime).expect("body prior: run bash scripts/setup.sh")));
+    let base = PrepareOptions { resolution: RES, depth_samples: RES, ..Default::default() };
+    let modes = [
+        (
+            "fofnet",
+            PrepareOptions {
+                geometry: GeometryMode::FofNet,
+                fof_net: Some(net),
+                body: Some(body.clone()),
+                ..base.clone()
+            },
+        ),
+        ("body", PrepareOptions { geometry: GeometryMode::Body, body: Some(body), ..base.clone() }),
+        ("inflate", PrepareOptions { geometry: GeometryMode::Inflate, ..base }),
+    ];
+    let inputs = inputs();
+    // Per (mode, input): every iteration's stage times.
+    let mut recorded = Recorded::new();
+    let mut g = c.benchmark_group("still");
+    g.sample_size(10);
+    g.warm_up_time(Duration::from_secs(1));
+    for (m, (mode, opts)) in modes.iter().enumerate() {
+        for (i, input) in inputs.iter().enumerate() {
+            let runs = recorded.entry((m, i)).or_default();
+            g.bench_function(format!("{mode}/{}", input.name), |b| {
+                b.iter(|| {
+                    let p = PreparedInput::prepare(black_box(&input.rgb), &input.mask, opts).expect("prepare");
+                    runs.push(p.timings.0.clone());
+                    p
+                })
+            });
+        }
+    }
+    g.finish();
+    print_table(&modes.map(|(m, _)| m), &inputs, &recorded);
+}
+
+/// The medians of every stage per (mode, input), in markdown.
+fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
+    // Stage names in the order they first ran.
+    let mut stages: Vec<&'static str> = Vec::new();
+    for runs in recorded.values() {
+        for run in runs {
+            for (name, _) in run {
+                if !stages.contains(name) {
+                    stages.push(name);
+                }
+            }
+        }
+    }
+    println!("\nstage medians (ms) per input, `cargo bench --bench still`:\n");
+    println!(
+        "| geometry | input | runs | {} | **target sum** | prepare total |",
+        stages.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" | ")
+    );
+    println!("|---|---|---|{}---|---|", "---|".repeat(stages.len()));
+    for (&(m, i), runs) in recorded {
+        if runs.is_empty() {
+            continue;
+        }
+        let cell = |name: &str| {
+            let v: Vec<Duration> =
+                runs.iter().filter_map(|r| r.iter().find(|(n, _)| *n == name).map(|p| p.1)).collect();
+            if v.is_empty() {
+                "–".to_string()
+            } else {
+                format!("{:.1}", median(v))
+            }
+        };
+        let target = median(
+            runs.iter().map(|r| r.iter().filter(|(n, _)| !OUTSIDE_TARGET.contains(n)).map(|p| p.1).sum()).collect(),
+        );
+        let total = median(runs.iter().map(|r| r.iter().map(|p| p.1).sum()).collect());
+        println!(
+            "| {} | {} | {} | {} | **{target:.1}** | {total:.1} |",
+            modes[m],
+            inputs[i].name,
+            runs.len(),
+            stages.iter().map(|s| cell(s)).collect::<Vec<_>>().join(" | ")
+        );
+    }
+}
+
+criterion_group!(still, benches);
+criterion_main!(still);
