@@ -3,7 +3,7 @@
 //! Four panels of the normalised 512² source view: the person with the columns the fitted body covers (green),
 //! the free columns the reconciliation fills (orange) and the landmarks; the front depth and the back depth of the
 //! reconciled intervals (near = bright); and the side view (seen from the person's left, +x: depth across, height
-//! down) of the occupied intervals. The mask is what `eval --photos` uses: the photo's alpha, else the still-photo segmentation.
+//! down) of the occupied intervals (the body's columns green, the free columns orange). The mask is what `eval --photos` uses: the photo's alpha, else the still-photo segmentation.
 
 use std::path::PathBuf;
 
@@ -93,19 +93,24 @@ fn main() -> anyhow::Result<()> {
         rec.get(c, r).first().map(|&(b, _)| depth_colour(-b)).unwrap_or(Vec3::new(0.0, 0.0, 0.3))
     });
     // Side view from +x: column = depth (near the camera on the right), row = row; brightness = how many columns
-    // of that row are occupied at that depth.
-    let mut count = vec![0u32; RES * RES];
+    // of that row are occupied at that depth, the body's columns in green, the free columns in orange (both: their
+    // sum).
+    let mut count = vec![[0u32; 2]; RES * RES];
     for r in 0..RES {
         for c in 0..RES {
+            let class = usize::from(cells[r * RES + c] == Cell::Free);
             for &(a, b) in rec.get(c, r) {
                 let (lo, hi) = (((a + 1.0) * 0.5 * RES as f32) as usize, ((b + 1.0) * 0.5 * RES as f32) as usize);
                 for z in lo.min(RES - 1)..=hi.min(RES - 1) {
-                    count[r * RES + z] += 1;
+                    count[r * RES + z][class] += 1;
                 }
             }
         }
     }
-    let side = Image::from_fn(RES, RES, |z, r| Vec3::splat((count[r * RES + z] as f32 / 40.0).min(1.0)));
+    let side = Image::from_fn(RES, RES, |z, r| {
+        let [b, f] = count[r * RES + z].map(|n| (n as f32 / 40.0).min(1.0));
+        Vec3::new(0.2, 0.9, 0.2) * b + Vec3::new(1.0, 0.5, 0.0) * f
+    });
     let mut sheet: RgbImage = Image::new(4 * RES, RES, Vec3::ZERO);
     for (k, panel) in [&classes, &front, &back, &side].into_iter().enumerate() {
         for r in 0..RES {

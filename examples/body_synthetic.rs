@@ -1,6 +1,9 @@
 //! Where the body prior's shape goes wrong on the evaluation's synthetic subjects:
 //! `cargo run --example body_synthetic -- OUT_DIR [SUBJECTS] [SIZE] [SEED] [--whole-view]` (defaults 9, 256, 0:
-//! the subjects, framings and source views of `r2human eval --subjects 9 --size 256`).
+//! the subjects, framings and source views of `r2human eval --subjects 9 --size 256`), or on a scan as
+//! `r2human eval --scan FILE` sees it: `cargo run --example body_synthetic -- OUT_DIR --scan FILE [SIZE]` (one
+//! picture `OUT_DIR/scan.png`; a scan has no body of its own apart from its clothes, so no oracle columns and no
+//! joint errors).
 //!
 //! The photo frame is the one a photo of the subject would have ([`r2human::synth::Subject::source_frame`]: a
 //! cropped subject's photo ends at the cut); `--whole-view` gives the body prior the whole source view instead.
@@ -37,8 +40,9 @@ use r2human::geometry::mesh::TriMesh;
 use r2human::io::image_io::save_rgb_png;
 use r2human::neural::RuntimeOptions;
 use r2human::pipeline::input::NormalisedInput;
-use r2human::pipeline::{body_prior_fof, load_body, GeometryMode, PrepareOptions, StageTimings};
+use r2human::pipeline::{body_prior_fof, load_body, GeometryMode, PrepareOptions, SharedBody, StageTimings};
 use r2human::synth::framing::{self, FramingChoice};
+use r2human::synth::scan::load_scan;
 use r2human::synth::{self, Subject, SubjectParams, SynthAssets};
 
 const SAMPLES: usize = 128;
@@ -142,10 +146,9 @@ fn body_only(mesh: &TriMesh, end: usize) -> TriMesh {
     TriMesh::new(mesh.positions.clone(), triangles)
 }
 
-/// The fitted body's point for every landmark drawn on `source` (cyan; the landmarks the network sees magenta),
-/// and the mean 3-D error of the fitted joints against the subject's own, the mean depth offset of the joints above
-/// the cut removed: `(above the cut, below it)`.
-fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyhow::Result<(f32, f32)> {
+/// The fitted body's point for every landmark drawn on `source` (cyan; the landmarks the network sees magenta);
+/// returns the fitted body's joints (body cube) with the landmark each belongs to.
+fn draw_landmarks(prior: &BodyPrior, source: &mut RgbImage) -> anyhow::Result<Vec<(Vec3, usize)>> {
     let model = BodyModel::shared()?;
     let size = source.width;
     let heads = model.rest_heads(&prior.fit.pose.shape);
@@ -160,8 +163,7 @@ fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyho
             }
         }
     };
-    let cut = s.crop.scale * (s.crop.cut_y - s.crop.center[1]);
-    let mut pairs = Vec::new();
+    let mut joints = Vec::new();
     for (k, l) in prior.landmarks.landmarks.iter().enumerate() {
         let Some(point) = model.landmark_points[k] else { continue };
         let fitted = model.point(point, &prior.fit.pose.shape, &heads, &g).as_vec3();
@@ -170,10 +172,20 @@ fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyho
         }
         dot((fitted.x + 1.0) * 0.5 * size as f32, (1.0 - fitted.y) * 0.5 * size as f32, Vec3::new(0.0, 1.0, 1.0));
         if let ModelPoint::Joint(b) = point {
-            let truth = s.joints[b];
-            pairs.push((fitted, truth, truth.y >= cut));
+            joints.push((fitted, b));
         }
     }
+    Ok(joints)
+}
+
+/// [`draw_landmarks`], and the mean 3-D error of the fitted joints against the subject's own, the mean depth offset
+/// of the joints above the cut removed: `(above the cut, below it)`.
+fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyhow::Result<(f32, f32)> {
+    let cut = s.crop.scale * (s.crop.cut_y - s.crop.center[1]);
+    let pairs: Vec<(Vec3, Vec3, bool)> = draw_landmarks(prior, source)?
+        .into_iter()
+        .map(|(fitted, b)| (fitted, s.joints[b], s.joints[b].y >= cut))
+        .collect();
     let above: Vec<_> = pairs.iter().filter(|p| p.2).collect();
     let dz = above.iter().map(|p| p.1.z - p.0.z).sum::<f32>() / above.len().max(1) as f32;
     let err = |wanted: bool| {
@@ -183,12 +195,85 @@ fn fitted_joints(prior: &BodyPrior, s: &Subject, source: &mut RgbImage) -> anyho
     Ok((err(true), err(false)))
 }
 
+/// Side by side, left to right, on a dark grey ground, written to `path`.
+fn save_sheet(path: &std::path::Path, panels: &[RgbImage]) -> anyhow::Result<()> {
+    let width: usize = panels.iter().map(|p| p.width).sum();
+    let height = panels.iter().map(|p| p.height).max().unwrap_or(1);
+    let mut sheet = Image { width, height, data: vec![Vec3::splat(0.15); width * height] };
+    let mut x0 = 0;
+    for p in panels {
+        for r in 0..p.height {
+            for c in 0..p.width {
+                sheet.data[r * width + x0 + c] = p.data[r * p.width + c];
+            }
+        }
+        x0 += p.width;
+    }
+    save_rgb_png(path, &sheet).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// `--scan FILE`: the inflation prior and the body prior of the scan's source view against its ground truth.
+fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &SharedBody) -> anyhow::Result<()> {
+    let scan = load_scan(file)?;
+    let view = render_ground_truth(&scan.mesh, &Camera::source(size));
+    let rgb: RgbImage = view.to_linear_rgba().map(|p| p.truncate());
+    let mask: GrayImage = view.mask_image();
+    let input = NormalisedInput::in_source_view(rgb.clone(), mask.clone());
+    let opts = PrepareOptions { resolution: size, depth_samples: size, ..Default::default() };
+    let n = opts.fof_order;
+    let truth = Occupancy::of(&Fof::from_mesh(&scan.mesh.mesh, size, n)?);
+    let prior = inflate_to_fof(&mask, n, &InflateParams::default())?;
+    let (fitted, fallback) = body_prior_fof(&input, &opts, body, prior.clone(), &mut StageTimings::default());
+    let estimate = body.lock().map_err(|_| anyhow::anyhow!("body prior lock poisoned"))?.estimate(
+        &input.rgb,
+        &input.mask,
+        Some(input.frame),
+        false,
+        &mut |_, _| {},
+    )?;
+    let mut source = rgb;
+    if let Some(p) = &estimate {
+        draw_landmarks(p, &mut source)?;
+        println!(
+            "fit: cost {:.2}, {} evaluations, shape {:?}; landmarks' facing {:?} (after body::prior::facing_the_camera)",
+            p.fit.cost,
+            p.fit.evaluations,
+            p.fit.pose.shape,
+            p.landmarks.facing()
+        );
+    }
+    let mut panels = vec![source];
+    for (name, fof) in [("inflation", &prior), ("body", &fitted)] {
+        let o = Occupancy::of(&centre_fof(fof.clone()).0);
+        let shift = (truth.centroid() - o.centroid()).round() as isize;
+        println!(
+            "{name:10} volumetric IoU {:.3} (aligned {:.3}, shift {shift:+})",
+            o.iou(&truth, 0),
+            o.iou(&truth, shift)
+        );
+        let (side, top) = o.panels(&truth, 0);
+        panels.push(side);
+        panels.push(top);
+    }
+    if let Some(why) = fallback {
+        println!("[body: {why}]");
+    }
+    save_sheet(&out.join("scan.png"), &panels)
+}
+
 fn main() -> anyhow::Result<()> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let whole_view = args.iter().any(|a| a == "--whole-view");
     args.retain(|a| a != "--whole-view");
-    let usage = "usage: body_synthetic OUT_DIR [SUBJECTS] [SIZE] [SEED] [--whole-view]";
+    let usage = "usage: body_synthetic OUT_DIR [SUBJECTS] [SIZE] [SEED] [--whole-view] | OUT_DIR --scan FILE [SIZE]";
     let out = PathBuf::from(args.first().context(usage)?);
+    if args.get(1).is_some_and(|a| a == "--scan") {
+        let file = PathBuf::from(args.get(2).context(usage)?);
+        let size: usize = args.get(3).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(256);
+        std::fs::create_dir_all(&out)?;
+        let body = load_body(GeometryMode::Body, &RuntimeOptions::default())?.context("body prior")?;
+        return scan(&out, &file, size, &body);
+    }
     let subjects: usize = args.get(1).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(9);
     let size: usize = args.get(2).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(256);
     let seed: u64 = args.get(3).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(0);
@@ -201,6 +286,7 @@ fn main() -> anyhow::Result<()> {
         thickness: inflate_params.thickness,
         min_half_thickness: inflate_params.min_half_thickness,
         silhouette_floor: 0.0,
+        ..Default::default()
     };
     let names = ["inflation", "body", "oracle body", "oracle, no floor"];
     let mut sums = [[0.0f64; 2]; 4];
@@ -260,20 +346,7 @@ fn main() -> anyhow::Result<()> {
             line += &format!("  [body: {why}]");
         }
         println!("{line}");
-        let path = out.join(format!("subject_{i:04}.png"));
-        let width: usize = panels.iter().map(|p| p.width).sum();
-        let height = panels.iter().map(|p| p.height).max().unwrap_or(1);
-        let mut sheet = Image { width, height, data: vec![Vec3::splat(0.15); width * height] };
-        let mut x0 = 0;
-        for p in &panels {
-            for r in 0..p.height {
-                for c in 0..p.width {
-                    sheet.data[r * width + x0 + c] = p.data[r * p.width + c];
-                }
-            }
-            x0 += p.width;
-        }
-        save_rgb_png(&path, &sheet).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        save_sheet(&out.join(format!("subject_{i:04}.png")), &panels)?;
     }
     let m = subjects.max(1) as f64;
     let means: Vec<String> = sums.iter().map(|s| format!("  {:.3} -> {:.3}      ", s[0] / m, s[1] / m)).collect();

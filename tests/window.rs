@@ -292,7 +292,9 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
             fps: 30.0,
             mode: Mode::Ar,
             backend: Backend::Vulkan,
-            frames: Some(4),
+            // More person frames than the source has frames: however the window and the worker interleave, some
+            // frames show a person already uploaded.
+            frames: Some(8),
             size: 128,
             screenshot_on_exit: Some(shot.clone()),
             presented_on_exit: Some(presented.clone()),
@@ -310,7 +312,7 @@ fn live_folder_source_with_a_corrupt_frame_keeps_the_last_person() {
         // New frames were uploaded once each (never per display frame), and the window went on showing the
         // last person after the source ended.
         assert!(stats.live_uploads >= 1 && stats.live_uploads <= live.completed, "{} uploads", stats.live_uploads);
-        assert!(stats.person_frames >= 4);
+        assert!(stats.person_frames >= 8);
         assert!(stats.frames_after_source_end >= 1);
         assert!(stats.frames > stats.live_uploads);
         // The overlay carries the live statistics and says the source ended.

@@ -687,12 +687,12 @@ fn video_source_feeds_the_session_and_survives_a_corrupt_frame_and_its_end() {
     }
     std::fs::write(dir.path().join("frame_003.png"), b"this is not a PNG").unwrap();
     // The source starts when the eyes first ask for a person (so its frames complete while the session runs, however
-    // long a loaded machine takes to start the session), at 4 fps: its five frames complete over more than a second,
-    // several eye renders apart.
+    // long a loaded machine takes to start the session), at 2 fps: its five frames complete over 2.5 s, many eye
+    // renders apart.
     let source = dir.path().to_path_buf();
     let feed = StartsOnFirstPoll::new(move || {
         let geometric = r2human::app::neural::NeuralAvailability::none("geometric test");
-        LiveFeed::start(video_source(&source, 4.0), SegmentMethod::Alpha, PrepareOptions::default(), &geometric)
+        LiveFeed::start(video_source(&source, 2.0), SegmentMethod::Alpha, PrepareOptions::default(), &geometric)
             .expect("live source starts")
     });
     let cfg =

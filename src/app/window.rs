@@ -1310,6 +1310,88 @@ mod tests {
         assert!(matches!(GpuError::vk("present")(ash::vk::Result::ERROR_SURFACE_LOST_KHR), GpuError::Surface(_)));
     }
 
+    /// A live source that sends one frame, then ends when `end` says so (or is dropped).
+    struct EndsWhenTold {
+        frame: Option<crate::capture::Frame>,
+        end: std::sync::mpsc::Receiver<()>,
+    }
+
+    impl crate::capture::FrameSource for EndsWhenTold {
+        fn describe(&self) -> String {
+            "a test source that ends when told".into()
+        }
+
+        fn next_frame(&mut self) -> Result<crate::capture::SourceEvent, crate::capture::CaptureError> {
+            if let Some(f) = self.frame.take() {
+                return Ok(crate::capture::SourceEvent::Frame(f));
+            }
+            let _ = self.end.recv();
+            Ok(crate::capture::SourceEvent::End)
+        }
+
+        fn nominal_fps(&self) -> Option<f32> {
+            None
+        }
+    }
+
+    /// The interleaving of the CI failure of stop 19, forced: the source ends after a frame's `update` has looked at
+    /// the worker and before that frame is drawn. That frame is neither the last one (the loop would end without a
+    /// frame drawn after the end) nor counted as drawn after the end; the next frame's `update` sees the end, and
+    /// that frame is the last and is drawn after the end.
+    #[test]
+    fn a_source_that_ends_after_update_ends_the_loop_one_frame_later() {
+        let ctx = match Context::headless() {
+            Ok(c) => Arc::new(c),
+            Err(e @ (GpuError::NoVulkan(_) | GpuError::NoDevice(_))) => {
+                eprintln!("SKIPPED: {e}");
+                return;
+            }
+            Err(e) => panic!("{e}"),
+        };
+        let mut renderer = Renderer::new(ctx, 32, 32).unwrap();
+        let params =
+            crate::capture::synthetic::WalkerParams { width: 64, height: 48, frames: 1, fps: 30.0, noise: 0.0 };
+        let (rgb, alpha) = crate::capture::synthetic::walker(&params, 0);
+        let frame = crate::capture::Frame { index: 0, timestamp: Duration::ZERO, rgb, alpha: Some(alpha) };
+        let (end_tx, end) = std::sync::mpsc::channel();
+        let source = EndsWhenTold { frame: Some(frame), end };
+        let prepare = PrepareOptions { resolution: 64, depth_samples: 64, ..PrepareOptions::default() };
+        let processor = EncodeProcessor::new(prepare, None);
+        let encodes = processor.encode_counter();
+        let options = LiveOptions { segment: SegmentMethod::Alpha, pace: false, ..LiveOptions::default() };
+        let pipeline = LivePipeline::start(Box::new(move || Ok(Box::new(source) as _)), processor, options).unwrap();
+        let env = Environment::default_embedded();
+        let input = PersonInput::Live(Box::new(LiveInput::new(pipeline, false, encodes)));
+        let mut engine = Engine::new(input, &env, Backend::Cpu, NeuralAvailability::none("geometric test"));
+        engine.attach(&mut renderer).unwrap();
+        let opts = WindowOptions { frames: Some(1), ..WindowOptions::default() };
+        let camera = Orbit::default().camera(32, 32);
+        let deadline = Instant::now() + Duration::from_secs(60);
+        // Frame 1: its update picks up the person; the source has not ended.
+        while !engine.has_person() {
+            assert!(Instant::now() < deadline, "the first frame never completed");
+            std::thread::sleep(Duration::from_millis(2));
+            engine.update(&mut renderer).unwrap();
+        }
+        // The source ends now, between this frame's update and its drawing.
+        end_tx.send(()).unwrap();
+        let PersonInput::Live(live) = &engine.input else { unreachable!("a live engine") };
+        assert!(live.pipeline.wait(Duration::from_secs(60)), "the source did not end");
+        assert_eq!(engine.live_done(), Some(false), "the end is the one the frame's update saw");
+        assert!(!is_last_frame(&opts, &engine, 0, 0));
+        engine.frame(&mut renderer, &camera, Mode::Vr, None, false).unwrap();
+        // Frame 2: its update sees the end; it is the last frame, drawn after the end.
+        engine.update(&mut renderer).unwrap();
+        assert_eq!(engine.live_done(), Some(true));
+        assert!(is_last_frame(&opts, &engine, 1, 1));
+        engine.frame(&mut renderer, &camera, Mode::Vr, None, false).unwrap();
+        let mut stats = ViewStats::default();
+        engine.report(&mut stats);
+        assert!(stats.source_finished);
+        assert_eq!(stats.frames_after_source_end, 1);
+        assert_eq!(stats.live_uploads, 1);
+    }
+
     #[test]
     fn orbit_drag_and_wheel_stay_bounded() {
         let mut o = Orbit::default();
