@@ -233,18 +233,14 @@ fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &Share
     )?;
     let mut source = rgb;
     if let Some(p) = &estimate {
-        let joints = draw_landmarks(p, &mut source)?;
-        let model = BodyModel::shared()?;
-        let heads = model.rest_heads(&p.fit.pose.shape);
-        let g = model.skinning(&p.fit.pose, &heads);
-        for (k, l) in p.landmarks.landmarks.iter().enumerate() {
-            let Some(point) = model.landmark_points[k] else { continue };
-            let f = model.point(point, &p.fit.pose.shape, &heads, &g).as_vec3();
-            println!("DIAG {k:2} {:16} vis {:.2} px ({:6.1},{:6.1}) world ({:6.3},{:6.3},{:6.3}) fitted ({:6.3},{:6.3},{:6.3})", r2human::body::pose::NAMES[k], l.visibility, l.pixel.x, l.pixel.y, p.landmarks.world[k].x, p.landmarks.world[k].y, p.landmarks.world[k].z, f.x, f.y, f.z);
-        }
-        let _ = joints;
-        println!("DIAG pose {:?}", p.fit.pose);
-        println!("fit: cost {:.2}, {} evaluations, shape {:?}", p.fit.cost, p.fit.evaluations, p.fit.pose.shape);
+        draw_landmarks(p, &mut source)?;
+        println!(
+            "fit: cost {:.2}, {} evaluations, shape {:?}; landmarks' facing {:?} (after body::prior::facing_the_camera)",
+            p.fit.cost,
+            p.fit.evaluations,
+            p.fit.pose.shape,
+            p.landmarks.facing()
+        );
     }
     let mut panels = vec![source];
     for (name, fof) in [("inflation", &prior), ("body", &fitted)] {

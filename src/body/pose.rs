@@ -90,6 +90,26 @@ pub const NAMES: [&str; LANDMARK_COUNT] = [
     "right foot index",
 ];
 
+/// The left/right pairs of [`NAMES`] (left, right).
+const MIRROR_PAIRS: [(usize, usize); 16] = [
+    (1, 4),
+    (2, 5),
+    (3, 6),
+    (7, 8),
+    (9, 10),
+    (11, 12),
+    (13, 14),
+    (15, 16),
+    (17, 18),
+    (19, 20),
+    (21, 22),
+    (23, 24),
+    (25, 26),
+    (27, 28),
+    (29, 30),
+    (31, 32),
+];
+
 /// Landmark indices used by the fitter.
 pub mod index {
     /// Nose.
@@ -317,6 +337,32 @@ impl PoseLandmarks {
     pub fn legs_above_cut(&self, margin: f32) -> bool {
         let limit = self.frame_max.y - margin * (self.frame_max.y - self.frame_min.y);
         (index::LEFT_ANKLE..LANDMARK_COUNT).any(|i| self.in_frame(i, 0.0) && self.landmarks[i].pixel.y < limit)
+    }
+
+    /// Which way the torso faces according to the world landmarks: the component toward the camera of the unit
+    /// normal `(left − right) × (shoulders − hips)` (both shoulders and both hips; `1` faces the camera, `-1` faces
+    /// away, about 0 in profile). `None` when the torso's landmarks are not finite or degenerate.
+    pub fn facing(&self) -> Option<f32> {
+        use index::{LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER};
+        let w = |i: usize| self.world.get(i).copied().filter(|v| v.is_finite());
+        let (ls, rs, lh, rh) = (w(LEFT_SHOULDER)?, w(RIGHT_SHOULDER)?, w(LEFT_HIP)?, w(RIGHT_HIP)?);
+        let normal = ((ls - rs) + (lh - rh)).cross((ls + rs) - (lh + rh));
+        let length = normal.length();
+        (length > 1e-6 && length.is_finite()).then(|| normal.z / length)
+    }
+
+    /// The same landmarks seen from the other side of the depth axis: every depth (image and world) negated and
+    /// left and right swapped, so the 2-D positions stay where they are while the person turns to face the other
+    /// way (front <-> back).
+    pub fn mirrored_in_depth(&self) -> Self {
+        let mut out = self.clone();
+        for (l, r) in MIRROR_PAIRS {
+            out.landmarks.swap(l, r);
+            out.world.swap(l, r);
+        }
+        out.landmarks.iter_mut().for_each(|l| l.depth = -l.depth);
+        out.world.iter_mut().for_each(|w| w.z = -w.z);
+        out
     }
 
     /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` pixels).
@@ -588,7 +634,7 @@ impl PoseEstimator {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::buffer::Image;
 
@@ -652,6 +698,70 @@ mod tests {
         let mask = Image::from_fn(8, 8, |_, r| if r < 6 { 1.0 } else { 0.0 });
         assert!(cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 6.0))));
         assert!(!cut_at_bottom(&mask, (Vec2::ZERO, Vec2::new(8.0, 8.0))));
+    }
+
+    /// Landmarks of a torso (shoulders at y 0.5, hips at 0, half width 0.2 and 0.1, metres) turned by `yaw`
+    /// radians about the vertical (0: facing the camera, +z), every other landmark at the hip centre; pixels and
+    /// image depths follow the world x and z (100 pixels per metre).
+    pub(crate) fn torso(yaw: f32) -> PoseLandmarks {
+        let turn = glam::Quat::from_rotation_y(yaw);
+        let mut world = vec![Vec3::ZERO; LANDMARK_COUNT];
+        world[index::LEFT_SHOULDER] = turn * Vec3::new(0.2, 0.5, 0.0);
+        world[index::RIGHT_SHOULDER] = turn * Vec3::new(-0.2, 0.5, 0.0);
+        world[index::LEFT_HIP] = turn * Vec3::new(0.1, 0.0, 0.0);
+        world[index::RIGHT_HIP] = turn * Vec3::new(-0.1, 0.0, 0.0);
+        world[index::NOSE] = turn * Vec3::new(0.0, 0.7, 0.1);
+        let landmarks = world
+            .iter()
+            .enumerate()
+            .map(|(i, w)| Landmark {
+                pixel: Vec2::new(256.0 + 100.0 * w.x, 256.0 - 100.0 * w.y),
+                depth: 100.0 * w.z,
+                visibility: i as f32 / LANDMARK_COUNT as f32,
+                presence: 1.0,
+            })
+            .collect();
+        let region = PoseRegion { centre: Vec2::splat(256.0), side: 512.0 };
+        PoseLandmarks {
+            landmarks,
+            world,
+            score: 1.0,
+            region,
+            next_region: None,
+            frame_min: Vec2::ZERO,
+            frame_max: Vec2::splat(512.0),
+        }
+    }
+
+    #[test]
+    fn facing_and_mirroring_in_depth() {
+        // The torso's normal toward the camera is cos(yaw): 1 facing it, -1 facing away, 0 in profile.
+        for (yaw, expected) in
+            [(0.0f32, 1.0f32), (std::f32::consts::PI, -1.0), (1.0, 1.0f32.cos()), (2.5, 2.5f32.cos())]
+        {
+            let f = torso(yaw).facing().unwrap();
+            assert!((f - expected).abs() < 1e-5, "yaw {yaw}: {f} vs {expected}");
+        }
+        assert!(torso(std::f32::consts::FRAC_PI_2).facing().unwrap().abs() < 1e-5);
+        // Mirrored in depth, a torso turned by yaw faces as one turned by pi - yaw, with the same 2-D positions
+        // under the other side's names and negated depths; twice is the identity.
+        let back = torso(2.5);
+        let m = back.mirrored_in_depth();
+        assert!((m.facing().unwrap() - (std::f32::consts::PI - 2.5).cos()).abs() < 1e-5);
+        let (l, r) = (index::LEFT_SHOULDER, index::RIGHT_SHOULDER);
+        assert_eq!(m.landmarks[l].pixel, back.landmarks[r].pixel);
+        assert_eq!(m.landmarks[l].visibility, back.landmarks[r].visibility);
+        assert_eq!(m.landmarks[l].depth, -back.landmarks[r].depth);
+        assert_eq!(m.world[l], back.world[r] * Vec3::new(1.0, 1.0, -1.0));
+        assert_eq!(m.landmarks[index::NOSE].pixel, back.landmarks[index::NOSE].pixel);
+        assert_eq!(m.mirrored_in_depth(), back);
+        // Not finite or degenerate: no facing.
+        let mut bad = torso(0.0);
+        bad.world[index::LEFT_HIP].x = f32::NAN;
+        assert_eq!(bad.facing(), None);
+        let mut flat = torso(0.0);
+        flat.world.iter_mut().for_each(|w| *w = Vec3::ZERO);
+        assert_eq!(flat.facing(), None);
     }
 
     #[test]
