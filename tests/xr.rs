@@ -390,6 +390,7 @@ fn child_session_until_the_runtime_dies() {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::new("r2human=info"))
         .with_writer(std::io::stdout)
+        .with_ansi(false)
         .try_init();
     let cfg =
         SessionConfig { max_person_frames: None, max_duration: Some(Duration::from_secs(15)), ..config(Mode::Vr, 0) };

@@ -195,12 +195,16 @@ impl GridProblem {
         self.solve_from(&guess, cap)
     }
 
-    /// Bilinear interpolation of the coarser level's solution `xs` (a value per coarse cell) at this level's cell
-    /// centres, over the coarse cells that have a value (free or body); `target` where none around has one.
+    /// Bilinear interpolation of the coarser level's solution `xs` (a value per coarse cell) at this level's free
+    /// cell centres (the only values [`GridProblem::solve_from`] reads as its start), over the coarse cells that
+    /// have a value (free or body); `target` where none around has one, and on the cells that are not free.
     fn prolong(&self, coarse: &GridProblem, xs: &[f64]) -> Vec<f64> {
         let valued = |k: usize| matches!(coarse.cells[k], Cell::Free | Cell::Body);
         (0..self.width * self.height)
             .map(|i| {
+                if self.cells[i] != Cell::Free {
+                    return self.target;
+                }
                 let (c, r) = (i % self.width, i / self.width);
                 // Fine centre c + 0.5 sits at coarse coordinate (c + 0.5) / 2 - 0.5.
                 let (x, y) = ((c as f64 + 0.5) * 0.5 - 0.5, (r as f64 + 0.5) * 0.5 - 0.5);

@@ -115,16 +115,44 @@ impl CosineTable {
     /// shorter; see [`Fof::decode_column_with`]).
     pub fn decode(&self, coeffs: &[f32], out: &mut [f32]) {
         let m = self.samples.min(out.len());
-        let out = &mut out[..m];
-        out.fill(0.0);
-        for (k, &ck) in coeffs.iter().enumerate().take(self.n) {
-            if ck == 0.0 {
-                continue;
+        self.decode_range(coeffs, 0, &mut out[..m]);
+    }
+
+    /// Decodes one column's coefficients `coeffs` at the table's depth samples `lo..lo + out.len()` (which must lie
+    /// in the table): `out[i] = sum_k c_k table[k][lo + i]`, summed over k in ascending order (coefficients that
+    /// are exactly 0 skipped), so values decoded piecewise are bit-identical to a whole-column decode.
+    pub fn decode_range(&self, coeffs: &[f32], lo: usize, out: &mut [f32]) {
+        const LANES: usize = 8;
+        let (n, samples) = (coeffs.len().min(self.n), self.samples);
+        let _ = &self.values[..n * samples]; // one bounds check for every row below
+                                             // Eight samples at a time, their sums held in registers across all coefficients: the spans the mesh decodes
+                                             // are 17 samples long, too short for the compiler's own vectorisation of a loop over samples (measured:
+                                             // mesh extraction of a 512² body 58 -> 46 ms CPU, the same bits).
+        let mut chunks = out.chunks_exact_mut(LANES);
+        let mut start = lo;
+        for chunk in &mut chunks {
+            let mut acc = [0.0f32; LANES];
+            for (k, &ck) in coeffs[..n].iter().enumerate() {
+                if ck == 0.0 {
+                    continue;
+                }
+                let basis: &[f32; LANES] =
+                    self.values[k * samples + start..k * samples + start + LANES].try_into().expect("LANES values");
+                for (a, &b) in acc.iter_mut().zip(basis) {
+                    *a += ck * b;
+                }
             }
-            let basis = &self.values[k * self.samples..k * self.samples + m];
-            for (o, &b) in out.iter_mut().zip(basis) {
-                *o += ck * b;
+            chunk.copy_from_slice(&acc);
+            start += LANES;
+        }
+        for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
+            let mut acc = 0.0f32;
+            for (k, &ck) in coeffs[..n].iter().enumerate() {
+                if ck != 0.0 {
+                    acc += ck * self.values[k * samples + start + i];
+                }
             }
+            *o = acc;
         }
     }
 }

@@ -314,8 +314,19 @@ pub fn body_prior_fof(
 ) -> (Fof, Option<String>) {
     match body_prior_fof_or_why(normalised, opts, body, timings) {
         Ok(f) => (f, None),
-        Err(why) => (prior, Some(why)),
+        Err(why) => (prior, Some(why.to_string())),
     }
+}
+
+/// Why the body prior gave no FOF for an input (the caller then uses its fall-back).
+#[derive(Debug, thiserror::Error)]
+pub enum NoBodyFof {
+    /// The pose network found no person.
+    #[error("no pose found in this input")]
+    NoPose,
+    /// The pose network, the fit or the body FOF failed on this input.
+    #[error("it failed on this input ({0})")]
+    Failed(#[source] crate::body::BodyError),
 }
 
 /// [`body_prior_fof`] without a fall-back at hand: the body FOF, or why there is none (no pose found, or the prior
@@ -325,7 +336,7 @@ fn body_prior_fof_or_why(
     opts: &PrepareOptions,
     body: &SharedBody,
     timings: &mut StageTimings,
-) -> Result<Fof, String> {
+) -> Result<Fof, NoBodyFof> {
     let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let mut stages: Vec<(&'static str, Duration)> = Vec::new();
     let found = estimator.estimate(
@@ -354,8 +365,8 @@ fn body_prior_fof_or_why(
     });
     match fof {
         Ok(Some(f)) => Ok(f),
-        Ok(None) => Err("no pose found in this input".into()),
-        Err(e) => Err(format!("it failed on this input ({e})")),
+        Ok(None) => Err(NoBodyFof::NoPose),
+        Err(e) => Err(NoBodyFof::Failed(e)),
     }
 }
 
