@@ -18,8 +18,9 @@
 //!   in by the mask's distance transform (one-sided: clothes and hair make the mask larger than the body).
 //! - **Legs the photo does not show**: a leg whose hip is used but whose knee is not hangs from that hip as in the
 //!   rest pose (weak knee and ankle targets, [`HANGING_WEIGHT`]); without them such a leg followed the pelvis, and
-//!   a person bent at the waist got legs sticking out behind (9 clothed synthetic subjects, `cargo run --example
-//!   body_synthetic`: mean volumetric IoU of the body prior 0.546 -> 0.556; the Mr. Fixit scan 0.436 -> 0.525).
+//!   a person bent at the waist got legs sticking out behind (with [`super::prior::legs_it_sees`], release
+//!   builds: `r2human eval --subjects 8` mean volumetric IoU of the body prior 0.560 -> 0.567, the Mr. Fixit scan
+//!   0.436 -> 0.476; README "Body prior").
 //! - **Prior**: every joint rotation is pulled toward the rest pose, the shape toward the neutral body, the hip
 //!   centre toward depth 0; joint limits (hinge penalties) keep elbows and knees bending one way and every joint
 //!   inside a plausible range, so a bad landmark cannot give an impossible body.

@@ -154,7 +154,8 @@ pub fn legs_it_sees(mut landmarks: PoseLandmarks) -> PoseLandmarks {
     // Knee, ankle, heel, foot of each side after its hip: (hip, knee, [the leg's landmarks]).
     for (hip, knee, leg) in [(LEFT_HIP, LEFT_KNEE, [25usize, 27, 29, 31]), (RIGHT_HIP, RIGHT_KNEE, [26, 28, 30, 32])] {
         let thigh = (landmarks.world[knee] - landmarks.world[hip]).length();
-        if !(thigh >= MIN_THIGH_M) {
+        // A NaN thigh (no world landmarks) is not a leg it sees.
+        if thigh.is_nan() || thigh < MIN_THIGH_M {
             for i in leg {
                 landmarks.landmarks[i].visibility = 0.0;
             }
