@@ -104,7 +104,7 @@ impl BodyEstimator {
             self.previous = None;
             return Ok(None);
         };
-        let landmarks = facing_the_camera(landmarks);
+        let landmarks = legs_it_sees(facing_the_camera(landmarks));
         let t = std::time::Instant::now();
         let target = FitTarget::new(&landmarks, mask);
         let start = previous.map(|p| p.1);
@@ -136,6 +136,32 @@ pub fn facing_the_camera(landmarks: PoseLandmarks) -> PoseLandmarks {
         Some(f) if f < FACING_AWAY => landmarks.mirrored_in_depth(),
         _ => landmarks,
     }
+}
+
+/// [`legs_it_sees`]: the shortest thigh (hip to knee, metres) of the network's world landmarks that it draws for a
+/// leg it sees. MakeHuman adults and the shipped photos' visible legs: 0.33–0.40.
+pub const MIN_THIGH_M: f32 = 0.3;
+
+/// The landmarks with the legs the network does not see set invisible: a leg whose thigh in the network's own
+/// metric world landmarks is shorter than [`MIN_THIGH_M`] (knee, ankle, heel and foot of that side). The network
+/// draws the legs it sees with a person's proportions (thighs 0.33–0.40 m on the evaluation's full-body subjects
+/// and the full-body photo) and shrinks the ones it guesses toward the hip: 0.19–0.29 m on upper-body crops,
+/// 0.27 m on the astronaut's (a knee on the held helmet, visibility 0.78), 0.20 m on the profile's (a knee on the
+/// tripod, visibility 0.65). A guessed knee inside the photo turned the fitted thigh toward the camera, and its
+/// columns drew a long sheet from the side.
+pub fn legs_it_sees(mut landmarks: PoseLandmarks) -> PoseLandmarks {
+    use super::pose::index::{LEFT_HIP, LEFT_KNEE, RIGHT_HIP, RIGHT_KNEE};
+    // Knee, ankle, heel, foot of each side after its hip: (hip, knee, [the leg's landmarks]).
+    for (hip, knee, leg) in [(LEFT_HIP, LEFT_KNEE, [25usize, 27, 29, 31]), (RIGHT_HIP, RIGHT_KNEE, [26, 28, 30, 32])] {
+        let thigh = (landmarks.world[knee] - landmarks.world[hip]).length();
+        // A NaN thigh (no world landmarks) is not a leg it sees.
+        if thigh.is_nan() || thigh < MIN_THIGH_M {
+            for i in leg {
+                landmarks.landmarks[i].visibility = 0.0;
+            }
+        }
+    }
+    landmarks
 }
 
 /// The photo's frame the body prior works in: `frame` (the whole grid when `None`) with a straight cut of the mask
@@ -170,6 +196,7 @@ pub fn body_fof(
 mod tests {
     use super::*;
     use crate::body::pose::tests::torso;
+    use glam::Vec3;
 
     #[test]
     fn landmarks_facing_away_are_mirrored_profiles_are_kept() {
@@ -184,5 +211,23 @@ mod tests {
             let l = torso(yaw);
             assert_eq!(facing_the_camera(l.clone()), l, "yaw {yaw}");
         }
+    }
+
+    #[test]
+    fn a_leg_drawn_shorter_than_a_persons_is_not_seen() {
+        // Left thigh 0.25 m (a guess), right thigh 0.4 m (a leg): the left knee, ankle, heel and foot become
+        // invisible, the rest is untouched; a NaN knee counts as not seen.
+        let mut l = torso(0.0);
+        l.world[25] = l.world[23] + Vec3::new(0.0, -0.25, 0.0);
+        l.world[26] = l.world[24] + Vec3::new(0.0, -0.3, 0.265);
+        l.landmarks.iter_mut().for_each(|m| m.visibility = 0.9);
+        let out = legs_it_sees(l.clone());
+        for i in 0..l.landmarks.len() {
+            let hidden = [25, 27, 29, 31].contains(&i);
+            assert_eq!(out.landmarks[i].visibility, if hidden { 0.0 } else { 0.9 }, "{i}");
+        }
+        assert_eq!(out.world, l.world);
+        l.world[26].x = f32::NAN;
+        assert_eq!(legs_it_sees(l).landmarks[28].visibility, 0.0);
     }
 }

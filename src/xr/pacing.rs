@@ -427,18 +427,30 @@ mod tests {
                 let mut fake = fake;
                 m.run_render_loop(&mut fake);
             });
-            // Posting many requests while the renderer is stuck returns immediately.
-            let t = Instant::now();
-            for seq in 1..=50 {
-                mailbox.request(request(seq));
-            }
-            assert!(t.elapsed() < Duration::from_millis(500));
-            assert!(mailbox.latest().is_none());
-            {
+            // Posting many requests while the renderer is stuck does not wait for it: posted from another thread,
+            // all 50 return while the gate is still closed (a blocking `request` would never return, so the wait is
+            // bounded instead of timing the calls, which a loaded machine could fail).
+            let (posted, all_posted) = std::sync::mpsc::channel();
+            let poster = mailbox.clone();
+            scope.spawn(move || {
+                for seq in 1..=50 {
+                    poster.request(request(seq));
+                }
+                let _ = posted.send(());
+            });
+            let open_gate = || {
                 let (lock, cv) = &*gate;
                 *lock.lock().unwrap() = true;
                 cv.notify_all();
+            };
+            if all_posted.recv_timeout(Duration::from_secs(30)).is_err() {
+                // Let the stuck threads finish so the scope can end and the failure is reported, not a hang.
+                open_gate();
+                mailbox.shutdown();
+                panic!("request blocked while the render thread was stuck");
             }
+            assert!(mailbox.latest().is_none());
+            open_gate();
             let wait_for = |seq: u64| {
                 let deadline = Instant::now() + Duration::from_secs(10);
                 while mailbox.latest().is_none_or(|f| f.request.seq != seq) {
