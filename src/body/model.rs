@@ -171,6 +171,9 @@ pub struct BodyModel {
     pub moved_by: Vec<Vec<usize>>,
     heads: LinearShape,
     body: LinearShape,
+    /// Per body vertex, the [`LIMB_SEGMENTS`] index of the segment that carries most of its skinning weight
+    /// (`None`: the trunk or the head).
+    pub vertex_segment: Vec<Option<u8>>,
     /// The rest hip centre of the neutral body (the pivot of the global rotation).
     pub hip_centre: DVec3,
     /// Rest height of the neutral body (decimetres).
@@ -193,6 +196,20 @@ const LANDMARK_BONES: [(usize, &str); 14] = [
     (26, "lowerleg01.R"),
     (27, "foot.L"),
     (28, "foot.R"),
+];
+
+/// The limb segments a body prior can leave out when the photo does not show them ([`BodyModel::mesh_seen`]):
+/// `(bone, the pose landmark at the segment's far end)`. A segment is its bone and every bone below it down to the
+/// next segment (a forearm carries its hand, a shin its foot); the rest of the rig is the trunk and the head.
+pub const LIMB_SEGMENTS: [(&str, usize); 8] = [
+    ("upperarm01.L", 13),
+    ("lowerarm01.L", 15),
+    ("upperarm01.R", 14),
+    ("lowerarm01.R", 16),
+    ("upperleg01.L", 25),
+    ("lowerleg01.L", 27),
+    ("upperleg01.R", 26),
+    ("lowerleg01.R", 28),
 ];
 
 /// Silhouette samples: about this many body vertices.
@@ -285,6 +302,8 @@ impl BodyModel {
                 chain
             })
             .collect();
+        let segment_bones: Vec<usize> = LIMB_SEGMENTS.iter().map(|(n, _)| bone(n)).collect::<Result<_, _>>()?;
+        let vertex_segment = vertex_segments(&rig, &segment_bones);
         let stride = (BODY_VERTEX_COUNT / SAMPLE_TARGET).max(1);
         let samples: Vec<u32> = (0..BODY_VERTEX_COUNT).step_by(stride).map(|i| i as u32).collect();
         let hip_centre = 0.5 * (rest_heads[bone("upperleg01.L")?] + rest_heads[bone("upperleg01.R")?]);
@@ -300,6 +319,7 @@ impl BodyModel {
             moved_by,
             heads,
             body,
+            vertex_segment,
             hip_centre,
             rest_height: ymax - ymin,
         })
@@ -390,6 +410,27 @@ impl BodyModel {
         }
     }
 
+    /// `mesh` (this model's [`BodyModel::mesh`] of some pose, or a copy of it moved as a whole) without the limb
+    /// segments that `seen` marks false ([`LIMB_SEGMENTS`] order): a triangle goes when two of its corners belong
+    /// to such segments. The trunk keeps its surface where the limb joined it (the cut leaves an opening there,
+    /// which the interval encoder closes like any sheet). A mesh of another topology is returned unchanged.
+    pub fn mesh_seen(&self, mesh: &TriMesh, seen: &[bool; LIMB_SEGMENTS.len()]) -> TriMesh {
+        let split = &self.base.source_vertex;
+        if seen.iter().all(|&s| s) || mesh.positions.len() != split.len() {
+            return mesh.clone();
+        }
+        let dropped = |v: u32| {
+            split
+                .get(v as usize)
+                .and_then(|&b| self.vertex_segment.get(b as usize))
+                .and_then(|s| *s)
+                .is_some_and(|s| !seen[s as usize])
+        };
+        let triangles: Vec<[u32; 3]> =
+            mesh.triangles.iter().copied().filter(|t| t.iter().filter(|&&v| dropped(v)).count() < 2).collect();
+        TriMesh::new(mesh.positions.clone(), triangles)
+    }
+
     /// The posed body surface in body-cube coordinates (base-mesh body triangles over split vertices).
     pub fn mesh(&self, pose: &Pose) -> TriMesh {
         let heads = self.rest_heads(&pose.shape);
@@ -399,5 +440,84 @@ impl BodyModel {
         let mut mesh = TriMesh::new(self.base.body_positions(&posed), self.base.triangles.clone());
         mesh.compute_normals();
         mesh
+    }
+}
+
+/// Per body vertex of `rig`, the index into `segment_bones` ([`LIMB_SEGMENTS`]' bones) of the segment carrying the
+/// largest share of its skinning weight, the trunk (`None`) counting as one more segment. A bone belongs to the
+/// nearest segment bone among itself and its ancestors.
+fn vertex_segments(rig: &Rig, segment_bones: &[usize]) -> Vec<Option<u8>> {
+    let bone_segment: Vec<Option<u8>> = (0..rig.bones.len())
+        .map(|b| {
+            let mut at = Some(b);
+            while let Some(a) = at {
+                if let Some(k) = segment_bones.iter().position(|&s| s == a) {
+                    return Some(k as u8);
+                }
+                at = rig.bones[a].parent;
+            }
+            None
+        })
+        .collect();
+    (0..BODY_VERTEX_COUNT)
+        .map(|v| {
+            let mut share = vec![0.0f32; segment_bones.len() + 1];
+            for &(b, w) in rig.weights.get(v).map(Vec::as_slice).unwrap_or(&[]) {
+                let k = bone_segment.get(b as usize).copied().flatten().map_or(segment_bones.len(), |k| k as usize);
+                share[k] += w;
+            }
+            let best = (0..share.len()).max_by(|&a, &b| share[a].total_cmp(&share[b])).unwrap_or(segment_bones.len());
+            (best < segment_bones.len()).then_some(best as u8)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_limb_segment_has_its_own_vertices_left_and_right_alike() {
+        // MakeHuman's body is symmetric: each segment has as many vertices on the left as on the right, all on its
+        // own side of the body (MakeHuman's left is +x) and, for forearms and shins, beyond the joint that starts
+        // them (the elbows and knees of the rest pose).
+        let model = BodyModel::shared().expect("body model data (bash scripts/setup.d/synth.sh)");
+        let heads = model.rest_heads(&[0.5; SHAPE_COUNT]);
+        let count = |k: u8| model.vertex_segment.iter().filter(|s| **s == Some(k)).count();
+        for (l, r) in [(0u8, 2u8), (1, 3), (4, 6), (5, 7)] {
+            let (nl, nr) = (count(l), count(r));
+            assert!(nl > 100, "segment {l}: {nl} vertices");
+            assert!((nl as i64 - nr as i64).abs() <= nl as i64 / 50, "segments {l}/{r}: {nl} / {nr} vertices");
+        }
+        for (v, s) in model.vertex_segment.iter().enumerate() {
+            let Some(s) = *s else { continue };
+            let p = model.rest_vertex(v as u32, &[0.5; SHAPE_COUNT]);
+            let left = LIMB_SEGMENTS[s as usize].0.ends_with(".L");
+            assert!(if left { p.x > 0.0 } else { p.x < 0.0 }, "vertex {v} of segment {s} at {p:?}");
+            let start = heads[model.rig.bone(LIMB_SEGMENTS[s as usize].0).unwrap()];
+            if LIMB_SEGMENTS[s as usize].0.starts_with("lowerleg") {
+                assert!(p.y < start.y + 0.3, "shin vertex {v} at {p:?}, knee {start:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_mesh_without_a_segment_loses_only_that_segments_triangles() {
+        let model = BodyModel::shared().expect("body model data (bash scripts/setup.d/synth.sh)");
+        let mesh = model.mesh(&Pose::rest(1.0 / model.rest_height, DVec3::ZERO));
+        assert_eq!(model.mesh_seen(&mesh, &[true; 8]).triangles, mesh.triangles);
+        let mut seen = [true; 8];
+        seen[1] = false;
+        let out = model.mesh_seen(&mesh, &seen);
+        let segment = |v: u32| model.vertex_segment[model.base.source_vertex[v as usize] as usize];
+        let in_forearm = |t: &[u32; 3]| t.iter().filter(|&&v| segment(v) == Some(1)).count();
+        assert!(out.triangles.iter().all(|t| in_forearm(t) < 2));
+        let removed = mesh.triangles.len() - out.triangles.len();
+        assert_eq!(removed, mesh.triangles.iter().filter(|t| in_forearm(t) >= 2).count());
+        assert!(removed > 100, "{removed}");
+        assert_eq!(out.positions, mesh.positions);
+        // Another topology is left alone.
+        let other = TriMesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], vec![[0, 1, 2]]);
+        assert_eq!(model.mesh_seen(&other, &seen).triangles, other.triangles);
     }
 }

@@ -13,7 +13,7 @@ use std::path::Path;
 use glam::{DVec3, Vec2};
 
 use super::fit::{fit_body, BodyFit, FitOptions, FitTarget};
-use super::model::{BodyModel, Pose};
+use super::model::{BodyModel, Pose, LIMB_SEGMENTS};
 use super::pose::{cut_frame, PhotoFrame, PoseEstimator, PoseLandmarks};
 use super::reconcile::{reconcile, ReconcileParams};
 use super::BodyError;
@@ -104,12 +104,14 @@ impl BodyEstimator {
             self.previous = None;
             return Ok(None);
         };
-        let landmarks = legs_it_sees(facing_the_camera(landmarks));
+        let min_visibility = self.options.min_visibility;
+        let landmarks = arms_it_sees(legs_it_sees(facing_the_camera(landmarks)), min_visibility);
         let t = std::time::Instant::now();
         let target = FitTarget::new(&landmarks, mask);
         let start = previous.map(|p| p.1);
         let fit = fit_body(self.model, &target, start.as_ref(), &self.options);
         let (pose, mesh) = centre_depth(self.model, &fit.pose);
+        let mesh = self.model.mesh_seen(&mesh, &limbs_seen(&landmarks, min_visibility));
         timings("body fit", t.elapsed());
         self.previous = Some((landmarks.clone(), pose));
         Ok(Some(BodyPrior { landmarks, fit: BodyFit { pose, ..fit }, mesh }))
@@ -164,6 +166,33 @@ pub fn legs_it_sees(mut landmarks: PoseLandmarks) -> PoseLandmarks {
     landmarks
 }
 
+/// The landmarks with the hands the network only guesses set invisible: the wrist and hand points of an arm whose
+/// elbow is below `min_visibility` or outside the photo's frame. A hand is seen through its elbow: on a portrait
+/// cut at the chest the network put both wrists crossed in front of the coat (visibility 0.53 and 0.79, elbows
+/// below the cut) where the photo shows a plain coat, and the fitted forearms drew a slab toward the camera at the
+/// cut. A real hand raised into a chest-up crop is lost to it (its columns take the trunk's or the silhouette's
+/// depth), which costs far less than an invented forearm.
+pub fn arms_it_sees(mut landmarks: PoseLandmarks, min_visibility: f32) -> PoseLandmarks {
+    use super::pose::index::{LEFT_ELBOW, RIGHT_ELBOW};
+    for (elbow, hand) in [(LEFT_ELBOW, [15usize, 17, 19, 21]), (RIGHT_ELBOW, [16, 18, 20, 22])] {
+        let seen = landmarks.landmarks[elbow].visibility >= min_visibility && landmarks.in_frame(elbow, 0.0);
+        if !seen {
+            for i in hand {
+                landmarks.landmarks[i].visibility = 0.0;
+            }
+        }
+    }
+    landmarks
+}
+
+/// Which [`LIMB_SEGMENTS`] the network sees: those whose far-end landmark has at least `min_visibility` (a NaN
+/// visibility is not seen). A segment it does not see may lie anywhere the pose prior put it (a hidden arm of a
+/// person in profile came to rest on the tripod in front of him), so the body prior leaves it out of the body's
+/// columns ([`BodyModel::mesh_seen`]) and the silhouette decides what is there.
+pub fn limbs_seen(landmarks: &PoseLandmarks, min_visibility: f32) -> [bool; LIMB_SEGMENTS.len()] {
+    LIMB_SEGMENTS.map(|(_, far)| landmarks.landmarks.get(far).is_some_and(|l| l.visibility >= min_visibility))
+}
+
 /// The photo's frame the body prior works in: `frame` (the whole grid when `None`) with a straight cut of the mask
 /// as its bottom edge ([`super::pose::cut_frame`]), so a person cropped out of a larger picture is fitted and
 /// reconciled as cut there, like one the photo's own edge cuts.
@@ -196,7 +225,7 @@ pub fn body_fof(
 mod tests {
     use super::*;
     use crate::body::pose::tests::torso;
-    use glam::Vec3;
+    use glam::{Vec2, Vec3};
 
     #[test]
     fn landmarks_facing_away_are_mirrored_profiles_are_kept() {
@@ -211,6 +240,44 @@ mod tests {
             let l = torso(yaw);
             assert_eq!(facing_the_camera(l.clone()), l, "yaw {yaw}");
         }
+    }
+
+    #[test]
+    fn a_hand_is_seen_only_through_its_elbow() {
+        // Every landmark visible 0.9 inside a 512² frame; the left elbow at visibility 0.4, the right elbow below
+        // the frame: both hands (wrist, pinky, index, thumb) become invisible, nothing else changes. With both
+        // elbows seen and inside, nothing changes.
+        let mut l = torso(0.0);
+        l.landmarks.iter_mut().for_each(|m| m.visibility = 0.9);
+        l.frame_min = Vec2::ZERO;
+        l.frame_max = Vec2::splat(512.0);
+        assert_eq!(arms_it_sees(l.clone(), 0.5), l);
+        l.landmarks[13].visibility = 0.4;
+        l.landmarks[14].pixel = Vec2::new(200.0, 530.0);
+        let out = arms_it_sees(l.clone(), 0.5);
+        for i in 0..l.landmarks.len() {
+            let hidden = (15..=22).contains(&i);
+            let expected = if hidden { 0.0 } else { l.landmarks[i].visibility };
+            assert_eq!(out.landmarks[i].visibility, expected, "{i}");
+        }
+        // A NaN elbow visibility is not seen either.
+        l.landmarks[14].pixel = Vec2::new(200.0, 300.0);
+        l.landmarks[14].visibility = f32::NAN;
+        assert_eq!(arms_it_sees(l, 0.5).landmarks[16].visibility, 0.0);
+    }
+
+    #[test]
+    fn limbs_are_seen_by_their_far_end() {
+        // Elbows 13/14, wrists 15/16, knees 25/26, ankles 27/28 in LIMB_SEGMENTS order; at the threshold counts as
+        // seen, below it or NaN does not.
+        let mut l = torso(0.0);
+        l.landmarks.iter_mut().for_each(|m| m.visibility = 1.0);
+        assert_eq!(limbs_seen(&l, 0.5), [true; 8]);
+        l.landmarks[13].visibility = 0.5;
+        l.landmarks[16].visibility = 0.49;
+        l.landmarks[26].visibility = f32::NAN;
+        l.landmarks[27].visibility = 0.0;
+        assert_eq!(limbs_seen(&l, 0.5), [true, true, true, false, true, false, false, true]);
     }
 
     #[test]
