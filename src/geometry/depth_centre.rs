@@ -195,33 +195,46 @@ pub fn shift_fof(fof: &Fof, dz: f32) -> Fof {
 }
 
 /// [`shift_fof`] on the field itself (no second field allocated: a 512² field of 32 coefficients is 32 MB, and
-/// allocating it cost more than the shift). Every output coefficient is the same f64 sum, in the same order, as
-/// the row-by-column product of [`shift_matrix`], so the result is bit-identical to it.
+/// allocating it cost more than the shift). Every output coefficient is the same f64 sum, over the same non-zero
+/// terms in the same order, as the row-by-column product of [`shift_matrix`], so for finite coefficients the result
+/// is bit-identical to it.
+///
+/// The matrix's entry `(k, j)` is zero unless `j = k` or `j + k` is odd (row 0 holds only `(0, 0)`): an input
+/// coefficient updates its own output and those of the other parity. Only those products are formed, half of the
+/// dense product's: a sum that starts at +0 never becomes -0, so the zero products the dense sum adds never change
+/// a bit of it.
 pub fn shift_fof_in_place(fof: &mut Fof, dz: f32) {
     let n = fof.n;
     if n == 0 || fof.width == 0 {
         return;
     }
     let m = shift_matrix(n, dz);
-    // Column-major copy of the matrix: `mt[j * n + k] = m[k * n + j]`, so one input coefficient updates every
-    // output at once (a vectorisable loop over k) while each output still sums over j in ascending order.
-    let mt: Vec<f64> = (0..n * n).map(|i| m[(i % n) * n + i / n]).collect();
+    // Per input coefficient j: its weight on its own output, and on the outputs of the other parity in k order.
+    let diagonal: Vec<f64> = (0..n).map(|j| m[j * n + j]).collect();
+    let cross: Vec<Vec<f64>> =
+        (0..n).map(|j| (0..n).filter(|k| (j + k) % 2 == 1).map(|k| m[k * n + j]).collect()).collect();
     let width = fof.width;
     fof.coeffs.par_chunks_mut(n * width).for_each_init(
-        || (vec![0.0f64; n], vec![0.0f64; n]),
-        |(column, acc), row| {
+        // Outputs k = 0, 2, 4, ... and k = 1, 3, 5, ...
+        || (vec![0.0f64; n.div_ceil(2)], vec![0.0f64; n / 2]),
+        |(even, odd), row| {
             for c in row.chunks_exact_mut(n) {
                 if Fof::is_empty_coefficients(c) {
                     continue;
                 }
-                column.iter_mut().zip(c.iter()).for_each(|(d, &v)| *d = v as f64);
-                acc.fill(0.0);
-                for (&cj, mj) in column.iter().zip(mt.chunks_exact(n)) {
-                    for (a, &w) in acc.iter_mut().zip(mj) {
+                even.fill(0.0);
+                odd.fill(0.0);
+                for (j, (&cj, (&own, other))) in c.iter().zip(diagonal.iter().zip(&cross)).enumerate() {
+                    let cj = cj as f64;
+                    let (same, opposite) = if j % 2 == 0 { (&mut *even, &mut *odd) } else { (&mut *odd, &mut *even) };
+                    same[j / 2] += own * cj;
+                    for (a, &w) in opposite.iter_mut().zip(other) {
                         *a += w * cj;
                     }
                 }
-                c.iter_mut().zip(acc.iter()).for_each(|(o, &a)| *o = a as f32);
+                for (k, o) in c.iter_mut().enumerate() {
+                    *o = if k % 2 == 0 { even[k / 2] } else { odd[k / 2] } as f32;
+                }
             }
         },
     );

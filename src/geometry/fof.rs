@@ -120,8 +120,32 @@ impl CosineTable {
 
     /// Decodes one column's coefficients `coeffs` at the table's depth samples `lo..lo + out.len()` (which must lie
     /// in the table): `out[i] = sum_k c_k table[k][lo + i]`, summed over k in ascending order (coefficients that
-    /// are exactly 0 skipped), so values decoded piecewise are bit-identical to a whole-column decode.
+    /// are exactly 0 skipped), so values decoded piecewise are bit-identical to a whole-column decode. On a CPU with
+    /// AVX2 the same code runs compiled for it, with the same bits (measured: mesh extraction of a 512² portrait
+    /// 125 -> 113 ms CPU).
     pub fn decode_range(&self, coeffs: &[f32], lo: usize, out: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above), the only requirement of `decode_range_avx2`.
+            return unsafe { self.decode_range_avx2(coeffs, lo, out) };
+        }
+        self.decode_range_portable(coeffs, lo, out)
+    }
+
+    /// [`CosineTable::decode_range`] compiled for AVX2 (eight-lane registers). The same operations in the same
+    /// order as the portable build (no fused multiply-add: Rust never contracts `a += c * b`), so the same bits.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn decode_range_avx2(&self, coeffs: &[f32], lo: usize, out: &mut [f32]) {
+        self.decode_range_portable(coeffs, lo, out)
+    }
+
+    /// [`CosineTable::decode_range`] for any CPU (inlined into the AVX2 build).
+    #[inline(always)]
+    fn decode_range_portable(&self, coeffs: &[f32], lo: usize, out: &mut [f32]) {
         const LANES: usize = 8;
         let (n, samples) = (coeffs.len().min(self.n), self.samples);
         let _ = &self.values[..n * samples]; // one bounds check for every row below
@@ -552,6 +576,27 @@ mod tests {
     use super::*;
     use glam::Vec3;
     use std::f32::consts::PI;
+
+    #[test]
+    fn decode_range_gives_the_portable_builds_bits() {
+        // Whatever build `decode_range` picks for this CPU (AVX2 or not), every range of every column decodes to
+        // the bits of the portable build, zero coefficients included.
+        let table = CosineTable::new(32, 512);
+        let mut seed = 7u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+        };
+        for column in 0..20 {
+            let coeffs: Vec<f32> = (0..32).map(|k| if (k + column) % 5 == 0 { 0.0 } else { next() }).collect();
+            for (lo, len) in [(0, 512), (0, 33), (16, 17), (493, 19), (100, 7), (511, 1)] {
+                let (mut a, mut b) = (vec![0.0f32; len], vec![0.0f32; len]);
+                table.decode_range(&coeffs, lo, &mut a);
+                table.decode_range_portable(&coeffs, lo, &mut b);
+                assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()), "column {column}, {lo}+{len}");
+            }
+        }
+    }
 
     /// Closed-form FOF of one interval [lo, hi] in z.
     fn closed_form(lo: f32, hi: f32, n: usize) -> Vec<f32> {

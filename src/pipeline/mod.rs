@@ -413,11 +413,17 @@ fn body_geometry(
     match body_prior_fof_or_why(normalised, opts, body, timings) {
         Ok(fof) => Ok(fof),
         Err(why) => {
-            static WARNED: AtomicBool = AtomicBool::new(false);
-            warn_once(&WARNED, &format!("body prior: {why}, using the silhouette-inflation prior"));
+            warn_no_body_fof(&why);
             fallback(timings)
         }
     }
+}
+
+/// Logs that the body prior gave no FOF and the silhouette-inflation prior stands in (once per process as a
+/// warning, then as debug messages).
+fn warn_no_body_fof(why: &NoBodyFof) {
+    static WARNED: AtomicBool = AtomicBool::new(false);
+    warn_once(&WARNED, &format!("body prior: {why}, using the silhouette-inflation prior"));
 }
 
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
@@ -452,22 +458,39 @@ fn chosen_geometry(
         // The inflation prior only as the fall-back: computed when no body is found.
         return body_geometry(normalised, opts, body, inflation, timings);
     }
-    let prior = inflation(timings)?;
     let net = match (opts.geometry, &opts.fof_net) {
-        (mode, _) if matches!(mode.resolved(), GeometryMode::Inflate | GeometryMode::Body) => return Ok(prior),
+        (mode, _) if matches!(mode.resolved(), GeometryMode::Inflate | GeometryMode::Body) => {
+            return inflation(timings)
+        }
         (GeometryMode::FofNet, None) => {
             return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
         }
         (_, Some(net)) => net,
         // Auto without a loaded network (and the modes handled above).
-        (_, None) => return Ok(prior),
+        (_, None) => return inflation(timings),
     };
     let takes_body = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).takes_body();
     // The body FOF the network takes: the body prior exactly as `--geometry body` computes it (its fall-back, the
     // inflation prior, when no pose is found: what the training data holds for such inputs).
-    let body = match (takes_body, &opts.body) {
-        (false, _) => None,
-        (true, Some(body)) => Some(body_geometry(normalised, opts, body, |_| Ok(prior.clone()), timings)?),
+    let (prior, body) = match (takes_body, &opts.body) {
+        (false, _) => (inflation(timings)?, None),
+        (true, Some(body)) => {
+            // The inflation prior and the body prior do not depend on each other: they run side by side (on two
+            // cores the body fit is single-threaded, the pose network and the inflation are not). Their stage
+            // times overlap; both are recorded, the inflation prior's first.
+            let (mut prior_times, mut body_times) = (StageTimings::default(), StageTimings::default());
+            let (prior, body_fof) = rayon::join(
+                || inflation(&mut prior_times),
+                || body_prior_fof_or_why(normalised, opts, body, &mut body_times),
+            );
+            timings.0.extend(prior_times.0.into_iter().chain(body_times.0));
+            let prior = prior?;
+            let body_fof = body_fof.unwrap_or_else(|why| {
+                warn_no_body_fof(&why);
+                prior.clone()
+            });
+            (prior, Some(body_fof))
+        }
         (true, None) if opts.geometry == GeometryMode::FofNet => {
             return Err(PipelineError::NoFofNet(
                 "the FOF net takes the body FOF, but no body prior was loaded (see load_body_for)".into(),
@@ -479,7 +502,7 @@ fn chosen_geometry(
                 &WARNED,
                 "the FOF net takes the body FOF, but no body prior was loaded: using the silhouette-inflation prior",
             );
-            return Ok(prior);
+            return inflation(timings);
         }
     };
     let refined = timings.time("geometry (FOF net)", || {
