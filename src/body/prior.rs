@@ -215,6 +215,7 @@ pub fn body_fof(
     let params = ReconcileParams {
         thickness: inflate_params.thickness,
         min_half_thickness: inflate_params.min_half_thickness,
+        min_half_depth: 0.5 * sheet_thickness(n),
         ..Default::default()
     };
     let out = reconcile(&body, mask, Some(effective_frame(mask, frame)), &params);

@@ -70,6 +70,10 @@ pub struct ReconcileParams {
     pub thickness: f32,
     /// Smallest half thickness of a free column, in pixels.
     pub min_half_thickness: f32,
+    /// Smallest half thickness of a free column, in cube units: the resolving limit of the FOF the intervals go
+    /// into (half of [`crate::geometry::fof::sheet_thickness`]); a thinner interval decodes below the iso level
+    /// and drops out of the mesh, so a thin free part (a tripod's leg) broke into pieces. 0: none.
+    pub min_half_depth: f32,
     /// Every column is at least this fraction of the silhouette's own inflation thickness (see the module docs;
     /// 0 turns the floor off).
     pub silhouette_floor: f32,
@@ -84,6 +88,7 @@ impl Default for ReconcileParams {
         Self {
             thickness: p.thickness,
             min_half_thickness: p.min_half_thickness,
+            min_half_depth: 0.0,
             silhouette_floor: 1.0,
             centre_reach: CENTRE_REACH,
         }
@@ -421,7 +426,8 @@ pub fn reconcile(
         || solve(&base, any_free),
         || rayon::join(|| solve(&u_problem, any_free), || solve(&s_problem, floor > 0.0)),
     );
-    let h_min = params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64;
+    let h_min = (params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64)
+        .max(if params.min_half_depth.is_finite() { params.min_half_depth.max(0.0) as f64 } else { 0.0 });
     for i in 0..w * h {
         let h_s = floor * kappa * u_s[i].max(0.0).sqrt();
         match base.cells[i] {
@@ -694,6 +700,36 @@ mod tests {
         }
         let bare = reconcile(&body, &mask, None, &ReconcileParams { silhouette_floor: 0.0, ..params });
         assert_eq!(bare.get(40, 48), &vec![(0.08, 0.12)]);
+    }
+
+    #[test]
+    fn thin_free_parts_keep_the_fofs_resolving_thickness() {
+        // A free strip two pixels wide on a 256² grid (a tripod's leg; no body): its inflation is a quarter of
+        // what a 32-term FOF resolves (the 5-point stencil with the outline at the mask's edge: 2 u / dx² = 4, so
+        // u = 2 px², h = κ √2 px = 0.0077); with `min_half_depth` every column of it is exactly that thick about
+        // the centre 0, the thick block beside it is not touched, and a NaN or negative `min_half_depth` is no
+        // floor.
+        let (w, h) = (256usize, 256usize);
+        let mask = mask_of(w, h, |c, r| (127..129).contains(&c) && (32..224).contains(&r) || (c < 96 && r < 96));
+        let body = Image::new(w, h, Vec::new());
+        let floor = 0.5 * crate::geometry::fof::sheet_thickness(32);
+        let base = ReconcileParams { min_half_thickness: 0.0, silhouette_floor: 0.0, ..Default::default() };
+        let thin = reconcile(&body, &mask, None, &base);
+        let (a, b) = thin.get(127, 128)[0];
+        let px = 2.0 / w as f32;
+        assert!((0.5 * (b - a) - base.thickness * 2f32.sqrt() * px).abs() < 1e-5, "{a} {b}");
+        let out = reconcile(&body, &mask, None, &ReconcileParams { min_half_depth: floor, ..base });
+        for r in 40..216 {
+            for c in 127..129 {
+                let (a, b) = out.get(c, r)[0];
+                assert!((0.5 * (b - a) - floor).abs() < 1e-6 && (a + b).abs() < 1e-6, "({c},{r}): {a} {b}");
+            }
+        }
+        assert_eq!(out.get(48, 48), thin.get(48, 48));
+        assert!(0.5 * (thin.get(48, 48)[0].1 - thin.get(48, 48)[0].0) > 5.0 * floor);
+        for bad in [f32::NAN, -1.0] {
+            assert_eq!(reconcile(&body, &mask, None, &ReconcileParams { min_half_depth: bad, ..base }).data, thin.data);
+        }
     }
 
     #[test]
