@@ -298,7 +298,8 @@ impl Extractor<'_> {
                 } else if a.max(b) < ISO_LEVEL - margin {
                     SPAN_OUTSIDE
                 } else {
-                    self.table.decode_range(c, lo, &mut vals[lo..=hi]);
+                    // `hi` is a coarse sample, decoded above (the same bits).
+                    self.table.decode_range(c, lo, &mut vals[lo..hi]);
                     SPAN_DECODED
                 };
                 match *state {
@@ -331,7 +332,8 @@ impl Extractor<'_> {
             *state = SPAN_DECODED;
             let (lo, hi) = self.span_bounds(j);
             let d = self.grid.d;
-            self.table.decode_range(self.fof.column(col, row), lo, &mut data.values[col * d + lo..=col * d + hi]);
+            // `hi` is a coarse sample, always decoded ([`Extractor::decode_row`]).
+            self.table.decode_range(self.fof.column(col, row), lo, &mut data.values[col * d + lo..col * d + hi]);
         }
     }
 

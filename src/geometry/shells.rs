@@ -100,6 +100,9 @@ pub fn doubled_fraction_beyond(fof: &Fof, references: &[&Fof], mask: &GrayImage,
     }
 }
 
+/// A run of occupied voxels in one column of [`Pieces`]: its first and last depth sample.
+type Run = (u32, u32);
+
 /// The occupied voxels of a FOF on a coarse grid, labelled by connected piece ([`detached_volume_fraction`],
 /// [`keep_largest_piece`]; [`Pieces::of`] once serves both).
 pub struct Pieces {
@@ -121,56 +124,125 @@ pub struct Pieces {
 impl Pieces {
     /// Decodes every `step`-th column and row of `fof` at `width / step` depth samples (cubic voxels), occupancy at
     /// the marching-cubes level, and labels the pieces connected through faces, edges and corners.
+    ///
+    /// Pieces are found on the columns' runs of occupied voxels, not voxel by voxel: two runs of neighbouring
+    /// columns (the eight around a column) touch when their depth ranges overlap or meet within one voxel, and a
+    /// union-find joins touching runs. Labels are numbered in the order of each piece's first voxel in
+    /// `(y, x, z)` order, as a voxel flood fill scanning in that order numbers them (the same labels, tested);
+    /// measured on a 512² portrait's FOF (`astronaut`, step 4): 21 -> 4 ms CPU.
     pub fn of(fof: &Fof, step: usize) -> Self {
         let step = step.max(1);
         let (w, h) = (fof.width.div_ceil(step), fof.height.div_ceil(step));
         let d = (fof.width / step).max(1);
         let table = CosineTable::new(fof.n, d);
-        let occupied: Vec<bool> = (0..h)
+        // Per grid row: every column's runs `[first, last]` of occupied voxels in depth order, and where each
+        // column's runs end in that list.
+        let per_row: Vec<(Vec<Run>, Vec<u32>)> = (0..h)
             .into_par_iter()
-            .flat_map_iter(|y| {
+            .map(|y| {
                 let mut col = vec![0.0f32; d];
-                let mut out = vec![false; w * d];
+                let (mut runs, mut ends) = (Vec::new(), Vec::with_capacity(w));
                 for x in 0..w {
                     let (c, r) = (x * step, y * step);
-                    if fof.is_empty_column(c, r) {
-                        continue;
+                    if !fof.is_empty_column(c, r) {
+                        fof.decode_column_with(&table, c, r, &mut col);
+                        let mut start = None;
+                        for (z, &o) in col.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
+                            match (o >= ISO_LEVEL, start) {
+                                (true, None) => start = Some(z as u32),
+                                (false, Some(first)) => {
+                                    runs.push((first, z as u32 - 1));
+                                    start = None;
+                                }
+                                _ => {}
+                            }
+                        }
                     }
-                    fof.decode_column_with(&table, c, r, &mut col);
-                    for (z, &o) in col.iter().enumerate() {
-                        out[x * d + z] = o >= ISO_LEVEL;
-                    }
+                    ends.push(runs.len() as u32);
                 }
-                out
+                (runs, ends)
             })
             .collect();
-        let mut labels = vec![0u32; occupied.len()];
-        let (mut next, mut largest, mut largest_size, mut total) = (0u32, 0u32, 0usize, 0usize);
-        let mut stack = Vec::new();
-        for start in 0..occupied.len() {
-            if !occupied[start] || labels[start] != 0 {
-                continue;
+        // All runs in (y, x, z) order; column `(x, y)` holds `runs[starts[y * w + x]..starts[y * w + x + 1]]`.
+        let mut runs: Vec<Run> = Vec::new();
+        let mut starts = Vec::with_capacity(w * h + 1);
+        starts.push(0usize);
+        for (row_runs, ends) in per_row {
+            let base = runs.len();
+            starts.extend(ends.iter().map(|&e| base + e as usize));
+            runs.extend(row_runs);
+        }
+        let column = |x: usize, y: usize| starts[y * w + x]..starts[y * w + x + 1];
+        let mut parent: Vec<u32> = (0..runs.len() as u32).collect();
+        fn find(parent: &mut [u32], mut i: u32) -> u32 {
+            while parent[i as usize] != i {
+                let up = parent[parent[i as usize] as usize];
+                parent[i as usize] = up;
+                i = up;
             }
-            next += 1;
-            labels[start] = next;
-            stack.push(start);
-            let mut size = 0usize;
-            while let Some(i) = stack.pop() {
-                size += 1;
-                let (z, xy) = (i % d, i / d);
-                let (x, y) = (xy % w, xy / w);
-                for j in neighbours26(x, y, z, w, h, d) {
-                    if occupied[j] && labels[j] == 0 {
-                        labels[j] = next;
-                        stack.push(j);
+            i
+        }
+        for y in 0..h {
+            for x in 0..w {
+                let here = column(x, y);
+                if here.is_empty() {
+                    continue;
+                }
+                // The neighbours already visited in scan order: every pair of neighbouring columns once.
+                let earlier = [(x.wrapping_sub(1), y), (x.wrapping_sub(1), y.wrapping_sub(1)), (x, y.wrapping_sub(1))]
+                    .into_iter()
+                    .chain(std::iter::once((x + 1, y.wrapping_sub(1))));
+                for (nx, ny) in earlier {
+                    if nx >= w || ny >= h {
+                        continue;
+                    }
+                    let there = column(nx, ny);
+                    // Both lists are sorted and disjoint within themselves: walk them together.
+                    let (mut i, mut j) = (here.start, there.start);
+                    while i < here.end && j < there.end {
+                        let (a, b) = (runs[i], runs[j]);
+                        if a.0 <= b.1 + 1 && b.0 <= a.1 + 1 {
+                            let (ra, rb) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
+                            if ra != rb {
+                                parent[ra.max(rb) as usize] = ra.min(rb);
+                            }
+                        }
+                        if a.1 < b.1 {
+                            i += 1;
+                        } else {
+                            j += 1;
+                        }
                     }
                 }
             }
-            total += size;
-            if size > largest_size {
-                (largest, largest_size) = (next, size);
+        }
+        // Labels in the order of each piece's first run (its first voxel in scan order).
+        let mut label_of_root = vec![0u32; runs.len()];
+        let mut sizes: Vec<usize> = vec![0];
+        let mut labels = vec![0u32; w * h * d];
+        for y in 0..h {
+            for x in 0..w {
+                for r in column(x, y) {
+                    let root = find(&mut parent, r as u32) as usize;
+                    if label_of_root[root] == 0 {
+                        label_of_root[root] = sizes.len() as u32;
+                        sizes.push(0);
+                    }
+                    let label = label_of_root[root];
+                    let (first, last) = (runs[r].0 as usize, runs[r].1 as usize);
+                    sizes[label as usize] += last - first + 1;
+                    let base = (y * w + x) * d;
+                    labels[base + first..=base + last].fill(label);
+                }
             }
         }
+        let (mut largest, mut largest_size) = (0u32, 0usize);
+        for (label, &size) in sizes.iter().enumerate().skip(1) {
+            if size > largest_size {
+                (largest, largest_size) = (label as u32, size);
+            }
+        }
+        let total = sizes.iter().sum();
         Self { w, h, d, step, labels, largest, total, largest_size }
     }
 
@@ -392,6 +464,77 @@ mod tests {
         assert_eq!(doubled_fraction_beyond(&one, &[], &mask, 1), 0.0, "one shell is always explained");
         assert!((doubled_fraction_beyond(&two, &[], &mask, 1) - d).abs() < 1e-6, "no reference: one shell explained");
         assert!(doubled_fraction_beyond(&one, &[&one, &Fof::zeros(32, 16, 16).unwrap()], &mask, 1).is_nan());
+    }
+
+    #[test]
+    fn pieces_are_labelled_as_a_voxel_flood_fill_labels_them() {
+        // Random intervals per column: many pieces, touching through faces, edges and corners only, with gaps of
+        // one voxel in depth. The run-based labels must be those of a 26-connected flood fill scanning voxels in
+        // (y, x, z) order, numbering each piece at its first voxel.
+        let mut seed = 11u32;
+        let mut next = |m: u32| {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) % m
+        };
+        let res = 40;
+        let intervals = Image::from_fn(res, res, |_, _| {
+            (0..next(3))
+                .map(|_| {
+                    let a = next(200) as f32 / 100.0 - 1.0;
+                    (a, (a + next(40) as f32 / 100.0).min(1.0))
+                })
+                .collect::<Vec<_>>()
+        });
+        let fof = Fof::from_intervals(&intervals, 32).unwrap();
+        for step in [1, 2, 3] {
+            let pieces = Pieces::of(&fof, step);
+            let (w, h, d) = (pieces.w, pieces.h, pieces.d);
+            let table = CosineTable::new(fof.n, d);
+            let mut col = vec![0.0f32; d];
+            let mut occupied = vec![false; w * h * d];
+            for y in 0..h {
+                for x in 0..w {
+                    if fof.is_empty_column(x * step, y * step) {
+                        continue;
+                    }
+                    fof.decode_column_with(&table, x * step, y * step, &mut col);
+                    for z in 0..d {
+                        occupied[(y * w + x) * d + z] = col[z] >= ISO_LEVEL;
+                    }
+                }
+            }
+            let mut labels = vec![0u32; w * h * d];
+            let (mut next_label, mut largest, mut largest_size, mut total) = (0u32, 0u32, 0usize, 0usize);
+            for start in 0..labels.len() {
+                if !occupied[start] || labels[start] != 0 {
+                    continue;
+                }
+                next_label += 1;
+                labels[start] = next_label;
+                let (mut stack, mut size) = (vec![start], 0usize);
+                while let Some(i) = stack.pop() {
+                    size += 1;
+                    let (z, x, y) = (i % d, (i / d) % w, i / d / w);
+                    for j in neighbours26(x, y, z, w, h, d) {
+                        if occupied[j] && labels[j] == 0 {
+                            labels[j] = next_label;
+                            stack.push(j);
+                        }
+                    }
+                }
+                total += size;
+                if size > largest_size {
+                    (largest, largest_size) = (next_label, size);
+                }
+            }
+            assert!(next_label > 5, "step {step}: the field has many pieces ({next_label})");
+            assert!(pieces.labels == labels, "step {step}: labels differ");
+            assert_eq!(
+                (pieces.largest, pieces.largest_size, pieces.total),
+                (largest, largest_size, total),
+                "step {step}"
+            );
+        }
     }
 
     #[test]
