@@ -402,10 +402,8 @@ impl FofNet {
         let base = fof_of(self.base())?;
         let start = std::time::Instant::now();
         let small = |f: &Fof| coefficients_tensor(&Coefficients { width: w, height: h, n, data: &f.coeffs }, r);
-        let mut tensors = Vec::with_capacity(self.inputs.len());
-        for input in self.inputs.clone() {
-            tensors.push(small(fof_of(input)?));
-        }
+        let fofs = self.inputs.iter().map(|&input| fof_of(input)).collect::<Result<Vec<_>, _>>()?;
+        let tensors: Vec<Vec<f32>> = fofs.into_par_iter().map(small).collect();
         let base_small = match self.inputs.iter().position(|&i| i == self.base()) {
             Some(k) => tensors[k].clone(),
             None => small(base),
@@ -427,9 +425,12 @@ impl FofNet {
                 delta[i * n + k] = predicted.data[i * n + k] - base_small[k * plane + i];
             }
         }
-        let mut coeffs = base.coeffs.clone();
+        // The base's coefficients, copied row by row inside the parallel loop (a 512² field is 32 MB: one thread
+        // copying it, and faulting its pages in, cost as much as the correction).
+        let mut coeffs = vec![0.0f32; base.coeffs.len()];
         let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
         coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
+            line.copy_from_slice(&base.coeffs[row * w * n..(row + 1) * w * n]);
             let y = (row as f32 + 0.5) * sy - 0.5;
             let (y0, ty) = (y.floor(), y - y.floor());
             let (mut acc, mut before) = (vec![0.0f32; n], vec![0.0f32; n]);

@@ -2,6 +2,7 @@
 //! conversions from pipeline images (linear, premultiplied) to network tensors (planar, sRGB `[-1, 1]`).
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::buffer::{linear_to_srgb, GrayImage, Image, RgbImage};
 
@@ -218,15 +219,14 @@ pub(crate) fn coefficients_tensor(c: &Coefficients<'_>, r: usize) -> Vec<f32> {
     let (w, h, n) = (c.width, c.height, c.n);
     if r > 0 && w % r == 0 && h % r == 0 {
         // The usual 512 -> 128 box average straight from the pixel-major layout: one pass over contiguous
-        // columns instead of a full-resolution planar copy (the same values as the general path below).
+        // columns instead of a full-resolution planar copy (the same values as the general path below). Output
+        // rows in parallel (pixel-major), then made planar.
         let (kx, ky) = (w / r, h / r);
         let norm = 1.0 / (kx * ky) as f32;
         let plane = r * r;
-        let mut out = vec![0.0f32; n * plane];
-        let mut acc = vec![0.0f32; n];
-        for row in 0..r {
-            for col in 0..r {
-                acc.fill(0.0);
+        let mut pixels = vec![0.0f32; n * plane];
+        pixels.par_chunks_mut(r * n).enumerate().for_each(|(row, line_out)| {
+            for (col, acc) in line_out.chunks_exact_mut(n).enumerate() {
                 for y in row * ky..(row + 1) * ky {
                     let line = &c.data[(y * w + col * kx) * n..(y * w + (col + 1) * kx) * n];
                     for px in line.chunks_exact(n) {
@@ -235,9 +235,12 @@ pub(crate) fn coefficients_tensor(c: &Coefficients<'_>, r: usize) -> Vec<f32> {
                         }
                     }
                 }
-                for (k, a) in acc.iter().enumerate() {
-                    out[k * plane + row * r + col] = a * norm;
-                }
+            }
+        });
+        let mut out = vec![0.0f32; n * plane];
+        for (i, px) in pixels.chunks_exact(n).enumerate() {
+            for (k, a) in px.iter().enumerate() {
+                out[k * plane + i] = a * norm;
             }
         }
         return out;
