@@ -178,6 +178,53 @@ fn a_hidden_arm_does_not_pull_the_visible_one_and_a_cut_photo_fits_what_it_shows
 }
 
 #[test]
+fn an_arm_the_network_does_not_see_draws_no_body_columns() {
+    // The right arm hidden (elbow and wrist at visibility 0.05): `limbs_seen` drops the right upper arm and forearm,
+    // and the body's columns without them lose exactly columns the fitted right arm covered (every column lost is
+    // one of the right arm's own), while the left wrist's column stays a body column.
+    use r2human::body::model::LIMB_SEGMENTS;
+    use r2human::body::prior::limbs_seen;
+    use r2human::body::reconcile::{classify, Cell};
+    use r2human::geometry::fof::{intervals_from_mesh, sheet_thickness};
+    use r2human::geometry::mesh::TriMesh;
+    let model = BodyModel::shared().expect("body model data");
+    let t = truth(42);
+    let mut lm = landmarks_of(&t.points);
+    for i in [14, 16] {
+        lm.landmarks[i].visibility = 0.05;
+    }
+    let fit = fit_body(model, &FitTarget::new(&lm, &t.mask), None, &FitOptions::default());
+    let seen = limbs_seen(&lm, FitOptions::default().min_visibility);
+    let unseen: Vec<usize> = (0..LIMB_SEGMENTS.len()).filter(|&k| !seen[k]).collect();
+    assert_eq!(unseen, vec![2, 3], "{seen:?}");
+    let mesh = model.mesh(&fit.pose);
+    let kept = model.mesh_seen(&mesh, &seen);
+    let in_arm = |v: u32| {
+        model.vertex_segment[model.base.source_vertex[v as usize] as usize]
+            .is_some_and(|k| unseen.contains(&(k as usize)))
+    };
+    let arm_only = TriMesh::new(
+        mesh.positions.clone(),
+        mesh.triangles.iter().copied().filter(|tri| tri.iter().filter(|&&v| in_arm(v)).count() >= 2).collect(),
+    );
+    let cells = |m: &TriMesh| classify(&intervals_from_mesh(m, RES, RES, sheet_thickness(32)), &t.mask, None);
+    let (all, without, arm) = (cells(&mesh), cells(&kept), cells(&arm_only));
+    let mut lost = 0;
+    for i in 0..RES * RES {
+        assert!(without[i] != Cell::Body || all[i] == Cell::Body, "column {i} gained a body");
+        if all[i] == Cell::Body && without[i] == Cell::Free {
+            lost += 1;
+            assert_eq!(arm[i], Cell::Body, "column {i} lost without the right arm over it");
+        }
+    }
+    println!("columns the hidden right arm no longer draws: {lost}");
+    assert!(lost > 20, "{lost}");
+    let wrist = t.points[15].expect("left wrist");
+    let px = (((wrist.x + 1.0) * 0.5 * RES as f32) as usize, ((1.0 - wrist.y) * 0.5 * RES as f32) as usize);
+    assert_eq!(without[px.1 * RES + px.0], Cell::Body, "left wrist at {px:?}");
+}
+
+#[test]
 fn the_fit_never_returns_nan() {
     let model = BodyModel::shared().expect("body model data");
     let t = truth(3);
