@@ -1,6 +1,10 @@
 //! The body prior of one input: pose landmarks ([`super::pose`]) -> fitted body ([`super::fit`]) -> the posed
 //! body's FOF (the **body FOF**), reconciled with the person's silhouette.
 //!
+//! What the network only guesses is left out before the fit and the FOF: legs it draws shorter than a person's
+//! ([`legs_it_sees`]), hands whose elbow it does not see ([`arms_it_sees`]), and every limb segment whose far end it
+//! does not see draws no body columns ([`limbs_seen`], [`BodyModel::mesh_seen`]).
+//!
 //! Reconciliation ([`body_fof`], [`super::reconcile`]): the FOF intervals of the posed body mesh where the mask
 //! covers the pixel; none outside the mask (so whatever the photo does not show, past its frame or beyond the
 //! silhouette, is cut); mask pixels the body does not cover (hair, loose clothes, a held object) get one interval

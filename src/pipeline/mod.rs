@@ -304,7 +304,7 @@ pub fn load_body_for(
 /// The body prior's FOF of a normalised input (see [`GeometryMode::Body`]) and, when it could not be used, why:
 /// the inflation prior `prior` is returned instead when no pose is found or the prior fails. This is the one place
 /// the body FOF is computed: `--geometry body`, the FOF net's `body` input and the dataset writer's
-/// `body_fof.npy` all come through it ([`body_prior_fof_or_why`]).
+/// `body_fof.npy` all come through it (`body_prior_fof_or_why`).
 pub fn body_prior_fof(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
