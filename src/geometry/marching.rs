@@ -203,6 +203,8 @@ const SPAN_DECODED: u8 = 2;
 /// the wider error bound of the longer spans still certifies nearly every span away from the surface (measured:
 /// mesh extraction of a 512² body 46 -> 44 ms CPU, 58 -> 50 before the decode kept its sums in registers).
 const SPAN: usize = 16;
+// A decoded span's inside bits (SPAN + 1 of them) are gathered in one u64 ([`Extractor::decode_row`]).
+const _: () = assert!(SPAN < 63);
 
 /// Sets bits `lo..=hi`.
 #[inline]
@@ -288,10 +290,15 @@ impl Extractor<'_> {
             let bits = &mut out.bits[col * self.words..(col + 1) * self.words];
             let states = &mut out.spans[col * spans..(col + 1) * spans];
             let mut any = false;
+            let margin_of = |len: usize| {
+                let len = len as f64;
+                (len * len / 8.0 * step2 + rounding) as f32
+            };
+            // Every span but the last is SPAN samples long: its margin once per column.
+            let full_margin = margin_of(SPAN);
             for (j, state) in states.iter_mut().enumerate() {
                 let (lo, hi) = self.span_bounds(j);
-                let len = (hi - lo) as f64;
-                let margin = (len * len / 8.0 * step2 + rounding) as f32;
+                let margin = if hi - lo == SPAN { full_margin } else { margin_of(hi - lo) };
                 let (a, b) = (vals[lo], vals[hi]);
                 *state = if a.min(b) > ISO_LEVEL + margin {
                     SPAN_INSIDE
@@ -309,10 +316,18 @@ impl Extractor<'_> {
                         any = true;
                     }
                     _ => {
-                        for (i, &v) in vals.iter().enumerate().take(hi + 1).skip(lo) {
-                            if is_inside(v) {
-                                bits[i / 64] |= 1 << (i % 64);
-                                any = true;
+                        // The span's inside bits (at most SPAN + 1 < 64 of them) gathered without branches, then
+                        // placed in the one or two words they fall in.
+                        let inside = vals[lo..=hi]
+                            .iter()
+                            .enumerate()
+                            .fold(0u64, |m, (i, &v)| m | (u64::from(is_inside(v)) << i));
+                        if inside != 0 {
+                            any = true;
+                            let (word, shift) = (lo / 64, lo % 64);
+                            bits[word] |= inside << shift;
+                            if shift > 0 && word + 1 < bits.len() {
+                                bits[word + 1] |= inside >> (64 - shift);
                             }
                         }
                     }
