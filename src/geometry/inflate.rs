@@ -25,7 +25,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 use spade::{AngleLimit, ConstrainedDelaunayTriangulation, Point2, RefinementParameters, Triangulation};
 
-use super::fof::{CosineTable, Fof, FofError, MAX_RESOLUTION};
+use super::fof::{sheet_thickness, CosineTable, Fof, FofError, MAX_RESOLUTION};
 use crate::buffer::GrayImage;
 
 /// Errors of the inflation prior; every message says what to do next.
@@ -255,10 +255,30 @@ fn inflated_fraction(fg: &[bool], u: &[f32], w: usize, h: usize) -> f32 {
     }
 }
 
-/// [`inflate`], then [`Fof::from_depth_maps`] with `n` coefficients.
+/// [`inflate`], then [`Fof::from_depth_maps`] with `n` coefficients. Every masked column is at least
+/// [`sheet_thickness`]`(n)` thick about the centre plane ([`at_least_sheet_thick`]): the inflated height of a part
+/// narrower than about 16 px at 512² (a finger, a tripod leg, a strap, the outline's rim) is thinner than `n`
+/// coefficients can show, and such a part vanished from the mesh.
 pub fn inflate_to_fof(mask: &GrayImage, n: usize, params: &InflateParams) -> Result<Fof, InflateError> {
-    let s = inflate(mask, params)?;
+    let mut s = inflate(mask, params)?;
+    at_least_sheet_thick(&mut s, params.centre_z, sheet_thickness(n));
     Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
+}
+
+/// Widens every masked column of `s` to at least `thickness` (front - back), symmetric about `centre_z` as the
+/// inflation is, within the cube; thicker columns are unchanged. A non-finite or negative `thickness` changes nothing.
+pub fn at_least_sheet_thick(s: &mut InflatedSurfaces, centre_z: f32, thickness: f32) {
+    if !(thickness.is_finite() && thickness > 0.0) {
+        return;
+    }
+    let half = 0.5 * thickness;
+    let (front_min, back_max) = ((centre_z + half).clamp(-1.0, 1.0), (centre_z - half).clamp(-1.0, 1.0));
+    for ((f, b), m) in s.front.data.iter_mut().zip(s.back.data.iter_mut()).zip(&s.mask.data) {
+        if *m > 0.5 {
+            *f = f.max(front_min);
+            *b = b.min(back_max);
+        }
+    }
 }
 
 /// The fraction of the mask's interior pixels whose FOF column reaches occupancy 0.5 at some depth (decoded at
@@ -1005,6 +1025,49 @@ mod tests {
         assert!(s.front.data[mid] > s.front.data[edge]);
         let fof = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
         assert!(fof.coeffs.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn thin_parts_are_at_least_a_sheet_thick_and_stay_in_the_mesh() {
+        // A 96 px disc (the body) with a 2 px bar beside it (a tripod leg) at 256²: the bar's inflated half height,
+        // about 0.7 sqrt(2 a^2) with half width a = 1 px = 0.0078 cube units, is under 1/64: its interval
+        // is under the 1/32 = 0.031 that 32 coefficients decode above 0.5. After `at_least_sheet_thick` every bar column is exactly 2/32 thick about 0 and
+        // decodes above 0.5 at z = 0; the disc's centre keeps its own height.
+        let size = 256;
+        let mut mask = disc_mask(size, 90.0, 128.0, 48.0);
+        for r in 60..200 {
+            for c in 200..202 {
+                mask.data[r * size + c] = 1.0;
+            }
+        }
+        let p = InflateParams::default();
+        let raw = inflate(&mask, &p).unwrap();
+        let bar = 128 * size + 201;
+        assert!(raw.front.data[bar] < 0.5 / 32.0, "the bar is thinner than a sheet: {}", raw.front.data[bar]);
+        let mut widened = raw.clone();
+        at_least_sheet_thick(&mut widened, 0.0, sheet_thickness(32));
+        assert_eq!(widened.front.data[bar], 1.0 / 32.0);
+        assert_eq!(widened.back.data[bar], -1.0 / 32.0);
+        let centre = 128 * size + 90;
+        assert_eq!(widened.front.data[centre], raw.front.data[centre]);
+        assert!(raw.front.data[centre] > 0.2);
+        assert!(widened.front.data.iter().zip(&widened.mask.data).all(|(f, m)| *m < 0.5 || *f >= 1.0 / 32.0));
+        // Outside the mask nothing changes; bad thicknesses change nothing.
+        assert_eq!(widened.front.data[0], raw.front.data[0]);
+        for bad in [f32::NAN, -1.0, 0.0, f32::INFINITY] {
+            let mut same = raw.clone();
+            at_least_sheet_thick(&mut same, 0.0, bad);
+            assert_eq!(same.front.data, raw.front.data);
+        }
+        // End to end: the bar decodes above 0.5 at the centre plane (before: below, absent from the mesh).
+        let fof = inflate_to_fof(&mask, 32, &p).unwrap();
+        let table = CosineTable::new(32, 128);
+        let mut out = vec![0.0f32; 128];
+        fof.decode_column_with(&table, 201, 128, &mut out);
+        assert!(out.iter().any(|&o| o >= 0.5), "{:?}", out.iter().cloned().fold(0.0f32, f32::max));
+        let old = Fof::from_depth_maps(&raw.front, &raw.back, &raw.mask, 32).unwrap();
+        old.decode_column_with(&table, 201, 128, &mut out);
+        assert!(out.iter().all(|&o| o < 0.5), "the bar was already in the mesh before");
     }
 
     #[test]
