@@ -11,7 +11,9 @@
 //! table), with the target: everything from the photo's normalised view to the mesh (inflation prior, pose
 //! landmarks, body fit, body FOF, FOF net, guard, depth centring, mesh), measured as the iteration's wall-clock
 //! time minus its normalisation and source raster (the median over iterations). Stage times do not add up to it:
-//! the inflation prior runs side by side with the pose, the fit and the body FOF.
+//! the inflation prior runs side by side with the pose, the fit and the body FOF. The last column is the process
+//! CPU time of the whole `prepare` (every thread's, `getrusage`): on a machine others share, wall-clock times
+//! grow with their load, this much less.
 //!
 //! Run: `cargo bench --bench still` (all; about three minutes) or a subset, e.g. `cargo bench --bench still --
 //! fofnet/synthetic`. Needs `.tools` (`bash scripts/setup.sh`: ONNX Runtime, the pose and segmentation models,
@@ -45,8 +47,9 @@ struct Input {
     mask: r2human::buffer::GrayImage,
 }
 
-/// One iteration: its stage times ([`PreparedInput::timings`]) and the wall-clock time of the whole `prepare`.
-type Run = (Vec<(&'static str, Duration)>, Duration);
+/// One iteration: its stage times ([`PreparedInput::timings`]), the wall-clock time of the whole `prepare` and the
+/// process CPU time it used (all threads: the work the two cores have to do, whatever else runs on them).
+type Run = (Vec<(&'static str, Duration)>, Duration, Duration);
 /// Per (geometry, input): every iteration's [`Run`].
 type Recorded = BTreeMap<(usize, usize), Vec<Run>>;
 
@@ -110,9 +113,9 @@ fn benches(c: &mut Criterion) {
             let runs = recorded.entry((m, i)).or_default();
             g.bench_function(format!("{mode}/{}", input.name), |b| {
                 b.iter(|| {
-                    let start = Instant::now();
+                    let (start, cpu) = (Instant::now(), process_cpu_time());
                     let p = PreparedInput::prepare(black_box(&input.rgb), &input.mask, opts).expect("prepare");
-                    runs.push((p.timings.0.clone(), start.elapsed()));
+                    runs.push((p.timings.0.clone(), start.elapsed(), process_cpu_time().saturating_sub(cpu)));
                     p
                 })
             });
@@ -127,7 +130,7 @@ fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
     // Stage names in the order they first ran.
     let mut stages: Vec<&'static str> = Vec::new();
     for runs in recorded.values() {
-        for (run, _) in runs {
+        for (run, _, _) in runs {
             for (name, _) in run {
                 if !stages.contains(name) {
                     stages.push(name);
@@ -137,17 +140,17 @@ fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
     }
     println!("\nstage medians (ms) per input, `cargo bench --bench still`:\n");
     println!(
-        "| geometry | input | runs | {} | **target (wall)** | prepare (wall) |",
+        "| geometry | input | runs | {} | **target (wall)** | prepare (wall) | prepare (CPU) |",
         stages.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" | ")
     );
-    println!("|---|---|---|{}---|---|", "---|".repeat(stages.len()));
+    println!("|---|---|---|{}---|---|---|", "---|".repeat(stages.len()));
     for (&(m, i), runs) in recorded {
         if runs.is_empty() {
             continue;
         }
         let cell = |name: &str| {
             let v: Vec<Duration> =
-                runs.iter().filter_map(|(r, _)| r.iter().find(|(n, _)| *n == name).map(|p| p.1)).collect();
+                runs.iter().filter_map(|(r, _, _)| r.iter().find(|(n, _)| *n == name).map(|p| p.1)).collect();
             if v.is_empty() {
                 "–".to_string()
             } else {
@@ -156,15 +159,16 @@ fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
         };
         let target = median(
             runs.iter()
-                .map(|(r, wall)| {
+                .map(|(r, wall, _)| {
                     let outside: Duration = r.iter().filter(|(n, _)| OUTSIDE_TARGET.contains(n)).map(|p| p.1).sum();
                     wall.saturating_sub(outside)
                 })
                 .collect(),
         );
-        let total = median(runs.iter().map(|(_, wall)| *wall).collect());
+        let total = median(runs.iter().map(|(_, wall, _)| *wall).collect());
+        let cpu = median(runs.iter().map(|(_, _, cpu)| *cpu).collect());
         println!(
-            "| {} | {} | {} | {} | **{target:.1}** | {total:.1} |",
+            "| {} | {} | {} | {} | **{target:.1}** | {total:.1} | {cpu:.1} |",
             modes[m],
             inputs[i].name,
             runs.len(),
@@ -175,3 +179,15 @@ fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
 
 criterion_group!(still, benches);
 criterion_main!(still);
+
+/// User + system CPU time of this process so far, every thread's (`getrusage(RUSAGE_SELF)`); zero if the call fails.
+fn process_cpu_time() -> Duration {
+    // SAFETY: `rusage` is plain old data, valid all zeros; `getrusage` only writes into the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: a valid pointer to a live `rusage`, as `getrusage` requires.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return Duration::ZERO;
+    }
+    let time = |t: libc::timeval| Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64);
+    time(usage.ru_utime) + time(usage.ru_stime)
+}
