@@ -18,6 +18,10 @@
 //! Run: `cargo bench --bench still` (all; about three minutes) or a subset, e.g. `cargo bench --bench still --
 //! fofnet/synthetic`. Needs `.tools` (`bash scripts/setup.sh`: ONNX Runtime, the pose and segmentation models,
 //! the MakeHuman data).
+//!
+//! `STILL_HASHES=1 cargo bench --bench still` benchmarks nothing: it prints, per geometry and input, the mesh's size
+//! and a hash of its vertex bits and triangles, and a hash of the FOF's coefficient bits. Speed work that must keep
+//! the output bits compares these before and after a change (same toolchain).
 
 use std::collections::BTreeMap;
 use std::hint::black_box;
@@ -103,6 +107,10 @@ fn benches(c: &mut Criterion) {
         ("inflate", PrepareOptions { geometry: GeometryMode::Inflate, ..base }),
     ];
     let inputs = inputs();
+    if std::env::var_os("STILL_HASHES").is_some() {
+        print_hashes(&modes, &inputs);
+        return;
+    }
     // Per (mode, input): every iteration's stage times.
     let mut recorded = Recorded::new();
     let mut g = c.benchmark_group("still");
@@ -123,6 +131,30 @@ fn benches(c: &mut Criterion) {
     }
     g.finish();
     print_table(&modes.map(|(m, _)| m), &inputs, &recorded);
+}
+
+/// One `prepare` per (mode, input): the mesh's vertex and triangle counts, a hash of its vertex bits and triangles,
+/// a hash of the FOF's coefficient bits.
+fn print_hashes(modes: &[(&str, PrepareOptions)], inputs: &[Input]) {
+    use std::hash::{DefaultHasher, Hash, Hasher};
+    for (mode, opts) in modes {
+        for input in inputs {
+            let p = PreparedInput::prepare(&input.rgb, &input.mask, opts).expect("prepare");
+            let mut mesh = DefaultHasher::new();
+            p.mesh.positions.iter().for_each(|v| v.to_array().map(f32::to_bits).hash(&mut mesh));
+            p.mesh.triangles.hash(&mut mesh);
+            let mut fof = DefaultHasher::new();
+            p.fof.coeffs.iter().for_each(|c| c.to_bits().hash(&mut fof));
+            println!(
+                "{mode} {}: mesh {} vertices {} triangles {:016x}, FOF {:016x}",
+                input.name,
+                p.mesh.positions.len(),
+                p.mesh.triangles.len(),
+                mesh.finish(),
+                fof.finish()
+            );
+        }
+    }
 }
 
 /// The medians of every stage per (mode, input), in markdown.
