@@ -161,6 +161,17 @@ pub struct InflatedSurfaces {
 
 /// Inflates the person mask (values in `[0, 1]`, threshold 0.5) into front/back depth maps.
 pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfaces, InflateError> {
+    inflate_at_least(mask, params, 0.0)
+}
+
+/// [`inflate`] with every masked column's half thickness at least `min_half_depth` (body-cube units) as well as
+/// `params.min_half_thickness` pixels: the one floor of the inflated height. A non-finite or negative
+/// `min_half_depth` adds no floor.
+fn inflate_at_least(
+    mask: &GrayImage,
+    params: &InflateParams,
+    min_half_depth: f32,
+) -> Result<InflatedSurfaces, InflateError> {
     params.validate()?;
     let (w, h) = (mask.width, mask.height);
     if w < 4 || h < 4 || w > MAX_RESOLUTION || h > MAX_RESOLUTION || mask.data.len() != w * h {
@@ -206,7 +217,8 @@ pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfa
     }
 
     let (sx, sy) = (2.0 / w as f32, 2.0 / h as f32);
-    let h_min = params.min_half_thickness * sx.min(sy);
+    let depth_floor = if min_half_depth.is_finite() { min_half_depth.max(0.0) } else { 0.0 };
+    let h_min = (params.min_half_thickness * sx.min(sy)).max(depth_floor);
     let mut front = GrayImage::new(w, h, -1.0);
     let mut back = GrayImage::new(w, h, -1.0);
     let mut out_mask = GrayImage::new(w, h, 0.0);
@@ -256,29 +268,12 @@ fn inflated_fraction(fg: &[bool], u: &[f32], w: usize, h: usize) -> f32 {
 }
 
 /// [`inflate`], then [`Fof::from_depth_maps`] with `n` coefficients. Every masked column is at least
-/// [`sheet_thickness`]`(n)` thick about the centre plane ([`at_least_sheet_thick`]): the inflated height of a part
-/// narrower than about 16 px at 512² (a finger, a tripod leg, a strap, the outline's rim) is thinner than `n`
-/// coefficients can show, and such a part vanished from the mesh.
+/// [`sheet_thickness`]`(n)` thick about the centre plane: the inflated height of a part narrower than about 16 px at
+/// 512² (a finger, a tripod leg, a strap, the outline's rim) is thinner than `n` coefficients can show, and such a
+/// part vanished from the mesh.
 pub fn inflate_to_fof(mask: &GrayImage, n: usize, params: &InflateParams) -> Result<Fof, InflateError> {
-    let mut s = inflate(mask, params)?;
-    at_least_sheet_thick(&mut s, params.centre_z, sheet_thickness(n));
+    let s = inflate_at_least(mask, params, 0.5 * sheet_thickness(n))?;
     Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
-}
-
-/// Widens every masked column of `s` to at least `thickness` (front - back), symmetric about `centre_z` as the
-/// inflation is, within the cube; thicker columns are unchanged. A non-finite or negative `thickness` changes nothing.
-pub fn at_least_sheet_thick(s: &mut InflatedSurfaces, centre_z: f32, thickness: f32) {
-    if !(thickness.is_finite() && thickness > 0.0) {
-        return;
-    }
-    let half = 0.5 * thickness;
-    let (front_min, back_max) = ((centre_z + half).clamp(-1.0, 1.0), (centre_z - half).clamp(-1.0, 1.0));
-    for ((f, b), m) in s.front.data.iter_mut().zip(s.back.data.iter_mut()).zip(&s.mask.data) {
-        if *m > 0.5 {
-            *f = f.max(front_min);
-            *b = b.min(back_max);
-        }
-    }
 }
 
 /// The fraction of the mask's interior pixels whose FOF column reaches occupancy 0.5 at some depth (decoded at
@@ -1030,9 +1025,9 @@ mod tests {
     #[test]
     fn thin_parts_are_at_least_a_sheet_thick_and_stay_in_the_mesh() {
         // A 96 px disc (the body) with a 2 px bar beside it (a tripod leg) at 256²: the bar's inflated half height,
-        // about 0.7 sqrt(2 a^2) with half width a = 1 px = 0.0078 cube units, is under 1/64: its interval
-        // is under the 1/32 = 0.031 that 32 coefficients decode above 0.5. After `at_least_sheet_thick` every bar column is exactly 2/32 thick about 0 and
-        // decodes above 0.5 at z = 0; the disc's centre keeps its own height.
+        // about 0.7 sqrt(2 a^2) with half width a = 1 px = 0.0078 cube units, is under 1/64: its interval is under
+        // the 1/32 = 0.031 that 32 coefficients decode above 0.5. With a floor of half a sheet every bar column is
+        // exactly 2/32 thick about 0 and decodes above 0.5 at z = 0; the disc's centre keeps its own height.
         let size = 256;
         let mut mask = disc_mask(size, 90.0, 128.0, 48.0);
         for r in 60..200 {
@@ -1044,20 +1039,17 @@ mod tests {
         let raw = inflate(&mask, &p).unwrap();
         let bar = 128 * size + 201;
         assert!(raw.front.data[bar] < 0.5 / 32.0, "the bar is thinner than a sheet: {}", raw.front.data[bar]);
-        let mut widened = raw.clone();
-        at_least_sheet_thick(&mut widened, 0.0, sheet_thickness(32));
+        let widened = inflate_at_least(&mask, &p, 0.5 * sheet_thickness(32)).unwrap();
         assert_eq!(widened.front.data[bar], 1.0 / 32.0);
         assert_eq!(widened.back.data[bar], -1.0 / 32.0);
         let centre = 128 * size + 90;
         assert_eq!(widened.front.data[centre], raw.front.data[centre]);
         assert!(raw.front.data[centre] > 0.2);
         assert!(widened.front.data.iter().zip(&widened.mask.data).all(|(f, m)| *m < 0.5 || *f >= 1.0 / 32.0));
-        // Outside the mask nothing changes; bad thicknesses change nothing.
+        // Outside the mask nothing changes; bad floors change nothing.
         assert_eq!(widened.front.data[0], raw.front.data[0]);
-        for bad in [f32::NAN, -1.0, 0.0, f32::INFINITY] {
-            let mut same = raw.clone();
-            at_least_sheet_thick(&mut same, 0.0, bad);
-            assert_eq!(same.front.data, raw.front.data);
+        for bad in [f32::NAN, -1.0, 0.0, f32::INFINITY, f32::NEG_INFINITY] {
+            assert_eq!(inflate_at_least(&mask, &p, bad).unwrap(), raw);
         }
         // End to end: the bar decodes above 0.5 at the centre plane (before: below, absent from the mesh).
         let fof = inflate_to_fof(&mask, 32, &p).unwrap();
