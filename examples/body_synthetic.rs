@@ -212,6 +212,13 @@ fn save_sheet(path: &std::path::Path, panels: &[RgbImage]) -> anyhow::Result<()>
     save_rgb_png(path, &sheet).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
+/// The body prior's (deterministic, cold-started) estimate of `input` once more, as `body_prior_fof` made it: for
+/// its landmarks and pose.
+fn estimate_again(body: &SharedBody, input: &NormalisedInput) -> anyhow::Result<Option<BodyPrior>> {
+    let mut estimator = body.lock().map_err(|_| anyhow::anyhow!("body prior lock poisoned"))?;
+    Ok(estimator.estimate(&input.rgb, &input.mask, Some(input.frame), false, &mut |_, _| {})?)
+}
+
 /// `--scan FILE`: the inflation prior and the body prior of the scan's source view against its ground truth.
 fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &SharedBody) -> anyhow::Result<()> {
     let scan = load_scan(file)?;
@@ -224,13 +231,7 @@ fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &Share
     let truth = Occupancy::of(&Fof::from_mesh(&scan.mesh.mesh, size, n)?);
     let prior = inflate_to_fof(&mask, n, &InflateParams::default())?;
     let (fitted, fallback) = body_prior_fof(&input, &opts, body, prior.clone(), &mut StageTimings::default());
-    let estimate = body.lock().map_err(|_| anyhow::anyhow!("body prior lock poisoned"))?.estimate(
-        &input.rgb,
-        &input.mask,
-        Some(input.frame),
-        false,
-        &mut |_, _| {},
-    )?;
+    let estimate = estimate_again(body, &input)?;
     let mut source = rgb;
     if let Some(p) = &estimate {
         draw_landmarks(p, &mut source)?;
@@ -305,14 +306,7 @@ fn main() -> anyhow::Result<()> {
         let truth = Fof::from_mesh(&s.mesh.mesh, size, n)?;
         let prior = inflate_to_fof(&mask, n, &inflate_params)?;
         let (fitted, fallback) = body_prior_fof(&input, &opts, &body, prior.clone(), &mut StageTimings::default());
-        // The same (deterministic) estimate again, for its landmarks and pose.
-        let estimate = body.lock().map_err(|_| anyhow::anyhow!("body prior lock poisoned"))?.estimate(
-            &input.rgb,
-            &input.mask,
-            Some(input.frame),
-            false,
-            &mut |_, _| {},
-        )?;
+        let estimate = estimate_again(&body, &input)?;
         let end = s.garments.first().map(|g| g.vertices.start).unwrap_or(s.mesh.mesh.positions.len());
         let own = body_only(&s.mesh.mesh, end);
         let oracle = body_fof(&own, &mask, Some(input.frame), n, &inflate_params)?;

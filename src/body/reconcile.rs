@@ -489,15 +489,21 @@ mod tests {
         Image::from_fn(w, h, |c, r| if f(c, r) { 1.0 } else { 0.0 })
     }
 
+    /// Whether pixel `(c, r)` of an `n` x `n` grid lies in the disc of `radius` pixels about the grid's centre.
+    fn in_disc(n: usize, radius: f32) -> impl Fn(usize, usize) -> bool + Copy {
+        let half = n as f32 / 2.0;
+        move |c, r| {
+            let (x, y) = (c as f32 + 0.5 - half, r as f32 + 0.5 - half);
+            x * x + y * y <= radius * radius
+        }
+    }
+
     #[test]
     fn a_free_region_without_body_is_the_inflation_profile() {
         // A disc of radius R pixels: u = R² - r² (cube units), h = κ sqrt(u), centred on the body's median
         // depth (no body: 0).
         let (n, radius) = (96usize, 30.0f32);
-        let mask = mask_of(n, n, |c, r| {
-            let (x, y) = (c as f32 + 0.5 - 48.0, r as f32 + 0.5 - 48.0);
-            x * x + y * y <= radius * radius
-        });
+        let mask = mask_of(n, n, in_disc(n, radius));
         let body = Image::new(n, n, Vec::new());
         let params =
             ReconcileParams { thickness: 1.0, min_half_thickness: 0.0, silhouette_floor: 1.0, ..Default::default() };
@@ -613,10 +619,7 @@ mod tests {
         // about depth 0, exactly as without a body. A body covering the whole mask leaves nothing free: its own
         // intervals, with the floor. Extreme and reversed body values change neither.
         let (n, radius) = (64usize, 20.0f32);
-        let inside = |c: usize, r: usize| {
-            let (x, y) = (c as f32 + 0.5 - 32.0, r as f32 + 0.5 - 32.0);
-            x * x + y * y <= radius * radius
-        };
+        let inside = in_disc(n, radius);
         let mask = mask_of(n, n, inside);
         let params = ReconcileParams::default();
         let alone = reconcile(&Image::new(n, n, Vec::new()), &mask, None, &params);
@@ -663,10 +666,7 @@ mod tests {
         // u_s = R² - r², h = κ sqrt(u_s); the thick column keeps its own interval; free columns are at least the
         // sphere. Without the floor the slab stays as thin as the body.
         let (n, radius) = (96usize, 30.0f32);
-        let inside = |c: usize, r: usize| {
-            let (x, y) = (c as f32 + 0.5 - 48.0, r as f32 + 0.5 - 48.0);
-            x * x + y * y <= radius * radius
-        };
+        let inside = in_disc(n, radius);
         let mask = mask_of(n, n, inside);
         let mut body = Image::new(n, n, Vec::new());
         for r in 0..n {
