@@ -411,6 +411,38 @@ fn body_fof_net_refines_the_body_fof_and_needs_it() {
     }
 }
 
+/// A FOF net that sees geometry only (`r2human.fof_inputs = body,prior`, no `image` input; the fixture adds 0.25 to
+/// c0 of its `prior` and ignores `body`): it loads without an image input, is fed the two FOFs, and refines the
+/// prior whatever the photo holds.
+#[test]
+fn geometry_only_fof_net_takes_no_photo() {
+    let size = 4 * R;
+    let (rgb, mask) = blocky_person(size);
+    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }).unwrap();
+    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }).unwrap();
+    let mut net = FofNet::load(&fixture("fof_geometry.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
+    assert!(!net.takes_image());
+    assert_eq!((net.inputs(), net.base()), (&[FofInput::Body, FofInput::Prior][..], FofInput::Prior));
+    let fof = net.refine_with(&rgb, &mask, &prior, Some(&body)).unwrap();
+    // Another photo of the same silhouette gives the same geometry: the net never sees it.
+    let dark = RgbImage::from_fn(size, size, |_, _| Vec3::ZERO);
+    assert_eq!(net.refine_with(&dark, &mask, &prior, Some(&body)).unwrap(), fof);
+    let mut corrected = 0;
+    for row in 0..size {
+        for col in 0..size {
+            let (p, f) = (prior.column(col, row), fof.column(col, row));
+            if p.iter().all(|v| *v == 0.0) {
+                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the prior: {f:?}");
+                continue;
+            }
+            assert_eq!(&f[1..], &p[1..], "({col},{row}): the other coefficients are the prior's");
+            corrected += ((f[0] - p[0] - 0.25).abs() < 1e-5) as usize;
+        }
+    }
+    assert!(corrected > 500, "{corrected}");
+    assert!(FofNet::load(&fixture("fof_body.onnx"), &cpu()).unwrap().takes_image());
+}
+
 /// The pipeline feeds a net that takes the body FOF the body prior exactly as `--geometry body` computes it
 /// ([`body_prior_fof`]) and falls back to that body FOF when the guard rejects; without a loaded body prior,
 /// `--geometry fofnet` is an error that says so and `auto` is the inflation prior. Needs the pose model.
