@@ -377,9 +377,10 @@ impl PoseLandmarks {
         }
         out.landmarks.iter_mut().for_each(|l| l.pixel.x = width - l.pixel.x);
         out.world.iter_mut().for_each(|w| w.x = -w.x);
-        let region = |r: PoseRegion| PoseRegion { centre: Vec2::new(width - r.centre.x, r.centre.y), ..r };
-        out.region = region(self.region);
-        out.next_region = self.next_region.map(region);
+        let mirror = |r: PoseRegion| PoseRegion { centre: Vec2::new(width - r.centre.x, r.centre.y), ..r };
+        out.next_region = self.next_region.map(mirror);
+        out.region =
+            PoseRegion { centre: Vec2::new(width - self.region.centre.x, self.region.centre.y), ..self.region };
         out.frame_min.x = width - self.frame_max.x;
         out.frame_max.x = width - self.frame_min.x;
         out
