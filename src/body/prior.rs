@@ -251,7 +251,7 @@ pub fn standing_legs(mut landmarks: PoseLandmarks, min_visibility: f32) -> PoseL
     let hip_depth = 0.5 * (l[LEFT_HIP].depth + l[RIGHT_HIP].depth);
     let ankle_depth = 0.5 * (l[LEFT_ANKLE].depth + l[RIGHT_ANKLE].depth);
     let drop = hip.y - ankle.y;
-    if !(drop > 0.1) {
+    if drop.is_nan() || drop <= 0.1 {
         return landmarks;
     }
     let (lean, lean_image) = (ankle.z - hip.z, ankle_depth - hip_depth);
