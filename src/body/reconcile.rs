@@ -239,21 +239,29 @@ impl GridProblem {
     }
 
     /// Conjugate gradients (Jacobi preconditioner) from `guess` (a value per cell).
+    ///
+    /// Laid out for memory traffic, with the arithmetic of the textbook loop in the same order (the same bits):
+    /// a missing neighbour points at a padding unknown that is always 0 (`s - w * 0 = s`), the products `p·Ap`,
+    /// `r·z` and `r·r` are summed in the passes that produce their factors (sequentially, from -0 as `Iterator::sum`
+    /// does), and `z = r / diag` is recomputed where it is read instead of stored.
     fn solve_from(&self, guess: &[f64], cap: usize) -> Vec<f64> {
         let (w, h) = (self.width, self.height);
-        let mut index = vec![usize::MAX; w * h];
-        let mut order = Vec::new();
+        let mut index = vec![u32::MAX; w * h];
+        let mut order: Vec<usize> = Vec::new();
         for (i, c) in self.cells.iter().enumerate() {
             if *c == Cell::Free {
-                index[i] = order.len();
+                index[i] = order.len() as u32;
                 order.push(i);
             }
         }
         let n = order.len();
-        // Per unknown: diagonal, right-hand side, and up to four (neighbour unknown, weight) entries.
+        // The padding unknown that missing neighbours point at.
+        let pad = n as u32;
+        // Per unknown: diagonal, right-hand side, and four neighbour unknowns (left, right: weight `inv_dx2`; up,
+        // down: `inv_dy2`).
         let mut diag = vec![self.screen; n];
         let mut rhs = vec![self.source + self.screen * self.target; n];
-        let mut links = vec![[(usize::MAX, 0.0f64); 4]; n];
+        let mut links = vec![[pad; 4]; n];
         for (k, &i) in order.iter().enumerate() {
             let (c, r) = (i % w, i / w);
             let neighbours = [
@@ -267,7 +275,7 @@ impl GridProblem {
                 match self.cells[j] {
                     Cell::Free => {
                         diag[k] += wt;
-                        links[k][slot] = (index[j], wt);
+                        links[k][slot] = index[j];
                     }
                     Cell::Body => {
                         diag[k] += wt;
@@ -283,47 +291,56 @@ impl GridProblem {
                 }
             }
         }
-        let apply = |x: &[f64], y: &mut [f64]| {
-            for k in 0..n {
-                let mut s = diag[k] * x[k];
-                for &(j, wt) in &links[k] {
-                    if j != usize::MAX {
-                        s -= wt * x[j];
-                    }
-                }
-                y[k] = s;
+        let weights = [self.inv_dx2, self.inv_dx2, self.inv_dy2, self.inv_dy2];
+        // `(A x)_k` for a vector with the padding unknown (`x[n] = 0`).
+        let row = |x: &[f64], k: usize| -> f64 {
+            let l = &links[k];
+            let mut s = diag[k] * x[k];
+            for slot in 0..4 {
+                s -= weights[slot] * x[l[slot] as usize];
             }
+            s
         };
-        let mut x: Vec<f64> =
-            order.iter().map(|&i| if guess[i].is_finite() { guess[i] } else { self.target }).collect();
-        let mut ax = vec![0.0; n];
-        apply(&x, &mut ax);
-        let mut r: Vec<f64> = rhs.iter().zip(&ax).map(|(b, a)| b - a).collect();
-        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
-        let mut p = z.clone();
+        let mut x: Vec<f64> = order
+            .iter()
+            .map(|&i| if guess[i].is_finite() { guess[i] } else { self.target })
+            .chain(std::iter::once(0.0))
+            .collect();
+        let mut r: Vec<f64> = (0..n).map(|k| rhs[k] - row(&x, k)).collect();
+        let mut p: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).chain(std::iter::once(0.0)).collect();
         let mut ap = vec![0.0; n];
-        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let (mut rz, mut rr) = (-0.0f64, -0.0f64);
+        for k in 0..n {
+            rz += r[k] * p[k];
+            rr += r[k] * r[k];
+        }
         let b_norm = rhs.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
         for _ in 0..(4 * n + 100).min(cap) {
-            if r.iter().map(|v| v * v).sum::<f64>().sqrt() <= TOLERANCE * b_norm {
+            if rr.sqrt() <= TOLERANCE * b_norm {
                 break;
             }
-            apply(&p, &mut ap);
-            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+            let mut pap = -0.0f64;
+            for k in 0..n {
+                let s = row(&p, k);
+                ap[k] = s;
+                pap += p[k] * s;
+            }
             if pap.is_nan() || pap <= 0.0 {
                 break;
             }
             let alpha = rz / pap;
+            let (mut rz_new, mut rr_new) = (-0.0f64, -0.0f64);
             for k in 0..n {
                 x[k] += alpha * p[k];
                 r[k] -= alpha * ap[k];
-                z[k] = r[k] / diag[k];
+                rz_new += r[k] * (r[k] / diag[k]);
+                rr_new += r[k] * r[k];
             }
-            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
             let beta = rz_new / rz;
             rz = rz_new;
+            rr = rr_new;
             for k in 0..n {
-                p[k] = z[k] + beta * p[k];
+                p[k] = r[k] / diag[k] + beta * p[k];
             }
         }
         let mut out: Vec<f64> =
