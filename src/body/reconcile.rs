@@ -46,6 +46,7 @@
 //! a region with no fixed value has a unique solution (`c` has its own, above).
 
 use glam::Vec2;
+use rayon::prelude::*;
 
 use super::pose::PhotoFrame;
 use crate::buffer::{GrayImage, Image};
@@ -205,7 +206,9 @@ impl GridProblem {
     /// have a value (free or body); `target` where none around has one, and on the cells that are not free.
     fn prolong(&self, coarse: &GridProblem, xs: &[f64]) -> Vec<f64> {
         let valued = |k: usize| matches!(coarse.cells[k], Cell::Free | Cell::Body);
+        // Every cell on its own: in parallel.
         (0..self.width * self.height)
+            .into_par_iter()
             .map(|i| {
                 if self.cells[i] != Cell::Free {
                     return self.target;
@@ -391,7 +394,7 @@ pub fn reconcile(
             .map(|&(a, b)| (a.clamp(-1.0, 1.0), b.clamp(-1.0, 1.0)))
             .collect()
     };
-    let body = body.map(|l| clean(l));
+    let body = Image { width: w, height: h, data: body.data.par_iter().map(|l| clean(l)).collect() };
     let cells = classify(&body, mask, frame);
     let kappa = if params.thickness.is_finite() && params.thickness > 0.0 { params.thickness as f64 } else { 0.7 };
     let envelope = |l: &[(f32, f32)]| -> (f64, f64) {
@@ -445,7 +448,8 @@ pub fn reconcile(
     );
     let h_min = (params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64)
         .max(if params.min_half_depth.is_finite() { params.min_half_depth.max(0.0) as f64 } else { 0.0 });
-    for i in 0..w * h {
+    // Every column on its own (the same values in any order): in parallel.
+    out.data.par_iter_mut().enumerate().for_each(|(i, column)| {
         let h_s = floor * kappa * u_s[i].max(0.0).sqrt();
         match base.cells[i] {
             Cell::Free => {
@@ -453,17 +457,17 @@ pub fn reconcile(
                 let c = centre[i];
                 let (a, b) = ((c - half).clamp(-1.0, 1.0) as f32, (c + half).clamp(-1.0, 1.0) as f32);
                 if a.is_finite() && b.is_finite() && b > a {
-                    out.data[i] = vec![(a, b)];
+                    *column = vec![(a, b)];
                 }
             }
             Cell::Body => {
                 let c = base.fixed[i];
                 let floor_interval = ((c - h_s).clamp(-1.0, 1.0) as f32, (c + h_s).clamp(-1.0, 1.0) as f32);
-                out.data[i] = union_with(&body.data[i], floor_interval);
+                *column = union_with(&body.data[i], floor_interval);
             }
             Cell::Outside | Cell::Cut => {}
         }
-    }
+    });
     out
 }
 
