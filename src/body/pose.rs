@@ -429,12 +429,14 @@ impl PoseLandmarks {
 /// The network's input for `region` of `rgb` (linear RGB): `[3, 256, 256]` sRGB in `[0, 1]`, black outside the
 /// image, box-filtered when the region is larger than the input (so a large photo is not aliased).
 pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
+    use rayon::prelude::*;
     let s = INPUT_SIZE;
     let scale = region.scale();
     let taps = (scale.ceil() as usize).clamp(1, 4);
-    let mut out = vec![0.0f32; 3 * s * s];
-    for r in 0..s {
-        for c in 0..s {
+    // Rows in parallel (each pixel on its own: the same values in any order), as RGB triples, then planar.
+    let mut rgb_rows = vec![[0.0f32; 3]; s * s];
+    rgb_rows.par_chunks_mut(s).enumerate().for_each(|(r, row)| {
+        for (c, out) in row.iter_mut().enumerate() {
             let mut acc = Vec3::ZERO;
             for j in 0..taps {
                 for i in 0..taps {
@@ -447,8 +449,14 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
             let v = acc / (taps * taps) as f32;
             for ch in 0..3 {
                 let x = linear_to_srgb(v[ch]);
-                out[ch * s * s + r * s + c] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+                out[ch] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
             }
+        }
+    });
+    let mut out = vec![0.0f32; 3 * s * s];
+    for (k, v) in rgb_rows.iter().enumerate() {
+        for ch in 0..3 {
+            out[ch * s * s + k] = v[ch];
         }
     }
     out
