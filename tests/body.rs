@@ -137,6 +137,49 @@ fn fit_recovers_synthetic_subjects_from_their_own_landmarks() {
     }
 }
 
+/// Which way a fitted body's torso faces: the camera-ward component of its unit normal (as
+/// [`PoseLandmarks::facing`] computes it from the world landmarks).
+fn fitted_facing(points: &[Option<Vec3>]) -> f32 {
+    let p = |i: usize| points[i].expect("torso point");
+    let normal = ((p(11) - p(12)) + (p(23) - p(24))).cross((p(11) + p(12)) - (p(23) + p(24)));
+    normal.z / normal.length()
+}
+
+#[test]
+fn a_person_read_from_behind_is_fitted_facing_the_camera() {
+    use r2human::body::prior::{front_read, says_back};
+    // The network's misread of a front view: the subject's own landmarks mirrored in depth (sides swapped, depths
+    // negated; the same picture of a person facing away). `front_read` turns it back to the subject's own
+    // landmarks, alone and with a read of the mirror image that faces the camera (here the perfect one: the
+    // subject's landmarks in the mirrored picture, brought back), and the fit of them recovers the subject's joints
+    // facing the camera; the misread fitted as it is puts the torso facing away.
+    let model = BodyModel::shared().expect("body model data");
+    let t = truth(11);
+    let own = landmarks_of(&t.points);
+    let misread = own.mirrored_in_depth();
+    assert!(!says_back(&own) && says_back(&misread));
+    assert_eq!(front_read(misread.clone(), None), own);
+    let mirror_read = own.mirrored_left_right(RES as f32).mirrored_left_right(RES as f32);
+    let chosen = front_read(misread.clone(), Some(mirror_read));
+    for i in 0..LANDMARK_COUNT {
+        assert!(chosen.landmarks[i].pixel.distance(own.landmarks[i].pixel) < 1e-3, "{i}");
+        assert!(chosen.world[i].distance(own.world[i]) < 1e-6, "{i}");
+    }
+    let fit = |lm: &PoseLandmarks| {
+        let f = fit_body(model, &FitTarget::new(lm, &t.mask), None, &FitOptions::default());
+        assert!(f.pose.is_finite());
+        fitted_points(model, &f.pose)
+    };
+    let turned = fit(&front_read(misread.clone(), None));
+    let raw = fit(&misread);
+    let (e_turned, _) = errors(&turned, &t.points, &BODY_JOINTS);
+    let (e_raw, _) = errors(&raw, &t.points, &BODY_JOINTS);
+    let (f_turned, f_raw) = (fitted_facing(&turned), fitted_facing(&raw));
+    println!("read from behind: turned joint error {e_turned:.4}, facing {f_turned:+.2}; as read {e_raw:.4}, facing {f_raw:+.2}");
+    assert!(e_turned < 0.04 && f_turned > 0.8, "{e_turned} {f_turned}");
+    assert!(f_raw < 0.0 && e_raw > 2.0 * e_turned, "{e_raw} {f_raw}");
+}
+
 #[test]
 fn a_hidden_arm_does_not_pull_the_visible_one_and_a_cut_photo_fits_what_it_shows() {
     let model = BodyModel::shared().expect("body model data");

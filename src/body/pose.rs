@@ -365,6 +365,27 @@ impl PoseLandmarks {
         out
     }
 
+    /// Landmarks found in the left-right mirror image of a `width`-pixel-wide picture (pixel `x -> width - x`),
+    /// read back as landmarks of the picture itself: positions, the frame and the regions mirrored, world x
+    /// negated, left and right swapped (the mirror image's left arm is the picture's right arm); depths,
+    /// visibility and presence unchanged. Twice is the identity (up to the rounding of `width - x`).
+    pub fn mirrored_left_right(&self, width: f32) -> Self {
+        let mut out = self.clone();
+        for (l, r) in MIRROR_PAIRS {
+            out.landmarks.swap(l, r);
+            out.world.swap(l, r);
+        }
+        out.landmarks.iter_mut().for_each(|l| l.pixel.x = width - l.pixel.x);
+        out.world.iter_mut().for_each(|w| w.x = -w.x);
+        let mirror = |r: PoseRegion| PoseRegion { centre: Vec2::new(width - r.centre.x, r.centre.y), ..r };
+        out.next_region = self.next_region.map(mirror);
+        out.region =
+            PoseRegion { centre: Vec2::new(width - self.region.centre.x, self.region.centre.y), ..self.region };
+        out.frame_min.x = width - self.frame_max.x;
+        out.frame_max.x = width - self.frame_min.x;
+        out
+    }
+
     /// Whether landmark `i` lies inside the photo's frame (shrunk by `margin` pixels).
     pub fn in_frame(&self, i: usize, margin: f32) -> bool {
         let p = self.landmarks[i].pixel;
@@ -408,12 +429,14 @@ impl PoseLandmarks {
 /// The network's input for `region` of `rgb` (linear RGB): `[3, 256, 256]` sRGB in `[0, 1]`, black outside the
 /// image, box-filtered when the region is larger than the input (so a large photo is not aliased).
 pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
+    use rayon::prelude::*;
     let s = INPUT_SIZE;
     let scale = region.scale();
     let taps = (scale.ceil() as usize).clamp(1, 4);
-    let mut out = vec![0.0f32; 3 * s * s];
-    for r in 0..s {
-        for c in 0..s {
+    // Rows in parallel (each pixel on its own: the same values in any order), as RGB triples, then planar.
+    let mut rgb_rows = vec![[0.0f32; 3]; s * s];
+    rgb_rows.par_chunks_mut(s).enumerate().for_each(|(r, row)| {
+        for (c, out) in row.iter_mut().enumerate() {
             let mut acc = Vec3::ZERO;
             for j in 0..taps {
                 for i in 0..taps {
@@ -426,8 +449,14 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
             let v = acc / (taps * taps) as f32;
             for ch in 0..3 {
                 let x = linear_to_srgb(v[ch]);
-                out[ch * s * s + r * s + c] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+                out[ch] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
             }
+        }
+    });
+    let mut out = vec![0.0f32; 3 * s * s];
+    for (k, v) in rgb_rows.iter().enumerate() {
+        for ch in 0..3 {
+            out[ch * s * s + k] = v[ch];
         }
     }
     out
@@ -762,6 +791,38 @@ pub(crate) mod tests {
         let mut flat = torso(0.0);
         flat.world.iter_mut().for_each(|w| *w = Vec3::ZERO);
         assert_eq!(flat.facing(), None);
+    }
+
+    #[test]
+    fn mirroring_left_right_reads_a_mirror_image_back() {
+        // The mirror image of a torso turned by yaw is a torso turned by -yaw: its landmarks, brought back, are the
+        // torso's own (positions, depths, world points), each side's visibility moving with its name; twice is the
+        // identity; the frame and the regions are mirrored about the picture's width.
+        for yaw in [0.0f32, 1.0, -0.4, 2.5] {
+            let (wanted, seen) = (torso(yaw), torso(-yaw));
+            let back = seen.mirrored_left_right(512.0);
+            for i in 0..LANDMARK_COUNT {
+                let (a, b) = (back.landmarks[i], wanted.landmarks[i]);
+                assert!(a.pixel.distance(b.pixel) < 1e-3 && (a.depth - b.depth).abs() < 1e-3, "yaw {yaw}, {i}");
+                assert!(back.world[i].distance(wanted.world[i]) < 1e-6, "yaw {yaw}, {i}");
+            }
+            let (l, r) = (index::LEFT_SHOULDER, index::RIGHT_SHOULDER);
+            assert_eq!(back.landmarks[l].visibility, seen.landmarks[r].visibility);
+            assert!((back.facing().unwrap() - wanted.facing().unwrap()).abs() < 1e-5);
+            let twice = back.mirrored_left_right(512.0);
+            assert_eq!(twice.world, seen.world);
+            for (a, b) in twice.landmarks.iter().zip(&seen.landmarks) {
+                assert!(a.pixel.distance(b.pixel) < 1e-3 && a.depth == b.depth && a.visibility == b.visibility);
+            }
+        }
+        let mut l = torso(0.0);
+        l.frame_min = Vec2::new(10.0, 20.0);
+        l.frame_max = Vec2::new(300.0, 400.0);
+        l.next_region = Some(PoseRegion { centre: Vec2::new(100.0, 50.0), side: 30.0 });
+        let m = l.mirrored_left_right(512.0);
+        assert_eq!((m.frame_min, m.frame_max), (Vec2::new(212.0, 20.0), Vec2::new(502.0, 400.0)));
+        assert_eq!(m.next_region, Some(PoseRegion { centre: Vec2::new(412.0, 50.0), side: 30.0 }));
+        assert_eq!(m.region.centre, Vec2::splat(256.0));
     }
 
     #[test]

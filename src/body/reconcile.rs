@@ -46,6 +46,7 @@
 //! a region with no fixed value has a unique solution (`c` has its own, above).
 
 use glam::Vec2;
+use rayon::prelude::*;
 
 use super::pose::PhotoFrame;
 use crate::buffer::{GrayImage, Image};
@@ -205,7 +206,9 @@ impl GridProblem {
     /// have a value (free or body); `target` where none around has one, and on the cells that are not free.
     fn prolong(&self, coarse: &GridProblem, xs: &[f64]) -> Vec<f64> {
         let valued = |k: usize| matches!(coarse.cells[k], Cell::Free | Cell::Body);
+        // Every cell on its own: in parallel.
         (0..self.width * self.height)
+            .into_par_iter()
             .map(|i| {
                 if self.cells[i] != Cell::Free {
                     return self.target;
@@ -239,21 +242,29 @@ impl GridProblem {
     }
 
     /// Conjugate gradients (Jacobi preconditioner) from `guess` (a value per cell).
+    ///
+    /// Laid out for memory traffic, with the arithmetic of the textbook loop in the same order (the same bits):
+    /// a missing neighbour points at a padding unknown that is always 0 (`s - w * 0 = s`), the products `p·Ap`,
+    /// `r·z` and `r·r` are summed in the passes that produce their factors (sequentially, from -0 as `Iterator::sum`
+    /// does), and `z = r / diag` is recomputed where it is read instead of stored.
     fn solve_from(&self, guess: &[f64], cap: usize) -> Vec<f64> {
         let (w, h) = (self.width, self.height);
-        let mut index = vec![usize::MAX; w * h];
-        let mut order = Vec::new();
+        let mut index = vec![u32::MAX; w * h];
+        let mut order: Vec<usize> = Vec::new();
         for (i, c) in self.cells.iter().enumerate() {
             if *c == Cell::Free {
-                index[i] = order.len();
+                index[i] = order.len() as u32;
                 order.push(i);
             }
         }
         let n = order.len();
-        // Per unknown: diagonal, right-hand side, and up to four (neighbour unknown, weight) entries.
+        // The padding unknown that missing neighbours point at.
+        let pad = n as u32;
+        // Per unknown: diagonal, right-hand side, and four neighbour unknowns (left, right: weight `inv_dx2`; up,
+        // down: `inv_dy2`).
         let mut diag = vec![self.screen; n];
         let mut rhs = vec![self.source + self.screen * self.target; n];
-        let mut links = vec![[(usize::MAX, 0.0f64); 4]; n];
+        let mut links = vec![[pad; 4]; n];
         for (k, &i) in order.iter().enumerate() {
             let (c, r) = (i % w, i / w);
             let neighbours = [
@@ -267,7 +278,7 @@ impl GridProblem {
                 match self.cells[j] {
                     Cell::Free => {
                         diag[k] += wt;
-                        links[k][slot] = (index[j], wt);
+                        links[k][slot] = index[j];
                     }
                     Cell::Body => {
                         diag[k] += wt;
@@ -283,47 +294,56 @@ impl GridProblem {
                 }
             }
         }
-        let apply = |x: &[f64], y: &mut [f64]| {
-            for k in 0..n {
-                let mut s = diag[k] * x[k];
-                for &(j, wt) in &links[k] {
-                    if j != usize::MAX {
-                        s -= wt * x[j];
-                    }
-                }
-                y[k] = s;
+        let weights = [self.inv_dx2, self.inv_dx2, self.inv_dy2, self.inv_dy2];
+        // `(A x)_k` for a vector with the padding unknown (`x[n] = 0`).
+        let row = |x: &[f64], k: usize| -> f64 {
+            let l = &links[k];
+            let mut s = diag[k] * x[k];
+            for slot in 0..4 {
+                s -= weights[slot] * x[l[slot] as usize];
             }
+            s
         };
-        let mut x: Vec<f64> =
-            order.iter().map(|&i| if guess[i].is_finite() { guess[i] } else { self.target }).collect();
-        let mut ax = vec![0.0; n];
-        apply(&x, &mut ax);
-        let mut r: Vec<f64> = rhs.iter().zip(&ax).map(|(b, a)| b - a).collect();
-        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
-        let mut p = z.clone();
+        let mut x: Vec<f64> = order
+            .iter()
+            .map(|&i| if guess[i].is_finite() { guess[i] } else { self.target })
+            .chain(std::iter::once(0.0))
+            .collect();
+        let mut r: Vec<f64> = (0..n).map(|k| rhs[k] - row(&x, k)).collect();
+        let mut p: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).chain(std::iter::once(0.0)).collect();
         let mut ap = vec![0.0; n];
-        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let (mut rz, mut rr) = (-0.0f64, -0.0f64);
+        for k in 0..n {
+            rz += r[k] * p[k];
+            rr += r[k] * r[k];
+        }
         let b_norm = rhs.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
         for _ in 0..(4 * n + 100).min(cap) {
-            if r.iter().map(|v| v * v).sum::<f64>().sqrt() <= TOLERANCE * b_norm {
+            if rr.sqrt() <= TOLERANCE * b_norm {
                 break;
             }
-            apply(&p, &mut ap);
-            let pap: f64 = p.iter().zip(&ap).map(|(a, b)| a * b).sum();
+            let mut pap = -0.0f64;
+            for k in 0..n {
+                let s = row(&p, k);
+                ap[k] = s;
+                pap += p[k] * s;
+            }
             if pap.is_nan() || pap <= 0.0 {
                 break;
             }
             let alpha = rz / pap;
+            let (mut rz_new, mut rr_new) = (-0.0f64, -0.0f64);
             for k in 0..n {
                 x[k] += alpha * p[k];
                 r[k] -= alpha * ap[k];
-                z[k] = r[k] / diag[k];
+                rz_new += r[k] * (r[k] / diag[k]);
+                rr_new += r[k] * r[k];
             }
-            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
             let beta = rz_new / rz;
             rz = rz_new;
+            rr = rr_new;
             for k in 0..n {
-                p[k] = z[k] + beta * p[k];
+                p[k] = r[k] / diag[k] + beta * p[k];
             }
         }
         let mut out: Vec<f64> =
@@ -374,7 +394,7 @@ pub fn reconcile(
             .map(|&(a, b)| (a.clamp(-1.0, 1.0), b.clamp(-1.0, 1.0)))
             .collect()
     };
-    let body = body.map(|l| clean(l));
+    let body = Image { width: w, height: h, data: body.data.par_iter().map(|l| clean(l)).collect() };
     let cells = classify(&body, mask, frame);
     let kappa = if params.thickness.is_finite() && params.thickness > 0.0 { params.thickness as f64 } else { 0.7 };
     let envelope = |l: &[(f32, f32)]| -> (f64, f64) {
@@ -428,7 +448,8 @@ pub fn reconcile(
     );
     let h_min = (params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64)
         .max(if params.min_half_depth.is_finite() { params.min_half_depth.max(0.0) as f64 } else { 0.0 });
-    for i in 0..w * h {
+    // Every column on its own (the same values in any order): in parallel.
+    out.data.par_iter_mut().enumerate().for_each(|(i, column)| {
         let h_s = floor * kappa * u_s[i].max(0.0).sqrt();
         match base.cells[i] {
             Cell::Free => {
@@ -436,17 +457,17 @@ pub fn reconcile(
                 let c = centre[i];
                 let (a, b) = ((c - half).clamp(-1.0, 1.0) as f32, (c + half).clamp(-1.0, 1.0) as f32);
                 if a.is_finite() && b.is_finite() && b > a {
-                    out.data[i] = vec![(a, b)];
+                    *column = vec![(a, b)];
                 }
             }
             Cell::Body => {
                 let c = base.fixed[i];
                 let floor_interval = ((c - h_s).clamp(-1.0, 1.0) as f32, (c + h_s).clamp(-1.0, 1.0) as f32);
-                out.data[i] = union_with(&body.data[i], floor_interval);
+                *column = union_with(&body.data[i], floor_interval);
             }
             Cell::Outside | Cell::Cut => {}
         }
-    }
+    });
     out
 }
 

@@ -549,55 +549,143 @@ pub fn extract_mesh(fof: &Fof, depth_samples: usize) -> TriMesh {
 }
 
 /// Concatenates slab meshes, replacing each slab's last-row vertices by the next slab's identical first-row
-/// vertices so the result has no duplicate vertices.
+/// vertices so the result has no duplicate vertices, with the vertex normals of [`TriMesh::new`].
+///
+/// In parallel over slabs, with the same result as numbering slab after slab and then summing every triangle's
+/// normal into its vertices in triangle order ([`TriMesh::compute_normals`], bit for bit): a slab's own vertices are
+/// a contiguous range of the numbering; a vertex gets triangles from its own slab only, except the first-row
+/// vertices of a slab that the slab before also uses, whose sum goes on from that slab's.
 fn merge_slabs(slabs: &[(usize, usize)], outputs: Vec<SlabOutput>) -> TriMesh {
-    let mut global: Vec<Vec<u32>> = Vec::with_capacity(outputs.len());
-    let mut positions = Vec::new();
-    // Local vertices that duplicate the next slab's first row, resolved after numbering.
-    let mut pending: Vec<Vec<(u32, u64)>> = Vec::with_capacity(outputs.len());
-    for (s, out) in outputs.iter().enumerate() {
-        let adjacent_next = s + 1 < outputs.len() && slabs[s + 1].0 == slabs[s].1;
-        let mut dup = vec![false; out.positions.len()];
-        let mut pend = Vec::new();
-        if adjacent_next {
-            for &(key, local) in &out.last_row {
-                dup[local as usize] = true;
-                pend.push((local, key));
+    let count = outputs.len();
+    let adjacent_next = |s: usize| s + 1 < count && slabs[s + 1].0 == slabs[s].1;
+    // Local vertices that duplicate the next slab's first row.
+    let dups: Vec<Vec<bool>> = outputs
+        .par_iter()
+        .enumerate()
+        .map(|(s, out)| {
+            let mut dup = vec![false; out.positions.len()];
+            if adjacent_next(s) {
+                for &(_, local) in &out.last_row {
+                    dup[local as usize] = true;
+                }
             }
-        }
-        let mut map = vec![NONE; out.positions.len()];
-        for (i, p) in out.positions.iter().enumerate() {
-            if !dup[i] {
-                map[i] = positions.len() as u32;
-                positions.push(*p);
-            }
-        }
-        global.push(map);
-        pending.push(pend);
+            dup
+        })
+        .collect();
+    // A slab's own vertices are numbered after the previous slabs' own vertices, in local order.
+    let mut offsets = vec![0usize; count + 1];
+    for (s, dup) in dups.iter().enumerate() {
+        offsets[s + 1] = offsets[s] + dup.iter().filter(|&&d| !d).count();
     }
-    for s in 0..outputs.len() {
-        if pending[s].is_empty() {
-            continue;
-        }
+    let mut positions = vec![Vec3::ZERO; offsets[count]];
+    let mut global: Vec<Vec<u32>> = vec![Vec::new(); count];
+    split_by(&mut positions, &offsets).into_par_iter().zip(global.par_iter_mut()).enumerate().for_each(
+        |(s, (own, map))| {
+            let (out, dup) = (&outputs[s], &dups[s]);
+            *map = vec![NONE; out.positions.len()];
+            let mut next = 0;
+            for (i, p) in out.positions.iter().enumerate() {
+                if !dup[i] {
+                    map[i] = (offsets[s] + next) as u32;
+                    own[next] = *p;
+                    next += 1;
+                }
+            }
+        },
+    );
+    // Duplicates take the next slab's vertex; (local, global) of those kept because the next slab has no such
+    // vertex (not expected: both slabs see every crossed edge of the shared row), numbered after all others.
+    let mut kept: Vec<(usize, u32, u32)> = Vec::new();
+    for s in (0..count).filter(|&s| adjacent_next(s)) {
         let next_first: HashMap<u64, u32> =
             outputs[s + 1].first_row.iter().map(|&(k, l)| (k, global[s + 1][l as usize])).collect();
-        for &(local, key) in &pending[s] {
+        for &(key, local) in &outputs[s].last_row {
             global[s][local as usize] = match next_first.get(&key) {
                 Some(&g) => g,
                 None => {
-                    // Not expected (both slabs see every crossed edge of the shared row); keep the vertex.
                     positions.push(outputs[s].positions[local as usize]);
-                    positions.len() as u32 - 1
+                    let g = positions.len() as u32 - 1;
+                    kept.push((s, local, g));
+                    g
                 }
             };
         }
     }
-    let triangles = outputs
-        .iter()
-        .zip(&global)
-        .flat_map(|(out, map)| out.triangles.iter().map(move |t| t.map(|i| map[i as usize])))
+    let mut triangle_offsets = vec![0usize; count + 1];
+    for (s, out) in outputs.iter().enumerate() {
+        triangle_offsets[s + 1] = triangle_offsets[s] + out.triangles.len();
+    }
+    let mut triangles = vec![[0u32; 3]; triangle_offsets[count]];
+    split_by(&mut triangles, &triangle_offsets).into_par_iter().enumerate().for_each(|(s, chunk)| {
+        for (t, local) in chunk.iter_mut().zip(&outputs[s].triangles) {
+            *t = local.map(|i| global[s][i as usize]);
+        }
+    });
+    // Each slab's sums over its own triangles, per local vertex, in triangle order.
+    let face_normal = |t: &[u32; 3]| {
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        (b - a).cross(c - a)
+    };
+    let slab_triangles = |s: usize| &triangles[triangle_offsets[s]..triangle_offsets[s + 1]];
+    let sums: Vec<Vec<Vec3>> = (0..count)
+        .into_par_iter()
+        .map(|s| {
+            let mut sum = vec![Vec3::ZERO; outputs[s].positions.len()];
+            for (t, local) in slab_triangles(s).iter().zip(&outputs[s].triangles) {
+                let n = face_normal(t);
+                for &l in local {
+                    sum[l as usize] += n;
+                }
+            }
+            sum
+        })
         .collect();
-    TriMesh::new(positions, triangles)
+    let mut normals = vec![Vec3::ZERO; positions.len()];
+    split_by(&mut normals[..offsets[count]], &offsets).into_par_iter().enumerate().for_each(|(s, own)| {
+        let (out, dup) = (&outputs[s], &dups[s]);
+        let mut normal = sums[s].clone();
+        // First-row vertices the previous slab also uses: its sum, then this slab's triangles again.
+        if s > 0 && adjacent_next(s - 1) {
+            let previous: HashMap<u64, u32> = outputs[s - 1].last_row.iter().copied().collect();
+            let mut shared = vec![false; out.positions.len()];
+            for &(key, local) in &out.first_row {
+                if let Some(&l) = previous.get(&key) {
+                    shared[local as usize] = true;
+                    normal[local as usize] = sums[s - 1][l as usize];
+                }
+            }
+            for (t, local) in slab_triangles(s).iter().zip(&out.triangles) {
+                if local.iter().any(|&l| shared[l as usize]) {
+                    let n = face_normal(t);
+                    for &l in local.iter().filter(|&&l| shared[l as usize]) {
+                        normal[l as usize] += n;
+                    }
+                }
+            }
+        }
+        let mut next = 0;
+        for (i, n) in normal.iter().enumerate() {
+            if !dup[i] {
+                own[next] = n.try_normalize().unwrap_or(Vec3::Z);
+                next += 1;
+            }
+        }
+    });
+    for (s, local, g) in kept {
+        normals[g as usize] = sums[s][local as usize].try_normalize().unwrap_or(Vec3::Z);
+    }
+    TriMesh { positions, triangles, normals, colors: Vec::new(), uvs: Vec::new() }
+}
+
+/// `data` cut into the consecutive pieces `offsets[s]..offsets[s + 1]` (`offsets` ascending from 0).
+fn split_by<'a, T>(mut data: &'a mut [T], offsets: &[usize]) -> Vec<&'a mut [T]> {
+    let mut pieces = Vec::with_capacity(offsets.len().saturating_sub(1));
+    for pair in offsets.windows(2) {
+        let (piece, rest) = std::mem::take(&mut data).split_at_mut(pair[1] - pair[0]);
+        pieces.push(piece);
+        data = rest;
+    }
+    pieces
 }
 
 /// The reference's approach, for comparisons and tests: decode the whole dense `W x H x D` volume, then visit
@@ -749,6 +837,27 @@ mod tests {
             b.sort();
             assert_eq!(a, b);
             assert!((sparse.signed_volume() - dense.signed_volume()).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn merged_slabs_have_the_normals_of_a_sequential_sum() {
+        // Three bodies over 100 rows: several slabs of SLAB_ROWS, two meeting on shared rows, and rows 40..=70
+        // empty, so a slab in the middle is skipped and its neighbours do not share a row.
+        let res = 100;
+        let mut fof = sphere_fof(res, 16, Vec3::new(-0.3, 0.45, 0.0), 0.5);
+        for (centre, r) in [(Vec3::new(0.4, -0.6, -0.2), 0.35), (Vec3::new(-0.5, -0.55, 0.3), 0.3)] {
+            let extra = sphere_fof(res, 16, centre, r);
+            for (a, b) in fof.coeffs.iter_mut().zip(&extra.coeffs) {
+                *a += b;
+            }
+        }
+        for depth in [64usize, 97] {
+            let mesh = extract_mesh(&fof, depth);
+            assert!(mesh.triangle_count() > 1000);
+            let sequential = TriMesh::new(mesh.positions.clone(), mesh.triangles.clone());
+            let bits = |v: &[Vec3]| v.iter().map(|n| n.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+            assert_eq!(bits(&mesh.normals), bits(&sequential.normals), "depth {depth}");
         }
     }
 
