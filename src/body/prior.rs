@@ -19,7 +19,7 @@ use glam::{DVec3, Vec2};
 use super::fit::{fit_body, BodyFit, FitOptions, FitTarget};
 use super::model::{BodyModel, Pose, LIMB_SEGMENTS};
 use super::pose::{cut_frame, PhotoFrame, PoseEstimator, PoseLandmarks};
-use super::reconcile::{reconcile, ReconcileParams};
+use super::reconcile::{reconcile_with, ReconcileParams, SilhouetteProfile};
 use super::BodyError;
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::circle::min_enclosing_circle;
@@ -265,13 +265,15 @@ pub fn effective_frame(mask: &GrayImage, frame: Option<PhotoFrame>) -> PhotoFram
 
 /// The body FOF reconciled with the silhouette ([`super::reconcile`]): `mesh` (body cube) and `mask` (`[0, 1]`,
 /// threshold 0.5) on the mask's grid, `frame` where the photo lies in it (`None`: the whole grid), `n`
-/// coefficients; the inflation profile's κ and smallest thickness from `inflate_params`.
+/// coefficients; the inflation profile's κ and smallest thickness from `inflate_params`. `silhouette`: the mask's
+/// [`SilhouetteProfile`] when it was solved beforehand (beside the pose and the fit), else solved here.
 pub fn body_fof(
     mesh: &TriMesh,
     mask: &GrayImage,
     frame: Option<PhotoFrame>,
     n: usize,
     inflate_params: &InflateParams,
+    silhouette: Option<&SilhouetteProfile>,
 ) -> Result<Fof, BodyError> {
     let body = intervals_from_mesh(mesh, mask.width, mask.height, sheet_thickness(n));
     let params = ReconcileParams {
@@ -280,7 +282,7 @@ pub fn body_fof(
         min_half_depth: 0.5 * sheet_thickness(n),
         ..Default::default()
     };
-    let out = reconcile(&body, mask, Some(effective_frame(mask, frame)), &params);
+    let out = reconcile_with(&body, mask, Some(effective_frame(mask, frame)), &params, silhouette);
     Fof::from_intervals(&out, n).map_err(BodyError::Fof)
 }
 
