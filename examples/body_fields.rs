@@ -50,6 +50,23 @@ fn main() -> anyhow::Result<()> {
             prior.landmarks.world[i]
         );
     }
+    // The fitted body's point of each body joint against the network's world landmark, both about their hip
+    // centre (fitted: cube units; network: metres; their 2-D extents give the scale between them).
+    let model = body.model();
+    let heads = model.rest_heads(&prior.fit.pose.shape);
+    let g = model.skinning(&prior.fit.pose, &heads);
+    let fitted =
+        |i: usize| model.landmark_points[i].map(|p| model.point(p, &prior.fit.pose.shape, &heads, &g).as_vec3());
+    let w = &prior.landmarks.world;
+    if let (Some(l), Some(r)) = (fitted(23), fitted(24)) {
+        let (fh, wh) = ((l + r) * 0.5, (w[23] + w[24]) * 0.5);
+        println!("joint depth about the hip centre: fitted (cube units) / network (m)");
+        for i in [0usize, 11, 12, 13, 14, 15, 16, 25, 26, 27, 28] {
+            if let Some(f) = fitted(i) {
+                println!("{i:2} {:18} {:+.3} / {:+.3}", r2human::body::pose::NAMES[i], f.z - fh.z, w[i].z - wh.z);
+            }
+        }
+    }
     println!("frame {:?}, region {:?}", (prior.landmarks.frame_min, prior.landmarks.frame_max), prior.landmarks.region);
     let intervals = intervals_from_mesh(&prior.mesh, RES, RES, sheet_thickness(32));
     let cells = classify(&intervals, &input.mask, Some(input.frame));

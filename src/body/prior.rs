@@ -131,7 +131,7 @@ impl BodyEstimator {
         let landmarks = front_read(landmarks, mirrored);
         timings("pose landmarks", t.elapsed());
         let min_visibility = self.options.min_visibility;
-        let landmarks = arms_it_sees(legs_it_sees(landmarks), min_visibility);
+        let landmarks = arms_it_sees(standing_legs(legs_it_sees(landmarks), min_visibility), min_visibility);
         let t = std::time::Instant::now();
         let target = FitTarget::new(&landmarks, mask);
         let start = previous.map(|p| p.1);
@@ -223,6 +223,43 @@ pub fn legs_it_sees(mut landmarks: PoseLandmarks) -> PoseLandmarks {
             for i in leg {
                 landmarks.landmarks[i].visibility = 0.0;
             }
+        }
+    }
+    landmarks
+}
+
+/// The landmarks of a person standing on the feet the photo shows: when both ankles and both hips are seen
+/// (visibility at least `min_visibility`, inside the photo's frame) and the ankles lie below the hips, the legs'
+/// landmarks (knees, ankles, heels, feet) are sheared in depth about the hips so that the ankles' mean depth is the
+/// hip centre's (world and image depths; each point moved in proportion to its drop below the hips). One foot
+/// ahead of the other stays so; only the legs' common lean goes. A standing person's centre of mass (in the pelvis)
+/// lies over the feet; the network's world landmarks lean the legs of the full-body photo 0.2 m back at the ankles
+/// (fitted: 0.4 cube units), which drew the player's legs leaning back from the side.
+pub fn standing_legs(mut landmarks: PoseLandmarks, min_visibility: f32) -> PoseLandmarks {
+    use super::pose::index::{LEFT_ANKLE, LEFT_HIP, LEFT_KNEE, RIGHT_ANKLE, RIGHT_FOOT, RIGHT_HIP};
+    let seen = |l: &PoseLandmarks, i: usize| {
+        l.landmarks[i].visibility >= min_visibility
+            && l.in_frame(i, 0.0)
+            && l.world.get(i).is_some_and(|w| w.is_finite())
+            && l.landmarks[i].depth.is_finite()
+    };
+    if ![LEFT_HIP, RIGHT_HIP, LEFT_ANKLE, RIGHT_ANKLE].iter().all(|&i| seen(&landmarks, i)) {
+        return landmarks;
+    }
+    let (w, l) = (&landmarks.world, &landmarks.landmarks);
+    let (hip, ankle) = ((w[LEFT_HIP] + w[RIGHT_HIP]) * 0.5, (w[LEFT_ANKLE] + w[RIGHT_ANKLE]) * 0.5);
+    let hip_depth = 0.5 * (l[LEFT_HIP].depth + l[RIGHT_HIP].depth);
+    let ankle_depth = 0.5 * (l[LEFT_ANKLE].depth + l[RIGHT_ANKLE].depth);
+    let drop = hip.y - ankle.y;
+    if drop.is_nan() || drop <= 0.1 {
+        return landmarks;
+    }
+    let (lean, lean_image) = (ankle.z - hip.z, ankle_depth - hip_depth);
+    for i in LEFT_KNEE..=RIGHT_FOOT {
+        let share = ((hip.y - landmarks.world[i].y) / drop).clamp(0.0, 1.5);
+        if share.is_finite() {
+            landmarks.world[i].z -= share * lean;
+            landmarks.landmarks[i].depth -= share * lean_image;
         }
     }
     landmarks
@@ -336,6 +373,57 @@ mod tests {
         let frame = (Vec2::new(10.0, 20.0), Vec2::new(300.0, 400.0));
         assert_eq!(mirrored_frame(frame, 512.0), (Vec2::new(212.0, 20.0), Vec2::new(502.0, 400.0)));
         assert_eq!(mirrored_frame(mirrored_frame(frame, 512.0), 512.0), frame);
+    }
+
+    #[test]
+    fn standing_legs_lose_their_common_lean_and_keep_their_stride() {
+        // Hips at y 0, knees at -0.4, ankles at -0.8 (m); the legs lean back: left ankle 0.3 m behind the hips, right
+        // 0.1 m (mean 0.2), knees 0.1 behind, feet like their ankles; image depths 100 pixels per metre. Sheared about
+        // the hips by the mean lean per metre of drop (0.25): knees move 0.1, ankles 0.2 forward, the stride (left
+        // 0.2 behind right) stays; hips and everything above them untouched.
+        let mut l = torso(0.0);
+        l.landmarks.iter_mut().for_each(|m| m.visibility = 0.9);
+        let legs = [(25, -0.4, -0.1), (26, -0.4, -0.1), (27, -0.8, -0.3), (28, -0.8, -0.1)];
+        for (i, y, z) in
+            legs.into_iter().chain([(29, -0.8, -0.3), (30, -0.8, -0.1), (31, -0.85, -0.3), (32, -0.85, -0.1)])
+        {
+            l.world[i] = Vec3::new(0.0, y, z);
+            l.landmarks[i].pixel = Vec2::new(256.0, 256.0 - 100.0 * y);
+            l.landmarks[i].depth = 100.0 * z;
+        }
+        let out = standing_legs(l.clone(), 0.5);
+        for (i, y, z) in [(25, -0.4, 0.0), (26, -0.4, 0.0), (27, -0.8, -0.1), (28, -0.8, 0.1)] {
+            assert!((out.world[i] - Vec3::new(0.0, y, z)).length() < 1e-5, "{i}: {:?}", out.world[i]);
+            assert!((out.landmarks[i].depth - 100.0 * z).abs() < 1e-3, "{i}");
+        }
+        assert!((out.world[31].z - (-0.3 + 0.2 * 0.85 / 0.8)).abs() < 1e-5);
+        let mean = 0.5 * (out.world[27].z + out.world[28].z);
+        assert!(mean.abs() < 1e-6);
+        for i in 0..25 {
+            assert_eq!(out.world[i], l.world[i], "{i}");
+            assert_eq!(out.landmarks[i], l.landmarks[i], "{i}");
+        }
+        // Not standing on feet it sees: an ankle not seen or outside the frame, ankles not below the hips, or NaN.
+        let mut hidden = l.clone();
+        hidden.landmarks[27].visibility = 0.3;
+        assert_eq!(standing_legs(hidden, 0.5), hidden_copy(&l, 27));
+        let mut cut = l.clone();
+        cut.frame_max.y = 300.0;
+        assert_eq!(standing_legs(cut.clone(), 0.5), cut);
+        let mut raised = l.clone();
+        raised.world[27].y = 0.1;
+        raised.world[28].y = 0.1;
+        assert_eq!(standing_legs(raised.clone(), 0.5), raised);
+        let mut nan = l.clone();
+        nan.world[28].z = f32::NAN;
+        let out = standing_legs(nan, 0.5);
+        assert_eq!((out.world[27].z, out.world[25].z, out.landmarks[27].depth), (-0.3, -0.1, l.landmarks[27].depth));
+    }
+
+    fn hidden_copy(l: &PoseLandmarks, i: usize) -> PoseLandmarks {
+        let mut out = l.clone();
+        out.landmarks[i].visibility = 0.3;
+        out
     }
 
     #[test]
