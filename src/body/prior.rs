@@ -302,9 +302,20 @@ pub fn effective_frame(mask: &GrayImage, frame: Option<PhotoFrame>) -> PhotoFram
 
 /// The body FOF reconciled with the silhouette ([`super::reconcile`]): `mesh` (body cube) and `mask` (`[0, 1]`,
 /// threshold 0.5) on the mask's grid, `frame` where the photo lies in it (`None`: the whole grid), `n`
-/// coefficients; the inflation profile's κ and smallest thickness from `inflate_params`. `silhouette`: the mask's
-/// [`SilhouetteProfile`] when it was solved beforehand (beside the pose and the fit), else solved here.
+/// coefficients; the inflation profile's κ and smallest thickness from `inflate_params`.
 pub fn body_fof(
+    mesh: &TriMesh,
+    mask: &GrayImage,
+    frame: Option<PhotoFrame>,
+    n: usize,
+    inflate_params: &InflateParams,
+) -> Result<Fof, BodyError> {
+    body_fof_with(mesh, mask, frame, n, inflate_params, None)
+}
+
+/// [`body_fof`] with the mask's [`SilhouetteProfile`] solved beforehand (the pipeline solves it beside the pose and
+/// the fit); solved here when `None`. The same result.
+pub fn body_fof_with(
     mesh: &TriMesh,
     mask: &GrayImage,
     frame: Option<PhotoFrame>,

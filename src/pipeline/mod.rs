@@ -361,7 +361,7 @@ fn body_prior_fof_or_why(
         Some(p) => timings
             .time("body FOF", || {
                 let mesh = centre_visible_depth(p.mesh, &normalised.mask);
-                crate::body::prior::body_fof(
+                crate::body::prior::body_fof_with(
                     &mesh,
                     &normalised.mask,
                     Some(normalised.frame),
