@@ -33,7 +33,10 @@
 //! - the **silhouette floor**: the inflation profile of the silhouette alone, as the inflation prior has it
 //!   (`-Δu_s = 4` over the whole mask, `u_s = 0` on the outline and at the cut), `h_s = κ sqrt(u_s)`, times [`ReconcileParams::silhouette_floor`]. Every
 //!   column is at least that thick about its own centre: body columns get the union of their intervals with
-//!   `[c - h_s, c + h_s]` (`c` the middle of their outermost interval), free columns `max(h, h_s)`. Clothes make
+//!   `[c - h_s, c + h_s]` (`c` the middle of their envelope, averaged with the body columns' around it over
+//!   [`FLOOR_CENTRE_SPAN`] of the grid: a limb in front of the trunk does not carry a slab as thick as the
+//!   silhouette forward with it, one that jumps from column to column; release `eval --subjects 8`: body
+//!   volumetric IoU 0.5853 -> 0.5875, the Mr. Fixit scan 0.566 -> 0.570), free columns `max(h, h_s)`. Clothes make
 //!   the person thicker than the bare body wherever the silhouette is wider than it; the silhouette's own inflation
 //!   is what the photo says about that thickness. Measured on the evaluation's clothed subjects
 //!   (`cargo run --example body_synthetic`): the volumetric IoU of a perfectly posed bare body rises from 0.55 to
@@ -95,6 +98,10 @@ impl Default for ReconcileParams {
         }
     }
 }
+
+/// The side of the square (a fraction of the grid's side) over which the silhouette floor's centre on body columns
+/// averages their envelope centres.
+pub const FLOOR_CENTRE_SPAN: f64 = 1.0 / 32.0;
 
 /// [`ReconcileParams::centre_reach`] by default (cube units).
 pub const CENTRE_REACH: f32 = 0.1;
@@ -462,6 +469,11 @@ pub fn reconcile_with(
         }
     }
     let floor = if params.silhouette_floor.is_finite() { params.silhouette_floor.max(0.0) as f64 } else { 0.0 };
+    // The floor's centre on body columns: their envelope centres averaged over a square of FLOOR_CENTRE_SPAN of
+    // the grid's side (body columns only), so a limb in front of or behind the trunk does not carry a slab as thick
+    // as the silhouette with it, one that jumps from column to column.
+    let radius = (w.max(h) as f64 * FLOOR_CENTRE_SPAN * 0.5).round().max(1.0) as usize;
+    let floor_centre = box_mean(&centre_fixed, &cells, w, h, radius);
     let reach = params.centre_reach as f64;
     let centre_screen = if reach.is_finite() && reach > 0.0 { (1.0 / (reach * reach)).max(SCREEN) } else { SCREEN };
     let base = GridProblem {
@@ -505,7 +517,7 @@ pub fn reconcile_with(
                 }
             }
             Cell::Body => {
-                let c = base.fixed[i];
+                let c = if floor_centre[i].is_finite() { floor_centre[i] } else { base.fixed[i] };
                 let floor_interval = ((c - h_s).clamp(-1.0, 1.0) as f32, (c + h_s).clamp(-1.0, 1.0) as f32);
                 *column = union_with(&body.data[i], floor_interval);
             }
@@ -530,6 +542,41 @@ fn median(values: &mut [f64]) -> Option<f64> {
 }
 
 /// Sorted disjoint intervals `list` united with `extra` (ignored when empty or not finite).
+/// The mean of `values` over the body cells (`cells[i] == Cell::Body`) in the `(2 radius + 1)²` square about each
+/// pixel of a `w x h` grid (NaN where the square holds none): separable running sums, O(w h) whatever the radius
+/// (a box filter of twenty lines; no image crate here does masked means).
+fn box_mean(values: &[f64], cells: &[Cell], w: usize, h: usize, radius: usize) -> Vec<f64> {
+    let body = |i: usize| cells[i] == Cell::Body && values[i].is_finite();
+    let sum: Vec<(f64, f64)> = (0..w * h).map(|i| if body(i) { (values[i], 1.0) } else { (0.0, 0.0) }).collect();
+    // One pass along rows (step 1, n = w, lines = h) or columns (step w, n = h, lines = w).
+    let pass = |input: &[(f64, f64)], step: usize, n: usize, lines: usize, line_step: usize| {
+        let mut out = vec![(0.0, 0.0); w * h];
+        for line in 0..lines {
+            let at = |k: usize| line * line_step + k * step;
+            let mut acc = (0.0, 0.0);
+            for k in 0..radius.min(n) {
+                acc.0 += input[at(k)].0;
+                acc.1 += input[at(k)].1;
+            }
+            for k in 0..n {
+                if k + radius < n {
+                    acc.0 += input[at(k + radius)].0;
+                    acc.1 += input[at(k + radius)].1;
+                }
+                if k > radius {
+                    acc.0 -= input[at(k - radius - 1)].0;
+                    acc.1 -= input[at(k - radius - 1)].1;
+                }
+                out[at(k)] = acc;
+            }
+        }
+        out
+    };
+    let rows = pass(&sum, 1, w, h, w);
+    let both = pass(&rows, w, h, w, 1);
+    both.iter().map(|&(s, n)| if n > 0.5 { s / n } else { f64::NAN }).collect()
+}
+
 fn union_with(list: &[(f32, f32)], extra: (f32, f32)) -> Vec<(f32, f32)> {
     let mut all = list.to_vec();
     if extra.0.is_finite() && extra.1.is_finite() && extra.1 > extra.0 {
@@ -813,6 +860,55 @@ mod tests {
         assert_eq!(union_with(&[(0.0, 0.1), (0.5, 0.6)], (0.2, 0.3)), vec![(0.0, 0.1), (0.2, 0.3), (0.5, 0.6)]);
         assert_eq!(union_with(&[(0.0, 0.1)], (f32::NAN, 0.3)), vec![(0.0, 0.1)]);
         assert_eq!(union_with(&[(0.0, 0.1)], (0.3, 0.3)), vec![(0.0, 0.1)]);
+    }
+
+    #[test]
+    fn box_mean_averages_body_cells_only() {
+        // 4 x 3 grid, body cells (0,0) = 1, (1,0) = 3, (3,2) = 5, every other value ignored; radius 1.
+        let (w, h) = (4, 3);
+        let mut cells = vec![Cell::Free; w * h];
+        let mut values = vec![100.0; w * h];
+        for (i, v) in [(0, 1.0), (1, 3.0), (11, 5.0)] {
+            cells[i] = Cell::Body;
+            values[i] = v;
+        }
+        cells[5] = Cell::Body;
+        values[5] = f64::NAN; // a non-finite body value counts as none
+        let m = box_mean(&values, &cells, w, h, 1);
+        for (i, want) in [(0, 2.0), (2, 3.0), (4, 2.0), (6, 4.0), (11, 5.0)] {
+            assert!((m[i] - want).abs() < 1e-12, "{i}: {} vs {want}", m[i]);
+        }
+        assert!(m[8].is_nan() && m[3].is_nan());
+        // A radius beyond the grid: the mean of all three everywhere.
+        assert!(box_mean(&values, &cells, w, h, 10).iter().all(|&v| (v - 3.0).abs() < 1e-12));
+    }
+
+    #[test]
+    fn a_limb_in_front_of_the_trunk_carries_no_slab_of_the_floors_thickness() {
+        // A disc mask (radius 20 px on 64²) covered by a trunk slab (-0.1, 0.1) everywhere except one column whose
+        // body also holds a forearm far in front (0.5, 0.6). With the floor (half thickness about 0.44 there), the
+        // forearm's column gets about the trunk's floor (its centre the mean of the 3 x 3 envelope centres about it,
+        // 0.25 / 9) plus the forearm, not a floor about its own envelope centre (0.25) reaching the forearm.
+        let (w, h) = (64usize, 64usize);
+        let inside = in_disc(w, 20.0);
+        let mask = mask_of(w, h, inside);
+        let limb = |c: usize, r: usize| (c, r) == (32, 32);
+        let body = Image::from_fn(w, h, |c, r| match (inside(c, r), limb(c, r)) {
+            (false, _) => Vec::new(),
+            (true, false) => vec![(-0.1, 0.1)],
+            (true, true) => vec![(-0.1, 0.1), (0.5, 0.6)],
+        });
+        let params = ReconcileParams { thickness: 0.7, min_half_thickness: 0.0, ..Default::default() };
+        let out = reconcile(&body, &mask, None, &params);
+        let (trunk, arm) = (out.get(30, 32).clone(), out.get(32, 32).clone());
+        assert_eq!(trunk.len(), 1);
+        assert_eq!(arm.len(), 2, "{arm:?}");
+        let floor_back = trunk[0].0;
+        assert!(floor_back < -0.2, "the floor is thicker than the trunk slab: {trunk:?}");
+        // The forearm's column: the floor about the same centre (its back within a few hundredths of the
+        // neighbour's), the forearm itself untouched.
+        assert!((arm[0].0 - floor_back).abs() < 0.05, "{arm:?} vs {trunk:?}");
+        assert!((arm[1].0 - 0.5).abs() < 1e-6 && (arm[1].1 - 0.6).abs() < 1e-6, "{arm:?}");
     }
 
     #[test]
