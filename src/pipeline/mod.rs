@@ -338,27 +338,37 @@ fn body_prior_fof_or_why(
     body: &SharedBody,
     timings: &mut StageTimings,
 ) -> Result<Fof, NoBodyFof> {
-    let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let mut stages: Vec<(&'static str, Duration)> = Vec::new();
-    let found = estimator.estimate(
-        &normalised.rgb,
-        &normalised.mask,
-        Some(normalised.frame),
-        opts.warm_start,
-        &mut |name, d| stages.push((name, d)),
-    );
-    drop(estimator);
+    // The silhouette's own profile (part of the body FOF) depends on the mask alone: it is solved beside the pose
+    // network and the fit (the fit is single-threaded), not after them.
+    let (found, silhouette) = {
+        let mut guard = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let estimator: &mut crate::body::prior::BodyEstimator = &mut guard;
+        rayon::join(
+            || {
+                estimator.estimate(
+                    &normalised.rgb,
+                    &normalised.mask,
+                    Some(normalised.frame),
+                    opts.warm_start,
+                    &mut |name, d| stages.push((name, d)),
+                )
+            },
+            || crate::body::reconcile::SilhouetteProfile::of(&normalised.mask),
+        )
+    };
     timings.0.extend(stages);
     let fof = found.and_then(|p| match p {
         Some(p) => timings
             .time("body FOF", || {
                 let mesh = centre_visible_depth(p.mesh, &normalised.mask);
-                crate::body::prior::body_fof(
+                crate::body::prior::body_fof_with(
                     &mesh,
                     &normalised.mask,
                     Some(normalised.frame),
                     opts.fof_order,
                     &opts.inflate,
+                    Some(&silhouette),
                 )
             })
             .map(Some),
