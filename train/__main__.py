@@ -54,6 +54,9 @@ def main(argv=None):
                    help="the FOF input the net is residual on (default: body when among --inputs, else prior)")
     p.add_argument("--no-prior", action="store_true",
                    help="train the plain image -> FOF net (same as --inputs image --residual none)")
+    p.add_argument("--body-depth-flip", type=float, default=0.0,
+                   help="share of training items whose body FOF input is mirrored front to back (the pose "
+                        "network's facing-away failure), so the net learns when not to trust it (default 0)")
     p.add_argument("--no-centre-output", action="store_true",
                    help="compare the raw output with the ground truth (before session 7: the default now places "
                         "the output by the depth convention first, as the pipeline does)")

@@ -395,6 +395,26 @@ def flip_batch(b, gen):
     return out
 
 
+def flip_body_in_depth(b, gen, p):
+    """Mirrors the body FOF (`src_body`) front to back for a random share `p` of the batch, the other inputs and the
+    target untouched: the pose network's known failure (a person read as seen from behind, arms and back fitted on
+    the wrong side; README "Body prior") shown to the net, so it learns to trust the body FOF only where the rest
+    agrees. Mirroring z -> -z maps occupancy(s) to occupancy(1 - s), i.e. coefficient k to (-1)^k times itself."""
+    if p <= 0 or "src_body" not in b:
+        return b
+    body = b["src_body"]
+    pick = torch.rand(body.shape[0], generator=gen) < p
+    if not bool(pick.any()):
+        return b
+    sign = torch.ones(body.shape[1], dtype=body.dtype)
+    sign[1::2] = -1
+    out = dict(b)
+    t = body.clone()
+    t[pick] = t[pick] * sign.view(1, -1, 1, 1)
+    out["src_body"] = t
+    return out
+
+
 def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
     rec = recipe(args, args.tier, ds.meta, step, elapsed, world)
     rec["losses"] = {"coefficient_l1": 1.0, "occupancy_l1": args.lambda_occupancy, "occupancy_samples": 32,
@@ -403,7 +423,8 @@ def save_fof(args, model, opt, step, ds, elapsed, world, evaluation=None):
     rec["fof_net"] = (f"residual on `{model.residual}`: fof = {model.residual} + UNet({ins}), last convolution "
                       "zero-initialised") if model.residual else f"plain: ({ins}) -> fof"
     rec["fof_inputs"] = list(model.inputs)
-    rec["augmentation"] = "left-right flip (p = 0.5)"
+    rec["augmentation"] = "left-right flip (p = 0.5)" + (
+        f", body FOF mirrored in depth (p = {args.body_depth_flip})" if getattr(args, "body_depth_flip", 0) > 0 else "")
     rec["loss_on_centred_output"] = not getattr(args, "no_centre_output", False)
     rec.pop("decoder", None)
     rec.pop("fof_dropout", None)
@@ -478,7 +499,7 @@ def fit_fof(args):
         if sampler is not None:
             sampler.set_epoch(epoch)
         for b in loader:
-            b = to_device(flip_batch(b, gen), device)
+            b = to_device(flip_body_in_depth(flip_batch(b, gen), gen, getattr(args, "body_depth_flip", 0.0)), device)
             loss, parts = fof_loss(net, model, b, args.lambda_occupancy, args.lambda_silhouette,
                                    centre=not args.no_centre_output)
             opt.zero_grad(set_to_none=True)

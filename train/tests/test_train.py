@@ -348,6 +348,24 @@ class NetsTest(unittest.TestCase):
         plain = fof_net_from_checkpoint({"tier": "tiny", "fof_n": 8, "prior": False})
         self.assertEqual((plain.inputs, plain.residual), (("image",), None))
 
+    def test_body_depth_flip_mirrors_the_body_interval_front_to_back_only(self):
+        import math
+        from train.fit import decode_occupancy, flip_body_in_depth
+        n, (a, b) = 32, (0.1, 0.3)
+        k = torch.arange(1, n, dtype=torch.float64)
+        c = torch.zeros(n, dtype=torch.float64)
+        c[0] = 2 * (b - a)
+        c[1:] = 2 * (torch.sin(k * math.pi * b) - torch.sin(k * math.pi * a)) / (k * math.pi)
+        body = c.float().view(1, n, 1, 1).repeat(3, 1, 1, 1)
+        prior = torch.randn(3, n, 1, 1)
+        out = flip_body_in_depth({"src_body": body, "src_prior": prior}, torch.Generator().manual_seed(0), 1.0)
+        occ = decode_occupancy(out["src_body"], 64)[:, :, 0, 0]
+        inside = [i for i in range(64) if occ[0, i] > 0.5]
+        # [0.1, 0.3] of the ray becomes [0.7, 0.9]: samples 45..57 of 64 (centres (i + 0.5) / 64).
+        self.assertEqual((inside[0], inside[-1]), (45, 57))
+        self.assertTrue(torch.equal(out["src_prior"], prior), "only the body FOF is mirrored")
+        self.assertTrue(torch.equal(flip_body_in_depth({"src_body": body}, torch.Generator(), 0.0)["src_body"], body))
+
     def test_flip_batch_mirrors_every_source_tensor_of_the_same_items(self):
         from train.fit import flip_batch
         b = {k: torch.arange(2 * 2 * 3 * 4, dtype=torch.float32).view(2, 2, 3, 4) + i
