@@ -19,7 +19,7 @@ use glam::{DVec3, Vec2};
 use super::fit::{fit_body, BodyFit, FitOptions, FitTarget};
 use super::model::{BodyModel, Pose, LIMB_SEGMENTS};
 use super::pose::{cut_frame, PhotoFrame, PoseEstimator, PoseLandmarks};
-use super::reconcile::{reconcile, ReconcileParams};
+use super::reconcile::{reconcile_with, ReconcileParams, SilhouetteProfile};
 use super::BodyError;
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::circle::min_enclosing_circle;
@@ -310,6 +310,19 @@ pub fn body_fof(
     n: usize,
     inflate_params: &InflateParams,
 ) -> Result<Fof, BodyError> {
+    body_fof_with(mesh, mask, frame, n, inflate_params, None)
+}
+
+/// [`body_fof`] with the mask's [`SilhouetteProfile`] solved beforehand (the pipeline solves it beside the pose and
+/// the fit); solved here when `None`. The same result.
+pub fn body_fof_with(
+    mesh: &TriMesh,
+    mask: &GrayImage,
+    frame: Option<PhotoFrame>,
+    n: usize,
+    inflate_params: &InflateParams,
+    silhouette: Option<&SilhouetteProfile>,
+) -> Result<Fof, BodyError> {
     let body = intervals_from_mesh(mesh, mask.width, mask.height, sheet_thickness(n));
     let params = ReconcileParams {
         thickness: inflate_params.thickness,
@@ -317,7 +330,7 @@ pub fn body_fof(
         min_half_depth: 0.5 * sheet_thickness(n),
         ..Default::default()
     };
-    let out = reconcile(&body, mask, Some(effective_frame(mask, frame)), &params);
+    let out = reconcile_with(&body, mask, Some(effective_frame(mask, frame)), &params, silhouette);
     Fof::from_intervals(&out, n).map_err(BodyError::Fof)
 }
 

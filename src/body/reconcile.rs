@@ -382,6 +382,43 @@ pub fn classify(body: &Image<Vec<(f32, f32)>>, mask: &GrayImage, frame: Option<P
         .collect()
 }
 
+/// The silhouette's own inflation profile `u_s` of a mask (the **silhouette floor** of the module docs: `-Δu_s = 4`
+/// over every mask column, `u_s = 0` on the outline and at the cut). It depends on the mask alone, so it can be
+/// solved before the body is known: the pipeline solves it beside the pose network and the fit and hands it to
+/// [`reconcile_with`].
+#[derive(Clone, Debug)]
+pub struct SilhouetteProfile {
+    width: usize,
+    height: usize,
+    u: Vec<f64>,
+}
+
+impl SilhouetteProfile {
+    /// The profile of `mask` (`[0, 1]`, threshold 0.5).
+    pub fn of(mask: &GrayImage) -> Self {
+        let (w, h) = (mask.width, mask.height);
+        Self { width: w, height: h, u: silhouette_problem(mask).solve_cascade() }
+    }
+}
+
+/// The problem [`SilhouetteProfile`] solves: every mask column free, the outline everywhere (the cut too: a region
+/// the frame closes on every side would otherwise have nothing to hold it), like the inflation prior.
+fn silhouette_problem(mask: &GrayImage) -> GridProblem {
+    let (w, h) = (mask.width, mask.height);
+    GridProblem {
+        width: w,
+        height: h,
+        cells: mask.data.iter().map(|&m| if m >= 0.5 { Cell::Free } else { Cell::Outside }).collect(),
+        fixed: vec![0.0; w * h],
+        outline: Some(0.0),
+        source: 4.0,
+        target: 0.0,
+        screen: SCREEN,
+        inv_dx2: (w as f64 / 2.0).powi(2),
+        inv_dy2: (h as f64 / 2.0).powi(2),
+    }
+}
+
 /// The body's intervals reconciled with the silhouette (see the module docs), on the mask's grid. `body` must be
 /// on that grid (`intervals_from_mesh` at the mask's size); intervals are sorted by depth, each `(back, front)`.
 /// Non-finite body values are ignored; every output interval lies in `[-1, 1]`.
@@ -390,6 +427,18 @@ pub fn reconcile(
     mask: &GrayImage,
     frame: Option<PhotoFrame>,
     params: &ReconcileParams,
+) -> Image<Vec<(f32, f32)>> {
+    reconcile_with(body, mask, frame, params, None)
+}
+
+/// [`reconcile`] with the silhouette's profile solved beforehand (`silhouette`, [`SilhouetteProfile::of`] the same
+/// mask; solved here when `None` or of another size): the same result.
+pub fn reconcile_with(
+    body: &Image<Vec<(f32, f32)>>,
+    mask: &GrayImage,
+    frame: Option<PhotoFrame>,
+    params: &ReconcileParams,
+    silhouette: Option<&SilhouetteProfile>,
 ) -> Image<Vec<(f32, f32)>> {
     let (w, h) = (mask.width, mask.height);
     let mut out: Image<Vec<(f32, f32)>> = Image::new(w, h, Vec::new());
@@ -442,23 +491,18 @@ pub fn reconcile(
     };
     let u_problem =
         GridProblem { fixed: u_fixed, outline: Some(0.0), source: 4.0, target: 0.0, screen: SCREEN, ..base.clone() };
-    // The silhouette alone, like the inflation prior: every mask column free, the outline everywhere (the cut too:
-    // a region the frame closes on every side would otherwise have nothing to hold it).
-    let silhouette_cells = base
-        .cells
-        .iter()
-        .map(|&c| match c {
-            Cell::Body | Cell::Free => Cell::Free,
-            Cell::Outside | Cell::Cut => Cell::Outside,
-        })
-        .collect();
-    let s_problem = GridProblem { cells: silhouette_cells, fixed: vec![0.0; w * h], ..u_problem.clone() };
     let any_free = base.cells.contains(&Cell::Free);
     let solve = |p: &GridProblem, needed: bool| if needed { p.solve_cascade() } else { vec![p.target; w * h] };
-    let (centre, (u, u_s)) = rayon::join(
-        || solve(&base, any_free),
-        || rayon::join(|| solve(&u_problem, any_free), || solve(&s_problem, floor > 0.0)),
-    );
+    let silhouette = silhouette.filter(|s| (s.width, s.height) == (w, h));
+    let floor_profile = || -> std::borrow::Cow<'_, [f64]> {
+        match silhouette {
+            _ if floor <= 0.0 => vec![0.0; w * h].into(),
+            Some(s) => s.u.as_slice().into(),
+            None => silhouette_problem(mask).solve_cascade().into(),
+        }
+    };
+    let (centre, (u, u_s)) =
+        rayon::join(|| solve(&base, any_free), || rayon::join(|| solve(&u_problem, any_free), floor_profile));
     let h_min = (params.min_half_thickness.max(0.0) as f64 * 2.0 / w.max(h) as f64)
         .max(if params.min_half_depth.is_finite() { params.min_half_depth.max(0.0) as f64 } else { 0.0 });
     // Every column on its own (the same values in any order): in parallel.
@@ -769,6 +813,16 @@ mod tests {
         }
         let bare = reconcile(&body, &mask, None, &ReconcileParams { silhouette_floor: 0.0, ..params });
         assert_eq!(bare.get(40, 48), &vec![(0.08, 0.12)]);
+        // The silhouette's profile solved beforehand gives the same bits; one of another mask's size is not used,
+        // nor one at all without the floor; one of another mask of the same size is (the caller's contract).
+        let profile = SilhouetteProfile::of(&mask);
+        assert_eq!(reconcile_with(&body, &mask, None, &params, Some(&profile)).data, out.data);
+        let other_size = SilhouetteProfile::of(&mask_of(n / 2, n / 2, in_disc(n / 2, 10.0)));
+        assert_eq!(reconcile_with(&body, &mask, None, &params, Some(&other_size)).data, out.data);
+        let smaller = SilhouetteProfile::of(&mask_of(n, n, in_disc(n, 20.0)));
+        let no_floor = ReconcileParams { silhouette_floor: 0.0, ..params };
+        assert_eq!(reconcile_with(&body, &mask, None, &no_floor, Some(&smaller)).data, bare.data);
+        assert_ne!(reconcile_with(&body, &mask, None, &params, Some(&smaller)).data, out.data);
     }
 
     #[test]

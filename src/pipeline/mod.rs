@@ -33,6 +33,7 @@ use crate::geometry::fof::{Fof, FofError};
 use crate::geometry::inflate::{self, InflateError, InflateParams};
 use crate::geometry::marching;
 use crate::geometry::raster::{self, GBuffer};
+use crate::geometry::shells::drop_unexplained_shells;
 use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
@@ -337,27 +338,37 @@ fn body_prior_fof_or_why(
     body: &SharedBody,
     timings: &mut StageTimings,
 ) -> Result<Fof, NoBodyFof> {
-    let mut estimator = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     let mut stages: Vec<(&'static str, Duration)> = Vec::new();
-    let found = estimator.estimate(
-        &normalised.rgb,
-        &normalised.mask,
-        Some(normalised.frame),
-        opts.warm_start,
-        &mut |name, d| stages.push((name, d)),
-    );
-    drop(estimator);
+    // The silhouette's own profile (part of the body FOF) depends on the mask alone: it is solved beside the pose
+    // network and the fit (the fit is single-threaded), not after them.
+    let (found, silhouette) = {
+        let mut guard = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let estimator: &mut crate::body::prior::BodyEstimator = &mut guard;
+        rayon::join(
+            || {
+                estimator.estimate(
+                    &normalised.rgb,
+                    &normalised.mask,
+                    Some(normalised.frame),
+                    opts.warm_start,
+                    &mut |name, d| stages.push((name, d)),
+                )
+            },
+            || crate::body::reconcile::SilhouetteProfile::of(&normalised.mask),
+        )
+    };
     timings.0.extend(stages);
     let fof = found.and_then(|p| match p {
         Some(p) => timings
             .time("body FOF", || {
                 let mesh = centre_visible_depth(p.mesh, &normalised.mask);
-                crate::body::prior::body_fof(
+                crate::body::prior::body_fof_with(
                     &mesh,
                     &normalised.mask,
                     Some(normalised.frame),
                     opts.fof_order,
                     &opts.inflate,
+                    Some(&silhouette),
                 )
             })
             .map(Some),
@@ -512,6 +523,16 @@ fn chosen_geometry(
             &prior,
             body.as_ref(),
         )
+    });
+    // A column keeps no more shells than the silhouette (the inflation prior's one) and the fitted body explain: a
+    // surface the network drew twice becomes one (`shells::drop_unexplained_shells`).
+    let refined = refined.map(|mut fof| {
+        timings.time("geometry (one shell per explained surface)", || {
+            let references: Vec<&Fof> = std::iter::once(&prior).chain(body.as_ref()).collect();
+            let changed = drop_unexplained_shells(&mut fof, &references, &normalised.mask);
+            tracing::debug!("FOF net: {changed} columns lost shells neither prior explains");
+        });
+        fof
     });
     // What the network refined (its residual base): the guard measures against it and falls back to it.
     let base = match (net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).base(), body) {
