@@ -3,9 +3,12 @@
 //! model's resolution), for every tier whose models are present, and the whole per-view path of the shipped
 //! `tiny` (target raster + flow/Z-map + colour lookup + decoder + panorama compose, `ViewRenderer::render_frame`)
 //! at 256x256 against the 40 ms target, next to the geometric renderer on the same input. Per input, the FOF net
-//! (`FofNet::refine`: 512x512 photo + inflation prior in, the corrected 512x512 FOF out) alone, and the whole
-//! per-input preparation with `--geometry inflate` against `--geometry fofnet` (normalise, inflation, network,
-//! marching cubes, source raster).
+//! (`FofNet::refine_with`: the 512x512 inputs it declares in, the corrected 512x512 FOF out; a net that takes the
+//! body FOF gets a thicker inflation FOF in its place, which costs the network the same) alone, and the whole
+//! per-input preparation with `--geometry inflate` against `--geometry fofnet` (normalise, inflation, body prior
+//! when the net takes it, network, marching cubes, source raster; on this bench's drawn mask the pose network may
+//! find no person, and the body prior then falls back to the inflation prior: `cargo bench --bench still` times the
+//! FOF-net path on real photos).
 //!
 //! Models: `models/<tier>` of the project (the shipped `tiny`), or the tier folders inside `R2HUMAN_BENCH_MODELS`.
 //! Untrained `small`/`paper` models for speed measurements: `python -m train export-untrained --tier paper
@@ -28,7 +31,8 @@ use r2human::neural::{
 };
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{
-    load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice, ViewRenderer,
+    load_body_for, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput, RendererChoice,
+    ViewRenderer,
 };
 
 fn model_dir(tier: &str) -> Option<PathBuf> {
@@ -180,8 +184,10 @@ fn bench_fof_net(c: &mut Criterion) {
             }
         };
         let prior = inflate_to_fof(&mask, net.info().fof_n, &InflateParams::default()).expect("inflation");
+        let thicker = InflateParams { thickness: 1.3 * InflateParams::default().thickness, ..Default::default() };
+        let body = net.takes_body().then(|| inflate_to_fof(&mask, net.info().fof_n, &thicker).expect("inflation"));
         group.bench_function(format!("{tier}/512-input"), |b| {
-            b.iter(|| black_box(net.refine(&rgb, &mask, &prior).expect("FOF net run")))
+            b.iter(|| black_box(net.refine_with(&rgb, &mask, &prior, body.as_ref()).expect("FOF net run")))
         });
     }
     if let Some(dir) = model_dir("tiny").filter(|d| d.join(FOF_FILE).is_file()) {
@@ -190,7 +196,8 @@ fn bench_fof_net(c: &mut Criterion) {
             b.iter(|| black_box(PreparedInput::prepare(&rgb, &mask, &inflate).expect("prepare")))
         });
         let fof_net = load_fof_net(GeometryMode::FofNet, Some(&dir), inflate.fof_order, &options()).expect("fof.onnx");
-        let with_net = PrepareOptions { geometry: GeometryMode::FofNet, fof_net, ..PrepareOptions::default() };
+        let body = load_body_for(GeometryMode::FofNet, fof_net.as_ref(), &options()).expect("body prior");
+        let with_net = PrepareOptions { geometry: GeometryMode::FofNet, fof_net, body, ..PrepareOptions::default() };
         group.bench_function("prepare/fofnet-tiny", |b| {
             b.iter(|| black_box(PreparedInput::prepare(&rgb, &mask, &with_net).expect("prepare")))
         });

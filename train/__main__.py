@@ -46,9 +46,10 @@ def main(argv=None):
     p.add_argument("--lambda-silhouette", type=float, default=4.0,
                    help="weight of the silhouette term (every column of the person must hold some body)")
     p.add_argument("--inputs", default="image,prior",
-                   help="the net's inputs: image, then any of body (the fitted body's FOF, body_fof.npy; the "
-                        "reference's input) and prior (the inflation prior, prior_fof.npy), e.g. image,body or "
-                        "image,body,prior (exported as r2human.fof_inputs)")
+                   help="the net's inputs: image (optional: without it the net sees geometry only), then any of body "
+                        "(the fitted body's FOF, body_fof.npy; the reference's input) and prior (the inflation "
+                        "prior, prior_fof.npy), e.g. image,body,prior or body,prior (exported as "
+                        "r2human.fof_inputs)")
     p.add_argument("--residual", default=None, choices=["body", "prior", "none"],
                    help="the FOF input the net is residual on (default: body when among --inputs, else prior)")
     p.add_argument("--no-prior", action="store_true",

@@ -8,7 +8,7 @@ import onnx
 import torch
 
 from .fit import R2HumanNet
-from .nets import TIERS, ZMAP_FREQUENCIES, fof_net_from_checkpoint
+from .nets import TIERS, ZMAP_FREQUENCIES, FofNet, fof_net_from_checkpoint
 
 FORMAT_VERSION = 1
 # The decoder's inputs, in order. `warped_rgb` (the residual decoder's photo lookup) cannot be called `rgb` like the
@@ -97,8 +97,8 @@ def export_fof(ckpt_path, out_dir, seed=0):
     os.makedirs(out_dir, exist_ok=True)
     path = os.path.join(out_dir, "fof.onnx")
     g = torch.Generator().manual_seed(seed)
-    feeds = {"image": torch.rand(1, 3, res, res, generator=g) * 2 - 1}
-    for name in model.inputs[1:]:
+    feeds = {"image": torch.rand(1, 3, res, res, generator=g) * 2 - 1} if "image" in model.inputs else {}
+    for name in FofNet.fofs(model.inputs):
         # Coefficients of plausible occupied columns: c0 (the occupied fraction of the ray, times 2) in [0, 1].
         feeds[name] = torch.randn(1, fof_n, res, res, generator=g) * 0.2
         feeds[name][:, :1] = torch.rand(1, 1, res, res, generator=g)

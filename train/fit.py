@@ -254,10 +254,10 @@ def decode_occupancy(fof, samples=64):
 
 
 def fof_inputs(model, b):
-    """The FOF net's inputs from a batch, in the net's order (`model.inputs`: the photo, then `body` and/or
-    `prior`)."""
-    out = [b["src_image"]]
-    for name in model.inputs[1:]:
+    """The FOF net's inputs from a batch, in the net's order (`model.inputs`: the photo when it takes it, then
+    `body` and/or `prior`)."""
+    out = [b["src_image"]] if "image" in model.inputs else []
+    for name in FofNet.fofs(model.inputs):
         if f"src_{name}" not in b:
             file = {"prior": "prior_fof.npy", "body": "body_fof.npy"}[name]
             raise ValueError(f"this FOF net takes `{name}`, but the dataset has no {file}: rewrite it with this "
@@ -424,7 +424,7 @@ def fof_net_choice(args, ds):
         return ("image",), None
     inputs = parse_fof_inputs(args.inputs)
     files = {"prior": (ds.has_prior, "prior_fof.npy"), "body": (ds.has_body, "body_fof.npy")}
-    for name in inputs[1:]:
+    for name in FofNet.fofs(inputs):
         present, file = files[name]
         if not present:
             raise SystemExit(f"{args.data} has no {file} per subject (needed by --inputs {args.inputs}): rewrite it "
@@ -434,7 +434,7 @@ def fof_net_choice(args, ds):
         residual = None
     elif residual is None:
         residual = "body" if "body" in inputs else ("prior" if "prior" in inputs else None)
-    if residual is not None and residual not in inputs[1:]:
+    if residual is not None and residual not in FofNet.fofs(inputs):
         raise SystemExit(f"--residual {residual} is not one of --inputs {args.inputs}")
     return inputs, residual
 

@@ -208,24 +208,27 @@ class Decoder(nn.Module):
         return warped_rgb + self.net(torch.cat([features, zmap_encoding(zmap), normals, warped_rgb], 1))
 
 
-# The FOF net's optional FOF inputs besides the photo (`image`), by ONNX input name.
+# The FOF net's FOF inputs (the photo is `image`), by ONNX input name.
 FOF_INPUTS = ("body", "prior")
 
 
 def parse_fof_inputs(text):
-    """`image,body[,prior]` (any order after image) -> the tuple of input names, checked."""
+    """`[image,]body[,prior]` -> the tuple of input names, checked: `image` (the masked photo) first when present,
+    then any of the FOF inputs once each; at least one input. Without `image` the net sees geometry only (the
+    body FOF and/or the inflation prior, whose empty columns carry the silhouette): what it learns then does not
+    depend on how synthetic textures look."""
     names = tuple(t.strip() for t in text.split(",") if t.strip())
-    if not names or names[0] != "image" or len(set(names)) != len(names) or \
-            any(n not in FOF_INPUTS for n in names[1:]):
-        raise ValueError(f"FOF net inputs {text!r}: give `image` first, then any of {', '.join(FOF_INPUTS)} "
-                         "once each (e.g. image,body or image,body,prior)")
+    fofs = names[1:] if names[:1] == ("image",) else names
+    if not names or len(set(names)) != len(names) or any(n not in FOF_INPUTS for n in fofs):
+        raise ValueError(f"FOF net inputs {text!r}: give `image` first (optional), then any of "
+                         f"{', '.join(FOF_INPUTS)} once each (e.g. image,body,prior or body,prior)")
     return names
 
 
 class FofNet(nn.Module):
-    """Photo (+ FOF priors) -> N FOF-X coefficients.
+    """Photo and/or FOF priors -> N FOF-X coefficients.
 
-    `inputs` names the inputs in order: `image` then any of `body` (the fitted body's FOF, the reference's input) and
+    `inputs` names the inputs in order: `image` (optional) then any of `body` (the fitted body's FOF, the reference's input) and
     `prior` (the silhouette-inflation prior). With `residual` set to one of the FOF inputs the net is RESIDUAL on it,
     like the decoder on the colour lookup: fof = base + UNet(all inputs) with the last convolution zero-initialised,
     so an untrained net returns its base exactly and training only adds what the photo says. `residual=None` is the
@@ -239,24 +242,30 @@ class FofNet(nn.Module):
         inputs = parse_fof_inputs(",".join(inputs))
         if residual == "unset":
             residual = "prior" if "prior" in inputs else ("body" if "body" in inputs else None)
-        if residual is not None and residual not in inputs[1:]:
-            raise ValueError(f"the residual base {residual!r} must be one of the FOF inputs {inputs[1:]}")
+        if residual is not None and (residual == "image" or residual not in inputs):
+            raise ValueError(f"the residual base {residual!r} must be one of the FOF inputs {self.fofs(inputs)}")
         self.inputs, self.residual = inputs, residual
         # Kept for old callers: whether the net takes the inflation prior.
         self.prior = "prior" in inputs
-        self.net = UNet(3 + fof_n * (len(inputs) - 1), fof_n, TIERS[tier]["fof_widths"], light=False)
+        channels = 3 * ("image" in inputs) + fof_n * len(self.fofs(inputs))
+        self.net = UNet(channels, fof_n, TIERS[tier]["fof_widths"], light=False)
         if residual is not None:
             nn.init.zeros_(self.net.out.weight)
             nn.init.zeros_(self.net.out.bias)
         self.stride = self.net.stride
 
-    def forward(self, image, *fofs):
-        if len(fofs) != len(self.inputs) - 1:
-            raise ValueError(f"FofNet takes {self.inputs}, got {1 + len(fofs)} tensors")
-        out = self.net(torch.cat([image, *fofs], 1))
+    @staticmethod
+    def fofs(inputs):
+        """The FOF inputs among `inputs` (all but `image`)."""
+        return tuple(n for n in inputs if n != "image")
+
+    def forward(self, *tensors):
+        if len(tensors) != len(self.inputs):
+            raise ValueError(f"FofNet takes {self.inputs}, got {len(tensors)} tensors")
+        out = self.net(torch.cat(tensors, 1))
         if self.residual is None:
             return out
-        return fofs[self.inputs.index(self.residual) - 1] + out
+        return tensors[self.inputs.index(self.residual)] + out
 
 
 def fof_net_from_checkpoint(ck):

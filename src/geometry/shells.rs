@@ -23,6 +23,11 @@ pub const INTERVAL_SAMPLES: usize = 128;
 /// The occupancy intervals of one decoded column: runs at or above `level`, runs separated by fewer than
 /// [`MIN_RUN_SAMPLES`] empty samples merged, runs shorter than [`MIN_RUN_SAMPLES`] ignored.
 pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
+    intervals(occupancy, level).len()
+}
+
+/// The occupancy intervals [`count_intervals`] counts, as half-open sample ranges `(first, end)` in depth order.
+fn intervals(occupancy: &[f32], level: f32) -> Vec<(usize, usize)> {
     let mut runs: Vec<(usize, usize)> = Vec::new();
     let mut start = None;
     for (i, &o) in occupancy.iter().chain(std::iter::once(&f32::NEG_INFINITY)).enumerate() {
@@ -38,7 +43,60 @@ pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
             _ => {}
         }
     }
-    runs.iter().filter(|(s, e)| e - s >= MIN_RUN_SAMPLES).count()
+    runs.retain(|(s, e)| e - s >= MIN_RUN_SAMPLES);
+    runs
+}
+
+/// Removes from each of the person's columns (`mask` at least 0.5) of `fof` the shells that `references` do not
+/// explain (the rule of [`doubled_fraction_beyond`]: a column is explained up to the largest interval count any
+/// reference has there, at least one). Such a column keeps its longest intervals, as many as are explained, and
+/// is re-encoded from them ([`accumulate_interval`]; intervals of [`INTERVAL_SAMPLES`] depth samples); every other
+/// column keeps its coefficients bit for bit. A network's surface drawn twice (a face behind the face) becomes
+/// one, and a column never loses its longest interval. Returns how many columns changed; `fof` is left as it is
+/// when a grid differs.
+pub fn drop_unexplained_shells(fof: &mut Fof, references: &[&Fof], mask: &GrayImage) -> usize {
+    if (fof.width, fof.height) != (mask.width, mask.height)
+        || references.iter().any(|r| (r.width, r.height) != (fof.width, fof.height))
+    {
+        return 0;
+    }
+    let (w, n) = (fof.width, fof.n);
+    let table = CosineTable::new(n, INTERVAL_SAMPLES);
+    let reference_tables: Vec<CosineTable> =
+        references.iter().map(|r| CosineTable::new(r.n, INTERVAL_SAMPLES)).collect();
+    let depth = |sample: usize| 2.0 * sample as f32 / INTERVAL_SAMPLES as f32 - 1.0;
+    fof.coeffs
+        .par_chunks_mut(w * n)
+        .enumerate()
+        .map(|(row, line)| {
+            let (mut a, mut b) = (vec![0.0f32; INTERVAL_SAMPLES], vec![0.0f32; INTERVAL_SAMPLES]);
+            let mut changed = 0;
+            for (col, coeffs) in line.chunks_exact_mut(n).enumerate() {
+                if *mask.get(col, row) < 0.5 || Fof::is_empty_coefficients(coeffs) {
+                    continue;
+                }
+                table.decode(coeffs, &mut a);
+                let mut runs = intervals(&a, ISO_LEVEL);
+                let mut explained = 1;
+                for (r, t) in references.iter().zip(&reference_tables) {
+                    r.decode_column_with(t, col, row, &mut b);
+                    explained = explained.max(count_intervals(&b, ISO_LEVEL));
+                }
+                if runs.len() <= explained {
+                    continue;
+                }
+                // The longest first (the earlier one on a tie), then back in depth order.
+                runs.sort_by_key(|&(s, e)| (std::cmp::Reverse(e - s), s));
+                runs.truncate(explained);
+                coeffs.fill(0.0);
+                for &(s, e) in &runs {
+                    accumulate_interval(depth(s), depth(e), coeffs);
+                }
+                changed += 1;
+            }
+            changed
+        })
+        .sum()
 }
 
 /// Fraction of the person's columns (`mask` at least 0.5) where `fof` decodes to more occupancy intervals than
@@ -464,6 +522,50 @@ mod tests {
         assert_eq!(doubled_fraction_beyond(&one, &[], &mask, 1), 0.0, "one shell is always explained");
         assert!((doubled_fraction_beyond(&two, &[], &mask, 1) - d).abs() < 1e-6, "no reference: one shell explained");
         assert!(doubled_fraction_beyond(&one, &[&one, &Fof::zeros(32, 16, 16).unwrap()], &mask, 1).is_nan());
+    }
+
+    /// A 3x1 field whose columns hold the intervals given (z in [-1, 1]).
+    fn columns(cols: &[&[(f32, f32)]]) -> Fof {
+        let n = 32;
+        let mut coeffs = vec![0.0f32; cols.len() * n];
+        for (c, intervals) in cols.iter().enumerate() {
+            for &(lo, hi) in *intervals {
+                accumulate_interval(lo, hi, &mut coeffs[c * n..(c + 1) * n]);
+            }
+        }
+        Fof::new(n, cols.len(), 1, coeffs).unwrap()
+    }
+
+    #[test]
+    fn unexplained_shells_are_dropped_and_the_longest_kept() {
+        let (long, short, other) = ((-0.6, -0.2), (0.3, 0.5), (0.6, 0.8));
+        // Column 0: a second, shorter shell no reference explains. Column 1: the same, but the second reference
+        // has two shells there. Column 2: outside the mask.
+        let mut fof = columns(&[&[long, short], &[long, short], &[long, short]]);
+        let before = fof.clone();
+        let one = columns(&[&[(-0.5, 0.0)], &[(-0.5, 0.0)], &[(-0.5, 0.0)]]);
+        let two = columns(&[&[(-0.5, 0.0)], &[(-0.7, -0.3), other], &[(-0.5, 0.0)]]);
+        let mask = GrayImage::from_fn(3, 1, |c, _| if c < 2 { 1.0 } else { 0.0 });
+        assert_eq!(drop_unexplained_shells(&mut fof, &[&one, &two], &mask), 1);
+        // Column 0 is now the long interval alone, re-encoded from its decoded ends (within a sample of 2/128).
+        let mut occ = vec![0.0f32; INTERVAL_SAMPLES];
+        fof.decode_column(0, 0, INTERVAL_SAMPLES, &mut occ);
+        let runs = intervals(&occ, ISO_LEVEL);
+        assert_eq!(runs.len(), 1, "{runs:?}");
+        let z = |s: usize| 2.0 * s as f32 / INTERVAL_SAMPLES as f32 - 1.0;
+        let sample = 2.0 / INTERVAL_SAMPLES as f32;
+        assert!((z(runs[0].0) - long.0).abs() <= 1.5 * sample && (z(runs[0].1) - long.1).abs() <= 1.5 * sample);
+        // The explained column and the one outside the mask keep every bit.
+        for c in 1..3 {
+            let (a, b) = (fof.column(c, 0), before.column(c, 0));
+            assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "column {c}");
+        }
+        // One shell is always explained: a single-shell field is untouched even with no reference.
+        let mut single = columns(&[&[long], &[short], &[]]);
+        assert_eq!(drop_unexplained_shells(&mut single, &[], &GrayImage::new(3, 1, 1.0)), 0);
+        // Grids that differ: nothing changes.
+        let wide = Fof::zeros(32, 4, 1).unwrap();
+        assert_eq!(drop_unexplained_shells(&mut fof, &[&wide], &mask), 0);
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! # The three models (all NCHW `float32`, batch 1; see `train/README.md` for how they are trained)
 //! | file | inputs | output |
 //! | --- | --- | --- |
-//! | `fof.onnx` (optional) | `image` `[1,3,R,R]` (+ optional `prior` `[1,N,R,R]`) | `fof` `[1,N,R,R]` |
+//! | `fof.onnx` (optional) | as `r2human.fof_inputs` names: `image` `[1,3,R,R]` (optional), `body` and/or `prior` `[1,N,R,R]` | `fof` `[1,N,R,R]` |
 //! | `encoder.onnx` | `image` `[1,3,R,R]`, `fof` `[1,N,R,R]`, `normals` `[1,3,R,R]` | `features` `[1,C,R/4,R/4]` |
 //! | `decoder.onnx` | `features` `[1,C,h,w]`, `zmap` `[1,1,h,w]`, `normals` `[1,3,h,w]`, `warped_rgb` `[1,3,h,w]` | `rgb` `[1,3,h,w]` |
 //!
@@ -25,9 +25,10 @@
 //!   full-resolution texture. A decoder of the earlier three-input contract is rejected at load, naming the
 //!   missing `warped_rgb`. (It is not called `rgb` because ONNX value names are unique and `rgb` is the output.)
 //! - `rgb` is sRGB in `[-1, 1]`; [`Decoder`] turns it into linear premultiplied RGBA with the target mask as alpha.
-//! - The FOF net's FOF inputs (`r2human.fof_inputs`, e.g. `image,body,prior`; files without the key take `image`
-//!   and `prior` when they have it): `prior` is the silhouette-inflation FOF and `body` the fitted body's FOF (the
-//!   body prior, as `--geometry body` computes it: the reference FOF net's input), each box-averaged to `R`. The net
+//! - The FOF net's inputs (`r2human.fof_inputs`, e.g. `image,body,prior`, or `body,prior` for a net that sees
+//!   geometry only, as the shipped one does; files without the key take `image` and `prior` when they have it):
+//!   `prior` is the silhouette-inflation FOF and `body` the fitted body's FOF (the body prior, as `--geometry body`
+//!   computes it: the reference FOF net's input), each box-averaged to `R`. The net
 //!   is residual on one of them (`r2human.residual`; `fof = base + UNet(...)`, zero-initialised last convolution),
 //!   and [`FofNet::refine_with`] applies its correction to that base at full resolution (the pipeline's
 //!   `--geometry fofnet|auto`).

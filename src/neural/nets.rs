@@ -108,10 +108,12 @@ impl FofInput {
     }
 }
 
-/// The FOF network: source photo (+ the FOF inputs its metadata names: the inflation prior and/or the body FOF)
-/// to `N` FOF-X coefficients per pixel.
+/// The FOF network: source photo and/or the FOF inputs its metadata names (the inflation prior and/or the body
+/// FOF) to `N` FOF-X coefficients per pixel.
 pub struct FofNet {
     net: Net,
+    /// Whether the model takes the masked photo (`image`); a model without it sees geometry only.
+    takes_image: bool,
     /// The FOF inputs after `image`, in the model's order.
     inputs: Vec<FofInput>,
     /// The input the network is residual on (`r2human.residual`), if any.
@@ -139,25 +141,29 @@ impl FofPrediction {
 }
 
 impl FofNet {
-    /// Loads and checks a FOF network (`r2human.kind = fof`; input `image` `[1,3,R,R]`, then the FOF inputs
-    /// `r2human.fof_inputs` names (`image,body`, `image,body,prior`, ...), each `[1,N,R,R]`; output `fof`
-    /// `[1,N,R,R]`). Files without `r2human.fof_inputs` (written before it existed) take `image` and, when they
-    /// have it, `prior`. `r2human.residual`, when present, must name one of the FOF inputs.
+    /// Loads and checks a FOF network (`r2human.kind = fof`; the inputs `r2human.fof_inputs` names: `image`
+    /// `[1,3,R,R]` when the model takes the photo, then the FOF inputs (`body`, `prior`), each `[1,N,R,R]`, e.g.
+    /// `image,body,prior` or, for a net that sees geometry only, `body,prior`; output `fof` `[1,N,R,R]`). Files
+    /// without `r2human.fof_inputs` (written before it existed) take `image` and, when they have it, `prior`.
+    /// `r2human.residual`, when present, must name one of the FOF inputs.
     pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
         let net = Net::load(path, ModelKind::Fof, "FOF net", options)?;
         let (r, n) = (net.info.resolution as i64, net.info.fof_n as i64);
-        check_tensor(&net.session, path, false, "image", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
-        let inputs = match optional_key(&net.session, path, "r2human.fof_inputs")? {
+        let (takes_image, inputs) = match optional_key(&net.session, path, "r2human.fof_inputs")? {
             Some(text) => {
                 parse_fof_inputs(&text).map_err(|p| metadata_problem(path, "r2human.fof_inputs", p.to_string()))?
             }
-            None if net.session.inputs().iter().any(|i| i.name() == "prior") => vec![FofInput::Prior],
-            None => Vec::new(),
+            None if net.session.inputs().iter().any(|i| i.name() == "prior") => (true, vec![FofInput::Prior]),
+            None => (true, Vec::new()),
         };
+        if takes_image {
+            check_tensor(&net.session, path, false, "image", [Dim::Is(3), Dim::Is(r), Dim::Is(r)])?;
+        }
         for input in &inputs {
             check_tensor(&net.session, path, false, input.name(), [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
         }
-        let names: Vec<&str> = std::iter::once("image").chain(inputs.iter().map(|i| i.name())).collect();
+        let names: Vec<&str> =
+            takes_image.then_some("image").into_iter().chain(inputs.iter().map(|i| i.name())).collect();
         check_no_extra_inputs(&net.session, path, &names)?;
         let residual = match optional_key(&net.session, path, "r2human.residual")? {
             None => None,
@@ -173,7 +179,13 @@ impl FofNet {
             },
         };
         check_tensor(&net.session, path, true, "fof", [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
-        Ok(Self { net, inputs, residual })
+        Ok(Self { net, takes_image, inputs, residual })
+    }
+
+    /// Whether the model takes the masked photo (`image` in `r2human.fof_inputs`); without it the network sees
+    /// geometry only, so what it learned does not depend on how its training images looked.
+    pub fn takes_image(&self) -> bool {
+        self.takes_image
     }
 
     /// The FOF inputs the model takes after `image`, in its order.
@@ -264,8 +276,11 @@ impl FofNet {
     /// [`FofNet::inputs`] order); zero where the resampled mask is below 0.5.
     fn predict(&mut self, rgb: &RgbImage, mask: &GrayImage, fofs: &[Vec<f32>]) -> Result<FofPrediction, NeuralError> {
         let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
-        let image = image_tensor(rgb, mask, r);
-        let mut inputs: Vec<(&str, [usize; 4], &[f32])> = vec![("image", [1, 3, r, r], &image)];
+        let image = if self.takes_image { image_tensor(rgb, mask, r) } else { Vec::new() };
+        let mut inputs: Vec<(&str, [usize; 4], &[f32])> = Vec::new();
+        if self.takes_image {
+            inputs.push(("image", [1, 3, r, r], &image));
+        }
         for (input, tensor) in self.inputs.iter().zip(fofs) {
             inputs.push((input.name(), [1, n, r, r], tensor));
         }
@@ -308,26 +323,31 @@ fn check_coefficients(
     Ok(())
 }
 
-/// A `r2human.fof_inputs` value that is not `image` followed by `body` and/or `prior` once each.
+/// A `r2human.fof_inputs` value that is not an optional `image` followed by `body` and/or `prior` once each.
 #[derive(Debug, PartialEq, thiserror::Error)]
-#[error("is `{0}`; expected `image` followed by `body` and/or `prior` (e.g. `image,body,prior`)")]
+#[error(
+    "is `{0}`; expected `image` (optional) followed by `body` and/or `prior` once each (e.g. `image,body,prior` or \
+     `body,prior`)"
+)]
 struct BadFofInputs(String);
 
-/// Parses `r2human.fof_inputs`: `image`, then `body` and/or `prior` once each.
-fn parse_fof_inputs(text: &str) -> Result<Vec<FofInput>, BadFofInputs> {
+/// Parses `r2human.fof_inputs`: an optional `image` (first), then `body` and/or `prior` once each; at least one
+/// input. Returns whether the model takes the image, and its FOF inputs in order.
+fn parse_fof_inputs(text: &str) -> Result<(bool, Vec<FofInput>), BadFofInputs> {
     let names: Vec<&str> = text.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
     let bad = || BadFofInputs(text.to_string());
-    if names.first() != Some(&"image") {
-        return Err(bad());
-    }
+    let takes_image = names.first() == Some(&"image");
     let mut inputs = Vec::new();
-    for name in &names[1..] {
+    for name in &names[usize::from(takes_image)..] {
         match FofInput::parse(name) {
             Some(input) if !inputs.contains(&input) => inputs.push(input),
             _ => return Err(bad()),
         }
     }
-    Ok(inputs)
+    if !takes_image && inputs.is_empty() {
+        return Err(bad());
+    }
+    Ok((takes_image, inputs))
 }
 
 impl std::fmt::Debug for FofNet {
@@ -335,6 +355,7 @@ impl std::fmt::Debug for FofNet {
         f.debug_struct("FofNet")
             .field("path", &self.net.path)
             .field("info", &self.net.info)
+            .field("takes_image", &self.takes_image)
             .field("inputs", &self.inputs)
             .field("residual", &self.residual)
             .field("provider", &self.net.provider)
@@ -900,14 +921,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn fof_inputs_are_image_then_body_and_or_prior_once_each() {
-        assert_eq!(parse_fof_inputs("image"), Ok(vec![]));
-        assert_eq!(parse_fof_inputs(" image , body,prior "), Ok(vec![FofInput::Body, FofInput::Prior]));
-        assert_eq!(parse_fof_inputs("image,prior"), Ok(vec![FofInput::Prior]));
-        for bad in ["", "body,image", "image,prior,prior", "image,depth"] {
+    fn fof_inputs_are_an_optional_image_then_body_and_or_prior_once_each() {
+        assert_eq!(parse_fof_inputs("image"), Ok((true, vec![])));
+        assert_eq!(parse_fof_inputs(" image , body,prior "), Ok((true, vec![FofInput::Body, FofInput::Prior])));
+        assert_eq!(parse_fof_inputs("image,prior"), Ok((true, vec![FofInput::Prior])));
+        assert_eq!(parse_fof_inputs("body, prior"), Ok((false, vec![FofInput::Body, FofInput::Prior])));
+        assert_eq!(parse_fof_inputs("prior"), Ok((false, vec![FofInput::Prior])));
+        for bad in ["", " , ", "body,image", "image,prior,prior", "image,depth", "prior,body,prior", "image,image"] {
             let e = parse_fof_inputs(bad).unwrap_err();
             assert_eq!(e, BadFofInputs(bad.to_string()));
-            assert!(e.to_string().starts_with(&format!("is `{bad}`; expected `image` followed by")), "{e}");
+            assert!(e.to_string().starts_with(&format!("is `{bad}`; expected `image` (optional) followed by")), "{e}");
         }
     }
 }

@@ -3,7 +3,9 @@
 //! twice, one shell behind the other ([`crate::geometry::shells::doubled_fraction_sampled`] against the prior the
 //! network refined). A rejected prediction is replaced by that prior with a warning, so a network that fails on an
 //! unusual photo costs detail, never a broken view; an accepted one loses the small specks that float apart from
-//! the body, if any.
+//! the body, if any. Before the guard, the pipeline has already removed the shells that neither the inflation
+//! prior nor the fitted body explain ([`crate::geometry::shells::drop_unexplained_shells`]), so the doubled
+//! measure here only sees second shells the body explains.
 //!
 //! The limits separate what was measured here (`r2human eval --photos assets/photos` reports the same measures
 //! per photo and method, `r2human eval` per synthetic subject set): ground-truth FOFs of unclothed synthetic people

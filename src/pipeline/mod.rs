@@ -33,6 +33,7 @@ use crate::geometry::fof::{Fof, FofError};
 use crate::geometry::inflate::{self, InflateError, InflateParams};
 use crate::geometry::marching;
 use crate::geometry::raster::{self, GBuffer};
+use crate::geometry::shells::drop_unexplained_shells;
 use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
@@ -522,6 +523,16 @@ fn chosen_geometry(
             &prior,
             body.as_ref(),
         )
+    });
+    // A column keeps no more shells than the silhouette (the inflation prior's one) and the fitted body explain: a
+    // surface the network drew twice becomes one (`shells::drop_unexplained_shells`).
+    let refined = refined.map(|mut fof| {
+        timings.time("geometry (one shell per explained surface)", || {
+            let references: Vec<&Fof> = std::iter::once(&prior).chain(body.as_ref()).collect();
+            let changed = drop_unexplained_shells(&mut fof, &references, &normalised.mask);
+            tracing::debug!("FOF net: {changed} columns lost shells neither prior explains");
+        });
+        fof
     });
     // What the network refined (its residual base): the guard measures against it and falls back to it.
     let base = match (net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).base(), body) {

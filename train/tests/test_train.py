@@ -325,7 +325,17 @@ class NetsTest(unittest.TestCase):
             self.assertTrue(torch.equal(FofNet("tiny", 8, inputs=("image", "body"))(image, body), body))
         with self.assertRaises(ValueError):
             f(image, body)
-        for bad in ("body,image", "image,body,body", "image,depth", ""):
+        # Geometry only (no photo): the FOF inputs alone, the residual base returned untrained.
+        self.assertEqual(parse_fof_inputs("body, prior"), ("body", "prior"))
+        geo = FofNet("tiny", 8, inputs=("body", "prior"), residual="prior")
+        self.assertEqual(next(m for m in geo.modules() if isinstance(m, torch.nn.Conv2d)).in_channels, 8 + 8)
+        with torch.no_grad():
+            self.assertTrue(torch.equal(geo(body, prior), prior))
+        with self.assertRaises(ValueError):
+            geo(image, body, prior)
+        with self.assertRaises(ValueError):
+            FofNet("tiny", 8, inputs=("image", "body"), residual="image")
+        for bad in ("body,image", "image,body,body", "image,depth", "", "prior,prior"):
             with self.assertRaises(ValueError):
                 parse_fof_inputs(bad)
         with self.assertRaises(ValueError):

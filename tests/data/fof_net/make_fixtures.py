@@ -10,6 +10,8 @@ r2human metadata with kind `fof`, R = 16, N = 4) and a closed-form output:
                      FOF-net geometry exactly like the inflation prior)
   fof_body.onnx      inputs image, body, prior (`r2human.fof_inputs = image,body,prior`, residual `body`):
                      fof = body + 0 * prior + [0.25, 0, 0, 0]  (the reference's inputs; must refine the body FOF)
+  fof_geometry.onnx  inputs body, prior only, no image (`r2human.fof_inputs = body,prior`, residual `prior`):
+                     fof = prior + 0 * body + [0.25, 0, 0, 0]  (a net that sees geometry only: no photo fed)
   fof_bad_inputs.onnx  `r2human.fof_inputs = image,depth` (an input this build cannot feed: a clear error)
   fof_bad_residual.onnx  inputs image, prior but `r2human.residual = body` (a base it does not take: an error)
 Needs only `onnx` and `numpy`.
@@ -24,12 +26,15 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 R, N = 16, 4
 
 
-def save_body(name, offset, fof_inputs="image,body,prior", residual="body", inputs=("body", "prior")):
-    """A net on `inputs` (after image): fof = <residual input> + offset + 0 * (every other input)."""
+def save_body(name, offset, fof_inputs="image,body,prior", residual="body", inputs=("body", "prior"), image=True):
+    """A net on `inputs` (after image, when `image`): fof = <residual input> + offset + 0 * (every other input)."""
     zero = numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero")
     off = numpy_helper.from_array(np.asarray(offset, np.float32).reshape(1, N, 1, 1), "offset")
-    nodes = [helper.make_node("ReduceMean", ["image"], ["m"], keepdims=1),
-             helper.make_node("Mul", ["m", "zero"], ["acc0"])]
+    if image:
+        nodes = [helper.make_node("ReduceMean", ["image"], ["m"], keepdims=1),
+                 helper.make_node("Mul", ["m", "zero"], ["acc0"])]
+    else:
+        nodes = [helper.make_node("Identity", ["zero"], ["acc0"])]
     base = residual if residual in inputs else inputs[0]
     for k, other in enumerate(inputs):
         if other != base:
@@ -41,7 +46,7 @@ def save_body(name, offset, fof_inputs="image,body,prior", residual="body", inpu
     nodes.append(helper.make_node("Add", ["b1", f"acc{len(inputs)}"], ["fof"]))
     graph = helper.make_graph(
         nodes, name,
-        [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, R, R])] +
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, R, R])] * image +
         [helper.make_tensor_value_info(i, TensorProto.FLOAT, [1, N, R, R]) for i in inputs],
         [helper.make_tensor_value_info("fof", TensorProto.FLOAT, [1, N, R, R])], [zero, off])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="r2human-fixtures")
@@ -88,5 +93,6 @@ save("fof_nan.onnx", [float("nan"), 0, 0, 0])
 save("fof_identity32.onnx", [0] * 32, n=32)
 save("fof_zero.onnx", [0, 0, 0, 0], keep_prior=0.0)
 save_body("fof_body.onnx", [0.25, 0, 0, 0])
+save_body("fof_geometry.onnx", [0.25, 0, 0, 0], fof_inputs="body,prior", residual="prior", image=False)
 save_body("fof_bad_inputs.onnx", [0, 0, 0, 0], fof_inputs="image,depth", residual="prior", inputs=("prior",))
 save_body("fof_bad_residual.onnx", [0, 0, 0, 0], fof_inputs="image,prior", residual="body", inputs=("prior",))
