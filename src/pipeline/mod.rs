@@ -122,11 +122,13 @@ pub enum GeometryMode {
 }
 
 /// What [`GeometryMode::Auto`] draws. Measured with the release evaluation (8 clothed synthetic subjects in three
-/// framings at 512², the Mr. Fixit scan, the four shipped photos; README "Which geometry, where"): the body prior
-/// wins every synthetic framing's divergent silhouettes (volumetric IoU 0.560, the inflation prior 0.562, the FOF
-/// net 0.544) but loses the independent scan (0.385 vs 0.644) and draws streaks on three of the four photos from
-/// the side; the FOF net is rejected by its guard on most cropped inputs and photos. A synthetic win counts only
-/// when the scan and the photos agree, so `auto` is the silhouette-inflation prior, also the fastest.
+/// framings at 512², the Mr. Fixit scan, the four shipped photos; README "Which geometry, where", session 10): the
+/// body prior has the best synthetic divergent silhouettes and PSNR in every framing, the FOF net the best
+/// synthetic volume (volumetric IoU: FOF net 0.608, body 0.594, inflation 0.560), and all three pass every photo
+/// check; but the independent scan's volume goes to the inflation prior (0.637, FOF net 0.611, body 0.586), the
+/// body prior loses the scan on every measure, and from the side the FOF net draws the photos as a rougher version
+/// of the prior's slab at 3-5x its time. A synthetic win counts only when the scan and the photos agree, so `auto`
+/// is the silhouette-inflation prior, also the fastest.
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
 
 impl GeometryMode {
