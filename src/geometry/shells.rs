@@ -55,15 +55,9 @@ fn intervals(occupancy: &[f32], level: f32) -> Vec<(usize, usize)> {
 /// one, and a column never loses its longest interval. Returns how many columns changed; `fof` is left as it is
 /// when a grid differs.
 pub fn drop_unexplained_shells(fof: &mut Fof, references: &[&Fof], mask: &GrayImage) -> usize {
-    if (fof.width, fof.height) != (mask.width, mask.height)
-        || references.iter().any(|r| (r.width, r.height) != (fof.width, fof.height))
-    {
-        return 0;
-    }
+    let Some(explanation) = Explanation::of(fof, references, mask) else { return 0 };
     let (w, n) = (fof.width, fof.n);
     let table = CosineTable::new(n, INTERVAL_SAMPLES);
-    let reference_tables: Vec<CosineTable> =
-        references.iter().map(|r| CosineTable::new(r.n, INTERVAL_SAMPLES)).collect();
     let depth = |sample: usize| 2.0 * sample as f32 / INTERVAL_SAMPLES as f32 - 1.0;
     fof.coeffs
         .par_chunks_mut(w * n)
@@ -77,11 +71,10 @@ pub fn drop_unexplained_shells(fof: &mut Fof, references: &[&Fof], mask: &GrayIm
                 }
                 table.decode(coeffs, &mut a);
                 let mut runs = intervals(&a, ISO_LEVEL);
-                let mut explained = 1;
-                for (r, t) in references.iter().zip(&reference_tables) {
-                    r.decode_column_with(t, col, row, &mut b);
-                    explained = explained.max(count_intervals(&b, ISO_LEVEL));
+                if runs.len() <= 1 {
+                    continue;
                 }
+                let explained = explanation.intervals(col, row, &mut b);
                 if runs.len() <= explained {
                     continue;
                 }
@@ -97,6 +90,36 @@ pub fn drop_unexplained_shells(fof: &mut Fof, references: &[&Fof], mask: &GrayIm
             changed
         })
         .sum()
+}
+
+/// What explains a column's shells: reference FOFs on the same grid (the inflation prior, a fitted body), decoded
+/// at [`INTERVAL_SAMPLES`] depths. The one rule of [`doubled_fraction_beyond`] and [`drop_unexplained_shells`].
+struct Explanation<'a> {
+    references: &'a [&'a Fof],
+    tables: Vec<CosineTable>,
+}
+
+impl<'a> Explanation<'a> {
+    /// `None` when a grid differs from `fof`'s or `mask`'s.
+    fn of(fof: &Fof, references: &'a [&'a Fof], mask: &GrayImage) -> Option<Self> {
+        let same = |w: usize, h: usize| (w, h) == (fof.width, fof.height);
+        if !same(mask.width, mask.height) || references.iter().any(|r| !same(r.width, r.height)) {
+            return None;
+        }
+        let tables = references.iter().map(|r| CosineTable::new(r.n, INTERVAL_SAMPLES)).collect();
+        Some(Self { references, tables })
+    }
+
+    /// How many intervals column `(col, row)` may have: the most any reference has there, at least one. `buf`
+    /// holds [`INTERVAL_SAMPLES`] values (scratch).
+    fn intervals(&self, col: usize, row: usize, buf: &mut [f32]) -> usize {
+        let mut explained = 1;
+        for (r, t) in self.references.iter().zip(&self.tables) {
+            r.decode_column_with(t, col, row, buf);
+            explained = explained.max(count_intervals(buf, ISO_LEVEL));
+        }
+        explained
+    }
 }
 
 /// Fraction of the person's columns (`mask` at least 0.5) where `fof` decodes to more occupancy intervals than
@@ -119,14 +142,8 @@ pub fn doubled_fraction_sampled(fof: &Fof, reference: &Fof, mask: &GrayImage, st
 /// interval per column is explained.
 pub fn doubled_fraction_beyond(fof: &Fof, references: &[&Fof], mask: &GrayImage, step: usize) -> f32 {
     let step = step.max(1);
-    if (fof.width, fof.height) != (mask.width, mask.height)
-        || references.iter().any(|r| (r.width, r.height) != (fof.width, fof.height))
-    {
-        return f32::NAN;
-    }
+    let Some(explanation) = Explanation::of(fof, references, mask) else { return f32::NAN };
     let table = CosineTable::new(fof.n, INTERVAL_SAMPLES);
-    let reference_tables: Vec<CosineTable> =
-        references.iter().map(|r| CosineTable::new(r.n, INTERVAL_SAMPLES)).collect();
     let (doubled, person) = (0..fof.height)
         .into_par_iter()
         .step_by(step)
@@ -139,12 +156,8 @@ pub fn doubled_fraction_beyond(fof: &Fof, references: &[&Fof], mask: &GrayImage,
                 }
                 person += 1;
                 fof.decode_column_with(&table, col, row, &mut a);
-                let mut explained = 1;
-                for (r, t) in references.iter().zip(&reference_tables) {
-                    r.decode_column_with(t, col, row, &mut b);
-                    explained = explained.max(count_intervals(&b, ISO_LEVEL));
-                }
-                if count_intervals(&a, ISO_LEVEL) > explained {
+                let count = count_intervals(&a, ISO_LEVEL);
+                if count > 1 && count > explanation.intervals(col, row, &mut b) {
                     doubled += 1;
                 }
             }
