@@ -276,11 +276,9 @@ impl FofNet {
     /// [`FofNet::inputs`] order); zero where the resampled mask is below 0.5.
     fn predict(&mut self, rgb: &RgbImage, mask: &GrayImage, fofs: &[Vec<f32>]) -> Result<FofPrediction, NeuralError> {
         let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
-        let image = if self.takes_image { image_tensor(rgb, mask, r) } else { Vec::new() };
-        let mut inputs: Vec<(&str, [usize; 4], &[f32])> = Vec::new();
-        if self.takes_image {
-            inputs.push(("image", [1, 3, r, r], &image));
-        }
+        let image = self.takes_image.then(|| image_tensor(rgb, mask, r));
+        let mut inputs: Vec<(&str, [usize; 4], &[f32])> =
+            image.iter().map(|image| ("image", [1, 3, r, r], image.as_slice())).collect();
         for (input, tensor) in self.inputs.iter().zip(fofs) {
             inputs.push((input.name(), [1, n, r, r], tensor));
         }
