@@ -23,6 +23,9 @@
 //! and a hash of its vertex bits and triangles, and a hash of the FOF's coefficient bits. Speed work that must keep
 //! the output bits compares these before and after a change (same toolchain).
 
+#[path = "../tests/common/cpu_time.rs"]
+mod cpu_time;
+
 use std::collections::BTreeMap;
 use std::hint::black_box;
 use std::path::Path;
@@ -37,6 +40,8 @@ use r2human::eval::ground_truth::render_ground_truth;
 use r2human::geometry::camera::Camera;
 use r2human::neural::FofNet;
 use r2human::pipeline::{GeometryMode, PrepareOptions, PreparedInput};
+
+use cpu_time::process_cpu_time;
 use r2human::synth::{self, SubjectParams, SynthAssets};
 
 const RES: usize = 512;
@@ -211,15 +216,3 @@ fn print_table(modes: &[&str], inputs: &[Input], recorded: &Recorded) {
 
 criterion_group!(still, benches);
 criterion_main!(still);
-
-/// User + system CPU time of this process so far, every thread's (`getrusage(RUSAGE_SELF)`); zero if the call fails.
-fn process_cpu_time() -> Duration {
-    // SAFETY: `rusage` is plain old data, valid all zeros; `getrusage` only writes into the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: a valid pointer to a live `rusage`, as `getrusage` requires.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
-        return Duration::ZERO;
-    }
-    let time = |t: libc::timeval| Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64);
-    time(usage.ru_utime) + time(usage.ru_stime)
-}

@@ -9,8 +9,11 @@
 //! parts (depth placement, the body's intervals, the reconciliation, the encoding), the inflation prior, the FOF
 //! net, the guard, the depth centring and the mesh.
 
+#[path = "../tests/common/cpu_time.rs"]
+mod cpu_time;
+
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::Context;
 use r2human::body::pose::PoseEstimator;
@@ -22,21 +25,11 @@ use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
 use r2human::neural::FofNet;
 use r2human::pipeline::input::normalise;
 
+use cpu_time::process_cpu_time;
+
 /// FOF coefficients and resolution of the still bench.
 const N: usize = 32;
 const RES: usize = 512;
-
-/// User + system CPU time of this process so far, every thread's; zero if the call fails.
-fn process_cpu_time() -> Duration {
-    // SAFETY: `rusage` is plain old data, valid all zeros; `getrusage` only writes into the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: a valid pointer to a live `rusage`, as `getrusage` requires.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
-        return Duration::ZERO;
-    }
-    let time = |t: libc::timeval| Duration::from_secs(t.tv_sec as u64) + Duration::from_micros(t.tv_usec as u64);
-    time(usage.ru_utime) + time(usage.ru_stime)
-}
 
 /// Every stage's (wall, CPU) times in milliseconds, stages in the order they first ran.
 #[derive(Default)]

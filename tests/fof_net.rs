@@ -379,6 +379,15 @@ fn volumetric_iou_matches_closed_forms() {
     assert_eq!(fof_occupancy_iou(&empty, &empty, 64), 1.0);
 }
 
+/// [`blocky_person`] with two FOF inputs for the fixture nets: an inflation `prior` and, as a stand-in `body`
+/// FOF, a thicker inflation of the same mask.
+fn blocky_person_with_fofs(size: usize) -> (RgbImage, GrayImage, Fof, Fof) {
+    let (rgb, mask) = blocky_person(size);
+    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }).unwrap();
+    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }).unwrap();
+    (rgb, mask, prior, body)
+}
+
 /// A FOF net on the reference's inputs (`r2human.fof_inputs = image,body,prior`, residual on the body FOF): it
 /// refines the body FOF, not the inflation prior (the fixture adds 0.25 to c0 of its `body` input and ignores
 /// `prior`), needs the body FOF (a clear error without it), and checks its size; old files (no
@@ -387,9 +396,7 @@ fn volumetric_iou_matches_closed_forms() {
 #[test]
 fn body_fof_net_refines_the_body_fof_and_needs_it() {
     let size = 4 * R;
-    let (rgb, mask) = blocky_person(size);
-    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }).unwrap();
-    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }).unwrap();
+    let (rgb, mask, prior, body) = blocky_person_with_fofs(size);
     assert_ne!(prior, body);
     let mut net = FofNet::load(&fixture("fof_body.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(net.inputs(), &[FofInput::Body, FofInput::Prior]);
@@ -433,9 +440,7 @@ fn body_fof_net_refines_the_body_fof_and_needs_it() {
 #[test]
 fn geometry_only_fof_net_takes_no_photo() {
     let size = 4 * R;
-    let (rgb, mask) = blocky_person(size);
-    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }).unwrap();
-    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }).unwrap();
+    let (rgb, mask, prior, body) = blocky_person_with_fofs(size);
     let mut net = FofNet::load(&fixture("fof_geometry.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
     assert!(!net.takes_image());
     assert_eq!((net.inputs(), net.base()), (&[FofInput::Body, FofInput::Prior][..], FofInput::Prior));
