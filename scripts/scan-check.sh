@@ -10,13 +10,14 @@
 # 2. A set of characters in natural standing poses, evaluated together with every geometry and renderer the eval
 #    has: Debian's `openarena-081-players` (GPL-2+; the OpenArena player models, MD3) converted by
 #    `examples/md3_to_obj.rs` (three parts joined by their tags at the first frames of TORSO_STAND and LEGS_IDLE,
-#    written Y up and facing +z), and Mr. Fixit's OBJ turned to face +z. One `eval` with `--up y --facing +z` over
+#    written Y up and facing +z), Mr. Fixit's OBJ turned to face +z and Sydney (Irrlicht's MD2 character in
+#    `assimp-testmodels`, zlib-style Irrlicht licence; exported by `assimp export`, turned to face +z). One `eval` with `--up y --facing +z` over
 #    all of them writes OUT/characters/report.md with the aggregate section "Scans together": per method the mean
 #    over characters of the volumetric IoU, the divergent mask IoU and the whole-frame PSNR at close and divergent
 #    views, for a dev half, a held-out half and all (`src/eval/scans.rs`); OUT/characters/scans.csv has every
 #    character's values, scans_summary.csv the means, sheet.png every character's ground truth at yaw 0/90/180.
 #    Held-out rule (fixed before any number was looked at): sorted by name, every second character (2nd, 4th, ...)
-#    is held out. Characters dropped as not human, from their renders: gargoyle (wings), liz (a reptile: snout and
+#    is held out. Characters dropped as not human, from their renders: gargoyle and faerie (wings), liz (a reptile: snout and
 #    tail), merman (a fish tail instead of legs), skelebot (a robot skeleton). The players dmo and slshish named in
 #    the package have no model in it (empty folders).
 #
@@ -66,14 +67,25 @@ done
 # The characters, each in its own folder named after it (the scan's name in the report is its file stem).
 CHARS="$WORK/characters"
 rm -rf "$CHARS"
-mkdir -p "$CHARS/mrfixit"
-# Mr. Fixit faces +x: turned by -90 degrees about y, (x, y, z) -> (-z, y, x), a rotation (normals too); the
-# numbers are moved as written (awk's arithmetic would round them to 6 digits).
-awk 'function neg(s) { return substr(s, 1, 1) == "-" ? substr(s, 2) : "-" s }
-     $1 == "v" || $1 == "vn" { print $1, neg($4), $3, $2; next } { print }' \
-  "$WORK/mrfixit.obj" > "$CHARS/mrfixit/mrfixit.obj"
+# face_plus_z SRC.obj DST.obj: a Y-up OBJ facing +x turned by -90 degrees about y, (x, y, z) -> (-z, y, x), a
+# rotation (normals too); the numbers are moved as written (awk's arithmetic would round them to 6 digits).
+face_plus_z() {
+  mkdir -p "$(dirname "$2")"
+  awk 'function neg(s) { return substr(s, 1, 1) == "-" ? substr(s, 2) : "-" s }
+       $1 == "v" || $1 == "vn" { print $1, neg($4), $3, $2; next } { print }' "$1" > "$2"
+}
+# Mr. Fixit (IQM) faces +x.
+face_plus_z "$WORK/mrfixit.obj" "$CHARS/mrfixit/mrfixit.obj"
 cp "$WORK/mrfixit.mtl" "$WORK/Body.jpg" "$WORK/Head.jpg" "$CHARS/mrfixit/"
-scans=("$CHARS/mrfixit/mrfixit.obj")
+# Sydney (Irrlicht's MD2 character, also in assimp-testmodels; its first frame stands) faces +x too. assimp
+# writes no texture name for MD2 (map_Kd $texture_dummy.bmp): her skin is sydney.bmp next to the model. (The
+# package's other MD2 character, faerie, has wings: left out.)
+cp "$MODELS/MD2/sydney.md2" "$MODELS/MD2/sydney.bmp" "$WORK/"
+(cd "$WORK" && assimp export sydney.md2 sydney.obj >/dev/null)
+face_plus_z "$WORK/sydney.obj" "$CHARS/sydney/sydney.obj"
+sed 's/^map_Kd .*/map_Kd sydney.bmp/' "$WORK/sydney.mtl" > "$CHARS/sydney/sydney.mtl"
+cp "$WORK/sydney.bmp" "$CHARS/sydney/"
+scans=("$CHARS/mrfixit/mrfixit.obj" "$CHARS/sydney/sydney.obj")
 for player in $OA_PLAYERS; do
   "$REPO/target/release/examples/md3_to_obj" "$OA_PK3" "$player" "$CHARS/$player"
   scans+=("$CHARS/$player/$player.obj")
