@@ -2,7 +2,8 @@
 //! ground truth, grouped like the paper's Tables 2 and 3: close views (at most 45 degrees from the input) and
 //! divergent views (at least 90 degrees). Metrics are those of [`super::metrics`] (read its conventions: sRGB over
 //! black, averaged over the union of predicted and true masks; plus the paper's whole-frame PSNR and SSIM). Rows are
-//! reported per input set: the synthetic subjects together, and each `--scan` on its own. LPIPS needs ImageNet-pretrained weights that
+//! reported per input set: the synthetic subjects together, and each `--scan` on its own (with several scans also
+//! their means over characters, dev / held out / all: [`super::scans`]). LPIPS needs ImageNet-pretrained weights that
 //! cannot be fetched here: its column is left empty (`lpips` in the CSV) until a model is shipped.
 //!
 //! Methods, measured side by side on the same subjects and views:
@@ -17,11 +18,14 @@
 //! 7. `geometric+fofnet`: the geometric renderer on the FOF net's geometry (the network's correction of the
 //!    inflation prior, [`crate::pipeline::compute_geometry`] with [`GeometryMode::FofNet`]; per-input time includes
 //!    the prior and the network);
-//! 8. `neural+fofnet`: the neural renderer on that geometry.
+//! 8. `neural+fofnet`: the neural renderer on that geometry;
+//! 9. `geometric+body`, 10. `neural+body`: both renderers on the body prior's geometry (pose network, body fit,
+//!    body FOF reconciled with the silhouette; an input without a pose falls back to the inflation prior).
 //!
 //! Methods 5 and 6 run when the neural models load ([`NeuralEvalOptions::models`], default `models/tiny`); otherwise
 //! one warning says why and their rows are absent. Methods 7 and 8 run when the folder's `fof.onnx` loads (8 also
-//! needs the renderer's models); otherwise their rows are absent and `report.md` says why. The report also gives the
+//! needs the renderer's models), 9 and 10 when the pose model and body data load; otherwise their rows are absent
+//! and `report.md` says why. [`NeuralEvalOptions::skip`] (`--no-neural`) leaves out 5 to 10. The report also gives the
 //! geometry alone: the volumetric IoU of each per-input FOF's decoded occupancy against the ground-truth FOF.
 
 use std::path::{Path, PathBuf};
@@ -86,7 +90,7 @@ pub struct EvalOptions {
 pub struct NeuralEvalOptions {
     /// Model folder; `None`: the project's `models/tiny` when found.
     pub models: Option<PathBuf>,
-    /// Leave the network methods out (the neural renderer's and the FOF net's rows).
+    /// Leave the network methods out (the neural renderer's, the FOF net's and the body prior's rows).
     pub skip: bool,
     /// Execution provider.
     pub ep: ExecutionProvider,
@@ -666,7 +670,7 @@ pub(super) fn load_networks(
     };
     // Methods 7 and 8: the folder's fof.onnx (explicit mode, so the reason it does not load can be reported).
     let fof_net = if nopts.skip {
-        notes.push("Network methods left out (--no-neural): no neural or FOF-net rows.".to_string());
+        notes.push("Network methods left out (--no-neural): no neural, FOF-net or body-prior rows.".to_string());
         None
     } else {
         match load_fof_net(GeometryMode::FofNet, nopts.models.as_deref(), PrepareOptions::default().fof_order, &options)
