@@ -547,18 +547,16 @@ fn z_up_scan_is_detected_or_told_and_turned_to_face_the_camera() {
     assert!(e.to_string().contains("--up"), "{e}");
 }
 
-#[test]
-fn eval_scan_alone_reports_the_scan_rows() {
-    use r2human::eval::runner::{run_eval_with, EvalOptions, NeuralEvalOptions};
-    let dir = tempfile::tempdir().unwrap();
-    // A multi-material Z-up person: body and head in two materials (a texture and a colour), arms out.
-    solid(dir.path(), "body.tga", GREEN);
-    write(dir.path(), "p.mtl", "newmtl body\nmap_Kd body.tga\nnewmtl head\nKd 0.9 0.6 0.5\n");
+/// A multi-material Z-up person written as `dir/<name>.obj` (+ `p.mtl`, `body.tga`): body and head in two
+/// materials (a texture and a colour), arms out at `arm_height`.
+fn cuboid_person(dir: &Path, name: &str, arm_height: f32) -> std::path::PathBuf {
+    solid(dir, "body.tga", GREEN);
+    write(dir, "p.mtl", "newmtl body\nmap_Kd body.tga\nnewmtl head\nKd 0.9 0.6 0.5\n");
     let mut obj = String::from("mtllib p.mtl\nvt 0.5 0.5\nusemtl body\n");
     let mut k = 0;
     for (part, (lo, hi)) in [
         ("body", (Vec3::new(-0.2, -0.12, 0.0), Vec3::new(0.2, 0.12, 1.45))),
-        ("body", (Vec3::new(-0.9, -0.05, 1.3), Vec3::new(0.9, 0.05, 1.4))),
+        ("body", (Vec3::new(-0.9, -0.05, arm_height), Vec3::new(0.9, 0.05, arm_height + 0.1))),
         ("head", (Vec3::new(-0.1, -0.1, 1.45), Vec3::new(0.1, 0.1, 1.7))),
     ] {
         let m = TriMesh::cuboid(lo, hi);
@@ -571,7 +569,14 @@ fn eval_scan_alone_reports_the_scan_rows() {
         }
         k += 8;
     }
-    let scan = write(dir.path(), "person.obj", &obj);
+    write(dir, &format!("{name}.obj"), &obj)
+}
+
+#[test]
+fn eval_scan_alone_reports_the_scan_rows() {
+    use r2human::eval::runner::{run_eval_with, EvalOptions, NeuralEvalOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let scan = cuboid_person(dir.path(), "person", 1.3);
     let opts = EvalOptions {
         subjects: 0,
         out: dir.path().join("eval"),
@@ -587,4 +592,35 @@ fn eval_scan_alone_reports_the_scan_rows() {
     assert!(get("geometric+gt-fof").mask_iou > get("billboard").mask_iou + 0.2);
     let md = std::fs::read_to_string(opts.out.join("report.md")).unwrap();
     assert!(md.contains("## Scan: person") && !md.contains("## Synthetic"), "{md}");
+    // One scan: no summary over scans.
+    assert!(!md.contains("Scans together") && !opts.out.join("scans.csv").exists());
+}
+
+#[test]
+fn eval_of_several_scans_summarises_them_with_a_held_out_split() {
+    use r2human::eval::runner::{run_eval_with, EvalOptions, NeuralEvalOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (cuboid_person(dir.path(), "bob", 1.3), cuboid_person(dir.path(), "ann", 1.0));
+    let opts = EvalOptions {
+        subjects: 0,
+        out: dir.path().join("eval"),
+        scans: vec![a, b],
+        size: 48,
+        yaws: vec![30.0, 180.0],
+        ..EvalOptions::default()
+    };
+    let rep = run_eval_with(&opts, &NeuralEvalOptions { skip: true, ..Default::default() }).unwrap();
+    assert!(rep.failed.is_empty(), "{:?}", rep.failed);
+    // Each scan has its own inflation volumetric IoU; the overall mean is theirs.
+    let iou = |s: &str| rep.set_geometry_iou.iter().find(|x| x.0 == s && x.1 == "inflation").unwrap().2;
+    let overall = rep.geometry_iou.iter().find(|x| x.0 == "inflation").unwrap().1;
+    assert!((overall - (iou("ann") + iou("bob")) / 2.0).abs() < 1e-5, "{overall} {:?}", rep.set_geometry_iou);
+    let md = std::fs::read_to_string(opts.out.join("report.md")).unwrap();
+    assert!(md.contains("## Scans together (2 characters)") && md.contains("Dev (1): ann. Held out (1): bob."), "{md}");
+    let csv = std::fs::read_to_string(opts.out.join("scans.csv")).unwrap();
+    let line = csv.lines().find(|l| l.starts_with("\"bob\",held-out,geometric+inflation,")).unwrap();
+    assert!(line.contains(&format!("{:.4}", iou("bob"))), "{line}");
+    let summary = std::fs::read_to_string(opts.out.join("scans_summary.csv")).unwrap();
+    let all = summary.lines().find(|l| l.starts_with("all,geometric+inflation,2,")).unwrap();
+    assert!(all.contains(&format!("{:.4}", overall)), "{all}");
 }

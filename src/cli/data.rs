@@ -169,7 +169,8 @@ pub struct EvalArgs {
     /// left out with one warning (and a note in report.md).
     #[arg(long)]
     pub models: Option<PathBuf>,
-    /// Leave the network methods out (the neural renderer and the FOF net).
+    /// Leave the network methods out: the neural renderer, the FOF net and the body prior (its pose network), so
+    /// only the billboard, 2.5d, inflation-prior and ground-truth rows remain.
     #[arg(long)]
     pub no_neural: bool,
     /// Execution provider of the neural methods: auto tries TensorRT, then CUDA, then the CPU.

@@ -1,6 +1,7 @@
 //! Ground truth and evaluation: rendering known views of synthetic subjects and scans ([`ground_truth`]) and
-//! writing them as a dataset ([`dataset`]), the error metrics ([`metrics`]), the method comparison ([`runner`]) and the
-//! ground-truth-free checks on real photos ([`photos`]).
+//! writing them as a dataset ([`dataset`]), the error metrics ([`metrics`]), the method comparison ([`runner`]), its
+//! summary over several scans with a dev / held-out split ([`scans`]) and the ground-truth-free checks on real photos
+//! ([`photos`]).
 
 pub mod dataset;
 pub mod ground_truth;
@@ -8,6 +9,7 @@ pub mod memory;
 pub mod metrics;
 pub mod photos;
 pub mod runner;
+pub mod scans;
 
 use std::path::{Path, PathBuf};
 

@@ -2,7 +2,8 @@
 //! ground truth, grouped like the paper's Tables 2 and 3: close views (at most 45 degrees from the input) and
 //! divergent views (at least 90 degrees). Metrics are those of [`super::metrics`] (read its conventions: sRGB over
 //! black, averaged over the union of predicted and true masks; plus the paper's whole-frame PSNR and SSIM). Rows are
-//! reported per input set: the synthetic subjects together, and each `--scan` on its own. LPIPS needs ImageNet-pretrained weights that
+//! reported per input set: the synthetic subjects together, and each `--scan` on its own (with several scans also
+//! their means over characters, dev / held out / all: [`super::scans`]). LPIPS needs ImageNet-pretrained weights that
 //! cannot be fetched here: its column is left empty (`lpips` in the CSV) until a model is shipped.
 //!
 //! Methods, measured side by side on the same subjects and views:
@@ -17,11 +18,14 @@
 //! 7. `geometric+fofnet`: the geometric renderer on the FOF net's geometry (the network's correction of the
 //!    inflation prior, [`crate::pipeline::compute_geometry`] with [`GeometryMode::FofNet`]; per-input time includes
 //!    the prior and the network);
-//! 8. `neural+fofnet`: the neural renderer on that geometry.
+//! 8. `neural+fofnet`: the neural renderer on that geometry;
+//! 9. `geometric+body`, 10. `neural+body`: both renderers on the body prior's geometry (pose network, body fit,
+//!    body FOF reconciled with the silhouette; an input without a pose falls back to the inflation prior).
 //!
 //! Methods 5 and 6 run when the neural models load ([`NeuralEvalOptions::models`], default `models/tiny`); otherwise
 //! one warning says why and their rows are absent. Methods 7 and 8 run when the folder's `fof.onnx` loads (8 also
-//! needs the renderer's models); otherwise their rows are absent and `report.md` says why. The report also gives the
+//! needs the renderer's models), 9 and 10 when the pose model and body data load; otherwise their rows are absent
+//! and `report.md` says why. [`NeuralEvalOptions::skip`] (`--no-neural`) leaves out 5 to 10. The report also gives the
 //! geometry alone: the volumetric IoU of each per-input FOF's decoded occupancy against the ground-truth FOF.
 
 use std::path::{Path, PathBuf};
@@ -86,7 +90,7 @@ pub struct EvalOptions {
 pub struct NeuralEvalOptions {
     /// Model folder; `None`: the project's `models/tiny` when found.
     pub models: Option<PathBuf>,
-    /// Leave the network methods out (the neural renderer's and the FOF net's rows).
+    /// Leave the network methods out (the neural renderer's, the FOF net's and the body prior's rows).
     pub skip: bool,
     /// Execution provider.
     pub ep: ExecutionProvider,
@@ -183,6 +187,9 @@ pub struct EvalReport {
     /// Mean volumetric IoU (decoded occupancy at the 0.5 level) of each per-input geometry against the
     /// ground-truth FOF: `("inflation", iou)`, `("fofnet", iou)` when the FOF net ran, over the evaluated inputs.
     pub geometry_iou: Vec<(String, f32)>,
+    /// The same per input set (`(inputs, geometry, mean iou)`, sets in report order): what
+    /// [`super::scans::ScanSummary`] reads per scan.
+    pub set_geometry_iou: Vec<(String, String, f32)>,
     /// Why rows are missing (methods skipped because a model did not load), for the report.
     pub notes: Vec<String>,
 }
@@ -349,6 +356,17 @@ pub fn fof_occupancy_iou(a: &Fof, b: &Fof, samples: usize) -> f32 {
 /// The accumulators of every method and group.
 type MethodAcc = [[Acc; 2]; METHODS.len()];
 
+/// The per-input volumetric IoUs of the predicted geometries, in the order of [`GEOMETRIES`].
+type GeometryIou = [Vec<f32>; 3];
+
+/// The predicted geometries whose volumetric IoU the report gives (the oracle's is 1 by construction).
+pub const GEOMETRIES: [&str; 3] = ["inflation", "fofnet", "body"];
+
+/// `(geometry, mean IoU)` of the geometries measured at least once.
+fn geometry_means(iou: &GeometryIou) -> impl Iterator<Item = (String, f32)> + '_ {
+    GEOMETRIES.iter().zip(iou).filter(|(_, v)| !v.is_empty()).map(|(name, v)| (name.to_string(), mean(v)))
+}
+
 /// The networks the evaluation runs with (each `None` when its model did not load or `--no-neural`).
 #[derive(Clone, Copy)]
 struct Nets<'a> {
@@ -502,7 +520,7 @@ fn eval_subject(
     opts: &EvalOptions,
     nets: Nets<'_>,
     acc: &mut MethodAcc,
-    geometry_iou: &mut [Vec<f32>; 3],
+    geometry_iou: &mut GeometryIou,
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
@@ -652,7 +670,7 @@ pub(super) fn load_networks(
     };
     // Methods 7 and 8: the folder's fof.onnx (explicit mode, so the reason it does not load can be reported).
     let fof_net = if nopts.skip {
-        notes.push("Network methods left out (--no-neural): no neural or FOF-net rows.".to_string());
+        notes.push("Network methods left out (--no-neural): no neural, FOF-net or body-prior rows.".to_string());
         None
     } else {
         match load_fof_net(GeometryMode::FofNet, nopts.models.as_deref(), PrepareOptions::default().fof_order, &options)
@@ -704,9 +722,9 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         return Err(EvalError::InvalidOptions(format!("--size {} must be within 32..=2048", opts.size)));
     }
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
-    // One set of accumulators per input set: the synthetic subjects together, each scan on its own.
-    let mut sets: Vec<(String, MethodAcc)> = Vec::new();
-    let mut geometry_iou: [Vec<f32>; 3] = Default::default();
+    // One set of accumulators (methods, geometry IoUs) per input set: the synthetic subjects of one framing
+    // together, each scan on its own.
+    let mut sets: Vec<(String, MethodAcc, GeometryIou)> = Vec::new();
     let mut failed = Vec::new();
     let mut notes = Vec::new();
     let mut fallbacks = 0;
@@ -737,10 +755,11 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
                 .and_then(|s| {
                     let set = format!("synthetic/{}", s.crop.framing.label());
                     let k = sets.iter().position(|x| x.0 == set).unwrap_or_else(|| {
-                        sets.push((set, Default::default()));
+                        sets.push((set, Default::default(), Default::default()));
                         sets.len() - 1
                     });
-                    eval_subject(&name, &s.mesh, opts, nets, &mut sets[k].1, &mut geometry_iou, &mut fallbacks)?;
+                    let (_, acc, iou) = &mut sets[k];
+                    eval_subject(&name, &s.mesh, opts, nets, acc, iou, &mut fallbacks)?;
                     probe_once(&mut memory, &s.mesh)
                 });
             if let Err(e) = r {
@@ -748,30 +767,31 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             }
         }
         let order = |set: &str| Framing::ALL.iter().position(|f| set.ends_with(f.label()));
-        sets.sort_by_key(|(set, _)| order(set));
+        sets.sort_by_key(|(set, _, _)| order(set));
     }
     for scan in &opts.scans {
         let stem = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
         // Two scans with the same file name keep separate rows.
         let mut name = stem.clone();
         for k in 2.. {
-            if !sets.iter().any(|(n, _)| *n == name) {
+            if !sets.iter().any(|(n, _, _)| *n == name) {
                 break;
             }
             name = format!("{stem} ({k})");
         }
         let mut acc = MethodAcc::default();
+        let mut iou = GeometryIou::default();
         let r = synth::scan::load_scan_with(scan, &opts.scan_orientation).map_err(EvalError::from).and_then(|s| {
-            eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut geometry_iou, &mut fallbacks)?;
+            eval_subject(&name, &s.mesh, opts, nets, &mut acc, &mut iou, &mut fallbacks)?;
             probe_once(&mut memory, &s.mesh)
         });
         match r {
-            Ok(()) => sets.push((name, acc)),
+            Ok(()) => sets.push((name, acc, iou)),
             Err(e) => failed.push((scan.display().to_string(), e.to_string())),
         }
     }
     let mut rows = Vec::new();
-    for ((set, acc), (m, name)) in sets.iter().flat_map(|s| std::iter::repeat(s).zip(METHODS.iter().enumerate())) {
+    for ((set, acc, _), (m, name)) in sets.iter().flat_map(|s| std::iter::repeat(s).zip(METHODS.iter().enumerate())) {
         for (g, group) in ["close", "divergent"].iter().enumerate() {
             let a = &acc[m][g];
             if a.psnr.is_empty() {
@@ -800,18 +820,18 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
         let first = failed.first().map(|f| format!("{}: {}", f.0, f.1)).unwrap_or_else(|| "no view in a group".into());
         return Err(EvalError::AllFailed(first));
     }
-    let geometry_iou = ["inflation", "fofnet", "body"]
-        .iter()
-        .zip(&geometry_iou)
-        .filter(|(_, v)| !v.is_empty())
-        .map(|(name, v)| (name.to_string(), mean(v)))
-        .collect();
+    // Over every input, then per input set.
+    let all: GeometryIou = std::array::from_fn(|g| sets.iter().flat_map(|s| s.2[g].iter().copied()).collect());
+    let geometry_iou = geometry_means(&all).collect();
+    let set_geometry_iou =
+        sets.iter().flat_map(|(set, _, iou)| geometry_means(iou).map(move |(g, v)| (set.clone(), g, v))).collect();
     let report = EvalReport {
         rows,
         failed,
         peak_memory_mib: process_peak_mib().unwrap_or(0.0),
         neural_fallbacks: fallbacks,
         geometry_iou,
+        set_geometry_iou,
         notes,
     };
     write_reports(&opts.out, opts, &report)?;
@@ -918,6 +938,34 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
         for (name, iou) in &rep.geometry_iou {
             md.push_str(&format!("| {name} | {iou:.4} |\n"));
         }
+        // Per input set, when there are several.
+        let mut sets: Vec<&str> = Vec::new();
+        for (set, _, _) in &rep.set_geometry_iou {
+            if !sets.contains(&set.as_str()) {
+                sets.push(set);
+            }
+        }
+        if sets.len() > 1 {
+            md.push_str(&format!(
+                "\nPer input set:\n\n| input set | {} |\n|---|{}\n",
+                GEOMETRIES.join(" | "),
+                "---|".repeat(GEOMETRIES.len())
+            ));
+            for set in sets {
+                md.push_str(&format!("| {set} |"));
+                for g in GEOMETRIES {
+                    match rep.set_geometry_iou.iter().find(|(s, geometry, _)| s == set && geometry == g) {
+                        Some((_, _, iou)) => md.push_str(&format!(" {iou:.4} |")),
+                        None => md.push_str(" - |"),
+                    }
+                }
+                md.push('\n');
+            }
+        }
+    }
+    if let Some(summary) = super::scans::ScanSummary::of(rep) {
+        md.push_str(&summary.markdown());
+        summary.write_csv(out)?;
     }
     for note in &rep.notes {
         md.push_str(&format!("\n{note}\n"));
@@ -943,7 +991,7 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
 type RowValue = fn(&ReportRow) -> f32;
 
 /// The oracle's method names contain this (it is left out when the best predicted geometry is marked).
-const ORACLE_TAG: &str = "gt-fof";
+pub(super) const ORACLE_TAG: &str = "gt-fof";
 
 /// One table over every input set (`sets`, in order): per method, the paper's whole-frame PSNR at close and
 /// divergent views and the divergent mask IoU; the best method without oracle geometry in each column is bold.
@@ -1006,7 +1054,7 @@ fn at_a_glance(rep: &EvalReport, sets: &[&str]) -> String {
 }
 
 /// A PSNR (above 1) with two decimals, an IoU with three.
-fn fmt_cell(v: f32) -> String {
+pub(super) fn fmt_cell(v: f32) -> String {
     if v > 1.0 {
         format!("{v:.2}")
     } else {
@@ -1079,29 +1127,33 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
     write_atomic(path, &bytes).map_err(|e| EvalError::io(path, e))
 }
 
+/// A report row with only the fields the table tests read (for the tests of this module and [`super::scans`]).
+#[cfg(test)]
+pub(super) fn test_row(inputs: &str, method: &str, group: &str, psnr_frame: f32, mask_iou: f32) -> ReportRow {
+    ReportRow {
+        inputs: inputs.into(),
+        framing: "full".into(),
+        method: method.into(),
+        group: group.into(),
+        psnr: 0.0,
+        psnr_overlap: 0.0,
+        ssim: 0.0,
+        psnr_frame,
+        ssim_frame: 0.0,
+        mask_iou,
+        depth_l1: 0.0,
+        ms_per_view: 0.0,
+        ms_per_input: 0.0,
+        views: 1,
+        peak_mib: None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn row(inputs: &str, method: &str, group: &str, psnr_frame: f32, mask_iou: f32) -> ReportRow {
-        ReportRow {
-            inputs: inputs.into(),
-            framing: "full".into(),
-            method: method.into(),
-            group: group.into(),
-            psnr: 0.0,
-            psnr_overlap: 0.0,
-            ssim: 0.0,
-            psnr_frame,
-            ssim_frame: 0.0,
-            mask_iou,
-            depth_l1: 0.0,
-            ms_per_view: 0.0,
-            ms_per_input: 0.0,
-            views: 1,
-            peak_mib: None,
-        }
-    }
+    use super::test_row as row;
 
     #[test]
     fn at_a_glance_marks_the_best_predicted_geometry_per_column() {
