@@ -31,8 +31,9 @@ pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
 /// Each pair of neighbours on its own, without branches (vectorised): the common case of one surface per column
 /// is decided without the run-by-run walk of [`intervals`].
 fn at_most_one_run(occupancy: &[f32], level: f32) -> bool {
-    let first = occupancy.first().is_some_and(|&o| o >= level);
-    let rises = occupancy.windows(2).map(|p| usize::from(p[1] >= level && !(p[0] >= level))).sum::<usize>();
+    let at_level = |o: f32| o >= level;
+    let first = occupancy.first().is_some_and(|&o| at_level(o));
+    let rises = occupancy.windows(2).map(|p| usize::from(at_level(p[1]) && !at_level(p[0]))).sum::<usize>();
     usize::from(first) + rises <= 1
 }
 
