@@ -1,7 +1,9 @@
 //! How thick should the silhouette-inflation prior be? Volumetric IoU of the inflation prior against the ground
 //! truth for several values of κ ([`InflateParams::thickness`], `h = κ sqrt(u)`):
-//! `cargo run --release --example inflate_thickness -- [SUBJECTS] [SEED] [SIZE] [SCAN ...]` (defaults 30, 100,
-//! 256; scans: any glTF/GLB/OBJ/PLY, e.g. the Mr. Fixit files `scripts/scan-check.sh` exports).
+//! `cargo run --release --example inflate_thickness -- [SUBJECTS] [SEED] [SIZE] [--up y|z] [--facing +z|-z|+x|-x]
+//! [SCAN ...]` (defaults 30, 100, 256; scans: any glTF/GLB/OBJ/PLY, e.g. the characters `scripts/scan-check.sh`
+//! writes to OUT/files/characters/*/*.obj, which need `--up y --facing +z` as in its eval; without the flags the
+//! orientation is detected as `eval --scan` does). With two or more scans a last row gives their mean.
 //!
 //! Synthetic subjects are clothed, in the three framings in turn (seed 100 by default: not the evaluation's seed
 //! 0); the ground truth and the prior are both placed in depth by the volume-centroid convention
@@ -45,7 +47,16 @@ fn main() -> anyhow::Result<()> {
     let subjects: usize = args.first().map(|s| s.parse()).transpose().context("SUBJECTS")?.unwrap_or(30);
     let seed: u64 = args.get(1).map(|s| s.parse()).transpose().context("SEED")?.unwrap_or(100);
     let size: usize = args.get(2).map(|s| s.parse()).transpose().context("SIZE")?.unwrap_or(256);
-    let scans: Vec<PathBuf> = args.iter().skip(3).map(PathBuf::from).collect();
+    let mut orientation = synth::scan::ScanOrientation::default();
+    let mut scans: Vec<PathBuf> = Vec::new();
+    let mut rest = args.iter().skip(3);
+    while let Some(arg) = rest.next() {
+        match arg.as_str() {
+            "--up" => orientation.up = Some(rest.next().context("--up needs y or z")?.parse()?),
+            "--facing" => orientation.facing = Some(rest.next().context("--facing needs +z, -z, +x or -x")?.parse()?),
+            path => scans.push(PathBuf::from(path)),
+        }
+    }
     let assets = SynthAssets::shared()?;
     let mut rows: Vec<(String, Vec<f32>, usize)> =
         Framing::ALL.iter().map(|f| (format!("synthetic {}", f.label()), vec![0.0; KAPPAS.len()], 0)).collect();
@@ -58,9 +69,16 @@ fn main() -> anyhow::Result<()> {
         }
         rows[k].2 += 1;
     }
+    let mut scan_sums = vec![0.0; KAPPAS.len()];
     for path in &scans {
-        let scan = synth::scan::load_scan(path).with_context(|| format!("scan {}", path.display()))?;
-        rows.push((format!("scan {}", path.display()), ious(&scan.mesh, size)?, 1));
+        let scan =
+            synth::scan::load_scan_with(path, &orientation).with_context(|| format!("scan {}", path.display()))?;
+        let values = ious(&scan.mesh, size)?;
+        scan_sums.iter_mut().zip(&values).for_each(|(acc, v)| *acc += v);
+        rows.push((format!("scan {}", path.display()), values, 1));
+    }
+    if scans.len() > 1 {
+        rows.push(("scans, mean".to_string(), scan_sums, scans.len()));
     }
     println!("| input | n | {} |", KAPPAS.iter().map(|k| format!("κ = {k}")).collect::<Vec<_>>().join(" | "));
     println!("|---|---:|{}", "---:|".repeat(KAPPAS.len()));
