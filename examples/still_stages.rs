@@ -7,7 +7,7 @@
 //! in `assets/photos`). Prints, per photo, the median wall and process CPU time (every thread's, `getrusage`) of:
 //! pose landmarks alone ([`PoseEstimator::estimate`]), pose + fit ([`BodyEstimator::estimate`]), the body FOF's
 //! parts (depth placement, the body's intervals, the reconciliation, the encoding), the inflation prior, the FOF
-//! net, the guard, the depth centring and the mesh.
+//! net (the shipped `models/tiny/fof.onnx`), the one-shell stage, the guard, the depth centring and the mesh.
 
 #[path = "../tests/common/cpu_time.rs"]
 mod cpu_time;
@@ -22,7 +22,8 @@ use r2human::body::reconcile::{reconcile, ReconcileParams};
 use r2human::capture::segment::{segment_photo, SegmentMethod};
 use r2human::geometry::fof::{intervals_from_mesh, sheet_thickness, Fof};
 use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
-use r2human::neural::FofNet;
+use r2human::geometry::shells::drop_unexplained_shells;
+use r2human::neural::{FofInput, FofNet};
 use r2human::pipeline::input::normalise;
 
 use cpu_time::process_cpu_time;
@@ -67,8 +68,9 @@ fn main() -> anyhow::Result<()> {
     let prefix = args.get(1).cloned().unwrap_or_default();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let runtime = Default::default();
-    let fof_body = root.join("models/tiny/fof_body.onnx");
-    let mut net = FofNet::load(&fof_body, &runtime).with_context(|| format!("loading {}", fof_body.display()))?;
+    // The shipped FOF net (geometry only: body FOF + inflation prior), as `cargo bench --bench still` runs it.
+    let fof_net = root.join("models/tiny/fof.onnx");
+    let mut net = FofNet::load(&fof_net, &runtime).with_context(|| format!("loading {}", fof_net.display()))?;
     let mut body = BodyEstimator::load(None, &runtime).context("body prior: run bash scripts/setup.sh")?;
     let mut pose = PoseEstimator::load(None, &runtime).context("pose model: run bash scripts/setup.sh")?;
     let inflate = InflateParams::default();
@@ -108,9 +110,18 @@ fn main() -> anyhow::Result<()> {
             let reconciled = stages.time("reconciliation", || reconcile(&intervals, mask, cut, &reconcile_params));
             let body_fof = stages.time("body FOF encoding", || Fof::from_intervals(&reconciled, N))?;
             let prior_fof = stages.time("inflation prior", || inflate_to_fof(mask, N, &inflate))?;
-            let refined = stages.time("FOF net", || net.refine_with(&input.rgb, mask, &prior_fof, Some(&body_fof)))?;
-            let (guarded, _) = stages
-                .time("guard", || r2human::pipeline::guard::guarded(refined, body_fof, mask, &Default::default()));
+            let mut refined =
+                stages.time("FOF net", || net.refine_with(&input.rgb, mask, &prior_fof, Some(&body_fof)))?;
+            stages.time("one shell per explained surface", || {
+                drop_unexplained_shells(&mut refined, &[&prior_fof, &body_fof], mask)
+            });
+            // What the network refined: the guard measures against it (as `pipeline::compute_geometry` does).
+            let base = match net.base() {
+                FofInput::Body => body_fof,
+                FofInput::Prior => prior_fof,
+            };
+            let (guarded, _) =
+                stages.time("guard", || r2human::pipeline::guard::guarded(refined, base, mask, &Default::default()));
             let (centred, _) = stages.time("depth centring", || r2human::geometry::depth_centre::centre_fof(guarded));
             stages.time("mesh", || r2human::geometry::marching::extract_mesh(&centred, RES));
         }

@@ -16,7 +16,7 @@
 use rayon::prelude::*;
 
 use super::mesh::TriMesh;
-use crate::buffer::{GrayImage, Image};
+use crate::buffer::{zeroed_f32, GrayImage, Image};
 
 /// Largest grid side accepted by the encoders (keeps memory bounded on bad input).
 pub const MAX_RESOLUTION: usize = 8192;
@@ -262,7 +262,7 @@ impl Fof {
     pub fn zeros(n: usize, width: usize, height: usize) -> Result<Self, FofError> {
         check_order(n)?;
         check_size(width, height)?;
-        Ok(Self { n, width, height, coeffs: vec![0.0; n * width * height] })
+        Ok(Self { n, width, height, coeffs: zeroed_f32(n * width * height) })
     }
 
     /// Wraps coefficients from elsewhere (e.g. a network), checking their count and that all are finite.
@@ -305,7 +305,7 @@ impl Fof {
                 return Err(FofError::NonFinite { what: "intervals", index: i });
             }
         }
-        let mut coeffs = vec![0.0f32; n * intervals.width * intervals.height];
+        let mut coeffs = zeroed_f32(n * intervals.width * intervals.height);
         coeffs.par_chunks_mut(n * intervals.width).zip(intervals.data.par_chunks(intervals.width)).for_each(
             |(row_out, row_in)| {
                 for (out, list) in row_out.chunks_exact_mut(n).zip(row_in) {
@@ -343,7 +343,7 @@ impl Fof {
             }
         }
         let (w, h) = (mask.width, mask.height);
-        let mut coeffs = vec![0.0f32; n * w * h];
+        let mut coeffs = zeroed_f32(n * w * h);
         coeffs.par_chunks_mut(n * w).enumerate().for_each(|(row, row_out)| {
             for (col, out) in row_out.chunks_exact_mut(n).enumerate() {
                 let i = row * w + col;

@@ -26,6 +26,17 @@ pub fn count_intervals(occupancy: &[f32], level: f32) -> usize {
     intervals(occupancy, level).len()
 }
 
+/// Whether `occupancy` rises to `level` at most once (a sample at or above it after one below it, or the first
+/// sample at or above it): then [`count_intervals`] is at most 1, since merging and dropping runs never adds one.
+/// Each pair of neighbours on its own, without branches (vectorised): the common case of one surface per column
+/// is decided without the run-by-run walk of [`intervals`].
+fn at_most_one_run(occupancy: &[f32], level: f32) -> bool {
+    let at_level = |o: f32| o >= level;
+    let first = occupancy.first().is_some_and(|&o| at_level(o));
+    let rises = occupancy.windows(2).map(|p| usize::from(at_level(p[1]) && !at_level(p[0]))).sum::<usize>();
+    usize::from(first) + rises <= 1
+}
+
 /// The occupancy intervals [`count_intervals`] counts, as half-open sample ranges `(first, end)` in depth order.
 fn intervals(occupancy: &[f32], level: f32) -> Vec<(usize, usize)> {
     let mut runs: Vec<(usize, usize)> = Vec::new();
@@ -70,6 +81,9 @@ pub fn drop_unexplained_shells(fof: &mut Fof, references: &[&Fof], mask: &GrayIm
                     continue;
                 }
                 table.decode(coeffs, &mut a);
+                if at_most_one_run(&a, ISO_LEVEL) {
+                    continue;
+                }
                 let mut runs = intervals(&a, ISO_LEVEL);
                 if runs.len() <= 1 {
                     continue;
@@ -156,6 +170,9 @@ pub fn doubled_fraction_beyond(fof: &Fof, references: &[&Fof], mask: &GrayImage,
                 }
                 person += 1;
                 fof.decode_column_with(&table, col, row, &mut a);
+                if at_most_one_run(&a, ISO_LEVEL) {
+                    continue;
+                }
                 let count = count_intervals(&a, ISO_LEVEL);
                 if count > 1 && count > explanation.intervals(col, row, &mut b) {
                     doubled += 1;
@@ -500,6 +517,39 @@ mod tests {
         assert_eq!(count_intervals(&occ("############"), 0.5), 1);
         assert_eq!(count_intervals(&occ("............"), 0.5), 0);
         assert_eq!(count_intervals(&occ("##........##"), 0.5), 2, "runs touching both ends");
+    }
+
+    #[test]
+    fn one_rise_at_most_means_one_interval_at_most() {
+        let occ = |s: &str| s.chars().map(|c| if c == '#' { 1.0 } else { 0.0 }).collect::<Vec<f32>>();
+        for (column, one) in [
+            ("............", true),
+            ("....####....", true),
+            ("#######.....", true),
+            (".......#####", true),
+            ("..###.###...", false),
+            ("##........##", false),
+            ("..###....#..", false),
+        ] {
+            assert_eq!(at_most_one_run(&occ(column), 0.5), one, "{column}");
+        }
+        // NaN is below every level, as in `intervals`.
+        assert!(at_most_one_run(&[1.0, f32::NAN, 1.0, 1.0][..1], 0.5));
+        assert!(!at_most_one_run(&[1.0, f32::NAN, 1.0, 1.0], 0.5));
+        // Every pattern of 10 samples: one rise at most always means at most one interval.
+        for bits in 0u32..1 << 10 {
+            let column: Vec<f32> = (0..10).map(|i| if bits >> i & 1 == 1 { 1.0 } else { 0.0 }).collect();
+            if at_most_one_run(&column, 0.5) {
+                assert!(count_intervals(&column, 0.5) <= 1, "{bits:010b}");
+            } else {
+                assert!(intervals_raw_runs(&column) >= 2, "{bits:010b}");
+            }
+        }
+    }
+
+    /// Runs of samples at or above 0.5 before any merging (the reference for [`at_most_one_run`]).
+    fn intervals_raw_runs(column: &[f32]) -> usize {
+        column.iter().enumerate().filter(|&(i, &v)| v >= 0.5 && (i == 0 || column[i - 1] < 0.5)).count()
     }
 
     #[test]

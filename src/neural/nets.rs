@@ -446,7 +446,7 @@ impl FofNet {
         }
         // The base's coefficients, copied row by row inside the parallel loop (a 512² field is 32 MB: one thread
         // copying it, and faulting its pages in, cost as much as the correction).
-        let mut coeffs = vec![0.0f32; base.coeffs.len()];
+        let mut coeffs = crate::buffer::zeroed_f32(base.coeffs.len());
         let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
         coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
             line.copy_from_slice(&base.coeffs[row * w * n..(row + 1) * w * n]);
