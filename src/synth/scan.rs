@@ -266,15 +266,27 @@ pub struct DetectedOrientation {
     pub facing_reason: String,
 }
 
+/// The height band (fractions of the height above the lowest vertex) where [`detect_orientation`] first reads the
+/// facing axis: the pelvis, between the crotch and the waist of an adult.
+pub const PELVIS_BAND: (f32, f32) = (0.45, 0.55);
+
+/// How much wider than deep (5-95 % range of the vertices) the [`PELVIS_BAND`] must be for
+/// [`detect_orientation`] to take its facing axis from it.
+pub const PELVIS_RATIO: f32 = 1.15;
+
 /// Detects a standing person's up axis and facing from their vertices (file coordinates).
 ///
 /// - Up: the axis (Y or Z) along which the vertices spread most is the height (10-90 % percentile range: legs,
 ///   torso and head spread along it, a body is far less deep) when one spread is over 1.3 times the other.
 ///   Otherwise the other axis is a T-pose's arm span (detailed hands can hold many vertices): the height is the
 ///   axis whose vertex histogram is less mirror-symmetric (a body is left-right symmetric, head and feet differ).
-/// - Facing axis: at shoulder height (55-80 % of the height, arms included) a person is wider across the body
-///   than deep, so they face along the narrower of x and z (when one is at least 1.2 times the other; else
-///   +z is kept).
+/// - Facing axis: a person is wider across the body than deep, so they face along the narrower of x and z. Read
+///   first at the pelvis ([`PELVIS_BAND`], 5-95 % percentile range of the vertices, when one width is at least
+///   [`PELVIS_RATIO`] times the other): arms do not reach it, except hands hanging at the sides, which widen it
+///   the right way. Otherwise at shoulder height (55-80 % of the height, arms included; when one is at least 1.2
+///   times the other), else +z is kept. The shoulders alone are misled by arms held forward: on the ten
+///   characters of `scripts/scan-check.sh`, written facing +z and facing +x, the shoulder rule found the axis of
+///   3 of the 10 and the pelvis rule 9 (kyonshi, holding her sleeves forward at the waist, is the exception).
 /// - Facing sign: toes point forward: the centroid of the lowest 3 % of the vertices (the feet) lies ahead of
 ///   the shins' (8-20 % of the height) by at least 1 % of the height; without that evidence (no feet, e.g. a bust)
 ///   the positive direction is kept.
@@ -325,10 +337,30 @@ pub fn detect_orientation(points: &[Vec3]) -> DetectedOrientation {
     let (ymin, ymax) = up_pts.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| (a.min(p.y), b.max(p.y)));
     let h = ymax - ymin;
     let band = |from: f32, to: f32| up_pts.iter().filter(move |p| p.y >= ymin + from * h && p.y <= ymin + to * h);
+    // 5-95 % range of one coordinate of the pelvis band's vertices.
+    let pelvis_width = |axis: usize| {
+        let mut v: Vec<f32> = band(PELVIS_BAND.0, PELVIS_BAND.1).map(|p| p[axis]).filter(|v| v.is_finite()).collect();
+        if v.len() < 2 {
+            return None;
+        }
+        v.sort_by(f32::total_cmp);
+        Some(v[(v.len() - 1) * 19 / 20] - v[(v.len() - 1) / 20])
+    };
     let (slo, shi) = band(0.55, 0.80)
         .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(*p), b.max(*p)));
     let (wx, wz) = (shi.x - slo.x, shi.z - slo.z);
-    let (x_axis, axis_reason) = if !(h > 0.0 && wx.is_finite() && wz.is_finite()) {
+    let pelvis = match (pelvis_width(0), pelvis_width(2)) {
+        (Some(px), Some(pz)) if h > 0.0 && pz > PELVIS_RATIO * px => {
+            Some((true, format!("pelvis {pz:.3} across z, {px:.3} along x")))
+        }
+        (Some(px), Some(pz)) if h > 0.0 && px > PELVIS_RATIO * pz => {
+            Some((false, format!("pelvis {px:.3} across x, {pz:.3} along z")))
+        }
+        _ => None,
+    };
+    let (x_axis, axis_reason) = if let Some(found) = pelvis {
+        found
+    } else if !(h > 0.0 && wx.is_finite() && wz.is_finite()) {
         (false, "no shoulder band".to_string())
     } else if wz > 1.2 * wx {
         (true, format!("shoulders {wz:.3} across z, {wx:.3} along x"))
@@ -462,6 +494,32 @@ mod tests {
         }
         // The T-pose facing along x in a Z-up file has similar spreads along y (arms) and z (height).
         assert!(by_symmetry >= 1);
+    }
+
+    #[test]
+    fn arms_held_forward_do_not_turn_the_detected_facing() {
+        // Arms bent forward at the chest, as game characters hold a weapon and people hold a phone: at shoulder
+        // height the person is now deeper than wide (the old shoulder rule alone turned such a person by 90°), the
+        // pelvis below is not.
+        for (front, want) in [(Vec3::Z, Facing::PlusZ), (Vec3::X, Facing::PlusX), (-Vec3::X, Facing::MinusX)] {
+            let side = Vec3::Y.cross(front).normalize();
+            let mut pts = person(front, false);
+            for i in 0..=400 {
+                let t = i as f32 / 400.0 * 0.6;
+                for s in [-1.0f32, 1.0] {
+                    pts.push(Vec3::Y * 1.2 + side * s * 0.1 + front * t);
+                }
+            }
+            let (lo, hi) = pts
+                .iter()
+                .filter(|p| p.y >= 0.55 * 1.75 && p.y <= 0.8 * 1.75)
+                .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(*p), b.max(*p)));
+            let (across, deep) = ((hi - lo).dot(side).abs(), (hi - lo).dot(front).abs());
+            assert!(deep > 1.2 * across, "the stand-in must mislead the shoulders: {across} across, {deep} deep");
+            let d = detect_orientation(&pts);
+            assert_eq!(d.facing, want, "{front}: {d:?}");
+            assert!(d.facing_reason.starts_with("pelvis"), "{}", d.facing_reason);
+        }
     }
 
     #[test]
