@@ -1,9 +1,9 @@
 //! The whole still-photo path per input at 512², as `r2human render --image PHOTO` runs it
 //! ([`PreparedInput::prepare`]: normalise -> geometry -> depth centring -> mesh -> source raster), for three
-//! geometries: `fofnet` (the shipped FOF net on the body prior, `models/tiny/fof.onnx`: geometry only, inputs body
-//! FOF + inflation prior and no image ([`FofNet::takes_image`] is false), so pose landmarks, the body fit, the
-//! reconciled body FOF, the inflation prior and the network all run), `body` (the body prior alone) and `inflate`
-//! (the silhouette-inflation prior).
+//! geometries: `fofnet` (the shipped FOF net on the body prior, `models/tiny/fof.onnx`, with the inputs it declares:
+//! since session 11 geometry only, body FOF + inflation prior and no image ([`FofNet::takes_image`] false), so pose
+//! landmarks, the body fit, the reconciled body FOF, the inflation prior and the network all run), `body` (the body
+//! prior alone) and `inflate` (the silhouette-inflation prior).
 //! Inputs: a rendered synthetic subject (seed 3, the `body` bench's) and the shipped photos (`assets/photos`,
 //! segmented once up front as `render` does, `--segment auto`).
 //!
@@ -95,12 +95,7 @@ fn median(mut v: Vec<Duration>) -> f64 {
 fn benches(c: &mut Criterion) {
     let runtime = Default::default();
     let fof = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny/fof.onnx");
-    let net = FofNet::load(&fof, &runtime).expect("models/tiny/fof.onnx");
-    assert!(
-        net.takes_body() && !net.takes_image(),
-        "models/tiny/fof.onnx: the shipped geometry-only FOF net on the body"
-    );
-    let net = Arc::new(Mutex::new(net));
+    let net = Arc::new(Mutex::new(FofNet::load(&fof, &runtime).expect("models/tiny/fof.onnx")));
     let body =
         Arc::new(Mutex::new(BodyEstimator::load(None, &runtime).expect("body prior: run bash scripts/setup.sh")));
     let base = PrepareOptions { resolution: RES, depth_samples: RES, ..Default::default() };
