@@ -85,22 +85,7 @@ fn refine_applies_the_correction_at_full_resolution_inside_the_prior_only() {
 
     let mut offset = FofNet::load(&fixture("fof_offset.onnx"), &cpu()).unwrap();
     let fof = offset.refine(&rgb, &mask, &prior).unwrap();
-    let (mut inside, mut corrected) = (0, 0);
-    for row in 0..size {
-        for col in 0..size {
-            let (p, f) = (prior.column(col, row), fof.column(col, row));
-            if p.iter().all(|v| *v == 0.0) {
-                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the prior: {f:?}");
-                continue;
-            }
-            inside += 1;
-            assert_eq!(&f[1..], &p[1..], "({col},{row})");
-            let d = f[0] - p[0];
-            // Pixels whose four model taps are all outside the (resampled) mask keep the prior.
-            assert!((d - 0.25).abs() < 1e-5 || d == 0.0, "({col},{row}): c0 {} -> {}", p[0], f[0]);
-            corrected += (d != 0.0) as usize;
-        }
-    }
+    let (inside, corrected) = offset_columns(&prior, &fof, size);
     assert!(inside > 500 && corrected as f32 > 0.95 * inside as f32, "{corrected} of {inside}");
     // The corrected field holds more body (occupied depth samples) than the prior, and still makes a valid mesh.
     let occupied = |f: &Fof| {
@@ -379,6 +364,30 @@ fn volumetric_iou_matches_closed_forms() {
     assert_eq!(fof_occupancy_iou(&empty, &empty, 64), 1.0);
 }
 
+/// Checks a `size`² FOF `fof` that an offset fixture net (`fof_offset.onnx`, `fof_geometry.onnx`,
+/// `fof_body.onnx`: the first coefficient + 0.25 inside the silhouette) made of the FOF it is residual on,
+/// `base`: empty where the base is, every coefficient but the first the base's, the first the base's or 0.25 more
+/// (columns whose four model taps all miss the resampled mask keep the base). Returns (columns inside the base,
+/// columns corrected by 0.25).
+fn offset_columns(base: &Fof, fof: &Fof, size: usize) -> (usize, usize) {
+    let (mut inside, mut corrected) = (0, 0);
+    for row in 0..size {
+        for col in 0..size {
+            let (b, f) = (base.column(col, row), fof.column(col, row));
+            if b.iter().all(|v| *v == 0.0) {
+                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the base: {f:?}");
+                continue;
+            }
+            inside += 1;
+            assert_eq!(&f[1..], &b[1..], "({col},{row}): the other coefficients are the base's");
+            let d = f[0] - b[0];
+            assert!((d - 0.25).abs() < 1e-5 || d == 0.0, "({col},{row}): c0 {} -> {}", b[0], f[0]);
+            corrected += (d != 0.0) as usize;
+        }
+    }
+    (inside, corrected)
+}
+
 /// [`blocky_person`] with two FOF inputs for the fixture nets: an inflation `prior` and, as a stand-in `body`
 /// FOF, a thicker inflation of the same mask.
 fn blocky_person_with_fofs(size: usize) -> (RgbImage, GrayImage, Fof, Fof) {
@@ -405,21 +414,7 @@ fn body_fof_net_refines_the_body_fof_and_needs_it() {
     let e = net.refine(&rgb, &mask, &prior).expect_err("no body FOF given");
     assert!(matches!(e, NeuralError::BadInput { .. }) && e.to_string().contains("body FOF"), "{e}");
     let fof = net.refine_with(&rgb, &mask, &prior, Some(&body)).unwrap();
-    let (mut inside, mut corrected) = (0, 0);
-    for row in 0..size {
-        for col in 0..size {
-            let (b, f) = (body.column(col, row), fof.column(col, row));
-            if b.iter().all(|v| *v == 0.0) {
-                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the body FOF: {f:?}");
-                continue;
-            }
-            inside += 1;
-            assert_eq!(&f[1..], &b[1..], "({col},{row}): the other coefficients are the body FOF's");
-            let d = f[0] - b[0];
-            assert!((d - 0.25).abs() < 1e-5 || d == 0.0, "({col},{row}): c0 {} -> {}", b[0], f[0]);
-            corrected += (d != 0.0) as usize;
-        }
-    }
+    let (inside, corrected) = offset_columns(&body, &fof, size);
     assert!(inside > 500 && corrected as f32 > 0.95 * inside as f32, "{corrected} of {inside}");
     // A body FOF of the wrong order or size is refused, naming it.
     let small = inflate_to_fof(&mask, N - 1, &InflateParams::default()).unwrap();
@@ -448,18 +443,7 @@ fn geometry_only_fof_net_takes_no_photo() {
     // Another photo of the same silhouette gives the same geometry: the net never sees it.
     let dark = RgbImage::from_fn(size, size, |_, _| Vec3::ZERO);
     assert_eq!(net.refine_with(&dark, &mask, &prior, Some(&body)).unwrap(), fof);
-    let mut corrected = 0;
-    for row in 0..size {
-        for col in 0..size {
-            let (p, f) = (prior.column(col, row), fof.column(col, row));
-            if p.iter().all(|v| *v == 0.0) {
-                assert!(f.iter().all(|v| *v == 0.0), "({col},{row}) outside the prior: {f:?}");
-                continue;
-            }
-            assert_eq!(&f[1..], &p[1..], "({col},{row}): the other coefficients are the prior's");
-            corrected += ((f[0] - p[0] - 0.25).abs() < 1e-5) as usize;
-        }
-    }
+    let (_, corrected) = offset_columns(&prior, &fof, size);
     assert!(corrected > 500, "{corrected}");
     assert!(FofNet::load(&fixture("fof_body.onnx"), &cpu()).unwrap().takes_image());
 }
