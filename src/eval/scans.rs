@@ -29,6 +29,49 @@ pub fn held_out(names: &[&str]) -> Vec<bool> {
     out
 }
 
+/// The four numbers the summary keeps of one character and method, or their means (`None`: not measured).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ScanMetrics {
+    /// Volumetric IoU of the method's geometry against the ground-truth FOF (`None`: billboard, 2.5d, the oracle).
+    pub volumetric_iou: Option<f32>,
+    /// Mask IoU at divergent views.
+    pub mask_iou_divergent: Option<f32>,
+    /// Whole-frame PSNR at close views (dB).
+    pub psnr_frame_close: Option<f32>,
+    /// Whole-frame PSNR at divergent views (dB).
+    pub psnr_frame_divergent: Option<f32>,
+}
+
+impl ScanMetrics {
+    /// The fields' CSV column names, in [`ScanMetrics::values`] order.
+    pub const COLUMNS: [&'static str; 4] =
+        ["volumetric_iou", "mask_iou_divergent", "psnr_frame_close", "psnr_frame_divergent"];
+    /// The fields' table headings, in [`ScanMetrics::values`] order.
+    pub const LABELS: [&'static str; 4] =
+        ["volumetric IoU", "divergent mask IoU", "PSNR frame close", "PSNR frame divergent"];
+
+    /// The fields in [`ScanMetrics::COLUMNS`] order.
+    pub fn values(&self) -> [Option<f32>; 4] {
+        [self.volumetric_iou, self.mask_iou_divergent, self.psnr_frame_close, self.psnr_frame_divergent]
+    }
+
+    /// Each field's mean over `of`, over the entries that have it (`None` where none has).
+    fn mean<'a>(of: impl Iterator<Item = &'a ScanMetrics> + Clone) -> Self {
+        let field = |i: usize| mean(of.clone().filter_map(|m| m.values()[i]));
+        Self {
+            volumetric_iou: field(0),
+            mask_iou_divergent: field(1),
+            psnr_frame_close: field(2),
+            psnr_frame_divergent: field(3),
+        }
+    }
+
+    /// The fields as CSV cells (4 decimals, empty when `None`), comma-separated.
+    fn csv_cells(&self) -> String {
+        self.values().map(|v| v.map(|x| format!("{x:.4}")).unwrap_or_default()).join(",")
+    }
+}
+
 /// One character's numbers for one method.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ScanValues {
@@ -38,14 +81,8 @@ pub struct ScanValues {
     pub held_out: bool,
     /// The method ([`super::runner::METHODS`]).
     pub method: String,
-    /// Volumetric IoU of the method's geometry against the ground-truth FOF (`None`: billboard, 2.5d, the oracle).
-    pub volumetric_iou: Option<f32>,
-    /// Mask IoU at divergent views.
-    pub mask_iou_divergent: Option<f32>,
-    /// Whole-frame PSNR at close views (dB).
-    pub psnr_frame_close: Option<f32>,
-    /// Whole-frame PSNR at divergent views (dB).
-    pub psnr_frame_divergent: Option<f32>,
+    /// Its numbers.
+    pub metrics: ScanMetrics,
 }
 
 /// Means over characters of one method in one split.
@@ -57,14 +94,8 @@ pub struct SplitMeans {
     pub method: String,
     /// Characters with a row of this method in the split.
     pub characters: usize,
-    /// Means of [`ScanValues`]' fields over those characters (`None` where no character has the value).
-    pub volumetric_iou: Option<f32>,
-    /// Mean divergent mask IoU.
-    pub mask_iou_divergent: Option<f32>,
-    /// Mean whole-frame PSNR, close views.
-    pub psnr_frame_close: Option<f32>,
-    /// Mean whole-frame PSNR, divergent views.
-    pub psnr_frame_divergent: Option<f32>,
+    /// Means of their [`ScanValues::metrics`] (each over the characters that have it).
+    pub metrics: ScanMetrics,
 }
 
 /// The table over several scans.
@@ -125,10 +156,12 @@ impl ScanSummary {
                     scan: scan.clone(),
                     held_out: *is_held_out,
                     method: method.to_string(),
-                    volumetric_iou,
-                    mask_iou_divergent: divergent.map(|r| r.mask_iou),
-                    psnr_frame_close: close.map(|r| r.psnr_frame),
-                    psnr_frame_divergent: divergent.map(|r| r.psnr_frame),
+                    metrics: ScanMetrics {
+                        volumetric_iou,
+                        mask_iou_divergent: divergent.map(|r| r.mask_iou),
+                        psnr_frame_close: close.map(|r| r.psnr_frame),
+                        psnr_frame_divergent: divergent.map(|r| r.psnr_frame),
+                    },
                 });
             }
         }
@@ -148,10 +181,7 @@ impl ScanSummary {
                     split,
                     method: method.to_string(),
                     characters: of.len(),
-                    volumetric_iou: mean(of.iter().filter_map(|v| v.volumetric_iou)),
-                    mask_iou_divergent: mean(of.iter().filter_map(|v| v.mask_iou_divergent)),
-                    psnr_frame_close: mean(of.iter().filter_map(|v| v.psnr_frame_close)),
-                    psnr_frame_divergent: mean(of.iter().filter_map(|v| v.psnr_frame_divergent)),
+                    metrics: ScanMetrics::mean(of.iter().map(|v| &v.metrics)),
                 });
             }
         }
@@ -160,35 +190,20 @@ impl ScanSummary {
 
     /// `scans.csv` (every character and method) and `scans_summary.csv` (means per split and method) into `out`.
     pub fn write_csv(&self, out: &Path) -> Result<(), EvalError> {
-        let f = |v: Option<f32>| v.map(|x| format!("{x:.4}")).unwrap_or_default();
-        let mut per =
-            String::from("scan,split,method,volumetric_iou,mask_iou_divergent,psnr_frame_close,psnr_frame_divergent\n");
+        let columns = ScanMetrics::COLUMNS.join(",");
+        let mut per = format!("scan,split,method,{columns}\n");
         for v in &self.per_scan {
             per.push_str(&format!(
-                "\"{}\",{},{},{},{},{},{}\n",
+                "\"{}\",{},{},{}\n",
                 v.scan.replace('"', "\"\""),
                 if v.held_out { "held-out" } else { "dev" },
                 v.method,
-                f(v.volumetric_iou),
-                f(v.mask_iou_divergent),
-                f(v.psnr_frame_close),
-                f(v.psnr_frame_divergent)
+                v.metrics.csv_cells()
             ));
         }
-        let mut sum = String::from(
-            "split,method,characters,volumetric_iou,mask_iou_divergent,psnr_frame_close,psnr_frame_divergent\n",
-        );
+        let mut sum = format!("split,method,characters,{columns}\n");
         for m in &self.means {
-            sum.push_str(&format!(
-                "{},{},{},{},{},{},{}\n",
-                m.split,
-                m.method,
-                m.characters,
-                f(m.volumetric_iou),
-                f(m.mask_iou_divergent),
-                f(m.psnr_frame_close),
-                f(m.psnr_frame_divergent)
-            ));
+            sum.push_str(&format!("{},{},{},{}\n", m.split, m.method, m.characters, m.metrics.csv_cells()));
         }
         for (name, text) in [("scans.csv", per), ("scans_summary.csv", sum)] {
             let p = out.join(name);
@@ -213,33 +228,25 @@ impl ScanSummary {
             count(true),
             list(true)
         );
-        type Field = fn(&SplitMeans) -> Option<f32>;
-        let fields: [(&str, Field); 4] = [
-            ("volumetric IoU", |m| m.volumetric_iou),
-            ("divergent mask IoU", |m| m.mask_iou_divergent),
-            ("PSNR frame close", |m| m.psnr_frame_close),
-            ("PSNR frame divergent", |m| m.psnr_frame_divergent),
-        ];
         for split in SPLITS {
             let rows: Vec<&SplitMeans> = self.means.iter().filter(|m| m.split == split).collect();
             md.push_str(&format!(
                 "\n### {split}\n\n| method | characters | {} |\n|---|---|{}\n",
-                fields.map(|f| f.0).join(" | "),
-                "---|".repeat(fields.len())
+                ScanMetrics::LABELS.join(" | "),
+                "---|".repeat(ScanMetrics::LABELS.len())
             ));
-            let best: Vec<Option<f32>> = fields
-                .iter()
-                .map(|(_, get)| {
+            let best: Vec<Option<f32>> = (0..ScanMetrics::LABELS.len())
+                .map(|i| {
                     rows.iter()
                         .filter(|m| !m.method.contains(ORACLE_TAG))
-                        .filter_map(|m| get(m))
+                        .filter_map(|m| m.metrics.values()[i])
                         .fold(None, |b: Option<f32>, x| Some(b.map_or(x, |b| b.max(x))))
                 })
                 .collect();
             for m in rows {
                 md.push_str(&format!("| {} | {} |", m.method, m.characters));
-                for ((_, get), b) in fields.iter().zip(&best) {
-                    md.push_str(&match get(m) {
+                for (value, b) in m.metrics.values().into_iter().zip(&best) {
+                    md.push_str(&match value {
                         Some(v) if Some(v) == *b && !m.method.contains(ORACLE_TAG) => format!(" **{}** |", cell(v)),
                         Some(v) => format!(" {} |", cell(v)),
                         None => " - |".to_string(),
@@ -265,10 +272,10 @@ impl ScanSummary {
             let fmt = |x: Option<f32>| x.map(cell).unwrap_or_else(|| "-".into());
             md.push_str(&format!("| {scan} | {} |", if *is_held_out { "held-out" } else { "dev" }));
             for g in &geometries {
-                md.push_str(&format!(" {} |", fmt(v(g).and_then(|v| v.volumetric_iou))));
+                md.push_str(&format!(" {} |", fmt(v(g).and_then(|v| v.metrics.volumetric_iou))));
             }
             for g in &geometries {
-                md.push_str(&format!(" {} |", fmt(v(g).and_then(|v| v.mask_iou_divergent))));
+                md.push_str(&format!(" {} |", fmt(v(g).and_then(|v| v.metrics.mask_iou_divergent))));
             }
             md.push('\n');
         }
@@ -316,19 +323,22 @@ mod tests {
         let s = ScanSummary::of(&rep).unwrap();
         assert_eq!(s.scans, vec![("a".into(), false), ("b".into(), true), ("c".into(), false)]);
         let m = |split: &str, method: &str| s.means.iter().find(|m| m.split == split && m.method == method).unwrap();
+        let of = |split: &str, method: &str| m(split, method).metrics;
         let close = |a: Option<f32>, b: f32| (a.unwrap() - b).abs() < 1e-5;
-        let inf = m("dev", "geometric+inflation");
-        assert_eq!(inf.characters, 2);
+        assert_eq!(m("dev", "geometric+inflation").characters, 2);
+        let inf = of("dev", "geometric+inflation");
         assert!(close(inf.mask_iou_divergent, 0.7) && close(inf.volumetric_iou, 0.45));
         assert!(close(inf.psnr_frame_divergent, 23.5) && close(inf.psnr_frame_close, 24.5));
-        let all = m("all", "geometric+inflation");
-        assert!(close(all.mask_iou_divergent, 0.7) && close(all.volumetric_iou, 0.5) && all.characters == 3);
-        let held = m("held-out", "geometric+fofnet");
-        assert!(close(held.volumetric_iou, 0.2) && close(held.mask_iou_divergent, 0.75) && held.characters == 1);
+        let all = of("all", "geometric+inflation");
+        assert!(close(all.mask_iou_divergent, 0.7) && close(all.volumetric_iou, 0.5));
+        assert_eq!(m("all", "geometric+inflation").characters, 3);
+        let held = of("held-out", "geometric+fofnet");
+        assert!(close(held.volumetric_iou, 0.2) && close(held.mask_iou_divergent, 0.75));
+        assert_eq!(m("held-out", "geometric+fofnet").characters, 1);
         assert_eq!(held.psnr_frame_close, None);
         assert_eq!(m("dev", "geometric+fofnet").characters, 1);
         // The oracle has no volumetric IoU and is never bold.
-        assert_eq!(m("all", "geometric+gt-fof").volumetric_iou, None);
+        assert_eq!(of("all", "geometric+gt-fof").volumetric_iou, None);
         let md = s.markdown();
         assert!(md.contains("Dev (2): a, c. Held out (1): b."), "{md}");
         assert!(md.contains("| geometric+gt-fof | 3 | - | 0.990 | - | 30.00 |"), "{md}");
