@@ -67,7 +67,12 @@ fn blend(fofs: &[&Fof; 3], weights: [f32; 3]) -> Fof {
 }
 
 /// The source view of a mesh as the eval's input, and the mesh's ground-truth FOF.
-fn case(label: String, mesh: &TexturedMesh, size: usize, frame: Option<(glam::Vec2, glam::Vec2)>) -> anyhow::Result<Case> {
+fn case(
+    label: String,
+    mesh: &TexturedMesh,
+    size: usize,
+    frame: Option<(glam::Vec2, glam::Vec2)>,
+) -> anyhow::Result<Case> {
     let view = render_ground_truth(mesh, &Camera::source(size));
     let rgb: RgbImage = view.to_linear_rgba().map(|p| p.truncate());
     let mask: GrayImage = view.mask_image();
@@ -120,7 +125,8 @@ fn main() -> anyhow::Result<()> {
             let opts = PrepareOptions { geometry: mode, ..base.clone() };
             compute_geometry(&c.input, &opts, &mut StageTimings::default()).with_context(|| c.label.clone())
         };
-        let (i, b, f) = (geometry(GeometryMode::Inflate)?, geometry(GeometryMode::Body)?, geometry(GeometryMode::FofNet)?);
+        let (i, b, f) =
+            (geometry(GeometryMode::Inflate)?, geometry(GeometryMode::Body)?, geometry(GeometryMode::FofNet)?);
         let mut line = format!("{:<20}", c.label);
         for (k, (_, w)) in CANDIDATES.iter().enumerate() {
             let iou = f64::from(fof_occupancy_iou(&blend(&[&i, &b, &f], *w), &c.truth, IOU_SAMPLES));
