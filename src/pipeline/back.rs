@@ -29,7 +29,7 @@ use crate::body::pose::PoseLandmarks;
 use crate::buffer::{GrayImage, Image, RgbImage};
 
 /// Mode-filter window radius for the clothing, in face units (eye-to-mouth distances).
-pub const CLOTHING_RADIUS: f32 = 2.5;
+pub const CLOTHING_RADIUS: f32 = 2.0;
 /// The mode filter runs on a grid this many times coarser than a 512² source (scaled with the resolution).
 pub const WORK_FACTOR: usize = 4;
 /// Largest mode-filter window radius on the working grid (cells); caps the cost on face-filling photos.
