@@ -24,6 +24,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use glam::Vec3;
+use r2human::body::fit::world_scale;
 use r2human::body::model::{BodyModel, ModelPoint};
 use r2human::body::prior::{body_fof, BodyPrior};
 use r2human::body::reconcile::{reconcile, ReconcileParams};
@@ -219,6 +220,40 @@ fn estimate_again(body: &SharedBody, input: &NormalisedInput) -> anyhow::Result<
     Ok(estimator.estimate(&input.rgb, &input.mask, Some(input.frame), false, &mut |_, _| {})?)
 }
 
+/// Per limb landmark the fit used: the network's 2-D point and relative depth (world landmarks scaled to cube
+/// units by [`world_scale`]) against the fitted body's, depths about the hip centre (cube units, + toward the camera).
+fn print_joints(prior: &BodyPrior, size: usize) -> anyhow::Result<()> {
+    let model = BodyModel::shared()?;
+    let lm = &prior.landmarks;
+    let used: Vec<usize> = prior.fit.used.iter().map(|u| u.0).collect();
+    let Some(kappa) = world_scale(lm, &used, size) else { return Ok(()) };
+    let heads = model.rest_heads(&prior.fit.pose.shape);
+    let g = model.skinning(&prior.fit.pose, &heads);
+    let fitted = |i: usize| model.landmark_points[i].map(|p| model.point(p, &prior.fit.pose.shape, &heads, &g));
+    let (Some(lh), Some(rh)) = (fitted(23), fitted(24)) else { return Ok(()) };
+    let hip_z = 0.5 * (lh.z + rh.z);
+    let net_hip = 0.5 * (lm.world[23].z + lm.world[24].z) as f64;
+    println!("landmark  vis    network x, y, z       fitted x, y, z   (cube; z about the hip centre)");
+    for i in 11..29 {
+        let Some(f) = fitted(i) else { continue };
+        let c = lm.cube(i, size);
+        let nz = kappa * (lm.world[i].z as f64 - net_hip);
+        println!(
+            "{:9} {:.2}  {:+.3} {:+.3} {:+.3}   {:+.3} {:+.3} {:+.3}{}",
+            r2human::body::pose::NAMES[i],
+            lm.landmarks[i].visibility,
+            c.x,
+            c.y,
+            nz,
+            f.x,
+            f.y,
+            f.z - hip_z,
+            if used.contains(&i) { "" } else { "  (not used)" }
+        );
+    }
+    Ok(())
+}
+
 /// `--scan FILE`: the inflation prior and the body prior of the scan's source view against its ground truth.
 fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &SharedBody) -> anyhow::Result<()> {
     let scan = load_scan(file)?;
@@ -242,6 +277,7 @@ fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &Share
             p.fit.pose.shape,
             p.landmarks.facing()
         );
+        print_joints(p, size)?;
     }
     let mut panels = vec![source];
     for (name, fof) in [("inflation", &prior), ("body", &fitted)] {

@@ -723,7 +723,7 @@ fn model_has(model: &BodyModel, i: usize) -> bool {
 
 /// Cube units per metre: least squares of the used landmarks' 2-D offsets against their world x, y offsets
 /// (about the means). `None` with fewer than three landmarks or a degenerate spread.
-fn world_scale(lm: &PoseLandmarks, used: &[usize], resolution: usize) -> Option<f64> {
+pub fn world_scale(lm: &PoseLandmarks, used: &[usize], resolution: usize) -> Option<f64> {
     if used.len() < 3 {
         return None;
     }

@@ -39,6 +39,14 @@ pub struct BodyPrior {
     pub mesh: TriMesh,
 }
 
+impl BodyPrior {
+    /// The photo's frame the prior was fitted in (the landmarks'): the given frame, its bottom raised to a straight
+    /// cut of the mask unless the person stands there ([`stands_on`]).
+    pub fn frame(&self) -> PhotoFrame {
+        (self.landmarks.frame_min, self.landmarks.frame_max)
+    }
+}
+
 /// Places a pose in depth like the reference's preprocessing: the posed mesh's xz minimal enclosing circle
 /// centred on z = 0 (x stays where the photo put it). Returns the shifted pose and its mesh.
 pub fn centre_depth(model: &BodyModel, pose: &Pose) -> (Pose, TriMesh) {
@@ -104,9 +112,24 @@ impl BodyEstimator {
         timings: &mut dyn FnMut(&'static str, std::time::Duration),
     ) -> Result<Option<BodyPrior>, BodyError> {
         let t = std::time::Instant::now();
-        let frame = Some(effective_frame(mask, frame));
+        let given = frame.unwrap_or((Vec2::ZERO, Vec2::new(mask.width as f32, mask.height as f32)));
+        let cut = effective_frame(mask, Some(given));
         let previous = if warm { self.previous.as_ref() } else { None };
-        let landmarks = self.pose.estimate_tracked(rgb, mask, frame, previous.map(|p| &p.0))?;
+        // A straight bottom edge of the mask inside the photo is a cut, unless the person stands on it: read the
+        // photo as it is first, and take the cut only when that read does not stand on the edge.
+        let mut frame = Some(cut);
+        let mut landmarks = None;
+        if cut != given {
+            let uncut = self.pose.estimate_tracked(rgb, mask, Some(given), previous.map(|p| &p.0))?;
+            if uncut.as_ref().is_some_and(|l| stands_on(l, mask, cut.1.y, self.options.min_visibility)) {
+                frame = Some(given);
+                landmarks = uncut;
+            }
+        }
+        let landmarks = match landmarks {
+            Some(l) => Some(l),
+            None => self.pose.estimate_tracked(rgb, mask, frame, previous.map(|p| &p.0))?,
+        };
         let Some(landmarks) = landmarks else {
             timings("pose landmarks", t.elapsed());
             self.previous = None;
@@ -200,6 +223,33 @@ pub fn mirrored_left_right<T: Copy>(image: &crate::buffer::Image<T>) -> crate::b
 /// A photo's frame in the left-right mirror image of a `width`-pixel-wide picture.
 pub fn mirrored_frame((lo, hi): PhotoFrame, width: f32) -> PhotoFrame {
     (Vec2::new(width - hi.x, lo.y), Vec2::new(width - lo.x, hi.y))
+}
+
+/// [`stands_on`]: how far above the mask's bottom edge a foot may lie, as a fraction of the mask's height (the
+/// fold check's margin, [`super::pose::FOLD_MARGIN`]).
+pub const FEET_MARGIN: f32 = super::pose::FOLD_MARGIN;
+
+/// Whether `landmarks` (read in the photo's own frame) stand the person on the mask's bottom edge at row
+/// `bottom` (pixels): both legs are legs the network sees ([`legs_it_sees`]: thighs of a person's length in its
+/// world landmarks) and each has its ankle, heel or foot point seen (visibility at least `min_visibility`) within
+/// [`FEET_MARGIN`] of the mask's height above that edge (or below it). Then a straight bottom edge is the person's
+/// soles, not a cut ([`super::pose::cut_frame`]): a character in flat, wide boots seen from the front at 256²
+/// (the Mr. Fixit scan) ends in a row of sole as wide as the rows above it, and taken as a cut the network was
+/// asked for a body continuing below it, folded by the fold check into hips at the boots. A folded body (the
+/// network's explanation of a person cut at the waist) draws thighs shorter than a person's and is not standing.
+pub fn stands_on(landmarks: &PoseLandmarks, mask: &GrayImage, bottom: f32, min_visibility: f32) -> bool {
+    let Some(top) = mask.rows().position(|row| row.iter().any(|&m| m >= 0.5)) else { return false };
+    let height = bottom - top as f32;
+    if height.is_nan() || height <= 0.0 {
+        return false;
+    }
+    let seen = legs_it_sees(landmarks.clone());
+    let on_edge = |i: usize| {
+        let l = &seen.landmarks[i];
+        l.visibility >= min_visibility && l.pixel.y.is_finite() && l.pixel.y >= bottom - FEET_MARGIN * height
+    };
+    // Ankle, heel, foot index of each leg.
+    [[27usize, 29, 31], [28, 30, 32]].iter().all(|leg| leg.iter().any(|&i| on_edge(i)))
 }
 
 /// [`legs_it_sees`]: the shortest thigh (hip to knee, metres) of the network's world landmarks that it draws for a
@@ -310,11 +360,12 @@ pub fn body_fof(
     n: usize,
     inflate_params: &InflateParams,
 ) -> Result<Fof, BodyError> {
-    body_fof_with(mesh, mask, frame, n, inflate_params, None)
+    body_fof_with(mesh, mask, Some(effective_frame(mask, frame)), n, inflate_params, None)
 }
 
-/// [`body_fof`] with the mask's [`SilhouetteProfile`] solved beforehand (the pipeline solves it beside the pose and
-/// the fit); solved here when `None`. The same result.
+/// [`body_fof`] in the frame the body prior worked in (`frame` as it is: [`BodyPrior::frame`], which already
+/// decided whether a straight bottom edge is a cut), with the mask's [`SilhouetteProfile`] solved beforehand (the
+/// pipeline solves it beside the pose and the fit); solved here when `None`.
 pub fn body_fof_with(
     mesh: &TriMesh,
     mask: &GrayImage,
@@ -330,7 +381,7 @@ pub fn body_fof_with(
         min_half_depth: 0.5 * sheet_thickness(n),
         ..Default::default()
     };
-    let out = reconcile_with(&body, mask, Some(effective_frame(mask, frame)), &params, silhouette);
+    let out = reconcile_with(&body, mask, frame, &params, silhouette);
     Fof::from_intervals(&out, n).map_err(BodyError::Fof)
 }
 
@@ -491,5 +542,40 @@ mod tests {
         assert_eq!(out.world, l.world);
         l.world[26].x = f32::NAN;
         assert_eq!(legs_it_sees(l).landmarks[28].visibility, 0.0);
+    }
+
+    #[test]
+    fn a_straight_bottom_edge_is_the_soles_of_a_person_standing_on_it() {
+        // Mask rows 10..90 (height 80 above the edge at row 90): a foot point counts within 0.1 x 80 = 8 pixels above
+        // the edge (or below it). Thighs 0.4 m (legs the network sees).
+        let mask = crate::buffer::Image::from_fn(100, 100, |_, r| if (10..90).contains(&r) { 1.0 } else { 0.0 });
+        let mut l = torso(0.0);
+        l.world[25] = l.world[23] + Vec3::new(0.0, -0.4, 0.0);
+        l.world[26] = l.world[24] + Vec3::new(0.0, -0.4, 0.0);
+        l.landmarks.iter_mut().for_each(|m| m.visibility = 0.9);
+        for i in 25..33 {
+            l.landmarks[i].pixel.y = 70.0;
+        }
+        let standing = |l: &PoseLandmarks| stands_on(l, &mask, 90.0, 0.5);
+        assert!(!standing(&l), "feet 20 pixels above the edge");
+        l.landmarks[27].pixel.y = 82.5;
+        assert!(!standing(&l), "one foot on the edge");
+        l.landmarks[32].pixel.y = 93.0;
+        assert!(standing(&l), "left ankle and right foot index on the edge");
+        l.landmarks[32].pixel.y = 81.5;
+        assert!(!standing(&l), "just above the margin");
+        l.landmarks[32].pixel.y = 82.0;
+        assert!(standing(&l), "on the margin");
+        let mut hidden = l.clone();
+        hidden.landmarks[27].visibility = 0.4;
+        assert!(!standing(&hidden), "an ankle it does not see");
+        let mut folded = l.clone();
+        folded.world[26] = folded.world[24] + Vec3::new(0.0, -0.25, 0.0);
+        assert!(!standing(&folded), "a folded body's short thigh");
+        let mut nan = l.clone();
+        nan.landmarks[27].pixel.y = f32::NAN;
+        assert!(!standing(&nan));
+        assert!(!stands_on(&l, &crate::buffer::Image::new(100, 100, 0.0), 90.0, 0.5), "empty mask");
+        assert!(!stands_on(&l, &mask, 5.0, 0.5), "edge above the mask's top");
     }
 }

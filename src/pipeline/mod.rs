@@ -427,11 +427,12 @@ fn body_prior_fof_or_why(
     let fof = found.and_then(|p| match p {
         Some(p) => timings
             .time("body FOF", || {
+                let frame = p.frame();
                 let mesh = centre_visible_depth(p.mesh, &normalised.mask);
                 crate::body::prior::body_fof_with(
                     &mesh,
                     &normalised.mask,
-                    Some(normalised.frame),
+                    Some(frame),
                     opts.fof_order,
                     &opts.inflate,
                     Some(&silhouette),
