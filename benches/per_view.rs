@@ -56,7 +56,7 @@ fn per_view(c: &mut Criterion) {
     for (name, fill) in [("warp_mirrored", OcclusionFill::MirroredFront), ("warp_propagate", OcclusionFill::Propagate)]
     {
         group.bench_function(name, |b| {
-            b.iter(|| render_from_flow(&src_rgb, &src_mask, &src, &g, &fz, &vis, fill));
+            b.iter(|| render_from_flow(&src_rgb, &src_mask, &src, &g, &orbit, &fz, &vis, fill));
         });
     }
 

@@ -1,6 +1,9 @@
 //! Renders a synthetic coloured person (and a sphere and a box) at yaw 0/90/180 and pitch +-90 with the
 //! geometric warp, writes PNGs to /tmp/r2human_gallery/ and prints the PSNR of each occlusion fill against a
-//! ground-truth render of the coloured mesh.
+//! ground-truth render of the coloured mesh. The back fill's back image of the person is built from its known face
+//! points (eyes, mouth line and ears of `tests/common/person.rs`, projected into the source view), which isolates
+//! the fill from the pose network (that finds no face on this ellipsoid person); the sphere and the box have no
+//! face, so their back fill is the mirrored-front one.
 //!
 //! `cargo run --release --example warp_gallery`
 
@@ -9,12 +12,14 @@ mod person;
 
 use std::path::Path;
 
+use glam::Vec2;
 use glam::{Vec3, Vec4};
 use r2human::buffer::{linear_to_srgb, Image, RgbaImage};
 use r2human::geometry::raster::{rasterize, GBuffer};
 use r2human::geometry::zmap::{flow_and_zmap, visibility, VISIBILITY_LAMBDA};
 use r2human::geometry::{Camera, TriMesh};
-use r2human::pipeline::warp::{render_geometric, OcclusionFill};
+use r2human::pipeline::back::{back_image, FacePoints};
+use r2human::pipeline::warp::{render_geometric, OcclusionFill, SourceColours};
 
 const RES: usize = 512;
 
@@ -87,6 +92,17 @@ fn main() {
         let src_rgb = src_rgba.map(|p| p.truncate());
         let src_mask = gs.mask_image();
         save_rgba(&src_rgba, &dir.join(format!("{name}_source.png")));
+        // Source pixel of a body-cube point (orthographic source camera).
+        let px = |x: f32, y: f32| Vec2::new((x + 1.0) * 0.5 * RES as f32, (1.0 - y) * 0.5 * RES as f32);
+        let face = FacePoints { eyes: px(0.0, 0.74), mouth: px(0.0, 0.66), ears: [px(0.12, 0.73), px(-0.12, 0.73)] };
+        let back = (*name == "person").then(|| back_image(&src_rgb, &src_mask, &face)).flatten();
+        if let Some(b) = &back {
+            let m = &src_mask.data;
+            let img =
+                Image { width: RES, height: RES, data: b.data.iter().zip(m).map(|(c, &w)| c.extend(w)).collect() };
+            save_rgba(&img, &dir.join(format!("{name}_back_image.png")));
+        }
+        let colours = SourceColours { rgb: &src_rgb, back: back.as_ref() };
         println!("{name}: {} triangles", mesh.triangle_count());
         for &(yaw, pitch) in &views {
             let cam = Camera::orbit(yaw, pitch, RES, RES);
@@ -102,8 +118,12 @@ fn main() {
                 "  yaw {yaw:5.1} pitch {pitch:+5.1}: visible {:5.1}%",
                 100.0 * vis.iter().filter(|&&v| v).count() as f32 / gt.coverage().max(1) as f32
             );
-            for (fname, fill) in [("mirrored", OcclusionFill::MirroredFront), ("propagate", OcclusionFill::Propagate)] {
-                let out = render_geometric(&src_rgb, &src_mask, &gs, &src, &gt, &cam, fill);
+            for (fname, fill) in [
+                ("mirrored", OcclusionFill::MirroredFront),
+                ("propagate", OcclusionFill::Propagate),
+                ("back", OcclusionFill::Back),
+            ] {
+                let out = render_geometric(colours, &src_mask, &gs, &src, &gt, &cam, fill);
                 save_rgba(&out, &dir.join(format!("{tag}_{fname}.png")));
                 line += &format!(
                     " | {fname}: PSNR {:5.2} dB (occluded only {:5.2})",

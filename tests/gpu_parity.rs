@@ -290,21 +290,26 @@ fn psnr_rgba(a: &RgbaImage, b: &RgbaImage) -> f64 {
 
 #[test]
 fn warp_and_hole_fill_match_cpu() {
-    use r2human::pipeline::warp::{render_from_flow, OcclusionFill};
+    use r2human::pipeline::warp::{render_from_flow, OcclusionFill, SourceColours};
     let Some(ctx) = context() else { return };
     let mesh = scene();
     let n = 64;
     let (src_img, src_g, src_cam) = source_view(&mesh, 80);
     let (src_rgb, src_mask) = rgb_mask(&src_img);
+    // A back image unlike the photo (its complement, premultiplied by the same mask), stored after the photo.
+    let back_img = src_img.map(|p| ((Vec3::ONE - p.truncate()) * p.w).extend(p.w));
+    let back_rgb = back_img.map(|p| p.truncate());
+    let colours = SourceColours { rgb: &src_rgb, back: Some(&back_rgb) };
     let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
-    r.set_source(&src_img, &src_g, &src_cam).unwrap();
-    for fill in [OcclusionFill::MirroredFront, OcclusionFill::Propagate] {
+    r.set_source_with_back(&src_img, Some(&back_img), &src_g, &src_cam).unwrap();
+    let mut back_differs = 0;
+    for fill in [OcclusionFill::MirroredFront, OcclusionFill::Propagate, OcclusionFill::Back] {
         r.set_fill(fill);
         for cam in cameras(n) {
             let target = rasterize(&mesh, &cam);
             let flowz = flow_and_zmap(&target, &cam, &src_cam);
             let vis = visibility(&flowz, &src_g, &src_cam, VISIBILITY_LAMBDA);
-            let cpu = render_from_flow(&src_rgb, &src_mask, &src_cam, &target, &flowz, &vis, fill);
+            let cpu = render_from_flow(colours, &src_mask, &src_cam, &target, &cam, &flowz, &vis, fill);
             let gpu = r.warp_from_flow(&target, &flowz, &vis, &cam).unwrap();
             let p = psnr_rgba(&cpu, &gpu);
             let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
@@ -312,8 +317,35 @@ fn warp_and_hole_fill_match_cpu() {
             // Same arithmetic in f32; sums in the pyramid run in another order.
             assert!(p >= 60.0 && max < 1e-3, "PSNR {p}, max {max}");
             assert!(gpu.data.iter().zip(&target.mask).all(|(c, &m)| (c.w == 1.0) == m));
+            if fill == OcclusionFill::Back {
+                let mirrored = render_from_flow(
+                    &src_rgb,
+                    &src_mask,
+                    &src_cam,
+                    &target,
+                    &cam,
+                    &flowz,
+                    &vis,
+                    OcclusionFill::MirroredFront,
+                );
+                back_differs +=
+                    gpu.data.iter().zip(&mirrored.data).filter(|(a, b)| (**a - **b).abs().max_element() > 0.1).count();
+            }
         }
     }
+    // The back image was used where surfaces face away from the source (the back view's pixels).
+    assert!(back_differs > 100, "{back_differs}");
+    // Without a back image the back fill is the mirrored-front fill.
+    r.set_source(&src_img, &src_g, &src_cam).unwrap();
+    let cam = Camera::orbit(180.0, -35.0, n, n);
+    let target = rasterize(&mesh, &cam);
+    let flowz = flow_and_zmap(&target, &cam, &src_cam);
+    let vis = visibility(&flowz, &src_g, &src_cam, VISIBILITY_LAMBDA);
+    r.set_fill(OcclusionFill::Back);
+    let back = r.warp_from_flow(&target, &flowz, &vis, &cam).unwrap();
+    r.set_fill(OcclusionFill::MirroredFront);
+    let mirrored = r.warp_from_flow(&target, &flowz, &vis, &cam).unwrap();
+    assert_eq!(back.data, mirrored.data);
     assert_clean(&ctx);
 }
 
@@ -332,7 +364,8 @@ fn warp_with_nothing_seen_uses_the_mean_colour() {
     let target = rasterize(&mesh, &cam);
     let flowz = flow_and_zmap(&target, &cam, &src_cam);
     let nothing = vec![false; n * n];
-    let cpu = render_from_flow(&src_rgb, &src_mask, &src_cam, &target, &flowz, &nothing, OcclusionFill::Propagate);
+    let cpu =
+        render_from_flow(&src_rgb, &src_mask, &src_cam, &target, &cam, &flowz, &nothing, OcclusionFill::Propagate);
     let gpu = r.warp_from_flow(&target, &flowz, &nothing, &cam).unwrap();
     let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
     assert!(max < 1e-5, "{max}");

@@ -529,7 +529,7 @@ fn shipped_tiny_models_load_and_render() {
             target.depth[i] = 0.0;
         }
     }
-    let lookup = photo_lookup(&rgb, &mask, &Camera::source(size), &flowz);
+    let lookup = photo_lookup(&rgb, &mask, &Camera::source(size), &flowz, None);
     let out = rt.decoder.render_view(&features, &flowz, size, &target, &lookup).unwrap();
     for r in 0..size {
         for c in 0..size {
@@ -569,7 +569,8 @@ fn zero_residual_decoder_is_the_geometric_renderer() {
         let mut target = GBuffer::new(80, 80);
         r2human::geometry::raster::rasterize_into(&mut target, &prepared.mesh, &cam);
         let flowz = flow_and_zmap(&target, &cam, &prepared.source_camera);
-        let lookup = photo_lookup(&prepared.normalised.rgb, &prepared.normalised.mask, &prepared.source_camera, &flowz);
+        let lookup =
+            photo_lookup(&prepared.normalised.rgb, &prepared.normalised.mask, &prepared.source_camera, &flowz, None);
         let mut known = 0;
         for i in 0..80 * 80 {
             assert!(n.data[i].is_finite() && n.data[i].max_element() <= 1.0 && n.data[i].min_element() >= 0.0);

@@ -143,3 +143,49 @@ fn high_fof_order_with_ringing_stays_bounded() {
     let person = renderer.render_person(&Camera::orbit(90.0, 0.0, 64, 64)).unwrap();
     assert!(person.data.iter().all(|p| p.is_finite()));
 }
+
+/// The pipeline's step ([`r2human::pipeline::back_image_of`]) with the pose network: on a rendered synthetic
+/// subject it finds the face and paints it in the hair's colour; on an input without a person it gives no back
+/// image (the renderers' fall-back to the photo).
+#[test]
+fn the_pose_network_finds_the_face_of_a_rendered_subject_and_nothing_in_a_blank() {
+    use r2human::pipeline::back::FacePoints;
+    use r2human::pipeline::{back_image_of, input::NormalisedInput, SharedPose, StageTimings};
+    use r2human::synth::{self, SubjectParams, SynthAssets};
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
+    let Ok(assets) = SynthAssets::shared() else {
+        eprintln!("skipped: no synthetic-subject data (bash scripts/setup.d/synth.sh)");
+        return;
+    };
+    if !model.is_file() {
+        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model.display());
+        return;
+    }
+    let pose = r2human::body::pose::PoseEstimator::load(Some(&model), &Default::default()).unwrap();
+    let pose = SharedPose(std::sync::Arc::new(std::sync::Mutex::new(pose)));
+    let mut params = SubjectParams::sample(3);
+    params.outfit = synth::Outfit::none(params.appearance.top_fabric);
+    let subject = synth::generate(assets, &params, 128).unwrap();
+    let res = 256;
+    let view = r2human::eval::ground_truth::render_ground_truth(&subject.mesh, &r2human::geometry::Camera::source(res));
+    let rgb: r2human::buffer::RgbImage = view.to_linear_rgba().map(|p| p.truncate());
+    let input = NormalisedInput::in_source_view(rgb, view.mask_image());
+    let mut timings = StageTimings::default();
+    let back = back_image_of(&input, &pose, &mut timings).expect("a face in a rendered subject");
+    assert!(timings.0.iter().any(|(n, _)| *n == "back image (filter)"));
+    // The face (between the eyes the network reads) shows the hair's colour in the back image.
+    let lm = pose.0.lock().unwrap().estimate(&input.rgb, &input.mask, None).unwrap().unwrap();
+    let face = FacePoints::from_pose(&lm).unwrap();
+    let i = face.eyes.y as usize * res + face.eyes.x as usize;
+    let m = input.mask.data[i];
+    let (photo, painted) = (input.rgb.data[i] / m, back.data[i] / m);
+    let hair = glam::Vec3::from(params.appearance.hair);
+    eprintln!("eyes at {}: photo {photo}, back image {painted}, hair {hair}", face.eyes);
+    // (This subject's skin is dark: the photo's face is 0.07 from the hair, the back image 0.003.)
+    assert!((painted - hair).length() < 0.25 * (photo - hair).length(), "{painted} vs hair {hair}, photo {photo}");
+    // No person (a flat grey board): no back image.
+    let board =
+        Image::from_fn(res, res, |c, r| if (64..192).contains(&c) && (32..224).contains(&r) { 1.0 } else { 0.0 });
+    let blank = NormalisedInput::in_source_view(board.map(|&m| glam::Vec3::splat(0.4) * m), board);
+    assert!(back_image_of(&blank, &pose, &mut StageTimings::default()).is_none());
+}

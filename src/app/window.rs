@@ -378,7 +378,10 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
     } else {
         let person = crate::capture::segment::segment_photo(&opts.image, opts.mask.as_deref(), &opts.segment)?;
         tracing::info!("preparing the input (geometry, mesh)");
-        still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &prepare)?;
+        // A still pays for the back image once (the pose network finds the face); live frames do not (README,
+        // "What the photo does not show").
+        let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &opts.neural.options);
+        still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &PrepareOptions { back_pose, ..prepare })?;
         still_mask = Some(person.mask);
         PersonInput::Still(&still)
     };

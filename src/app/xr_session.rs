@@ -262,8 +262,15 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     let feed: Box<dyn SceneFeed> = match &opts.input {
         XrInput::Image { path, mask, segment } => {
             let person = crate::capture::segment::segment_photo(path, mask.as_deref(), segment)?;
-            let prepared = PreparedInput::prepare(&person.photo.rgb, &person.mask, &PrepareOptions::default())
-                .with_context(|| format!("preparing {}", path.display()))?;
+            // A photo pays for the back image once (the pose network finds the face); live frames do not.
+            let back_pose =
+                crate::pipeline::load_back_pose(crate::pipeline::warp::OcclusionFill::default(), &opts.neural.options);
+            let prepared = PreparedInput::prepare(
+                &person.photo.rgb,
+                &person.mask,
+                &PrepareOptions { back_pose, ..Default::default() },
+            )
+            .with_context(|| format!("preparing {}", path.display()))?;
             // The encoder runs once for a photo; the eyes run only the decoder.
             let eye_neural = match &neural.renderer {
                 Some(shared) => {

@@ -15,6 +15,10 @@ use crate::pipeline::{GeometryMode, RendererChoice};
 /// `--fill`: how occluded surfaces are coloured (see [`OcclusionFill`]).
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FillArg {
+    /// Surfaces facing away from the photo take the back image: the clothing without front-only details (face,
+    /// ties, logos), the head in the head top's colour (needs the pose model of scripts/setup.d/live.sh to find the
+    /// face; without it, or when no face is found, mirrored-front with a warning).
+    Back,
     /// The back shows the front's colours at the same place (what a person expects from one photo).
     MirroredFront,
     /// Colours diffused inward from the nearest visible pixels.
@@ -24,6 +28,7 @@ pub enum FillArg {
 impl From<FillArg> for OcclusionFill {
     fn from(f: FillArg) -> Self {
         match f {
+            FillArg::Back => OcclusionFill::Back,
             FillArg::MirroredFront => OcclusionFill::MirroredFront,
             FillArg::Propagate => OcclusionFill::Propagate,
         }
@@ -41,7 +46,7 @@ pub struct GeometryArgs {
     #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]
     pub geometry: GeometryMode,
     /// How surfaces the photo does not show are coloured.
-    #[arg(long, value_enum, default_value_t = FillArg::MirroredFront)]
+    #[arg(long, value_enum, default_value_t = FillArg::Back)]
     pub fill: FillArg,
     /// Number of Fourier occupancy coefficients (FOF-X N).
     #[arg(long, default_value_t = 32)]

@@ -82,6 +82,8 @@ pub struct PhotoNets<'a> {
     pub fof_net: Option<&'a SharedFofNet>,
     /// The body prior (pose network and fitter).
     pub body: Option<&'a SharedBody>,
+    /// The pose network that finds the face for the back image (the default fill's).
+    pub back_pose: Option<&'a crate::pipeline::SharedPose>,
 }
 
 /// The methods that can run with `nets`: geometric and neural renderers on every geometry whose model loaded.
@@ -258,6 +260,7 @@ fn run_method(
     let prepare = PrepareOptions {
         fof_net: nets.fof_net.cloned(),
         body: nets.body.cloned(),
+        back_pose: nets.back_pose.cloned(),
         ..photo_prepare_options(opts, method.geometry)
     };
     let t = Instant::now();
@@ -416,7 +419,13 @@ pub fn run_photo_eval_with(
             None
         }
     };
-    let nets = PhotoNets { neural: neural.as_ref(), fof_net: fof_net.as_ref(), body: body.as_ref() };
+    let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &options);
+    let nets = PhotoNets {
+        neural: neural.as_ref(),
+        fof_net: fof_net.as_ref(),
+        body: body.as_ref(),
+        back_pose: back_pose.as_ref(),
+    };
     let mut report = evaluate_photos(opts, nets)?;
     report.notes = notes;
     write_photo_reports(opts, &photo_methods(nets), &report)?;

@@ -373,6 +373,8 @@ struct Nets<'a> {
     neural: Option<&'a SharedNeural>,
     fof_net: Option<&'a SharedFofNet>,
     body: Option<&'a SharedBody>,
+    /// The pose network that finds the face for the back image (the default fill's).
+    back_pose: Option<&'a crate::pipeline::SharedPose>,
 }
 
 /// A subject's source view as every method receives it (ground-truth render, already in the body cube).
@@ -383,10 +385,15 @@ struct SubjectSource {
 }
 
 impl SubjectSource {
-    fn of(mesh: &TexturedMesh, size: usize) -> Self {
+    fn of(mesh: &TexturedMesh, size: usize, nets: Nets<'_>) -> Self {
         let gt_src = render_ground_truth(mesh, &Camera::source(size));
         let rgb: RgbImage = gt_src.to_linear_rgba().map(|p| p.truncate());
-        let prepare = PrepareOptions { resolution: size, depth_samples: size, ..Default::default() };
+        let prepare = PrepareOptions {
+            resolution: size,
+            depth_samples: size,
+            back_pose: nets.back_pose.cloned(),
+            ..Default::default()
+        };
         Self { rgb, mask: gt_src.mask_image(), prepare }
     }
 
@@ -479,7 +486,7 @@ fn method_memory(
     nets: Nets<'_>,
     yaw: f32,
 ) -> Result<[Option<f32>; METHODS.len()], EvalError> {
-    let src = SubjectSource::of(mesh, opts.size);
+    let src = SubjectSource::of(mesh, opts.size, nets);
     let cam = Camera::orbit(yaw, 0.0, opts.size, opts.size);
     let mut out = [None; METHODS.len()];
     for (m, slot) in out.iter_mut().enumerate() {
@@ -524,7 +531,7 @@ fn eval_subject(
     fallbacks: &mut usize,
 ) -> Result<(), EvalError> {
     let r = opts.size;
-    let src = SubjectSource::of(mesh, r);
+    let src = SubjectSource::of(mesh, r, nets);
     let (rgb, mask) = (&src.rgb, &src.mask);
     let perr = |e: crate::pipeline::PipelineError| EvalError::stage("rendering", e);
 
@@ -730,7 +737,10 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     let mut fallbacks = 0;
     let (neural, fof_net) = load_networks(nopts, &mut notes);
     let body = load_body_prior(nopts, &mut notes);
-    let nets = Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref(), body: body.as_ref() };
+    let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
+    let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &options);
+    let nets =
+        Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref(), body: body.as_ref(), back_pose: back_pose.as_ref() };
     // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
     let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
         let off = |y: f32| (y.rem_euclid(360.0) - 180.0).abs();

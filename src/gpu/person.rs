@@ -53,7 +53,8 @@ pub fn gpu_neural_person(
     let (target, flowz) = renderer.neural_inputs(camera).map_err(NeuralViewError::Inputs)?;
     let gpu_inputs = start.elapsed();
     let start = Instant::now();
-    let lookup = photo_lookup(source.rgb, source.mask, source.camera, &flowz);
+    let back = crate::pipeline::neural_back_lookup(renderer.fill()).then_some((&target, camera));
+    let lookup = photo_lookup(source.colours(), source.mask, source.camera, &flowz, back);
     let person = {
         let mut n = neural.lock().unwrap_or_else(|p| p.into_inner());
         n.runtime.decoder.render_view(&encoded.features, &flowz, source.camera.width, &target, &lookup)

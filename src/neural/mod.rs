@@ -18,6 +18,10 @@
 //!   the flow with the mask-aware bilinear sample (`sum(w*c)/sum(w*m)` over the four taps, in linear light),
 //!   clamped, sRGB-encoded and mapped to `[-1, 1]`; `0` where the flow lands outside the source silhouette or the
 //!   pixel is background ([`crate::pipeline::photo_lookup`]; `train/geometry.py` `warp_rgb` computes the same).
+//!   With the default fill ([`crate::pipeline::warp::OcclusionFill::Back`]) and an input that has a back image,
+//!   surfaces facing away from the source camera take the back image instead of the photo, exactly as the
+//!   geometric renderer does ([`crate::pipeline::neural_back_lookup`]); `models/tiny` was trained on the photo
+//!   alone (README "What the photo does not show" has what that costs).
 //!   The decoder is **residual**: its graph outputs `warped_rgb + UNet(...)`, trained from a zero-initialised last
 //!   convolution, so an untrained decoder is the geometric renderer's `MirroredFront` lookup (without the
 //!   visibility test) and training adds occlusion, back-side and shading corrections. This deviates from the paper

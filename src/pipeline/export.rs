@@ -11,7 +11,10 @@
 //!   [`OcclusionFill::MirroredFront`] every surface uses that one image (the back shows the front's colours at the
 //!   same place, as the renderer draws it); with [`OcclusionFill::Propagate`] the triangles the photo does not
 //!   see get a second image, the colours of the silhouette's rim diffused inward (what the renderer shows from
-//!   behind), and their vertices are duplicated onto it. Texture pixels outside the person are filled from the
+//!   behind), and their vertices are duplicated onto it; with [`OcclusionFill::Back`] (and an input that has a back
+//!   image, [`super::back`]) the triangles the photo does not see and that face away from it
+//!   ([`super::warp::back_weight`] at least 0.5: the renderer's blend, decided per triangle) get the back image
+//!   as the second image, at the same UVs. Texture pixels outside the person are filled from the
 //!   nearest person pixels (push-pull), so filtering never pulls in the background.
 //! - Written by [`crate::io::mesh_io::write_glb`] (unlit material, PNG texture, atomic write).
 
@@ -243,7 +246,8 @@ pub struct ExportReport {
     pub placement: Placement,
     /// Texture size in pixels (width, height).
     pub texture: (u32, u32),
-    /// Triangles textured from the colours the photo does not show ([`OcclusionFill::Propagate`] only).
+    /// Triangles textured from the second image ([`OcclusionFill::Propagate`]'s rim colours or
+    /// [`OcclusionFill::Back`]'s back image).
     pub back_triangles: usize,
     /// Time of each export stage: "decimate" (with `--decimate`), "UVs + metres" (which texture image each
     /// triangle uses, vertices moved into metres), "texture bake" (push-pull filled photo, rim image, 8-bit sRGB),
@@ -261,10 +265,10 @@ impl std::fmt::Display for ExportReport {
     }
 }
 
-/// The texture image the photo shows: straight (un-premultiplied) colour where the mask has weight, the rest
-/// filled from the nearest person pixels (push-pull), `resolution^2`, linear RGB.
-fn front_image(input: &PreparedInput) -> Vec<Vec3> {
-    let (rgb, mask) = (&input.normalised.rgb, &input.normalised.mask);
+/// A texture image of `rgb` (premultiplied by `mask`: the photo, or the back image): straight (un-premultiplied)
+/// colour where the mask has weight, the rest filled from the nearest person pixels (push-pull), `resolution^2`,
+/// linear RGB.
+fn front_image(rgb: &crate::buffer::RgbImage, mask: &GrayImage) -> Vec<Vec3> {
     let (w, h) = (rgb.width, rgb.height);
     let known: Vec<bool> = mask.data.iter().map(|&m| m > 0.05).collect();
     let mut color: Vec<Vec3> =
@@ -304,17 +308,29 @@ fn project_uv(p: Vec3, image: usize, images: usize) -> Vec2 {
     Vec2::new((image as f32 + (p.x + 1.0) * 0.5) / images as f32, (1.0 - p.y) * 0.5)
 }
 
-/// The mesh in metres with its UVs: each triangle on the photo's texture image, or (`two`, for
-/// [`OcclusionFill::Propagate`]) on the second image when the photo does not see it, vertices duplicated where
-/// they are on both; wound counter-clockwise (glTF's front faces). Returns it and the number of triangles on the
-/// second image.
+/// What the second texture image holds, if there is one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Second {
+    /// One image: the photo's.
+    None,
+    /// [`OcclusionFill::Propagate`]: the rim colours, for every triangle the photo does not see.
+    Rim,
+    /// [`OcclusionFill::Back`]: the back image, for the triangles the photo does not see that face away from it.
+    Back,
+}
+
+/// The mesh in metres with its UVs: each triangle on the photo's texture image, or on the second image (`second`)
+/// when the photo does not see it (and, for the back image, it faces away from the photo), vertices duplicated
+/// where they are on both; wound counter-clockwise (glTF's front faces). Returns it and the number of triangles on
+/// the second image.
 fn uv_mesh(
     input: &PreparedInput,
     mesh: &TriMesh,
     decimation_error: f32,
     placement: Placement,
-    two: bool,
+    second: Second,
 ) -> (TriMesh, usize) {
+    let two = second != Second::None;
     let images = if two { 2 } else { 1 };
     let res = input.normalised.rgb.width;
     // Which triangles the photo sees (Propagate only): centroid against the source depth, with a tolerance of
@@ -329,7 +345,10 @@ fn uv_mesh(
                 return false;
             }
             let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            !seen_by_photo(input, (a + b + c) / 3.0, (b - a).cross(c - a), tolerance)
+            let n = (b - a).cross(c - a);
+            // The source camera's view axes are the body cube's: its axis is +z.
+            let facing_away = second != Second::Back || super::warp::back_weight(n.normalize_or_zero(), Vec3::Z) >= 0.5;
+            facing_away && !seen_by_photo(input, (a + b + c) / 3.0, n, tolerance)
         })
         .collect();
     // Vertices used by triangles on each image, duplicated where a vertex is on both.
@@ -383,12 +402,21 @@ pub fn person_mesh(
     let placement = Placement::standing(lo.y, hi.y, visible.metres);
 
     let res = input.normalised.rgb.width;
-    let two = opts.fill == OcclusionFill::Propagate;
-    let images = if two { 2 } else { 1 };
-    let (out, back_triangles) = timings.time("UVs + metres", || uv_mesh(input, mesh, decimation_error, placement, two));
+    let second = match opts.fill {
+        OcclusionFill::Propagate => Second::Rim,
+        OcclusionFill::Back if input.back.is_some() => Second::Back,
+        _ => Second::None,
+    };
+    let images = if second == Second::None { 1 } else { 2 };
+    let (out, back_triangles) =
+        timings.time("UVs + metres", || uv_mesh(input, mesh, decimation_error, placement, second));
     let texture = timings.time("texture bake", || {
-        let front = front_image(input);
-        let rim = if two { Some(rim_image(&front, &input.normalised.mask, (res / 50).max(2))) } else { None };
+        let front = front_image(&input.normalised.rgb, &input.normalised.mask);
+        let rim = match (second, &input.back) {
+            (Second::Rim, _) => Some(rim_image(&front, &input.normalised.mask, (res / 50).max(2))),
+            (Second::Back, Some(back)) => Some(front_image(back, &input.normalised.mask)),
+            _ => None,
+        };
         let mut texture = image::RgbImage::new((res * images) as u32, res as u32);
         for (x, y, px) in texture.enumerate_pixels_mut() {
             let (img, col, row) = (x as usize / res, x as usize % res, y as usize);

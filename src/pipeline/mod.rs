@@ -11,6 +11,7 @@
 //! fusion applies to both. A decoder failure or non-finite output on a view logs a warning and that view is drawn
 //! by the geometric renderer: never a black frame.
 
+pub mod back;
 pub mod export;
 pub mod fusion;
 pub mod guard;
@@ -154,6 +155,64 @@ pub type SharedFofNet = Arc<Mutex<FofNet>>;
 /// the last frame's fit for warm starts).
 pub type SharedBody = Arc<Mutex<BodyEstimator>>;
 
+/// The pose network that finds the face for the back image, shared by the inputs that use it (it runs under the
+/// lock).
+#[derive(Clone)]
+pub struct SharedPose(pub Arc<Mutex<crate::body::pose::PoseEstimator>>);
+
+impl std::fmt::Debug for SharedPose {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SharedPose").finish_non_exhaustive()
+    }
+}
+
+/// The pose network for `fill`'s back image ([`OcclusionFill::Back`]; `None` for the other fills): when it does
+/// not load, one warning and `None` — the renderers then colour what the photo does not show from the photo, as
+/// [`OcclusionFill::MirroredFront`] does.
+pub fn load_back_pose(fill: OcclusionFill, options: &RuntimeOptions) -> Option<SharedPose> {
+    if fill != OcclusionFill::Back {
+        return None;
+    }
+    match crate::body::pose::PoseEstimator::load(None, options) {
+        Ok(p) => Some(SharedPose(Arc::new(Mutex::new(p)))),
+        Err(e) => {
+            tracing::warn!(
+                "fill: no back image ({e}); surfaces the photo does not show take the photo's colours \
+                 (--fill mirrored-front). Install the pose model with `bash scripts/setup.sh`, or pass --fill \
+                 mirrored-front to silence this"
+            );
+            None
+        }
+    }
+}
+
+/// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning
+/// per process, then debug messages) when the pose network finds no person or no usable face, or fails.
+pub fn back_image_of(normalised: &NormalisedInput, pose: &SharedPose, timings: &mut StageTimings) -> Option<RgbImage> {
+    let found = timings.time("back image (face landmarks)", || {
+        let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        p.estimate(&normalised.rgb, &normalised.mask, Some(normalised.frame))
+    });
+    let face = match found {
+        Ok(Some(l)) => back::FacePoints::from_pose(&l),
+        Ok(None) => None,
+        Err(e) => {
+            tracing::debug!("back image: the pose network failed: {e}");
+            None
+        }
+    };
+    let back = face
+        .and_then(|f| timings.time("back image (filter)", || back::back_image(&normalised.rgb, &normalised.mask, &f)));
+    if back.is_none() {
+        static WARNED: AtomicBool = AtomicBool::new(false);
+        warn_once(
+            &WARNED,
+            "back image: no face found in this input; surfaces the photo does not show take the photo's colours",
+        );
+    }
+    back
+}
+
 /// Settings for [`PreparedInput::prepare`].
 #[derive(Clone, Debug)]
 pub struct PrepareOptions {
@@ -175,6 +234,9 @@ pub struct PrepareOptions {
     pub body: Option<SharedBody>,
     /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
     pub warm_start: bool,
+    /// The pose network that finds the face for the back image ([`load_back_pose`]; [`back::back_image`]); `None`:
+    /// no back image (the renderers then colour what the photo does not show from the photo itself).
+    pub back_pose: Option<SharedPose>,
 }
 
 impl Default for PrepareOptions {
@@ -188,6 +250,7 @@ impl Default for PrepareOptions {
             fof_net: None,
             body: None,
             warm_start: false,
+            back_pose: None,
         }
     }
 }
@@ -712,19 +775,36 @@ impl NeuralRenderer {
         target: &GBuffer,
         camera: &Camera,
         flowz: &mut FlowZ,
+        fill: OcclusionFill,
     ) -> Result<RgbaImage, NeuralError> {
         flow_and_zmap_into(flowz, target, camera, &input.source_camera);
-        let lookup = photo_lookup(&input.normalised.rgb, &input.normalised.mask, &input.source_camera, flowz);
+        let source = SourceView::of(input);
+        let lookup = photo_lookup(
+            source.colours(),
+            source.mask,
+            source.camera,
+            flowz,
+            neural_back_lookup(fill).then_some((target, camera)),
+        );
         self.runtime.decoder.render_view(&encoded.features, flowz, input.source_camera.width, target, &lookup)
     }
 }
 
 /// The residual decoder's colour lookup (its `warped_rgb` input): for every target pixel with a flow, the source
-/// photo (`source_rgb` linear, premultiplied by `source_mask`) sampled at the flow with the mask-aware bilinear
-/// sample of the geometric renderer ([`warp::sample_masked`]), clamped to `[0, 1]`. This is the geometric
-/// renderer's `MirroredFront` lookup without the visibility test and without filling holes: alpha is 1 where the
-/// photo has a colour and 0 where the flow lands outside the source silhouette (or there is no flow).
-pub fn photo_lookup(source_rgb: &RgbImage, source_mask: &GrayImage, source_cam: &Camera, flowz: &FlowZ) -> RgbaImage {
+/// colour at the flow by the geometric renderer's lookup ([`warp::SourceColours::sample`]: the photo, `rgb` linear
+/// premultiplied by `source_mask`, sampled mask-aware and bilinearly; with `back`, surfaces facing away from the
+/// source camera blended into the back image by [`warp::back_weight`]), clamped to `[0, 1]`. Without `back` this is
+/// the geometric renderer's `MirroredFront` lookup without the visibility test and without filling holes: alpha is
+/// 1 where the photo has a colour and 0 where the flow lands outside the source silhouette (or there is no flow).
+pub fn photo_lookup<'a>(
+    source_rgb: impl Into<warp::SourceColours<'a>>,
+    source_mask: &GrayImage,
+    source_cam: &Camera,
+    flowz: &FlowZ,
+    back: Option<(&GBuffer, &Camera)>,
+) -> RgbaImage {
+    let colours: warp::SourceColours = source_rgb.into();
+    let source_rgb = colours.rgb;
     let (w, h) = (flowz.flow.width, flowz.flow.height);
     let mut out = RgbaImage::new(w, h, Vec4::ZERO);
     if w * h == 0
@@ -734,6 +814,10 @@ pub fn photo_lookup(source_rgb: &RgbImage, source_mask: &GrayImage, source_cam: 
     {
         return out;
     }
+    // The back image only with a target G-buffer of the flow's size (its normals decide the weight).
+    let back = back.filter(|(g, _)| (g.width, g.height) == (w, h) && colours.back.is_some());
+    let fill = if back.is_some() { OcclusionFill::Back } else { OcclusionFill::MirroredFront };
+    let axis = back.map_or(glam::Vec3::ZERO, |(_, cam)| warp::source_axis(cam, source_cam));
     // Flow is in the source camera's pixels; the photo may have another size.
     let scale = Vec2::new(
         source_rgb.width as f32 / source_cam.width.max(1) as f32,
@@ -743,13 +827,20 @@ pub fn photo_lookup(source_rgb: &RgbImage, source_mask: &GrayImage, source_cam: 
         for (col, o) in line.iter_mut().enumerate() {
             let i = row * w + col;
             if flowz.mask[i] {
-                if let Some(c) = warp::sample_masked(source_rgb, source_mask, flowz.flow.data[i] * scale) {
+                let b = back.map_or(0.0, |(g, _)| warp::back_weight(g.normal[i], axis));
+                if let Some(c) = colours.sample(source_mask, flowz.flow.data[i] * scale, b, fill) {
                     *o = c.clamp(glam::Vec3::ZERO, glam::Vec3::ONE).extend(1.0);
                 }
             }
         }
     });
     out
+}
+
+/// Whether the neural decoder's colour lookup ([`photo_lookup`]) uses the back image under `fill` (the decoder is
+/// residual on its lookup; the README's fill section has the measurement that decided this).
+pub fn neural_back_lookup(fill: OcclusionFill) -> bool {
+    fill == OcclusionFill::Back
 }
 
 /// Everything computed once per input frame.
@@ -765,6 +856,8 @@ pub struct PreparedInput {
     pub mesh: TriMesh,
     /// Source-view depth and normals of the mesh.
     pub source_gbuffer: GBuffer,
+    /// The back image ([`back::back_image`]) when `back_pose` was given and found a face.
+    pub back: Option<RgbImage>,
     /// How long each per-input stage took.
     pub timings: StageTimings,
 }
@@ -794,7 +887,8 @@ impl PreparedInput {
         }
         let source_camera = Camera::source(opts.resolution);
         let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
-        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, timings })
+        let back = opts.back_pose.as_ref().and_then(|pose| back_image_of(&normalised, pose, &mut timings));
+        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, timings })
     }
 }
 
@@ -834,10 +928,10 @@ impl PersonBackend<NeuralRef<'_>> for CpuBackend<'_> {
         n: &NeuralRef<'_>,
         camera: &Camera,
     ) -> Result<Result<(RgbaImage, NeuralViewTimes), NeuralError>, Self::Error> {
-        let (input, target, flowz) = (self.input, self.target, &mut *self.flowz);
+        let (input, target, flowz, fill) = (self.input, self.target, &mut *self.flowz, self.fill);
         let person = self.timings.time("flow + Z-map + decoder", || {
             let mut renderer = n.renderer.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-            renderer.render_view(input, n.encoded, target, camera, flowz)
+            renderer.render_view(input, n.encoded, target, camera, flowz, fill)
         });
         Ok(person.map(|p| (p, NeuralViewTimes::default())))
     }
@@ -849,7 +943,7 @@ impl PersonBackend<NeuralRef<'_>> for CpuBackend<'_> {
     fn geometric(&mut self, source: SourceView<'_>, camera: &Camera) -> Result<RgbaImage, Self::Error> {
         let (target, fill) = (self.target, self.fill);
         Ok(self.timings.time("flow + Z-map + warp", || {
-            warp::render_geometric(source.rgb, source.mask, source.gbuffer, source.camera, target, camera, fill)
+            warp::render_geometric(source.colours(), source.mask, source.gbuffer, source.camera, target, camera, fill)
         }))
     }
 }

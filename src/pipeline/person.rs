@@ -30,6 +30,8 @@ pub struct SourceView<'a> {
     pub gbuffer: &'a GBuffer,
     /// The orthographic source camera.
     pub camera: &'a Camera,
+    /// The input's back image ([`super::back`]), when it has one.
+    pub back: Option<&'a RgbImage>,
 }
 
 impl<'a> SourceView<'a> {
@@ -41,7 +43,13 @@ impl<'a> SourceView<'a> {
             mask: &input.normalised.mask,
             gbuffer: &input.source_gbuffer,
             camera: &input.source_camera,
+            back: input.back.as_ref(),
         }
+    }
+
+    /// The colours the renderers sample: the photo and the back image.
+    pub fn colours(&self) -> super::warp::SourceColours<'a> {
+        super::warp::SourceColours { rgb: self.rgb, back: self.back }
     }
 }
 
@@ -75,6 +83,8 @@ pub struct Scene {
     pub gbuffer: GBuffer,
     /// The source camera.
     pub camera: Camera,
+    /// The input's back image, when it has one.
+    pub back: Option<RgbImage>,
     /// The neural renderer and the encoder's output for this input; `None` draws geometrically.
     pub neural: Option<SceneNeural>,
 }
@@ -88,13 +98,21 @@ impl Scene {
             mask: input.normalised.mask.clone(),
             gbuffer: input.source_gbuffer.clone(),
             camera: input.source_camera,
+            back: input.back.clone(),
             neural,
         }
     }
 
     /// The view the renderers take.
     pub fn source(&self) -> SourceView<'_> {
-        SourceView { mesh: &self.mesh, rgb: &self.rgb, mask: &self.mask, gbuffer: &self.gbuffer, camera: &self.camera }
+        SourceView {
+            mesh: &self.mesh,
+            rgb: &self.rgb,
+            mask: &self.mask,
+            gbuffer: &self.gbuffer,
+            camera: &self.camera,
+            back: self.back.as_ref(),
+        }
     }
 
     /// The neural request of this scene (drawn neurally when it has a neural renderer).
@@ -362,6 +380,7 @@ mod tests {
             mask: Image::new(4, 4, 1.0),
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
+            back: None,
             neural: None,
         }
     }

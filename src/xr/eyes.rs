@@ -321,6 +321,7 @@ mod tests {
             mask: GrayImage::new(4, 4, 1.0),
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
+            back: None,
             neural: None,
         };
         let mut feed = StaticScene::new(scene);

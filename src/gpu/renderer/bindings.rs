@@ -158,6 +158,7 @@ impl Renderer {
             env_size: (0, 0),
             env_yaw: 0.0,
             source_size: (0, 0),
+            has_back: false,
             feature_shape: None,
             fill: OcclusionFill::default(),
             fusion: false,

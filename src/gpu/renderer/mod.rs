@@ -257,6 +257,8 @@ pub struct Renderer {
     env_size: (u32, u32),
     env_yaw: f32,
     source_size: (u32, u32),
+    /// The source colour buffer holds the input's back image after the photo.
+    has_back: bool,
     feature_shape: Option<(u32, u32, u32)>,
     fill: OcclusionFill,
     fusion: bool,

@@ -22,7 +22,11 @@ impl Renderer {
         self.uniforms.target = gpu_camera(camera, bounds);
         self.uniforms.viewer = gpu_camera(&background_camera(camera), None);
         self.uniforms.params[0] = self.env_yaw;
-        self.uniforms.params[3] = if self.fill == OcclusionFill::Propagate { 1.0 } else { 0.0 };
+        self.uniforms.params[3] = match self.fill {
+            OcclusionFill::Propagate => 1.0,
+            OcclusionFill::Back if self.has_back => 2.0,
+            _ => 0.0,
+        };
         self.uniforms.sizes[0] = self.env_size.0;
         self.uniforms.sizes[1] = self.env_size.1;
     }

@@ -120,6 +120,19 @@ impl Renderer {
     /// Uploads the source view (once per input): its premultiplied linear RGB (mask in alpha), its G-buffer
     /// (depth and normals of the mesh seen by the source camera) and the source camera, all of one size.
     pub fn set_source(&mut self, color: &RgbaImage, gbuffer: &GBuffer, camera: &Camera) -> Result<(), GpuError> {
+        self.set_source_with_back(color, None, gbuffer, camera)
+    }
+
+    /// [`Renderer::set_source`] with the input's back image ([`crate::pipeline::back`]; premultiplied linear RGB,
+    /// the same mask in alpha, the photo's size), which [`OcclusionFill::Back`] samples on surfaces facing away from
+    /// the source camera. It is stored after the photo in the one source colour buffer.
+    pub fn set_source_with_back(
+        &mut self,
+        color: &RgbaImage,
+        back: Option<&RgbaImage>,
+        gbuffer: &GBuffer,
+        camera: &Camera,
+    ) -> Result<(), GpuError> {
         let (w, h) = (camera.width, camera.height);
         if w == 0 || h == 0 || (color.width, color.height) != (w, h) || (gbuffer.width, gbuffer.height) != (w, h) {
             return Err(GpuError::Invalid(format!(
@@ -127,14 +140,22 @@ impl Renderer {
                 color.width, color.height, gbuffer.width, gbuffer.height
             )));
         }
+        if back.is_some_and(|b| (b.width, b.height) != (w, h)) {
+            return Err(GpuError::Invalid("the back image and the source image differ in size".into()));
+        }
         let bytes = (w * h * 16) as u64;
-        if self.source_color.size < bytes || self.source_geometry.size < bytes {
-            self.source_color = storage(&self.ctx, bytes)?;
+        // Room for the photo and the back image.
+        if self.source_color.size < 2 * bytes || self.source_geometry.size < bytes {
+            self.source_color = storage(&self.ctx, 2 * bytes)?;
             self.source_geometry = storage(&self.ctx, bytes)?;
             self.counters.resources_created += 2;
             self.write_all_descriptors();
         }
-        self.source_color.write(&color.data);
+        match back {
+            Some(b) => self.source_color.write(&[color.data.as_slice(), b.data.as_slice()].concat()),
+            None => self.source_color.write(&color.data),
+        }
+        self.has_back = back.is_some();
         self.source_geometry.write(&pack_geometry(gbuffer));
         self.source_size = (w as u32, h as u32);
         self.counters.source_uploads += 1;
@@ -147,33 +168,41 @@ impl Renderer {
         Ok(())
     }
 
-    /// [`Renderer::set_source`] from the pipeline's parts: premultiplied linear RGB and its mask.
+    /// [`Renderer::set_source_with_back`] from the pipeline's parts: premultiplied linear RGB, its mask and the
+    /// back image (premultiplied by the same mask), when the input has one.
     pub fn set_source_parts(
         &mut self,
-        rgb: &RgbImage,
+        colours: crate::pipeline::warp::SourceColours<'_>,
         mask: &crate::buffer::GrayImage,
         gbuffer: &GBuffer,
         camera: &Camera,
     ) -> Result<(), GpuError> {
+        let rgb = colours.rgb;
         if (rgb.width, rgb.height) != (mask.width, mask.height) {
             return Err(GpuError::Invalid("source colour and mask differ in size".into()));
         }
-        let color = Image {
-            width: rgb.width,
-            height: rgb.height,
-            data: rgb.data.iter().zip(&mask.data).map(|(c, m)| c.extend(*m)).collect(),
+        let with_mask = |img: &RgbImage| Image {
+            width: img.width,
+            height: img.height,
+            data: img.data.iter().zip(&mask.data).map(|(c, m)| c.extend(*m)).collect(),
         };
-        self.set_source(&color, gbuffer, camera)
+        let back = colours.back.filter(|b| (b.width, b.height) == (rgb.width, rgb.height)).map(with_mask);
+        self.set_source_with_back(&with_mask(rgb), back.as_ref(), gbuffer, camera)
     }
 
-    /// Uploads what the person renderers draw from: the mesh and the source view (colour, mask, G-buffer,
-    /// camera). Call once per input frame.
+    /// Uploads what the person renderers draw from: the mesh and the source view (colour, mask, back image,
+    /// G-buffer, camera). Call once per input frame.
     pub fn set_scene(&mut self, source: &SourceView<'_>) -> Result<(), GpuError> {
         self.set_mesh(source.mesh)?;
-        self.set_source_parts(source.rgb, source.mask, source.gbuffer, source.camera)
+        self.set_source_parts(source.colours(), source.mask, source.gbuffer, source.camera)
     }
 
     /// How occluded pixels are coloured (as the CPU warp's [`OcclusionFill`]).
+    pub fn fill(&self) -> OcclusionFill {
+        self.fill
+    }
+
+    /// Sets how occluded pixels are coloured (as the CPU warp's [`OcclusionFill`]).
     pub fn set_fill(&mut self, fill: OcclusionFill) {
         if fill != self.fill {
             self.fill = fill;
