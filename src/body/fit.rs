@@ -49,6 +49,9 @@ pub struct FitOptions {
     pub sigma_silhouette: f64,
     /// Prior standard deviation of the shape sliders.
     pub sigma_shape: f64,
+    /// Prior standard deviation of the torso's lean in depth (the depth component of the unit hip-to-shoulder
+    /// vector; 0 switches the prior off): a person stands upright unless the landmarks say otherwise.
+    pub sigma_upright: f64,
     /// Residual evaluations the solver may spend, per parameter (the crate's `patience`).
     pub patience: usize,
     /// How the Jacobian is computed.
@@ -72,6 +75,7 @@ impl Default for FitOptions {
             sigma_depth: 0.03,
             sigma_silhouette: 0.02,
             sigma_shape: 0.35,
+            sigma_upright: 0.2,
             patience: 12,
             jacobian: JacobianKind::default(),
             stepbound: 0.1,
@@ -242,10 +246,40 @@ impl Problem<'_> {
         out.push(pose.global.x / 0.5);
         out.push(pose.global.z / 0.5);
         out.push(pose.translation.z / 0.2);
+        out.push(self.upright(x));
         for r in out.iter_mut() {
             if !r.is_finite() {
                 *r = 1e6;
             }
+        }
+    }
+}
+
+impl Problem<'_> {
+    /// The torso's lean in depth: the depth component of the unit vector from the model's hip centre to its
+    /// shoulder centre, over [`FitOptions::sigma_upright`] (0 when the prior is off or the torso degenerate).
+    fn upright(&self, x: &[f64]) -> f64 {
+        use super::pose::index::{LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER};
+        let sigma = self.options.sigma_upright;
+        if sigma.is_nan() || sigma <= 0.0 {
+            return 0.0;
+        }
+        let model = self.model;
+        let pose = Pose::from_slice(x);
+        let heads = model.rest_heads(&pose.shape);
+        let g = model.skinning(&pose, &heads);
+        let at = |i: usize| model.landmark_points[i].map(|p| model.point(p, &pose.shape, &heads, &g));
+        let (Some(ls), Some(rs), Some(lh), Some(rh)) =
+            (at(LEFT_SHOULDER), at(RIGHT_SHOULDER), at(LEFT_HIP), at(RIGHT_HIP))
+        else {
+            return 0.0;
+        };
+        let torso = 0.5 * (ls + rs) - 0.5 * (lh + rh);
+        let length = torso.length();
+        if length > 1e-9 && length.is_finite() {
+            torso.z / length / sigma
+        } else {
+            0.0
         }
     }
 }
@@ -553,6 +587,14 @@ impl Problem<'_> {
         jac[(row, 4)] = 1.0 / 0.5;
         jac[(row + 1, 6)] = 1.0 / 0.5;
         jac[(row + 2, 3)] = 1.0 / 0.2;
+        // Upright torso: central differences of its one smooth row.
+        for p in 0..POSE_PARAMS {
+            let h = 1e-6 * x0[p].abs().max(1.0) * if p == 0 { 0.1 } else { 1.0 };
+            let (mut xp, mut xm) = (x0.to_vec(), x0.to_vec());
+            xp[p] += h;
+            xm[p] -= h;
+            jac[(row + 3, p)] = (self.upright(&xp) - self.upright(&xm)) / (2.0 * h);
+        }
         // Residuals that were replaced for being non-finite have no slope.
         for (i, r) in base.iter().enumerate() {
             if r.abs() >= 1e6 {
@@ -807,6 +849,44 @@ mod tests {
         assert!(hanging_legs(model, &all, &terms_of(&all), s).is_empty());
         let no_hip: Vec<usize> = usable.iter().copied().filter(|&i| i != super::super::pose::index::LEFT_HIP).collect();
         assert!(hanging_legs(model, &no_hip, &terms_of(&no_hip), s).is_empty());
+    }
+
+    #[test]
+    fn the_upright_prior_is_the_torsos_lean_in_depth() {
+        // A body pitched by t about the camera's x axis: the unit hip-to-shoulder vector u of the unpitched body
+        // turns to (ux, uy cos t - uz sin t, uy sin t + uz cos t), so the row is (uy sin t + uz cos t) / sigma.
+        use crate::body::pose::index::{LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER};
+        let model = BodyModel::shared().expect("body model data (bash scripts/setup.d/synth.sh)");
+        let res = 256;
+        let pose = Pose::rest(1.6 / model.rest_height, DVec3::new(0.02, -0.05, 0.1));
+        let lm = landmarks_of(model, &pose, res);
+        let mask = Image::new(res, res, 1.0);
+        let target = FitTarget::new(&lm, &mask);
+        let heads = model.rest_heads(&pose.shape);
+        let g = model.skinning(&pose, &heads);
+        let at = |i: usize| model.point(model.landmark_points[i].unwrap(), &pose.shape, &heads, &g);
+        let u = (0.5 * (at(LEFT_SHOULDER) + at(RIGHT_SHOULDER)) - 0.5 * (at(LEFT_HIP) + at(RIGHT_HIP))).normalize();
+        let mut options = FitOptions::default();
+        let problem = |options: &FitOptions| Problem {
+            model,
+            target: &target,
+            terms: Vec::new(),
+            beyond: Vec::new(),
+            options: options.clone(),
+            params: DVector::from_row_slice(&pose.to_vec()),
+            residual_count: 0,
+        };
+        for t in [-0.4f64, 0.0, 0.3] {
+            let pitched = Pose { global: DVec3::new(t, 0.0, 0.0), ..pose };
+            let want = (u.y * t.sin() + u.z * t.cos()) / options.sigma_upright;
+            let got = problem(&options).upright(&pitched.to_vec());
+            assert!((got - want).abs() < 1e-9, "pitch {t}: {got} vs {want}");
+        }
+        // Off, and a NaN pose: no residual.
+        let nan = Pose { scale: f64::NAN, ..pose };
+        assert_eq!(problem(&options).upright(&nan.to_vec()), 0.0);
+        options.sigma_upright = 0.0;
+        assert_eq!(problem(&options).upright(&Pose { global: DVec3::X, ..pose }.to_vec()), 0.0);
     }
 
     #[test]
