@@ -871,23 +871,34 @@ impl PreparedInput {
         Self::from_fof(normalised, fof, opts, timings)
     }
 
-    /// Finishes preparation from an already computed FOF (e.g. a network's, or ground truth).
+    /// Finishes preparation from an already computed FOF (e.g. a network's, or ground truth). The back image
+    /// (with `opts.back_pose`) depends on the photo alone: it is computed beside the mesh and the source raster,
+    /// and its stage times are recorded after theirs.
     pub fn from_fof(
         normalised: NormalisedInput,
         fof: Fof,
         opts: &PrepareOptions,
         mut timings: StageTimings,
     ) -> Result<Self, PipelineError> {
-        let mesh = timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
-        if mesh.is_empty() {
-            return Err(PipelineError::EmptyGeometry);
-        }
-        if mesh.validate().is_err() {
-            return Err(PipelineError::NonFinite("mesh"));
-        }
         let source_camera = Camera::source(opts.resolution);
-        let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
-        let back = opts.back_pose.as_ref().and_then(|pose| back_image_of(&normalised, pose, &mut timings));
+        let mut back_timings = StageTimings::default();
+        let (geometry, back) = rayon::join(
+            || -> Result<(TriMesh, GBuffer), PipelineError> {
+                let mesh =
+                    timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
+                if mesh.is_empty() {
+                    return Err(PipelineError::EmptyGeometry);
+                }
+                if mesh.validate().is_err() {
+                    return Err(PipelineError::NonFinite("mesh"));
+                }
+                let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
+                Ok((mesh, source_gbuffer))
+            },
+            || opts.back_pose.as_ref().and_then(|pose| back_image_of(&normalised, pose, &mut back_timings)),
+        );
+        let (mesh, source_gbuffer) = geometry?;
+        timings.0.extend(back_timings.0);
         Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, timings })
     }
 }
