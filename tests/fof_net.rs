@@ -188,7 +188,11 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     let chosen = r2human::pipeline::AUTO_CHOICE.name();
     assert!(text.contains(&format!("auto is `{chosen}`")), "auto must say what it uses: {text}");
     if r2human::pipeline::AUTO_CHOICE == GeometryMode::Inflate {
-        assert!(!text.contains("WARN"), "choosing the prior is not a fall-back: {text}");
+        // The one warning allowed is the back fill's (`--fill back`: a 48-pixel person has no face the pose network
+        // finds), which is not about the geometry.
+        let geometry_warnings: Vec<&str> =
+            text.lines().filter(|l| l.contains("WARN") && !l.contains("back image: no face found")).collect();
+        assert!(geometry_warnings.is_empty(), "choosing the prior is not a fall-back: {geometry_warnings:?}\n{text}");
     }
 }
 
