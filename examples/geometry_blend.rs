@@ -14,28 +14,17 @@
 //! ([`r2human::geometry::depth_centre::centre_fof`]). Prints one row per input and the mean: a blend is worth
 //! shipping only if the synthetic people and the independent characters agree (README "Which geometry, where").
 
-use std::path::Path;
+#[path = "common/cases.rs"]
+mod cases;
 
 use anyhow::Context;
-use r2human::buffer::{GrayImage, RgbImage};
-use r2human::eval::dataset::subject_seed;
-use r2human::eval::ground_truth::render_ground_truth;
+use cases::IOU_SAMPLES;
 use r2human::eval::runner::fof_occupancy_iou;
-use r2human::geometry::camera::Camera;
 use r2human::geometry::depth_centre::centre_fof;
 use r2human::geometry::fof::Fof;
-use r2human::io::mesh_io::TexturedMesh;
 use r2human::neural::RuntimeOptions;
-use r2human::pipeline::input::NormalisedInput;
 use r2human::pipeline::{compute_geometry, load_body_for, load_fof_net, GeometryMode, PrepareOptions, StageTimings};
-use r2human::synth::framing::{self, FramingChoice};
-use r2human::synth::scan::{load_scan_with, Facing, ScanOrientation, UpAxis};
-use r2human::synth::{self, SubjectParams, SynthAssets};
 
-/// FOF coefficients per pixel (the pipeline's default order).
-const N: usize = 32;
-/// Depth samples per column of the volumetric IoU (as `r2human eval`).
-const IOU_SAMPLES: usize = 128;
 /// The columns: weights of (inflation, body, FOF net) in each candidate.
 const CANDIDATES: [(&str, [f32; 3]); 9] = [
     ("I", [1.0, 0.0, 0.0]),
@@ -49,13 +38,6 @@ const CANDIDATES: [(&str, [f32; 3]); 9] = [
     ("B+2F", [0.0, 1.0, 2.0]),
 ];
 
-/// One input with its ground truth.
-struct Case {
-    label: String,
-    input: NormalisedInput,
-    truth: Fof,
-}
-
 /// The weighted mean of `fofs`' coefficients (same grid and order), placed in depth by the convention.
 fn blend(fofs: &[&Fof; 3], weights: [f32; 3]) -> Fof {
     let total: f32 = weights.iter().sum();
@@ -66,55 +48,10 @@ fn blend(fofs: &[&Fof; 3], weights: [f32; 3]) -> Fof {
     centre_fof(out).0
 }
 
-/// The source view of a mesh as the eval's input, and the mesh's ground-truth FOF.
-fn case(
-    label: String,
-    mesh: &TexturedMesh,
-    size: usize,
-    frame: Option<(glam::Vec2, glam::Vec2)>,
-) -> anyhow::Result<Case> {
-    let view = render_ground_truth(mesh, &Camera::source(size));
-    let rgb: RgbImage = view.to_linear_rgba().map(|p| p.truncate());
-    let mask: GrayImage = view.mask_image();
-    let mut input = NormalisedInput::in_source_view(rgb, mask);
-    if let Some(frame) = frame {
-        input.frame = frame;
-    }
-    Ok(Case { label, input, truth: Fof::from_mesh(&mesh.mesh, size, N)? })
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: geometry_blend [SUBJECTS] [SEED] [SIZE] | --scans [--size N] FILE...";
-    let mut size = 256;
-    let mut cases = Vec::new();
-    if args.first().is_some_and(|a| a == "--scans") {
-        args.remove(0);
-        if args.first().is_some_and(|a| a == "--size") {
-            size = args.get(1).context(usage)?.parse().context(usage)?;
-            args.drain(..2);
-        }
-        anyhow::ensure!(!args.is_empty(), "{usage}");
-        let orientation = ScanOrientation { up: Some(UpAxis::Y), facing: Some(Facing::PlusZ) };
-        for file in &args {
-            let path = Path::new(file);
-            let scan = load_scan_with(path, &orientation)?;
-            let label = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| file.clone());
-            cases.push(case(label, &scan.mesh, size, None)?);
-        }
-    } else {
-        let subjects: usize = args.first().map(|s| s.parse()).transpose().context(usage)?.unwrap_or(9);
-        let seed: u64 = args.get(1).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(0);
-        size = args.get(2).map(|s| s.parse()).transpose().context(usage)?.unwrap_or(256);
-        let assets = SynthAssets::shared()?;
-        for i in 0..subjects {
-            let s = synth::generate(assets, &SubjectParams::sample(subject_seed(seed, i)), 256)?;
-            let s = framing::crop(&s, FramingChoice::Mixed.of(i), &assets.rig)?;
-            cases.push(case(format!("{i} {}", s.crop.framing.label()), &s.mesh, size, Some(s.source_frame(size)))?);
-        }
-    }
+    let (cases, size) = cases::from_args("geometry_blend")?;
     let options = RuntimeOptions::default();
-    let net = load_fof_net(GeometryMode::FofNet, None, N, &options)?;
+    let net = load_fof_net(GeometryMode::FofNet, None, cases::N, &options)?;
     let body = load_body_for(GeometryMode::FofNet, net.as_ref(), &options)?;
     let base = PrepareOptions { resolution: size, depth_samples: size, fof_net: net, body, ..Default::default() };
     let names: String = CANDIDATES.iter().map(|(n, _)| format!("{n:>7}")).collect();

@@ -474,3 +474,74 @@ fn framed_subjects_fit_what_the_photo_shows() {
         assert!(after < before + 0.02, "seed {seed}: hiding {arm:?} moved the visible joints {before} -> {after}");
     }
 }
+
+/// `--geometry body-placed` through the pipeline: on a rendered clothed person every column keeps the inflation
+/// prior's thickness and moves in depth (the body's placement); on a grey board (where the network still reads some
+/// pose) the board keeps the prior's thickness and stays whole too.
+#[test]
+fn body_placed_keeps_the_inflation_thickness_and_moves_columns_to_the_body() {
+    use r2human::geometry::fof::{CosineTable, Fof};
+    use r2human::pipeline::input::NormalisedInput;
+    use r2human::pipeline::{compute_geometry, load_body, GeometryMode, PrepareOptions, StageTimings};
+    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
+    if !model_file.is_file() {
+        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
+        return;
+    }
+    let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
+    let body = load_body(GeometryMode::BodyPlaced, &Default::default()).expect("body prior").expect("loaded");
+    let opts = |geometry| PrepareOptions {
+        resolution: RES,
+        depth_samples: RES,
+        geometry,
+        body: Some(std::sync::Arc::clone(&body)),
+        ..Default::default()
+    };
+    let geometry = |input: &NormalisedInput, mode| compute_geometry(input, &opts(mode), &mut StageTimings::default());
+    // (occupied length, occupied centroid) of every column, decoded at 128 depths.
+    let columns = |f: &Fof| -> Vec<Option<(f32, f32)>> {
+        let table = CosineTable::new(f.n, 128);
+        let mut out = vec![0.0f32; 128];
+        (0..f.width * f.height)
+            .map(|i| {
+                f.decode_column_with(&table, i % f.width, i / f.width, &mut out);
+                let inside: Vec<f32> =
+                    (0..128).filter(|&d| out[d] >= 0.5).map(|d| (d as f32 + 0.5) / 64.0 - 1.0).collect();
+                (!inside.is_empty())
+                    .then(|| (inside.len() as f32 / 64.0, inside.iter().sum::<f32>() / inside.len() as f32))
+            })
+            .collect()
+    };
+    // The placed geometry against the inflation prior: columns both fill, how many of them keep their length (to
+    // two depth samples), the mean depth move, and the prior's columns the placed geometry lost.
+    let compare = |input: &NormalisedInput, what: &str| -> f32 {
+        let (inflated, placed) =
+            (geometry(input, GeometryMode::Inflate).unwrap(), geometry(input, GeometryMode::BodyPlaced).unwrap());
+        assert!(placed.coeffs.iter().all(|c| c.is_finite()), "{what}");
+        let (mut both, mut same_length, mut moved, mut lost) = (0usize, 0usize, 0.0f32, 0usize);
+        for (x, y) in columns(&inflated).iter().zip(&columns(&placed)) {
+            match (x, y) {
+                (Some((la, ca)), Some((lb, cb))) => {
+                    both += 1;
+                    same_length += usize::from((la - lb).abs() <= 2.0 / 64.0);
+                    moved += (ca - cb).abs();
+                }
+                (Some(_), None) => lost += 1,
+                _ => {}
+            }
+        }
+        let mean_move = moved / both.max(1) as f32;
+        eprintln!("{what}: {both} columns, {same_length} of the same length, mean move {mean_move:.3}, {lost} lost");
+        assert!(both > 1000 && lost * 100 < both, "{what}: the placed geometry covers what the inflation prior covers");
+        assert!(same_length * 100 >= 98 * both, "{what}: thickness kept: {same_length} of {both}");
+        mean_move
+    };
+    let s = synth::generate(assets, &SubjectParams::sample(r2human::eval::dataset::subject_seed(0, 0)), 128).unwrap();
+    let view = render_ground_truth(&s.mesh, &Camera::source(RES));
+    let input = NormalisedInput::in_source_view(view.to_linear_rgba().map(|p| p.truncate()), view.mask_image());
+    let mean_move = compare(&input, "person");
+    assert!(mean_move > 0.01, "the body moves the columns in depth: mean {mean_move}");
+    let board =
+        Image::from_fn(RES, RES, |c, r| if (64..192).contains(&c) && (32..224).contains(&r) { 1.0 } else { 0.0 });
+    compare(&NormalisedInput::in_source_view(board.map(|&m| Vec3::splat(0.4) * m), board), "grey board");
+}

@@ -12,6 +12,7 @@ pub mod distance;
 pub mod fit;
 pub mod model;
 pub mod morph;
+pub mod placed;
 pub mod pose;
 pub mod prior;
 pub mod reconcile;

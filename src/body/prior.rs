@@ -21,7 +21,7 @@ use super::model::{BodyModel, Pose, LIMB_SEGMENTS};
 use super::pose::{cut_frame, PhotoFrame, PoseEstimator, PoseLandmarks};
 use super::reconcile::{reconcile_with, ReconcileParams, SilhouetteProfile};
 use super::BodyError;
-use crate::buffer::{GrayImage, RgbImage};
+use crate::buffer::{GrayImage, Image, RgbImage};
 use crate::geometry::circle::min_enclosing_circle;
 use crate::geometry::fof::{intervals_from_mesh, sheet_thickness, Fof};
 use crate::geometry::inflate::InflateParams;
@@ -374,6 +374,20 @@ pub fn body_fof_with(
     inflate_params: &InflateParams,
     silhouette: Option<&SilhouetteProfile>,
 ) -> Result<Fof, BodyError> {
+    let out = body_intervals_with(mesh, mask, frame, n, inflate_params, silhouette);
+    Fof::from_intervals(&out, n).map_err(BodyError::Fof)
+}
+
+/// The per-column intervals (body cube z, ascending) [`body_fof_with`] encodes: the body's own where it covers the
+/// mask, the reconciliation's elsewhere in the mask, none outside it.
+pub fn body_intervals_with(
+    mesh: &TriMesh,
+    mask: &GrayImage,
+    frame: Option<PhotoFrame>,
+    n: usize,
+    inflate_params: &InflateParams,
+    silhouette: Option<&SilhouetteProfile>,
+) -> Image<Vec<(f32, f32)>> {
     let body = intervals_from_mesh(mesh, mask.width, mask.height, sheet_thickness(n));
     let params = ReconcileParams {
         thickness: inflate_params.thickness,
@@ -381,8 +395,7 @@ pub fn body_fof_with(
         min_half_depth: 0.5 * sheet_thickness(n),
         ..Default::default()
     };
-    let out = reconcile_with(&body, mask, frame, &params, silhouette);
-    Fof::from_intervals(&out, n).map_err(BodyError::Fof)
+    reconcile_with(&body, mask, frame, &params, silhouette)
 }
 
 #[cfg(test)]

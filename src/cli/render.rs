@@ -41,8 +41,9 @@ pub struct GeometryArgs {
     /// Where the geometry comes from: inflate (silhouette-inflation prior), fofnet (the FOF network in the model
     /// folder correcting that prior; an error without fof.onnx), body (the body prior: pose landmarks -> fitted
     /// MakeHuman body -> its FOF reconciled with the silhouette, no FOF network; needs the pose model of
-    /// scripts/setup.d/live.sh) or auto (the default: the geometry that wins the whole evaluation, today inflate;
-    /// README "Which geometry, where").
+    /// scripts/setup.d/live.sh), body-placed (the silhouette-inflation prior with each column moved halfway toward
+    /// the fitted body's depth: the silhouette's thickness, the body's placement; same pose model) or auto (the
+    /// default: the geometry that wins the whole evaluation; README "Which geometry, where").
     #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]
     pub geometry: GeometryMode,
     /// How surfaces the photo does not show are coloured.

@@ -94,6 +94,7 @@ pub fn photo_methods(nets: PhotoNets<'_>) -> Vec<PhotoMethod> {
     }
     if nets.body.is_some() {
         geometries.push((GeometryMode::Body, "body"));
+        geometries.push((GeometryMode::BodyPlaced, "body-placed"));
     }
     let mut out = Vec::new();
     for neural in [false, true] {

@@ -114,7 +114,7 @@ impl Default for EvalOptions {
 }
 
 /// The methods compared.
-pub const METHODS: [&str; 10] = [
+pub const METHODS: [&str; 12] = [
     "billboard",
     "2.5d",
     "geometric+inflation",
@@ -125,12 +125,15 @@ pub const METHODS: [&str; 10] = [
     "neural+fofnet",
     "geometric+body",
     "neural+body",
+    "geometric+body-placed",
+    "neural+body-placed",
 ];
 
 /// The renderer-based methods (indices into [`METHODS`] from 2 on): which prepared geometry they draw (0 inflation,
-/// 1 ground-truth FOF, 2 FOF net, 3 body prior) and whether with the neural renderer.
-const RENDERED: [(usize, bool); 8] =
-    [(0, false), (1, false), (0, true), (1, true), (2, false), (2, true), (3, false), (3, true)];
+/// 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 the inflation prior placed by the body) and whether with the
+/// neural renderer.
+const RENDERED: [(usize, bool); 10] =
+    [(0, false), (1, false), (0, true), (1, true), (2, false), (2, true), (3, false), (3, true), (4, false), (4, true)];
 
 /// Depth samples per column for the volumetric geometry IoU of the report.
 const IOU_DEPTH_SAMPLES: usize = 128;
@@ -357,10 +360,10 @@ pub fn fof_occupancy_iou(a: &Fof, b: &Fof, samples: usize) -> f32 {
 type MethodAcc = [[Acc; 2]; METHODS.len()];
 
 /// The per-input volumetric IoUs of the predicted geometries, in the order of [`GEOMETRIES`].
-type GeometryIou = [Vec<f32>; 3];
+type GeometryIou = [Vec<f32>; 4];
 
 /// The predicted geometries whose volumetric IoU the report gives (the oracle's is 1 by construction).
-pub const GEOMETRIES: [&str; 3] = ["inflation", "fofnet", "body"];
+pub const GEOMETRIES: [&str; 4] = ["inflation", "fofnet", "body", "body-placed"];
 
 /// `(geometry, mean IoU)` of the geometries measured at least once.
 fn geometry_means(iou: &GeometryIou) -> impl Iterator<Item = (String, f32)> + '_ {
@@ -401,7 +404,8 @@ impl SubjectSource {
         NormalisedInput::in_source_view(self.rgb.clone(), self.mask.clone())
     }
 
-    /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net, 3 body prior); `None` for the
+    /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 body-placed
+    /// inflation prior); `None` for the
     /// FOF net when it is not loaded or fails on this input (logged: its rows skip the subject, never replaced by
     /// the prior), and for the body prior when it is not loaded (an input where it finds no pose falls back to the
     /// inflation prior, as `--geometry body` does).
@@ -425,10 +429,10 @@ impl SubjectSource {
             1 => {
                 Fof::from_mesh(&mesh.mesh, self.mask.width, popts.fof_order).map_err(|e| EvalError::stage(which, e))?
             }
-            3 => {
+            3 | 4 => {
                 let Some(body) = nets.body else { return Ok(None) };
                 let o = PrepareOptions {
-                    geometry: GeometryMode::Body,
+                    geometry: if kind == 3 { GeometryMode::Body } else { GeometryMode::BodyPlaced },
                     body: Some(std::sync::Arc::clone(body)),
                     ..popts.clone()
                 };
@@ -555,14 +559,20 @@ fn eval_subject(
     let t = Instant::now();
     let with_body = src.geometry(3, mesh, nets, name)?;
     let ms_body = t.elapsed().as_secs_f32() * 1e3;
+    // The inflation prior placed in depth by the body (pose landmarks and fit again: timed on its own).
+    let t = Instant::now();
+    let with_placed = src.geometry(4, mesh, nets, name)?;
+    let ms_placed = t.elapsed().as_secs_f32() * 1e3;
     geometry_iou[0].push(fof_occupancy_iou(&inflated.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
-    for (slot, p) in [(1, &with_net), (2, &with_body)] {
+    for (slot, p) in [(1, &with_net), (2, &with_body), (3, &with_placed)] {
         if let Some(p) = p {
             geometry_iou[slot].push(fof_occupancy_iou(&p.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
         }
     }
-    // Methods 3..10: geometric and neural renderers on the inflation, oracle, FOF-net and body-prior geometry.
-    let prepared: [Option<&PreparedInput>; 4] = [Some(&inflated), Some(&oracle), with_net.as_ref(), with_body.as_ref()];
+    // Methods 3..12: geometric and neural renderers on the inflation, oracle, FOF-net, body-prior and body-placed
+    // geometry.
+    let prepared: [Option<&PreparedInput>; 5] =
+        [Some(&inflated), Some(&oracle), with_net.as_ref(), with_body.as_ref(), with_placed.as_ref()];
     let mut renderers: Vec<Option<ViewRenderer<'_>>> = RENDERED
         .iter()
         .map(|&(k, is_neural)| prepared[k].and_then(|p| method_renderer(p, is_neural, nets.neural)))
@@ -570,6 +580,7 @@ fn eval_subject(
     let encode_ms = |k: usize| renderers[k].as_ref().and_then(|r| r.encode_time()).map(|d| d.as_secs_f32() * 1e3);
     let fofnet_ms = with_net.as_ref().map(|_| ms_fofnet);
     let body_ms = with_body.as_ref().map(|_| ms_body);
+    let placed_ms = with_placed.as_ref().map(|_| ms_placed);
     let per_input = [
         Some(0.0),
         Some(ms_25d),
@@ -581,6 +592,8 @@ fn eval_subject(
         encode_ms(5).and_then(|e| fofnet_ms.map(|f| f + e)),
         body_ms,
         encode_ms(7).and_then(|e| body_ms.map(|f| f + e)),
+        placed_ms,
+        encode_ms(9).and_then(|e| placed_ms.map(|f| f + e)),
     ];
     for (a, ms) in acc.iter_mut().zip(per_input) {
         for g in a.iter_mut() {

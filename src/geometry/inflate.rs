@@ -272,8 +272,18 @@ fn inflated_fraction(fg: &[bool], u: &[f32], w: usize, h: usize) -> f32 {
 /// 512² (a finger, a tripod leg, a strap, the outline's rim) is thinner than `n` coefficients can show, and such a
 /// part vanished from the mesh.
 pub fn inflate_to_fof(mask: &GrayImage, n: usize, params: &InflateParams) -> Result<Fof, InflateError> {
-    let s = inflate_at_least(mask, params, 0.5 * sheet_thickness(n))?;
+    let s = inflate_resolvable(mask, n, params)?;
     Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
+}
+
+/// The surfaces [`inflate_to_fof`] encodes: [`inflate`] with every masked column at least
+/// [`sheet_thickness`]`(n)` thick, so that `n` coefficients resolve it.
+pub fn inflate_resolvable(
+    mask: &GrayImage,
+    n: usize,
+    params: &InflateParams,
+) -> Result<InflatedSurfaces, InflateError> {
+    inflate_at_least(mask, params, 0.5 * sheet_thickness(n))
 }
 
 /// The fraction of the mask's interior pixels whose FOF column reaches occupancy 0.5 at some depth (decoded at

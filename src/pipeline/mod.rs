@@ -120,6 +120,11 @@ pub enum GeometryMode {
     /// silhouette (no FOF network; [`crate::body::prior`]). An input where no pose is found falls back to the
     /// inflation prior with a warning.
     Body,
+    /// The silhouette-inflation prior with every column moved halfway toward the fitted body's depth there
+    /// ([`crate::body::placed`]): the silhouette's thickness, the body's placement in depth. An input where no pose
+    /// is found gets the inflation prior with a warning.
+    #[value(name = "body-placed")]
+    BodyPlaced,
 }
 
 /// What [`GeometryMode::Auto`] draws. Measured with the release evaluation (8 clothed synthetic subjects in three
@@ -137,6 +142,11 @@ impl GeometryMode {
     /// The mode's `--geometry` value (`auto`, `fofnet`, `inflate`, `body`).
     pub fn name(self) -> String {
         clap::ValueEnum::to_possible_value(&self).map(|v| v.get_name().to_owned()).unwrap_or_default()
+    }
+
+    /// Whether the mode that runs fits a body to the input ([`GeometryMode::Body`], [`GeometryMode::BodyPlaced`]).
+    pub fn fits_body(self) -> bool {
+        matches!(self.resolved(), GeometryMode::Body | GeometryMode::BodyPlaced)
     }
 
     /// The mode that runs: [`AUTO_CHOICE`] for [`GeometryMode::Auto`], the mode itself otherwise.
@@ -327,10 +337,10 @@ pub fn load_fof_net(
     }
 }
 
-/// Loads the body prior for [`GeometryMode::Body`] (`Ok(None)` for the other modes): the pose landmark model
+/// Loads the body prior for the modes that fit a body ([`GeometryMode::fits_body`]; `Ok(None)` for the others): the pose landmark model
 /// (`.tools/models/pose_landmark_full.onnx`) and the MakeHuman body data, or an error saying how to install them.
 pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<SharedBody>, PipelineError> {
-    if mode.resolved() != GeometryMode::Body {
+    if !mode.fits_body() {
         return Ok(None);
     }
     let body = BodyEstimator::load(None, options).map_err(PipelineError::BodyLoad)?;
@@ -349,7 +359,7 @@ pub fn load_body_for(
 ) -> Result<Option<SharedBody>, PipelineError> {
     let takes_body = fof_net.is_some_and(|n| n.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).takes_body());
     match mode {
-        _ if mode.resolved() == GeometryMode::Body => load_body(mode, options),
+        _ if mode.fits_body() => load_body(mode, options),
         GeometryMode::FofNet | GeometryMode::Auto if takes_body => match BodyEstimator::load(None, options) {
             Ok(body) => Ok(Some(Arc::new(Mutex::new(body)))),
             Err(e) if mode == GeometryMode::FofNet => Err(PipelineError::NoFofNet(format!(
@@ -391,6 +401,9 @@ pub enum NoBodyFof {
     /// The pose network found no person.
     #[error("no pose found in this input")]
     NoPose,
+    /// The fitted body, reconciled with the silhouette, holds no volume inside the mask.
+    #[error("the fitted body covers none of the person")]
+    NoVolume,
     /// The pose network, the fit or the body FOF failed on this input.
     #[error("it failed on this input ({0})")]
     Failed(#[source] crate::body::BodyError),
@@ -404,9 +417,21 @@ fn body_prior_fof_or_why(
     body: &SharedBody,
     timings: &mut StageTimings,
 ) -> Result<Fof, NoBodyFof> {
+    let (prior, silhouette) = fitted_body_or_why(normalised, opts, body, timings)?;
+    timings
+        .time("body FOF", || Fof::from_intervals(&body_intervals(normalised, opts, prior, &silhouette), opts.fof_order))
+        .map_err(|e| NoBodyFof::Failed(crate::body::BodyError::Fof(e)))
+}
+
+/// The fitted body of an input and its silhouette's own inflation profile (solved beside the pose network and the
+/// fit, which is single-threaded: it depends on the mask alone), or why there is no body.
+fn fitted_body_or_why(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    timings: &mut StageTimings,
+) -> Result<(crate::body::prior::BodyPrior, crate::body::reconcile::SilhouetteProfile), NoBodyFof> {
     let mut stages: Vec<(&'static str, Duration)> = Vec::new();
-    // The silhouette's own profile (part of the body FOF) depends on the mask alone: it is solved beside the pose
-    // network and the fit (the fit is single-threaded), not after them.
     let (found, silhouette) = {
         let mut guard = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         let estimator: &mut crate::body::prior::BodyEstimator = &mut guard;
@@ -424,28 +449,74 @@ fn body_prior_fof_or_why(
         )
     };
     timings.0.extend(stages);
-    let fof = found.and_then(|p| match p {
-        Some(p) => timings
-            .time("body FOF", || {
-                let frame = p.frame();
-                let mesh = centre_visible_depth(p.mesh, &normalised.mask);
-                crate::body::prior::body_fof_with(
-                    &mesh,
-                    &normalised.mask,
-                    Some(frame),
-                    opts.fof_order,
-                    &opts.inflate,
-                    Some(&silhouette),
-                )
-            })
-            .map(Some),
-        None => Ok(None),
-    });
-    match fof {
-        Ok(Some(f)) => Ok(f),
+    match found {
+        Ok(Some(p)) => Ok((p, silhouette)),
         Ok(None) => Err(NoBodyFof::NoPose),
         Err(e) => Err(NoBodyFof::Failed(e)),
     }
+}
+
+/// The fitted body's intervals reconciled with the silhouette ([`crate::body::prior::body_intervals_with`]), the
+/// body placed in depth by [`centre_visible_depth`] first: what the body FOF encodes.
+fn body_intervals(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    prior: crate::body::prior::BodyPrior,
+    silhouette: &crate::body::reconcile::SilhouetteProfile,
+) -> crate::buffer::Image<Vec<(f32, f32)>> {
+    let frame = prior.frame();
+    let mesh = centre_visible_depth(prior.mesh, &normalised.mask);
+    crate::body::prior::body_intervals_with(
+        &mesh,
+        &normalised.mask,
+        Some(frame),
+        opts.fof_order,
+        &opts.inflate,
+        Some(silhouette),
+    )
+}
+
+/// [`GeometryMode::BodyPlaced`]: the inflation prior's surfaces (solved beside the pose network and the fit) with
+/// each column moved toward the fitted body's depth there ([`crate::body::placed`]); the inflation prior itself, with
+/// one warning per process, when the body prior finds no pose or fails.
+fn body_placed_geometry(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    timings: &mut StageTimings,
+) -> Result<Fof, PipelineError> {
+    let (mut inflation_times, mut body_times) = (StageTimings::default(), StageTimings::default());
+    let (surfaces, fitted) = rayon::join(
+        || {
+            inflation_times.time("geometry (inflate)", || {
+                inflate::inflate_resolvable(&normalised.mask, opts.fof_order, &opts.inflate)
+            })
+        },
+        || fitted_body_or_why(normalised, opts, body, &mut body_times),
+    );
+    timings.0.extend(inflation_times.0.into_iter().chain(body_times.0));
+    let surfaces = surfaces?;
+    let surfaces = match fitted {
+        Ok((prior, silhouette)) => {
+            let intervals = timings.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
+            let shifts =
+                crate::body::placed::depth_shifts(&intervals, &surfaces.mask, crate::body::placed::PLACEMENT_WEIGHT);
+            match shifts {
+                Some(shifts) => crate::body::placed::place(surfaces, &shifts),
+                None => {
+                    warn_no_body_fof(&NoBodyFof::NoVolume);
+                    surfaces
+                }
+            }
+        }
+        Err(why) => {
+            warn_no_body_fof(&why);
+            surfaces
+        }
+    };
+    Ok(timings.time("geometry (body placement -> FOF)", || {
+        Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order)
+    })?)
 }
 
 /// Places a fitted body (a mesh in the body cube seen by the source camera of `mask`'s grid) in depth before it is
@@ -536,8 +607,16 @@ fn chosen_geometry(
         // The inflation prior only as the fall-back: computed when no body is found.
         return body_geometry(normalised, opts, body, inflation, timings);
     }
+    if opts.geometry.resolved() == GeometryMode::BodyPlaced {
+        let Some(body) = &opts.body else {
+            return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
+        };
+        return body_placed_geometry(normalised, opts, body, timings);
+    }
     let net = match (opts.geometry, &opts.fof_net) {
-        (mode, _) if matches!(mode.resolved(), GeometryMode::Inflate | GeometryMode::Body) => {
+        (mode, _)
+            if matches!(mode.resolved(), GeometryMode::Inflate | GeometryMode::Body | GeometryMode::BodyPlaced) =>
+        {
             return inflation(timings)
         }
         (GeometryMode::FofNet, None) => {
