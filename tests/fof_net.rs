@@ -157,7 +157,9 @@ fn fofnet_without_a_usable_model_is_a_clear_error() {
 
 /// The same through the binary: `render --geometry fofnet` with a model folder lacking fof.onnx fails with that
 /// sentence and writes nothing; `--geometry auto` renders with what the evaluation chose (`AUTO_CHOICE`), says
-/// which at the info level, and does not warn (it is a choice, not a fall-back).
+/// which at the info level, and does not warn about a model (it is a choice, not a fall-back); when its choice
+/// fits a body and the body prior's data is missing (`R2HUMAN_TOOLS_DIR` pointing at an empty folder), it renders
+/// the inflation prior with one warning saying how to install it.
 #[test]
 fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     let dir = tempfile::tempdir().unwrap();
@@ -165,8 +167,12 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     common::write_figure(&img, 150, 200);
     let empty = dir.path().join("models");
     std::fs::create_dir_all(&empty).unwrap();
-    let run = |geometry: &str, out: &Path| {
-        let o = Command::new(env!("CARGO_BIN_EXE_r2human"))
+    let run_with = |geometry: &str, out: &Path, tools: Option<&Path>| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_r2human"));
+        if let Some(tools) = tools {
+            command.env("R2HUMAN_TOOLS_DIR", tools);
+        }
+        let o = command
             .env("R2HUMAN_LOG", "info")
             .args(["render", "--renderer", "geometric", "--size", "48", "--geometry", geometry, "--models"])
             .arg(&empty)
@@ -178,6 +184,7 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
             .unwrap();
         (o.status.success(), format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)))
     };
+    let run = |geometry: &str, out: &Path| run_with(geometry, out, None);
     let out = dir.path().join("fofnet.png");
     let (ok, text) = run("fofnet", &out);
     assert!(!ok && text.contains("fof.onnx") && text.contains("--geometry inflate"), "{text}");
@@ -187,12 +194,23 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
     assert!(ok && out.exists(), "{text}");
     let chosen = r2human::pipeline::AUTO_CHOICE.name();
     assert!(text.contains(&format!("auto is `{chosen}`")), "auto must say what it uses: {text}");
-    if r2human::pipeline::AUTO_CHOICE == GeometryMode::Inflate {
-        // The one warning allowed is the back fill's (`--fill back`: a 48-pixel person has no face the pose network
-        // finds), which is not about the geometry.
-        let geometry_warnings: Vec<&str> =
-            text.lines().filter(|l| l.contains("WARN") && !l.contains("back image: no face found")).collect();
-        assert!(geometry_warnings.is_empty(), "choosing the prior is not a fall-back: {geometry_warnings:?}\n{text}");
+    if r2human::pipeline::AUTO_CHOICE != GeometryMode::FofNet {
+        // Auto needs no model of the (empty) model folder: no warning that a model is missing. (Per-input
+        // fall-backs may warn: a 48-pixel figure has no pose or face the network finds.)
+        let missing: Vec<&str> = text
+            .lines()
+            .filter(|l| {
+                l.contains("WARN") && ["does not load", "does not exist", "scripts/setup"].iter().any(|m| l.contains(m))
+            })
+            .collect();
+        assert!(missing.is_empty(), "auto's choice needs no model of --models: {missing:?}\n{text}");
+    }
+    if r2human::pipeline::AUTO_CHOICE.fits_body() {
+        let out = dir.path().join("auto_without_body.png");
+        let (ok, text) = run_with("auto", &out, Some(&empty));
+        assert!(ok && out.exists(), "{text}");
+        let said = text.lines().filter(|l| l.contains("WARN") && l.contains("the body prior does not load")).count();
+        assert!(said == 1 && text.contains("bash scripts/setup.sh"), "one warning saying how to install: {text}");
     }
 }
 
