@@ -1119,7 +1119,21 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
             .build_cartesian_2d(0f32..xmax, ymin..ymax)
             .map_err(|e| perr(e.to_string()))?;
         chart.configure_mesh().x_desc("ms per view").y_desc("PSNR (dB)").draw().map_err(|e| perr(e.to_string()))?;
-        let colors = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK, RGBColor(230, 140, 0), RGBColor(120, 60, 160)];
+        // One colour per method.
+        let colors: [RGBColor; METHODS.len()] = [
+            RED,
+            BLUE,
+            GREEN,
+            MAGENTA,
+            CYAN,
+            BLACK,
+            RGBColor(230, 140, 0),
+            RGBColor(120, 60, 160),
+            RGBColor(0, 128, 128),
+            RGBColor(150, 150, 0),
+            RGBColor(200, 80, 120),
+            RGBColor(110, 110, 110),
+        ];
         for r in pts {
             let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % colors.len()];
             let marker = if r.group == "close" { 0 } else { 1 };
