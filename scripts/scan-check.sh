@@ -21,6 +21,12 @@
 #    tail), merman (a fish tail instead of legs), skelebot (a robot skeleton). The players dmo and slshish named in
 #    the package have no model in it (empty folders).
 #
+# 3. Three more characters, new to the project in session 13 and read once, after `--geometry auto` had been chosen on
+#    the others: neko from OpenArena 0.8.8 (`openarena-088-data`, GPL-2+) and angelyss and ayumi from the 0.8.1
+#    "mature" players (`openarena-081-players-mature`, GPL-2+), converted like the others. Left out: arachna (a
+#    spider below the waist) and sorceress (no default skin). Evaluated in an eval of their own, OUT/fresh/report.md,
+#    so the ten's dev / held-out split stays as it was fixed.
+#
 #   bash scripts/scan-check.sh [OUT]          (default out/scan-check; about 4 minutes in a release build, 512 px)
 # Extra arguments for every eval go in R2HUMAN_SCAN_ARGS (e.g. "--save-views", or "--size 256"). Note that
 # "--no-neural" also leaves out the FOF net and the body prior (both run networks): only billboard, 2.5d,
@@ -31,12 +37,20 @@ OUT="${1:-$REPO/out/scan-check}"
 MODELS=/usr/share/assimp/models
 OA_PK3=/usr/share/games/openarena/baseoa/pak2-players.pk3
 OA_PLAYERS="assassin beret kyonshi major penguin sergei smarine tony"
+OA_088_PK3=/usr/share/games/openarena/baseoa/pak6-patch088.pk3
+OA_MATURE_PK3=/usr/share/games/openarena/baseoa/pak2-players-mature.pk3
 need=()
 if [ ! -d "$MODELS/IQM" ] || ! command -v assimp >/dev/null 2>&1; then
   need+=(assimp-testmodels assimp-utils)
 fi
 if [ ! -f "$OA_PK3" ]; then
   need+=(openarena-081-players)
+fi
+if [ ! -f "$OA_088_PK3" ]; then
+  need+=(openarena-088-data)
+fi
+if [ ! -f "$OA_MATURE_PK3" ]; then
+  need+=(openarena-081-players-mature)
 fi
 if [ "${#need[@]}" -gt 0 ]; then
   export DEBIAN_FRONTEND=noninteractive
@@ -100,3 +114,22 @@ echo "== characters (${#scans[@]})"
 # shellcheck disable=SC2086
 R2HUMAN_LOG="$log" "$R2HUMAN" eval "${scan_args[@]}" --up y --facing +z ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/characters"
 sed -n '/^## Scans together/,$p' "$OUT/characters/report.md"
+
+# The three new characters, on their own.
+FRESH="$WORK/fresh"
+rm -rf "$FRESH"
+"$REPO/target/release/examples/md3_to_obj" "$OA_088_PK3" neko "$FRESH/neko"
+for player in angelyss ayumi; do
+  "$REPO/target/release/examples/md3_to_obj" "$OA_MATURE_PK3" "$player" "$FRESH/$player"
+done
+fresh=("$FRESH/angelyss/angelyss.obj" "$FRESH/ayumi/ayumi.obj" "$FRESH/neko/neko.obj")
+mkdir -p "$OUT/fresh"
+"$REPO/target/release/examples/scan_sheet" "$OUT/fresh/sheet.png" --up y --facing +z --size 256 "${fresh[@]}"
+fresh_args=()
+for s in "${fresh[@]}"; do
+  fresh_args+=(--scan "$s")
+done
+echo "== fresh characters (${#fresh[@]})"
+# shellcheck disable=SC2086
+R2HUMAN_LOG="$log" "$R2HUMAN" eval "${fresh_args[@]}" --up y --facing +z ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/fresh"
+sed -n '/^### all/,$p' "$OUT/fresh/report.md"
