@@ -1,9 +1,10 @@
 //! The whole still-photo path per input at 512², as `r2human render --image PHOTO` runs it
-//! ([`PreparedInput::prepare`]: normalise -> geometry -> depth centring -> mesh -> source raster), for three
+//! ([`PreparedInput::prepare`]: normalise -> geometry -> depth centring -> mesh -> source raster), for four
 //! geometries: `fofnet` (the shipped FOF net on the body prior, `models/tiny/fof.onnx`, with the inputs it declares:
 //! since session 11 geometry only, body FOF + inflation prior and no image ([`FofNet::takes_image`] false), so pose
 //! landmarks, the body fit, the reconciled body FOF, the inflation prior and the network all run), `body` (the body
-//! prior alone) and `inflate` (the silhouette-inflation prior).
+//! prior alone), `body-placed` (`--geometry auto` since session 13: the inflation prior moved by the body's depths)
+//! and `inflate` (the silhouette-inflation prior).
 //! Inputs: a rendered synthetic subject (seed 3, the `body` bench's) and the shipped photos (`assets/photos`,
 //! segmented once up front as `render` does, `--segment auto`).
 //!
@@ -109,7 +110,8 @@ fn benches(c: &mut Criterion) {
                 ..base.clone()
             },
         ),
-        ("body", PrepareOptions { geometry: GeometryMode::Body, body: Some(body), ..base.clone() }),
+        ("body", PrepareOptions { geometry: GeometryMode::Body, body: Some(body.clone()), ..base.clone() }),
+        ("body-placed", PrepareOptions { geometry: GeometryMode::BodyPlaced, body: Some(body), ..base.clone() }),
         ("inflate", PrepareOptions { geometry: GeometryMode::Inflate, ..base }),
     ];
     let inputs = inputs();
