@@ -17,13 +17,9 @@
 #[path = "common/cases.rs"]
 mod cases;
 
-use anyhow::Context;
-use cases::IOU_SAMPLES;
-use r2human::eval::runner::fof_occupancy_iou;
 use r2human::geometry::depth_centre::centre_fof;
 use r2human::geometry::fof::Fof;
-use r2human::neural::RuntimeOptions;
-use r2human::pipeline::{compute_geometry, load_body_for, load_fof_net, GeometryMode, PrepareOptions, StageTimings};
+use r2human::pipeline::GeometryMode;
 
 /// The columns: weights of (inflation, body, FOF net) in each candidate.
 const CANDIDATES: [(&str, [f32; 3]); 9] = [
@@ -50,29 +46,12 @@ fn blend(fofs: &[&Fof; 3], weights: [f32; 3]) -> Fof {
 
 fn main() -> anyhow::Result<()> {
     let (cases, size) = cases::from_args("geometry_blend")?;
-    let options = RuntimeOptions::default();
-    let net = load_fof_net(GeometryMode::FofNet, None, cases::N, &options)?;
-    let body = load_body_for(GeometryMode::FofNet, net.as_ref(), &options)?;
-    let base = PrepareOptions { resolution: size, depth_samples: size, fof_net: net, body, ..Default::default() };
-    let names: String = CANDIDATES.iter().map(|(n, _)| format!("{n:>7}")).collect();
-    println!("{:<20}{names}", "input");
-    let mut sums = [0.0f64; CANDIDATES.len()];
-    for c in &cases {
-        let geometry = |mode| -> anyhow::Result<Fof> {
-            let opts = PrepareOptions { geometry: mode, ..base.clone() };
-            compute_geometry(&c.input, &opts, &mut StageTimings::default()).with_context(|| c.label.clone())
-        };
-        let (i, b, f) =
-            (geometry(GeometryMode::Inflate)?, geometry(GeometryMode::Body)?, geometry(GeometryMode::FofNet)?);
-        let mut line = format!("{:<20}", c.label);
-        for (k, (_, w)) in CANDIDATES.iter().enumerate() {
-            let iou = f64::from(fof_occupancy_iou(&blend(&[&i, &b, &f], *w), &c.truth, IOU_SAMPLES));
-            sums[k] += iou;
-            line += &format!("{iou:>7.3}");
-        }
-        println!("{line}");
-    }
-    let n = cases.len().max(1) as f64;
-    println!("{:<20}{}", "mean", sums.iter().map(|s| format!("{:>7.3}", s / n)).collect::<String>());
-    Ok(())
+    let base = cases::geometry_options(size)?;
+    let names: Vec<&str> = CANDIDATES.iter().map(|(n, _)| *n).collect();
+    cases::print_ious(&names, &cases, |c| {
+        let i = c.geometry(&base, GeometryMode::Inflate)?;
+        let b = c.geometry(&base, GeometryMode::Body)?;
+        let f = c.geometry(&base, GeometryMode::FofNet)?;
+        Ok(CANDIDATES.iter().map(|(_, w)| blend(&[&i, &b, &f], *w)).collect())
+    })
 }

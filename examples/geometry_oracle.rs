@@ -17,15 +17,12 @@
 #[path = "common/cases.rs"]
 mod cases;
 
-use anyhow::Context;
 use cases::{IOU_SAMPLES, N};
 use r2human::buffer::Image;
-use r2human::eval::runner::fof_occupancy_iou;
 use r2human::geometry::depth_centre::centre_fof;
 use r2human::geometry::fof::{CosineTable, Fof};
 use r2human::geometry::marching::ISO_LEVEL;
-use r2human::neural::RuntimeOptions;
-use r2human::pipeline::{compute_geometry, load_body_for, load_fof_net, GeometryMode, PrepareOptions, StageTimings};
+use r2human::pipeline::GeometryMode;
 
 /// Thickness and depth (body-cube units) of one column.
 type Column = Option<(f32, f32)>;
@@ -68,38 +65,19 @@ fn one_interval(width: usize, height: usize, thickness: &[Column], depth: &[Colu
 
 fn main() -> anyhow::Result<()> {
     let (cases, size) = cases::from_args("geometry_oracle")?;
-    let options = RuntimeOptions::default();
-    let net = load_fof_net(GeometryMode::FofNet, None, N, &options)?;
-    let body = load_body_for(GeometryMode::BodyPlaced, net.as_ref(), &options)?;
-    let base = PrepareOptions { resolution: size, depth_samples: size, fof_net: net, body, ..Default::default() };
-    let names = ["I", "B", "F", "BP", "G1", "I|Gd", "Gt|Id"];
-    println!("{:<20}{}", "input", names.iter().map(|n| format!("{n:>8}")).collect::<String>());
-    let mut sums = [0.0f64; 7];
-    for c in &cases {
-        let geometry = |mode| -> anyhow::Result<Fof> {
-            let opts = PrepareOptions { geometry: mode, ..base.clone() };
-            compute_geometry(&c.input, &opts, &mut StageTimings::default()).with_context(|| c.label.clone())
-        };
-        let inflation = geometry(GeometryMode::Inflate)?;
+    let base = cases::geometry_options(size)?;
+    cases::print_ious(&["I", "B", "F", "BP", "G1", "I|Gd", "Gt|Id"], &cases, |c| {
+        let inflation = c.geometry(&base, GeometryMode::Inflate)?;
         let (w, h) = (inflation.width, inflation.height);
         let (ci, cg) = (columns(&inflation), columns(&c.truth));
-        let fields = [
-            geometry(GeometryMode::Body)?,
-            geometry(GeometryMode::FofNet)?,
-            geometry(GeometryMode::BodyPlaced)?,
+        Ok(vec![
+            inflation,
+            c.geometry(&base, GeometryMode::Body)?,
+            c.geometry(&base, GeometryMode::FofNet)?,
+            c.geometry(&base, GeometryMode::BodyPlaced)?,
             one_interval(w, h, &cg, &cg)?,
             one_interval(w, h, &ci, &cg)?,
             one_interval(w, h, &cg, &ci)?,
-        ];
-        let mut line = format!("{:<20}", c.label);
-        for (k, field) in std::iter::once(&inflation).chain(&fields).enumerate() {
-            let iou = f64::from(fof_occupancy_iou(field, &c.truth, IOU_SAMPLES));
-            sums[k] += iou;
-            line += &format!("{iou:>8.3}");
-        }
-        println!("{line}");
-    }
-    let n = cases.len().max(1) as f64;
-    println!("{:<20}{}", "mean", sums.iter().map(|s| format!("{:>8.3}", s / n)).collect::<String>());
-    Ok(())
+        ])
+    })
 }

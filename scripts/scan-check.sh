@@ -104,16 +104,23 @@ for player in $OA_PLAYERS; do
   "$REPO/target/release/examples/md3_to_obj" "$OA_PK3" "$player" "$CHARS/$player"
   scans+=("$CHARS/$player/$player.obj")
 done
-mkdir -p "$OUT/characters"
-"$REPO/target/release/examples/scan_sheet" "$OUT/characters/sheet.png" --up y --facing +z --size 256 "${scans[@]}"
-scan_args=()
-for s in "${scans[@]}"; do
-  scan_args+=(--scan "$s")
-done
-echo "== characters (${#scans[@]})"
-# shellcheck disable=SC2086
-R2HUMAN_LOG="$log" "$R2HUMAN" eval "${scan_args[@]}" --up y --facing +z ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/characters"
-sed -n '/^## Scans together/,$p' "$OUT/characters/report.md"
+# evaluate_set NAME SECTION FILE...: one eval over the files (with a sheet of their ground truth) into OUT/NAME, then
+# prints its report from the heading SECTION on.
+evaluate_set() {
+  local name="$1" section="$2"
+  shift 2
+  mkdir -p "$OUT/$name"
+  "$REPO/target/release/examples/scan_sheet" "$OUT/$name/sheet.png" --up y --facing +z --size 256 "$@"
+  local args=()
+  for s in "$@"; do
+    args+=(--scan "$s")
+  done
+  echo "== $name ($#)"
+  # shellcheck disable=SC2086
+  R2HUMAN_LOG="$log" "$R2HUMAN" eval "${args[@]}" --up y --facing +z ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/$name"
+  sed -n "/^$section/,\$p" "$OUT/$name/report.md"
+}
+evaluate_set characters "## Scans together" "${scans[@]}"
 
 # The three new characters, on their own.
 FRESH="$WORK/fresh"
@@ -122,14 +129,4 @@ rm -rf "$FRESH"
 for player in angelyss ayumi; do
   "$REPO/target/release/examples/md3_to_obj" "$OA_MATURE_PK3" "$player" "$FRESH/$player"
 done
-fresh=("$FRESH/angelyss/angelyss.obj" "$FRESH/ayumi/ayumi.obj" "$FRESH/neko/neko.obj")
-mkdir -p "$OUT/fresh"
-"$REPO/target/release/examples/scan_sheet" "$OUT/fresh/sheet.png" --up y --facing +z --size 256 "${fresh[@]}"
-fresh_args=()
-for s in "${fresh[@]}"; do
-  fresh_args+=(--scan "$s")
-done
-echo "== fresh characters (${#fresh[@]})"
-# shellcheck disable=SC2086
-R2HUMAN_LOG="$log" "$R2HUMAN" eval "${fresh_args[@]}" --up y --facing +z ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/fresh"
-sed -n '/^### all/,$p' "$OUT/fresh/report.md"
+evaluate_set fresh "### all" "$FRESH/angelyss/angelyss.obj" "$FRESH/ayumi/ayumi.obj" "$FRESH/neko/neko.obj"

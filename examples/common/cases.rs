@@ -8,10 +8,13 @@ use anyhow::Context;
 use r2human::buffer::{GrayImage, RgbImage};
 use r2human::eval::dataset::subject_seed;
 use r2human::eval::ground_truth::render_ground_truth;
+use r2human::eval::runner::fof_occupancy_iou;
 use r2human::geometry::camera::Camera;
 use r2human::geometry::fof::Fof;
 use r2human::io::mesh_io::TexturedMesh;
+use r2human::neural::RuntimeOptions;
 use r2human::pipeline::input::NormalisedInput;
+use r2human::pipeline::{compute_geometry, load_body_for, load_fof_net, GeometryMode, PrepareOptions, StageTimings};
 use r2human::synth::framing::{self, FramingChoice};
 use r2human::synth::scan::{load_scan_with, Facing, ScanOrientation, UpAxis};
 use r2human::synth::{self, SubjectParams, SynthAssets};
@@ -81,4 +84,45 @@ pub fn from_args(name: &str) -> anyhow::Result<(Vec<Case>, usize)> {
         }
     }
     Ok((cases, size))
+}
+
+/// The pipeline options of the examples at `size`, with the shipped FOF net and the body prior loaded (the
+/// geometries of `--geometry fofnet|body|body-placed`; the inflation prior needs neither).
+pub fn geometry_options(size: usize) -> anyhow::Result<PrepareOptions> {
+    let options = RuntimeOptions::default();
+    let net = load_fof_net(GeometryMode::FofNet, None, N, &options)?;
+    let body = load_body_for(GeometryMode::BodyPlaced, net.as_ref(), &options)?;
+    Ok(PrepareOptions { resolution: size, depth_samples: size, fof_net: net, body, ..Default::default() })
+}
+
+impl Case {
+    /// The geometry `mode` draws for this input, as `r2human --geometry` computes it (placed in depth).
+    pub fn geometry(&self, base: &PrepareOptions, mode: GeometryMode) -> anyhow::Result<Fof> {
+        let opts = PrepareOptions { geometry: mode, ..base.clone() };
+        compute_geometry(&self.input, &opts, &mut StageTimings::default()).with_context(|| self.label.clone())
+    }
+}
+
+/// Prints a table of the volumetric IoU of each field `fields` gives a case (one column per name) against that
+/// case's ground truth, a row per case and their mean.
+pub fn print_ious(
+    names: &[&str],
+    cases: &[Case],
+    fields: impl Fn(&Case) -> anyhow::Result<Vec<Fof>>,
+) -> anyhow::Result<()> {
+    let width = names.iter().map(|n| n.len()).max().unwrap_or(0).max(6) + 2;
+    println!("{:<20}{}", "input", names.iter().map(|n| format!("{n:>width$}")).collect::<String>());
+    let mut sums = vec![0.0f64; names.len()];
+    for c in cases {
+        let mut line = format!("{:<20}", c.label);
+        for (sum, field) in sums.iter_mut().zip(fields(c)?) {
+            let iou = f64::from(fof_occupancy_iou(&field, &c.truth, IOU_SAMPLES));
+            *sum += iou;
+            line += &format!("{iou:>width$.3}");
+        }
+        println!("{line}");
+    }
+    let n = cases.len().max(1) as f64;
+    println!("{:<20}{}", "mean", sums.iter().map(|s| format!("{:>width$.3}", s / n)).collect::<String>());
+    Ok(())
 }
