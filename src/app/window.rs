@@ -381,7 +381,12 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         // A still pays for the back image once (the pose network finds the face); live frames do not (README,
         // "What the photo does not show").
         let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &opts.neural.options);
-        still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &PrepareOptions { back_pose, ..prepare })?;
+        // A still is prepared once: with the geometry `render` draws (`--geometry auto`); live frames keep the
+        // inflation prior (a body fit per frame is not measured in the live loop).
+        let auto = crate::pipeline::auto_still_options(opts.neural.models.as_deref(), &opts.neural.options)?;
+        let still_opts =
+            PrepareOptions { back_pose, geometry: auto.geometry, fof_net: auto.fof_net, body: auto.body, ..prepare };
+        still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &still_opts)?;
         still_mask = Some(person.mask);
         PersonInput::Still(&still)
     };

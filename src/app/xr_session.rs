@@ -265,12 +265,11 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
             // A photo pays for the back image once (the pose network finds the face); live frames do not.
             let back_pose =
                 crate::pipeline::load_back_pose(crate::pipeline::warp::OcclusionFill::default(), &opts.neural.options);
-            let prepared = PreparedInput::prepare(
-                &person.photo.rgb,
-                &person.mask,
-                &PrepareOptions { back_pose, ..Default::default() },
-            )
-            .with_context(|| format!("preparing {}", path.display()))?;
+            // The geometry `render` draws (`--geometry auto`), prepared once.
+            let auto = crate::pipeline::auto_still_options(opts.neural.models.as_deref(), &opts.neural.options)?;
+            let prepared =
+                PreparedInput::prepare(&person.photo.rgb, &person.mask, &PrepareOptions { back_pose, ..auto })
+                    .with_context(|| format!("preparing {}", path.display()))?;
             // The encoder runs once for a photo; the eyes run only the decoder.
             let eye_neural = match &neural.renderer {
                 Some(shared) => {

@@ -339,6 +339,17 @@ pub fn load_fof_net(
     }
 }
 
+/// The options a still photo is prepared with when nothing asks for a geometry (`--geometry auto`): the models
+/// [`AUTO_CHOICE`] needs, from `models` (the FOF net) and the project's tools (the body prior), each replaced by the
+/// inflation prior with one warning when it does not load. `view` and `xr` prepare their stills with these, so a
+/// photo looks the same in the headset, the window and `render`.
+pub fn auto_still_options(models: Option<&Path>, options: &RuntimeOptions) -> Result<PrepareOptions, PipelineError> {
+    let defaults = PrepareOptions::default();
+    let fof_net = load_fof_net(GeometryMode::Auto, models, defaults.fof_order, options)?;
+    let body = load_body_for(GeometryMode::Auto, fof_net.as_ref(), options)?;
+    Ok(PrepareOptions { geometry: GeometryMode::Auto, fof_net, body, ..defaults })
+}
+
 /// Loads the body prior for the modes that fit a body ([`GeometryMode::fits_body`]; `Ok(None)` for the others): the pose landmark model
 /// (`.tools/models/pose_landmark_full.onnx`) and the MakeHuman body data, or an error saying how to install them.
 pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<SharedBody>, PipelineError> {
