@@ -140,7 +140,7 @@ pub enum GeometryMode {
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::BodyPlaced;
 
 impl GeometryMode {
-    /// The mode's `--geometry` value (`auto`, `fofnet`, `inflate`, `body`).
+    /// The mode's `--geometry` value (`auto`, `fofnet`, `inflate`, `body`, `body-placed`).
     pub fn name(self) -> String {
         clap::ValueEnum::to_possible_value(&self).map(|v| v.get_name().to_owned()).unwrap_or_default()
     }
@@ -350,8 +350,9 @@ pub fn auto_still_options(models: Option<&Path>, options: &RuntimeOptions) -> Re
     Ok(PrepareOptions { geometry: GeometryMode::Auto, fof_net, body, ..defaults })
 }
 
-/// Loads the body prior for the modes that fit a body ([`GeometryMode::fits_body`]; `Ok(None)` for the others): the pose landmark model
-/// (`.tools/models/pose_landmark_full.onnx`) and the MakeHuman body data, or an error saying how to install them.
+/// Loads the body prior for the modes that fit a body ([`GeometryMode::fits_body`]; `Ok(None)` for the others):
+/// the pose landmark model (`.tools/models/pose_landmark_full.onnx`) and the MakeHuman body data, or an error saying
+/// how to install them (under [`GeometryMode::Auto`]: one warning saying so, and `Ok(None)`).
 pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<SharedBody>, PipelineError> {
     if !mode.fits_body() {
         return Ok(None);
@@ -640,11 +641,8 @@ fn chosen_geometry(
         };
     }
     let net = match (opts.geometry, &opts.fof_net) {
-        (mode, _)
-            if matches!(mode.resolved(), GeometryMode::Inflate | GeometryMode::Body | GeometryMode::BodyPlaced) =>
-        {
-            return inflation(timings)
-        }
+        // The body modes returned above: what is left is the inflation prior or the FOF net.
+        (mode, _) if mode.resolved() != GeometryMode::FofNet => return inflation(timings),
         (GeometryMode::FofNet, None) => {
             return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
         }
