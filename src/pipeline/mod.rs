@@ -27,6 +27,7 @@ use std::time::{Duration, Instant};
 use glam::{Vec2, Vec4};
 use rayon::prelude::*;
 
+use crate::body::pose::PoseLandmarks;
 use crate::body::prior::BodyEstimator;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::compose::{self, Mode, RenderedFrame};
@@ -200,18 +201,31 @@ pub fn load_back_pose(fill: OcclusionFill, options: &RuntimeOptions) -> Option<S
 /// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning
 /// per process, then debug messages) when the pose network finds no person or no usable face, or fails.
 pub fn back_image_of(normalised: &NormalisedInput, pose: &SharedPose, timings: &mut StageTimings) -> Option<RgbImage> {
-    let found = timings.time("back image (face landmarks)", || {
-        let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        p.estimate(&normalised.rgb, &normalised.mask, Some(normalised.frame))
-    });
-    let face = match found {
-        Ok(Some(l)) => back::FacePoints::from_pose(&l),
-        Ok(None) => None,
-        Err(e) => {
-            tracing::debug!("back image: the pose network failed: {e}");
-            None
+    back_image_with(normalised, pose, None, timings)
+}
+
+/// [`back_image_of`] with the face of `read` (pose landmarks of the same input, e.g. the body prior's,
+/// [`compute_geometry_and_pose`]) when it has a usable one: the pose network runs only without it.
+pub fn back_image_with(
+    normalised: &NormalisedInput,
+    pose: &SharedPose,
+    read: Option<&PoseLandmarks>,
+    timings: &mut StageTimings,
+) -> Option<RgbImage> {
+    let face = read.and_then(back::FacePoints::from_pose).or_else(|| {
+        let found = timings.time("back image (face landmarks)", || {
+            let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            p.estimate(&normalised.rgb, &normalised.mask, Some(normalised.frame))
+        });
+        match found {
+            Ok(Some(l)) => back::FacePoints::from_pose(&l),
+            Ok(None) => None,
+            Err(e) => {
+                tracing::debug!("back image: the pose network failed: {e}");
+                None
+            }
         }
-    };
+    });
     let back = face
         .and_then(|f| timings.time("back image (filter)", || back::back_image(&normalised.rgb, &normalised.mask, &f)));
     if back.is_none() {
@@ -442,10 +456,22 @@ fn body_prior_fof_or_why(
     body: &SharedBody,
     timings: &mut StageTimings,
 ) -> Result<Fof, NoBodyFof> {
+    body_prior_fof_and_pose_or_why(normalised, opts, body, timings).map(|(fof, _)| fof)
+}
+
+/// [`body_prior_fof_or_why`] with the pose landmarks the body was fitted to.
+fn body_prior_fof_and_pose_or_why(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    body: &SharedBody,
+    timings: &mut StageTimings,
+) -> Result<(Fof, PoseLandmarks), NoBodyFof> {
     let (prior, silhouette) = fitted_body_or_why(normalised, opts, body, timings)?;
-    timings
+    let pose = prior.landmarks.clone();
+    let fof = timings
         .time("body FOF", || Fof::from_intervals(&body_intervals(normalised, opts, prior, &silhouette), opts.fof_order))
-        .map_err(|e| NoBodyFof::Failed(crate::body::BodyError::Fof(e)))
+        .map_err(|e| NoBodyFof::Failed(crate::body::BodyError::Fof(e)))?;
+    Ok((fof, pose))
 }
 
 /// The fitted body of an input and its silhouette's own inflation profile (solved beside the pose network and the
@@ -509,7 +535,7 @@ fn body_placed_geometry(
     opts: &PrepareOptions,
     body: &SharedBody,
     timings: &mut StageTimings,
-) -> Result<Fof, PipelineError> {
+) -> Result<GeometryAndPose, PipelineError> {
     let (mut inflation_times, mut body_times) = (StageTimings::default(), StageTimings::default());
     let (surfaces, fitted) = rayon::join(
         || {
@@ -521,8 +547,10 @@ fn body_placed_geometry(
     );
     timings.0.extend(inflation_times.0.into_iter().chain(body_times.0));
     let surfaces = surfaces?;
+    let mut pose = None;
     let surfaces = match fitted {
         Ok((prior, silhouette)) => {
+            pose = Some(prior.landmarks.clone());
             let intervals = timings.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
             let shifts =
                 crate::body::placed::depth_shifts(&intervals, &surfaces.mask, crate::body::placed::PLACEMENT_WEIGHT);
@@ -539,9 +567,10 @@ fn body_placed_geometry(
             surfaces
         }
     };
-    Ok(timings.time("geometry (body placement -> FOF)", || {
+    let fof = timings.time("geometry (body placement -> FOF)", || {
         Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order)
-    })?)
+    })?;
+    Ok((fof, pose))
 }
 
 /// Places a fitted body (a mesh in the body cube seen by the source camera of `mask`'s grid) in depth before it is
@@ -583,12 +612,12 @@ fn body_geometry(
     body: &SharedBody,
     fallback: impl FnOnce(&mut StageTimings) -> Result<Fof, PipelineError>,
     timings: &mut StageTimings,
-) -> Result<Fof, PipelineError> {
-    match body_prior_fof_or_why(normalised, opts, body, timings) {
-        Ok(fof) => Ok(fof),
+) -> Result<GeometryAndPose, PipelineError> {
+    match body_prior_fof_and_pose_or_why(normalised, opts, body, timings) {
+        Ok((fof, pose)) => Ok((fof, Some(pose))),
         Err(why) => {
             warn_no_body_fof(&why);
-            fallback(timings)
+            Ok((fallback(timings)?, None))
         }
     }
 }
@@ -610,16 +639,30 @@ pub fn compute_geometry(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<Fof, PipelineError> {
-    let fof = chosen_geometry(normalised, opts, timings)?;
-    Ok(timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0))
+    compute_geometry_and_pose(normalised, opts, timings).map(|(fof, _)| fof)
 }
 
-/// [`compute_geometry`] before the depth centring.
+/// A per-input geometry and the pose landmarks the body prior read on the way (`None` when no body was fitted).
+pub type GeometryAndPose = (Fof, Option<PoseLandmarks>);
+
+/// [`compute_geometry`] with the pose landmarks the body was fitted to (`--geometry body`, `body-placed` and `auto`
+/// when it is one of them), which the back image reuses for the face instead of running the pose network again
+/// ([`PreparedInput::from_fof_and_pose`]).
+pub fn compute_geometry_and_pose(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    timings: &mut StageTimings,
+) -> Result<GeometryAndPose, PipelineError> {
+    let (fof, pose) = chosen_geometry(normalised, opts, timings)?;
+    Ok((timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0), pose))
+}
+
+/// [`compute_geometry_and_pose`] before the depth centring.
 fn chosen_geometry(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     timings: &mut StageTimings,
-) -> Result<Fof, PipelineError> {
+) -> Result<GeometryAndPose, PipelineError> {
     let inflation = |timings: &mut StageTimings| -> Result<Fof, PipelineError> {
         Ok(timings.time("geometry (inflate -> FOF)", || {
             inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
@@ -636,10 +679,25 @@ fn chosen_geometry(
         return match (&opts.body, opts.geometry) {
             (Some(body), _) => body_placed_geometry(normalised, opts, body, timings),
             // Auto without the body prior: `load_body` said so once.
-            (None, GeometryMode::Auto) => inflation(timings),
+            (None, GeometryMode::Auto) => Ok((inflation(timings)?, None)),
             (None, _) => Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into())),
         };
     }
+    Ok((fof_net_or_inflation(normalised, opts, timings)?, None))
+}
+
+/// What [`chosen_geometry`] draws outside the body modes: the FOF net (its body input computed as `--geometry body`
+/// computes it), or the inflation prior.
+fn fof_net_or_inflation(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    timings: &mut StageTimings,
+) -> Result<Fof, PipelineError> {
+    let inflation = |timings: &mut StageTimings| -> Result<Fof, PipelineError> {
+        Ok(timings.time("geometry (inflate -> FOF)", || {
+            inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+        })?)
+    };
     let net = match (opts.geometry, &opts.fof_net) {
         // The body modes returned above: what is left is the inflation prior or the FOF net.
         (mode, _) if mode.resolved() != GeometryMode::FofNet => return inflation(timings),
@@ -970,8 +1028,8 @@ impl PreparedInput {
     pub fn prepare(rgb: &RgbImage, mask: &GrayImage, opts: &PrepareOptions) -> Result<Self, PipelineError> {
         let mut timings = StageTimings::default();
         let normalised = timings.time("normalise", || input::normalise(rgb, mask, opts.resolution))?;
-        let fof = compute_geometry(&normalised, opts, &mut timings)?;
-        Self::from_fof(normalised, fof, opts, timings)
+        let (fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
+        Self::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings)
     }
 
     /// Finishes preparation from an already computed FOF (e.g. a network's, or ground truth). The back image
@@ -980,6 +1038,19 @@ impl PreparedInput {
     pub fn from_fof(
         normalised: NormalisedInput,
         fof: Fof,
+        opts: &PrepareOptions,
+        timings: StageTimings,
+    ) -> Result<Self, PipelineError> {
+        Self::from_fof_and_pose(normalised, fof, None, opts, timings)
+    }
+
+    /// [`PreparedInput::from_fof`] with the pose landmarks the geometry's body prior read
+    /// ([`compute_geometry_and_pose`]): the back image takes its face from them instead of running the pose network
+    /// again.
+    pub fn from_fof_and_pose(
+        normalised: NormalisedInput,
+        fof: Fof,
+        pose: Option<&PoseLandmarks>,
         opts: &PrepareOptions,
         mut timings: StageTimings,
     ) -> Result<Self, PipelineError> {
@@ -998,7 +1069,7 @@ impl PreparedInput {
                 let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
                 Ok((mesh, source_gbuffer))
             },
-            || opts.back_pose.as_ref().and_then(|pose| back_image_of(&normalised, pose, &mut back_timings)),
+            || opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings)),
         );
         let (mesh, source_gbuffer) = geometry?;
         timings.0.extend(back_timings.0);
