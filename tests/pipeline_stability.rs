@@ -150,7 +150,7 @@ fn high_fof_order_with_ringing_stays_bounded() {
 #[test]
 fn the_pose_network_finds_the_face_of_a_rendered_subject_and_nothing_in_a_blank() {
     use r2human::pipeline::back::FacePoints;
-    use r2human::pipeline::{back_image_of, input::NormalisedInput, SharedPose, StageTimings};
+    use r2human::pipeline::{back_image_of, back_image_with, input::NormalisedInput, SharedPose, StageTimings};
     use r2human::synth::{self, SubjectParams, SynthAssets};
     let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
     let Ok(assets) = SynthAssets::shared() else {
@@ -175,6 +175,13 @@ fn the_pose_network_finds_the_face_of_a_rendered_subject_and_nothing_in_a_blank(
     assert!(timings.0.iter().any(|(n, _)| *n == "back image (filter)"));
     // The face (between the eyes the network reads) shows the hair's colour in the back image.
     let lm = pose.0.lock().unwrap().estimate(&input.rgb, &input.mask, None).unwrap().unwrap();
+    // Given a read of the same input (the body prior's, on the default path), the network does not run again and
+    // the back image is the same as from the network's own read (the frame-aware read `back_image_of` makes).
+    let framed = pose.0.lock().unwrap().estimate(&input.rgb, &input.mask, Some(input.frame)).unwrap().unwrap();
+    let mut given_timings = StageTimings::default();
+    let given = back_image_with(&input, &pose, Some(&framed), &mut given_timings).expect("a face in the given read");
+    assert_eq!(given.data, back.data);
+    assert!(!given_timings.0.iter().any(|(n, _)| *n == "back image (face landmarks)"), "{:?}", given_timings.0);
     let face = FacePoints::from_pose(&lm).unwrap();
     let i = face.eyes.y as usize * res + face.eyes.x as usize;
     let m = input.mask.data[i];
