@@ -657,17 +657,24 @@ pub fn compute_geometry_and_pose(
     Ok((timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0), pose))
 }
 
+/// The silhouette-inflation prior of an input, timed.
+fn inflation_prior(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    timings: &mut StageTimings,
+) -> Result<Fof, PipelineError> {
+    Ok(timings.time("geometry (inflate -> FOF)", || {
+        inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+    })?)
+}
+
 /// [`compute_geometry_and_pose`] before the depth centring.
 fn chosen_geometry(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<GeometryAndPose, PipelineError> {
-    let inflation = |timings: &mut StageTimings| -> Result<Fof, PipelineError> {
-        Ok(timings.time("geometry (inflate -> FOF)", || {
-            inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
-        })?)
-    };
+    let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, timings);
     if opts.geometry.resolved() == GeometryMode::Body {
         let Some(body) = &opts.body else {
             return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
@@ -693,11 +700,7 @@ fn fof_net_or_inflation(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<Fof, PipelineError> {
-    let inflation = |timings: &mut StageTimings| -> Result<Fof, PipelineError> {
-        Ok(timings.time("geometry (inflate -> FOF)", || {
-            inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
-        })?)
-    };
+    let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, timings);
     let net = match (opts.geometry, &opts.fof_net) {
         // The body modes returned above: what is left is the inflation prior or the FOF net.
         (mode, _) if mode.resolved() != GeometryMode::FofNet => return inflation(timings),
