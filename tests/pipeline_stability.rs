@@ -12,7 +12,7 @@ use r2human::geometry::{Camera, Fov};
 use r2human::io::environment::Environment;
 use r2human::io::image_io;
 use r2human::pipeline::warp::OcclusionFill;
-use r2human::pipeline::{PrepareOptions, PreparedInput, ViewRenderer};
+use r2human::pipeline::{GeometryMode, PrepareOptions, PreparedInput, ViewRenderer};
 
 fn small_opts() -> PrepareOptions {
     PrepareOptions { resolution: 128, depth_samples: 128, ..Default::default() }
@@ -114,8 +114,20 @@ fn stiff_masks_reconstruct_or_are_refused_cleanly() {
             }
         }
     }
-    for (name, mask) in [("limbs", limbs), ("parts", parts), ("holed", holed), ("ragged", ragged)] {
-        match PreparedInput::prepare(&rgb, &mask, &small_opts()) {
+    // The inflation prior, and the body geometries (the default, body-placed, among them) when the pose model is
+    // installed: whatever the network reads in such masks, the result is finite and inside the cube, or an error.
+    let mut geometries = vec![small_opts()];
+    if let Ok(Some(body)) = r2human::pipeline::load_body(GeometryMode::BodyPlaced, &Default::default()) {
+        for geometry in [GeometryMode::BodyPlaced, GeometryMode::Body] {
+            geometries.push(PrepareOptions { geometry, body: Some(body.clone()), ..small_opts() });
+        }
+    } else {
+        eprintln!("body geometries skipped: the pose model is not installed (bash scripts/setup.d/live.sh)");
+    }
+    let masks = [("limbs", limbs), ("parts", parts), ("holed", holed), ("ragged", ragged)];
+    for ((name, mask), opts) in masks.iter().flat_map(|m| geometries.iter().map(move |o| (m, o))) {
+        let name = format!("{name} ({})", opts.geometry.name());
+        match PreparedInput::prepare(&rgb, mask, opts) {
             Ok(prepared) => {
                 assert!(prepared.mesh.positions.iter().all(|p| p.is_finite() && p.abs().max_element() <= 1.0 + 1e-4));
                 assert!(prepared.fof.coeffs.iter().all(|c| c.is_finite()), "{name}: FOF finite");
