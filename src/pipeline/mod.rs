@@ -645,8 +645,8 @@ pub fn compute_geometry(
 /// A per-input geometry and the pose landmarks the body prior read on the way (`None` when no body was fitted).
 pub type GeometryAndPose = (Fof, Option<PoseLandmarks>);
 
-/// [`compute_geometry`] with the pose landmarks the body was fitted to (`--geometry body`, `body-placed` and `auto`
-/// when it is one of them), which the back image reuses for the face instead of running the pose network again
+/// [`compute_geometry`] with the pose landmarks the body was fitted to (`--geometry body`, `body-placed`, a FOF net
+/// that takes the body FOF, and `auto` when it is one of them), which the back image reuses for the face instead of running the pose network again
 /// ([`PreparedInput::from_fof_and_pose`]).
 pub fn compute_geometry_and_pose(
     normalised: &NormalisedInput,
@@ -690,32 +690,32 @@ fn chosen_geometry(
             (None, _) => Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into())),
         };
     }
-    Ok((fof_net_or_inflation(normalised, opts, timings)?, None))
+    fof_net_or_inflation(normalised, opts, timings)
 }
 
 /// What [`chosen_geometry`] draws outside the body modes: the FOF net (its body input computed as `--geometry body`
-/// computes it), or the inflation prior.
+/// computes it, with the pose that body was fitted to), or the inflation prior.
 fn fof_net_or_inflation(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     timings: &mut StageTimings,
-) -> Result<Fof, PipelineError> {
+) -> Result<GeometryAndPose, PipelineError> {
     let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, timings);
     let net = match (opts.geometry, &opts.fof_net) {
         // The body modes returned above: what is left is the inflation prior or the FOF net.
-        (mode, _) if mode.resolved() != GeometryMode::FofNet => return inflation(timings),
+        (mode, _) if mode.resolved() != GeometryMode::FofNet => return Ok((inflation(timings)?, None)),
         (GeometryMode::FofNet, None) => {
             return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
         }
         (_, Some(net)) => net,
         // Auto without a loaded network (and the modes handled above).
-        (_, None) => return inflation(timings),
+        (_, None) => return Ok((inflation(timings)?, None)),
     };
     let takes_body = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).takes_body();
     // The body FOF the network takes: the body prior exactly as `--geometry body` computes it (its fall-back, the
     // inflation prior, when no pose is found: what the training data holds for such inputs).
-    let (prior, body) = match (takes_body, &opts.body) {
-        (false, _) => (inflation(timings)?, None),
+    let (prior, body, pose) = match (takes_body, &opts.body) {
+        (false, _) => (inflation(timings)?, None, None),
         (true, Some(body)) => {
             // The inflation prior and the body prior do not depend on each other: they run side by side (on two
             // cores the body fit is single-threaded, the pose network and the inflation are not). Their stage
@@ -723,15 +723,18 @@ fn fof_net_or_inflation(
             let (mut prior_times, mut body_times) = (StageTimings::default(), StageTimings::default());
             let (prior, body_fof) = rayon::join(
                 || inflation(&mut prior_times),
-                || body_prior_fof_or_why(normalised, opts, body, &mut body_times),
+                || body_prior_fof_and_pose_or_why(normalised, opts, body, &mut body_times),
             );
             timings.0.extend(prior_times.0.into_iter().chain(body_times.0));
             let prior = prior?;
-            let body_fof = body_fof.unwrap_or_else(|why| {
-                warn_no_body_fof(&why);
-                prior.clone()
-            });
-            (prior, Some(body_fof))
+            let (body_fof, pose) = match body_fof {
+                Ok((fof, pose)) => (fof, Some(pose)),
+                Err(why) => {
+                    warn_no_body_fof(&why);
+                    (prior.clone(), None)
+                }
+            };
+            (prior, Some(body_fof), pose)
         }
         (true, None) if opts.geometry == GeometryMode::FofNet => {
             return Err(PipelineError::NoFofNet(
@@ -744,7 +747,7 @@ fn fof_net_or_inflation(
                 &WARNED,
                 "the FOF net takes the body FOF, but no body prior was loaded: using the silhouette-inflation prior",
             );
-            return inflation(timings);
+            return Ok((inflation(timings)?, None));
         }
     };
     let refined = timings.time("geometry (FOF net)", || {
@@ -782,12 +785,12 @@ fn fof_net_or_inflation(
                     &format!("the FOF net's geometry is not one plausible person ({why}); using the prior it refined"),
                 );
             }
-            Ok(fof)
+            Ok((fof, pose))
         }
         (Err(e), GeometryMode::Auto) => {
             static WARNED: AtomicBool = AtomicBool::new(false);
             warn_once(&WARNED, &format!("the FOF net failed on this input, using the prior it refines: {e}"));
-            Ok(base)
+            Ok((base, pose))
         }
         (Err(e), _) => Err(PipelineError::FofNetFailed(e)),
     }
