@@ -26,9 +26,9 @@ pub const PLACEMENT_WEIGHT: f32 = 0.5;
 
 /// The depth (body-cube z) each column moves by: `weight` times its centroid in `body` (the reconciled body
 /// intervals, [`super::prior::body_intervals_with`]) less the centroid of all of `body`'s volume, both over the
-/// columns inside `mask` (above 0.5). A column of the mask `body` leaves empty (the inflation prior's mask differs from the body's by cleaned-away specks) takes the
-/// mean shift of its 8 neighbours that have one, otherwise 0; outside `mask` the shift is 0. `None` when `body` holds
-/// no volume or its grid differs from `mask`'s.
+/// columns inside `mask` (above 0.5). A column of the mask `body` leaves empty (the inflation prior's mask differs
+/// from the body's by cleaned-away specks) takes the mean shift of its 8 neighbours that have one, otherwise 0;
+/// outside `mask` the shift is 0. `None` when `body` holds no volume or its grid differs from `mask`'s.
 pub fn depth_shifts(body: &Image<Vec<(f32, f32)>>, mask: &GrayImage, weight: f32) -> Option<GrayImage> {
     let (w, h) = (mask.width, mask.height);
     if (body.width, body.height) != (w, h) || body.data.len() != w * h || !weight.is_finite() {

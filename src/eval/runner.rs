@@ -413,10 +413,9 @@ impl SubjectSource {
     }
 
     /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 body-placed
-    /// inflation prior); `None` for the
-    /// FOF net when it is not loaded or fails on this input (logged: its rows skip the subject, never replaced by
-    /// the prior), and for the body prior when it is not loaded (an input where it finds no pose falls back to the
-    /// inflation prior, as `--geometry body` does).
+    /// inflation prior); `None` for the FOF net when it is not loaded or fails on this input (logged: its rows skip
+    /// the subject, never replaced by the prior), and for the body geometries when the body prior is not loaded (an
+    /// input where it finds no pose falls back to the inflation prior, as `--geometry body` does).
     fn geometry(
         &self,
         kind: usize,

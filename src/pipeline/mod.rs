@@ -675,19 +675,18 @@ fn chosen_geometry(
     timings: &mut StageTimings,
 ) -> Result<GeometryAndPose, PipelineError> {
     let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, timings);
-    if opts.geometry.resolved() == GeometryMode::Body {
+    if opts.geometry.fits_body() {
         let Some(body) = &opts.body else {
+            // Auto without the body prior: `load_body` said so once.
+            if opts.geometry == GeometryMode::Auto {
+                return Ok((inflation(timings)?, None));
+            }
             return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
         };
-        // The inflation prior only as the fall-back: computed when no body is found.
-        return body_geometry(normalised, opts, body, inflation, timings);
-    }
-    if opts.geometry.resolved() == GeometryMode::BodyPlaced {
-        return match (&opts.body, opts.geometry) {
-            (Some(body), _) => body_placed_geometry(normalised, opts, body, timings),
-            // Auto without the body prior: `load_body` said so once.
-            (None, GeometryMode::Auto) => Ok((inflation(timings)?, None)),
-            (None, _) => Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into())),
+        return match opts.geometry.resolved() {
+            // The inflation prior only as the fall-back: computed when no body is found.
+            GeometryMode::Body => body_geometry(normalised, opts, body, inflation, timings),
+            _ => body_placed_geometry(normalised, opts, body, timings),
         };
     }
     fof_net_or_inflation(normalised, opts, timings)
