@@ -1,6 +1,7 @@
 //! The FOF network as geometry (`--geometry fofnet|auto`): closed-form fixtures for the full-resolution
 //! correction of the inflation prior (tests/data/fof_net/make_fixtures.py), the shipped `models/tiny/fof.onnx` on
-//! held-out synthetic subjects against the inflation prior, and broken or missing models. Needs the ONNX Runtime
+//! held-out synthetic subjects against the inflation prior, and broken or missing models; the placement net of
+//! `--geometry body-placed` (its upsampled shift, loading, fall-back). Needs the ONNX Runtime
 //! library (`bash scripts/setup.d/neural.sh` or ORT_DYLIB_PATH).
 
 mod common;
@@ -17,7 +18,7 @@ use r2human::eval::runner::fof_occupancy_iou;
 use r2human::geometry::fof::Fof;
 use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
 use r2human::geometry::Camera;
-use r2human::neural::{ExecutionProvider, FofInput, FofNet, NeuralError, RuntimeOptions};
+use r2human::neural::{ExecutionProvider, FofInput, FofNet, NeuralError, PlacementNet, RuntimeOptions};
 use r2human::pipeline::{
     body_prior_fof, centre_visible_depth, compute_geometry, load_body_for, load_fof_net, GeometryMode, PipelineError,
     PrepareOptions, PreparedInput, StageTimings,
@@ -604,4 +605,99 @@ fn shipped_body_input_fof_net_declares_its_inputs() {
     assert_eq!(net.inputs(), &[FofInput::Body, FofInput::Prior]);
     assert_eq!((net.base(), net.info().fof_n, net.info().resolution), (FofInput::Prior, 32, 128));
     assert!(net.info().recipe.contains("\"fof_inputs\""), "{}", net.info().recipe);
+}
+
+/// The placement net's shift reaches the FOF grid by mask-aware bilinear upsampling: the fixture's closed-form
+/// split (0.1 on the model's left half, -0.2 on its right) comes back exactly away from the split and the
+/// silhouette's edge holds the shift of the model pixels inside (renormalised, not pulled toward 0); outside the
+/// mask the shift is 0. Broken files are errors that name the problem: a non-finite shift, a FOF net loaded as a
+/// placement net and the other way round, inputs of another size or order.
+#[test]
+fn placement_net_upsamples_its_shift_inside_the_mask_and_rejects_broken_files() {
+    let size = 4 * R;
+    let (_, mask) = blocky_person(size);
+    let prior = inflate_to_fof(&mask, N, &InflateParams::default()).unwrap();
+    let mut net = PlacementNet::load(&fixture("placement_split.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((net.info().resolution, net.info().fof_n), (R, N));
+    let shifts = net.shifts(&mask, &prior, &prior).unwrap();
+    assert_eq!((shifts.width, shifts.height), (size, size));
+    let (mut left, mut right) = (0, 0);
+    for r in 0..size {
+        for c in 0..size {
+            let (s, m) = (*shifts.get(c, r), *mask.get(c, r));
+            if m <= 0.5 {
+                assert_eq!(s, 0.0, "outside the mask at ({c}, {r})");
+            } else if c < size / 2 - 2 {
+                assert!((s - 0.1).abs() < 1e-6, "({c}, {r}): {s}");
+                left += 1;
+            } else if c >= size / 2 + 2 {
+                assert!((s + 0.2).abs() < 1e-6, "({c}, {r}): {s}");
+                right += 1;
+            } else {
+                assert!((-0.2 - 1e-6..=0.1 + 1e-6).contains(&s), "({c}, {r}): {s}");
+            }
+        }
+    }
+    assert!(left > 200 && right > 200, "{left} {right}");
+
+    let e = PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu())
+        .unwrap()
+        .shifts(&mask, &inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap(), &prior)
+        .expect_err("N = 4 input to an N = 32 net");
+    assert!(matches!(e, NeuralError::BadInput { .. }) && e.to_string().contains("32"), "{e}");
+    let prior32 = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+    let e = PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu())
+        .unwrap()
+        .shifts(&mask, &prior32, &prior32)
+        .expect_err("NaN shift");
+    assert!(matches!(e, NeuralError::NonFinite { .. }), "{e}");
+    let e = PlacementNet::load(&fixture("fof_geometry.onnx"), &cpu()).expect_err("a FOF net is no placement net");
+    assert!(e.to_string().contains("r2human.kind"), "{e}");
+    let e = FofNet::load(&fixture("placement_split.onnx"), &cpu()).expect_err("a placement net is no FOF net");
+    assert!(e.to_string().contains("r2human.kind"), "{e}");
+    let small = GrayImage::new(size / 2, size / 2, 1.0);
+    assert!(matches!(net.shifts(&small, &prior, &prior), Err(NeuralError::BadInput { .. })));
+}
+
+/// `load_placement_net` takes the model folder's `placement.onnx` for `body-placed` (and auto, which draws it), none
+/// for the other geometries or when the folder has none (the fixed rule); a file of another order is an error under
+/// `body-placed` and the fixed rule under auto. In the pipeline the net's shifts place the inflation prior (a
+/// different geometry from the fixed rule's), and a net that fails on the input falls back to the fixed rule.
+/// Needs the pose model.
+#[test]
+fn body_placed_uses_the_folders_placement_net_and_falls_back_to_the_fixed_rule() {
+    let dir = tempfile::tempdir().unwrap();
+    let load = |mode, n| r2human::pipeline::load_placement_net(mode, Some(dir.path()), n, &cpu());
+    assert!(load(GeometryMode::BodyPlaced, 32).unwrap().is_none(), "no file: the fixed rule");
+    std::fs::copy(fixture("placement_split.onnx"), dir.path().join("placement.onnx")).unwrap();
+    let e = load(GeometryMode::BodyPlaced, 32).expect_err("N = 4 file for N = 32");
+    assert!(matches!(e, PipelineError::PlacementLoad(_)) && e.to_string().contains("--fof-order"), "{e}");
+    assert!(load(GeometryMode::Auto, 32).unwrap().is_none());
+    std::fs::copy(fixture("placement_split32.onnx"), dir.path().join("placement.onnx")).unwrap();
+    assert!(load(GeometryMode::Inflate, 32).unwrap().is_none());
+    assert!(load(GeometryMode::Body, 32).unwrap().is_none());
+    let split = load(GeometryMode::BodyPlaced, 32).unwrap().expect("the folder's placement net");
+
+    let size = 128;
+    let (rgb, mask, _) = subject_source(subject_seed(3, 9), size);
+    let norm = r2human::pipeline::input::NormalisedInput::in_source_view(rgb, mask);
+    let body = load_body_for(GeometryMode::BodyPlaced, None, &cpu()).unwrap_or_else(|e| panic!("{e}"));
+    let base = PrepareOptions {
+        resolution: size,
+        depth_samples: size,
+        geometry: GeometryMode::BodyPlaced,
+        body,
+        ..Default::default()
+    };
+    let geometry = |placement: Option<r2human::pipeline::SharedPlacementNet>| {
+        let mut timings = StageTimings::default();
+        let o = PrepareOptions { placement, ..base.clone() };
+        (compute_geometry(&norm, &o, &mut timings).unwrap_or_else(|e| panic!("{e}")), timings)
+    };
+    let (fixed, _) = geometry(None);
+    let (learned, timings) = geometry(Some(split));
+    assert!(timings.0.iter().any(|(name, _)| *name == "body placement (network)"), "{:?}", timings.0);
+    assert_ne!(learned, fixed);
+    let broken = Arc::new(Mutex::new(PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu()).unwrap()));
+    assert_eq!(geometry(Some(broken)).0, fixed, "a failing net: the fixed rule");
 }

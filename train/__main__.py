@@ -1,4 +1,4 @@
-"""python -m train {fit,fit-fof,export,eval,synth} ... (see train/README.md)."""
+"""python -m train {fit,fit-fof,fit-placement,export,eval,synth} ... (see train/README.md)."""
 import argparse
 import json
 import sys
@@ -61,9 +61,20 @@ def main(argv=None):
                    help="compare the raw output with the ground truth (before session 7: the default now places "
                         "the output by the depth convention first, as the pipeline does)")
 
+    p = sub.add_parser("fit-placement", help="train the placement net (body FOF + inflation prior -> a depth shift "
+                                             "per column of the prior; train/placement.py)")
+    _train_args(p)
+    p.add_argument("--ckpt-every", type=int, default=200, help="checkpoint (and held-out evaluation) interval")
+    p.add_argument("--resume", default=None, help="continue from a placement.pt")
+    p.add_argument("--with-coefficients", action="store_true",
+                   help="the UNet also reads both FOFs' coefficients, not only their column moments")
+    p.add_argument("--lambda-occupancy", type=float, default=2.0,
+                   help="weight of the decoded-occupancy L1 next to the coefficient L1 (weight 1)")
+
     p = sub.add_parser("export", help="write encoder.onnx, decoder.onnx and/or fof.onnx with metadata and check them")
     p.add_argument("--renderer", default=None, help="renderer.pt from `fit` (writes encoder.onnx, decoder.onnx)")
     p.add_argument("--fof", default=None, help="fof.pt from `fit-fof`")
+    p.add_argument("--placement", default=None, help="placement.pt from `fit-placement`")
     p.add_argument("--out", required=True, help="model folder, e.g. models/tiny")
     p.add_argument("--tolerance", type=float, default=1e-3, help="max allowed |ONNX Runtime - PyTorch|")
 
@@ -80,6 +91,9 @@ def main(argv=None):
     p.add_argument("--fof-onnx", action="append", default=[], metavar="NAME=PATH",
                    help="also evaluate an exported fof.onnx under row NAME (repeatable; e.g. "
                         "fof_body=models/tiny/fof_body.onnx); with only these, the priors and the files are compared")
+    p.add_argument("--placement", default=None, help="a placement.pt from `fit-placement`")
+    p.add_argument("--placement-onnx", action="append", default=[], metavar="NAME=PATH",
+                   help="also evaluate an exported placement.onnx under row NAME (repeatable)")
     p.add_argument("--split", default="test", choices=["test", "train", "all"],
                    help="subjects to evaluate the FOF rows on (all: an unseen dataset)")
 
@@ -101,6 +115,9 @@ def main(argv=None):
     elif args.cmd == "fit-fof":
         from .fit import fit_fof
         fit_fof(args)
+    elif args.cmd == "fit-placement":
+        from .placement import fit_placement
+        fit_placement(args)
     elif args.cmd == "export":
         from .export import export
         export(args)
@@ -154,6 +171,14 @@ def main(argv=None):
                 res = ck["resolution"]
             out["fof"] = evaluate_fof(m, args.data, res, torch.device("cpu"), per_subject=True, onnx=onnx,
                                       split=args.split)
+        if args.placement or args.placement_onnx:
+            from .placement import evaluate_placement, placement_from_checkpoint
+            m, res = None, None
+            if args.placement:
+                ck = torch.load(args.placement, map_location="cpu")
+                m, res = placement_from_checkpoint(ck), ck["resolution"]
+            files = dict(item.partition("=")[::2] for item in args.placement_onnx)
+            out["placement"] = evaluate_placement(m, args.data, res, split=args.split, per_subject=True, onnx=files)
         print(json.dumps(out, indent=1))
     elif args.cmd == "synth":
         from .synth import write_dataset

@@ -77,16 +77,23 @@ def centring_shift(centroid, z_min, z_max):
     return torch.where(ok, dz, torch.zeros_like(dz))
 
 
-def shift_matrix(n, dz):
-    """[B,N,N]: the linear map of FOF coefficients under a depth shift dz ([B], z units), exact while nothing
-    occupied would leave the cube (`centring_shift` never asks for that): c'_k = cos(k pi d) c_k - sin(k pi d) S_k, d = dz/2,
-    S_k = sum_{j, j+k odd} w_j c_j 4k / (pi (k^2 - j^2)) (w_0 = 1/2, else 1); c'_0 = c_0."""
-    k = torch.arange(n, dtype=dz.dtype, device=dz.device)
+def shift_generator(n, dtype=torch.float32, device=None):
+    """[N,N]: the S of [`shift_matrix`], S_k = sum_{j, j+k odd} w_j c_j 4k / (pi (k^2 - j^2)) (w_0 = 1/2, else 1),
+    row 0 zero. It does not depend on the shift, so a shift per column ([`shift_columns`]) needs it once."""
+    k = torch.arange(n, dtype=dtype, device=device)
     kk, jj = k[:, None], k[None, :]
     odd = ((kk + jj) % 2 == 1) & (kk > 0)
     wj = torch.where(jj == 0, torch.full_like(jj, 0.5), torch.ones_like(jj))
-    s = torch.where(odd, wj * 4.0 * kk / (math.pi * (kk * kk - jj * jj)).masked_fill(~odd, 1.0),
-                    torch.zeros_like(kk * jj))  # [N,N]
+    return torch.where(odd, wj * 4.0 * kk / (math.pi * (kk * kk - jj * jj)).masked_fill(~odd, 1.0),
+                       torch.zeros_like(kk * jj))
+
+
+def shift_matrix(n, dz):
+    """[B,N,N]: the linear map of FOF coefficients under a depth shift dz ([B], z units), exact while nothing
+    occupied would leave the cube (`centring_shift` never asks for that): c'_k = cos(k pi d) c_k - sin(k pi d) S_k, d = dz/2,
+    S = [`shift_generator`] c; c'_0 = c_0."""
+    k = torch.arange(n, dtype=dz.dtype, device=dz.device)
+    s = shift_generator(n, dz.dtype, dz.device)  # [N,N]
     angle = k[None, :] * math.pi * (0.5 * dz[:, None])  # [B,N]
     m = torch.diag_embed(torch.cos(angle)) - torch.sin(angle)[:, :, None] * s[None]
     m[:, 0, :] = 0.0
@@ -97,6 +104,16 @@ def shift_matrix(n, dz):
 def shift_fof(fof, dz):
     """`fof` [B,N,H,W] moved by dz ([B]) along z (see [`shift_matrix`])."""
     return torch.einsum("bkj,bjhw->bkhw", shift_matrix(fof.shape[1], dz), fof)
+
+
+def shift_columns(fof, dz):
+    """`fof` [B,N,H,W] with every column moved by its own dz ([B,1,H,W], z units): [`shift_matrix`] per column,
+    exact while the column's occupancy stays inside the cube."""
+    n = fof.shape[1]
+    k = torch.arange(n, dtype=fof.dtype, device=fof.device).view(1, -1, 1, 1)
+    s = torch.einsum("kj,bjhw->bkhw", shift_generator(n, fof.dtype, fof.device), fof)
+    angle = k * math.pi * (0.5 * dz)
+    return torch.cos(angle) * fof - torch.sin(angle) * s
 
 
 def centre_fof(fof, mask=None):

@@ -112,9 +112,33 @@ def export_fof(ckpt_path, out_dir, seed=0):
     return {"fof": {"max_abs_diff": _compare(path, model, feeds)}}
 
 
+def export_placement(ckpt_path, out_dir, seed=0):
+    """`placement.onnx` (train/placement.py): inputs `body`, `prior` [1,N,R,R] -> `shift` [1,1,R,R]."""
+    from .placement import placement_from_checkpoint
+
+    ck = torch.load(ckpt_path, map_location="cpu")
+    fof_n, res = ck["fof_n"], ck["resolution"]
+    model = placement_from_checkpoint(ck)
+    model.eval()
+    os.makedirs(out_dir, exist_ok=True)
+    path = os.path.join(out_dir, "placement.onnx")
+    g = torch.Generator().manual_seed(seed)
+    feeds = {}
+    for name in ("body", "prior"):
+        feeds[name] = torch.randn(1, fof_n, res, res, generator=g) * 0.05
+        feeds[name][:, :1] = torch.rand(1, 1, res, res, generator=g)
+    _export(model, tuple(feeds.values()), path, list(feeds), ["shift"])
+    _metadata(path, {"r2human.format": FORMAT_VERSION, "r2human.kind": "placement", "r2human.tier": ck["tier"],
+                     "r2human.resolution": res, "r2human.fof_n": fof_n, "r2human.stride": model.stride,
+                     "r2human.placement_weight": model.weight,
+                     "r2human.recipe": json.dumps(ck["recipe"], sort_keys=True)})
+    return {"placement": {"max_abs_diff": _compare(path, model, feeds)}}
+
+
 def export(args):
-    if not args.renderer and not args.fof:
-        raise SystemExit("nothing to export: give --renderer RUN/renderer.pt and/or --fof RUN/fof.pt")
+    if not args.renderer and not args.fof and not getattr(args, "placement", None):
+        raise SystemExit("nothing to export: give --renderer RUN/renderer.pt, --fof RUN/fof.pt and/or "
+                         "--placement RUN/placement.pt")
     # Exporting one model keeps the other entries of an existing report (e.g. fof.onnx added to a shipped folder).
     report_path = os.path.join(args.out, "export_report.json")
     report = {}
@@ -125,6 +149,8 @@ def export(args):
         report.update(export_renderer(args.renderer, args.out))
     if args.fof:
         report.update(export_fof(args.fof, args.out))
+    if getattr(args, "placement", None):
+        report.update(export_placement(args.placement, args.out))
     sizes = {f: os.path.getsize(os.path.join(args.out, f)) for f in os.listdir(args.out) if f.endswith(".onnx")}
     report["bytes"] = sizes
     with open(report_path, "w") as f:

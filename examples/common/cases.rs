@@ -14,7 +14,9 @@ use r2human::geometry::fof::Fof;
 use r2human::io::mesh_io::TexturedMesh;
 use r2human::neural::RuntimeOptions;
 use r2human::pipeline::input::NormalisedInput;
-use r2human::pipeline::{compute_geometry, load_body_for, load_fof_net, GeometryMode, PrepareOptions, StageTimings};
+use r2human::pipeline::{
+    compute_geometry, load_body_for, load_fof_net, load_placement_net, GeometryMode, PrepareOptions, StageTimings,
+};
 use r2human::synth::framing::{self, FramingChoice};
 use r2human::synth::scan::{load_scan_with, Facing, ScanOrientation, UpAxis};
 use r2human::synth::{self, SubjectParams, SynthAssets};
@@ -92,7 +94,8 @@ pub fn geometry_options(size: usize) -> anyhow::Result<PrepareOptions> {
     let options = RuntimeOptions::default();
     let net = load_fof_net(GeometryMode::FofNet, None, N, &options)?;
     let body = load_body_for(GeometryMode::BodyPlaced, net.as_ref(), &options)?;
-    Ok(PrepareOptions { resolution: size, depth_samples: size, fof_net: net, body, ..Default::default() })
+    let placement = load_placement_net(GeometryMode::BodyPlaced, None, N, &options)?;
+    Ok(PrepareOptions { resolution: size, depth_samples: size, fof_net: net, body, placement, ..Default::default() })
 }
 
 impl Case {

@@ -64,12 +64,14 @@ impl GeometryOptions {
     ) -> Result<PrepareOptions> {
         let fof_net = load_fof_net(self.geometry, models, self.fof_order, runtime)?;
         let body = load_body_for(self.geometry, fof_net.as_ref(), runtime)?;
+        let placement = crate::pipeline::load_placement_net(self.geometry, models, self.fof_order, runtime)?;
         let back_pose = crate::pipeline::load_back_pose(self.fill, runtime);
         Ok(PrepareOptions {
             fof_order: self.fof_order,
             geometry: self.geometry,
             fof_net,
             body,
+            placement,
             back_pose,
             ..Default::default()
         })

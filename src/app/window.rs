@@ -384,8 +384,14 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         // A still is prepared once: with the geometry `render` draws (`--geometry auto`); live frames keep the
         // inflation prior (a body fit per frame is not measured in the live loop).
         let auto = crate::pipeline::auto_still_options(opts.neural.models.as_deref(), &opts.neural.options)?;
-        let still_opts =
-            PrepareOptions { back_pose, geometry: auto.geometry, fof_net: auto.fof_net, body: auto.body, ..prepare };
+        let still_opts = PrepareOptions {
+            back_pose,
+            geometry: auto.geometry,
+            fof_net: auto.fof_net,
+            body: auto.body,
+            placement: auto.placement,
+            ..prepare
+        };
         still = PreparedInput::prepare(&person.photo.rgb, &person.mask, &still_opts)?;
         still_mask = Some(person.mask);
         PersonInput::Still(&still)

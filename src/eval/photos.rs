@@ -82,6 +82,8 @@ pub struct PhotoNets<'a> {
     pub fof_net: Option<&'a SharedFofNet>,
     /// The body prior (pose network and fitter).
     pub body: Option<&'a SharedBody>,
+    /// The placement network of the body-placed rows (`None`: the fixed rule).
+    pub placement: Option<&'a crate::pipeline::SharedPlacementNet>,
     /// The pose network that finds the face for the back image (the default fill's).
     pub back_pose: Option<&'a crate::pipeline::SharedPose>,
 }
@@ -265,6 +267,7 @@ fn run_method(
     let prepare = PrepareOptions {
         fof_net: nets.fof_net.cloned(),
         body: nets.body.cloned(),
+        placement: nets.placement.cloned(),
         back_pose: nets.back_pose.cloned(),
         ..photo_prepare_options(opts, method.geometry)
     };
@@ -426,10 +429,12 @@ pub fn run_photo_eval_with(
         }
     };
     let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &options);
+    let placement = super::runner::load_placement(nopts, &mut notes);
     let nets = PhotoNets {
         neural: neural.as_ref(),
         fof_net: fof_net.as_ref(),
         body: body.as_ref(),
+        placement: placement.as_ref(),
         back_pose: back_pose.as_ref(),
     };
     let mut report = evaluate_photos(opts, nets)?;

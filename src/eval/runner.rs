@@ -376,6 +376,8 @@ struct Nets<'a> {
     neural: Option<&'a SharedNeural>,
     fof_net: Option<&'a SharedFofNet>,
     body: Option<&'a SharedBody>,
+    /// The placement network of the body-placed rows (`None`: the fixed rule).
+    placement: Option<&'a crate::pipeline::SharedPlacementNet>,
     /// The pose network that finds the face for the back image (the default fill's).
     back_pose: Option<&'a crate::pipeline::SharedPose>,
 }
@@ -441,6 +443,7 @@ impl SubjectSource {
                 let o = PrepareOptions {
                     geometry: if kind == 3 { GeometryMode::Body } else { GeometryMode::BodyPlaced },
                     body: Some(std::sync::Arc::clone(body)),
+                    placement: nets.placement.cloned(),
                     ..popts.clone()
                 };
                 let built = self.prepared_with(&o);
@@ -729,6 +732,40 @@ fn load_body_prior(nopts: &NeuralEvalOptions, notes: &mut Vec<String>) -> Option
     }
 }
 
+/// The placement network of the body-placed rows: the model folder's `placement.onnx` when it has one (noted in
+/// the report either way, so its rows say which placement they measure); a file that does not load is noted and
+/// the rows use the fixed rule.
+pub(super) fn load_placement(
+    nopts: &NeuralEvalOptions,
+    notes: &mut Vec<String>,
+) -> Option<crate::pipeline::SharedPlacementNet> {
+    if nopts.skip {
+        return None;
+    }
+    let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
+    let fof_order = PrepareOptions::default().fof_order;
+    match crate::pipeline::load_placement_net(GeometryMode::BodyPlaced, nopts.models.as_deref(), fof_order, &options) {
+        Ok(Some(net)) => {
+            let path = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).path().display().to_string();
+            notes.push(format!("The body-placed rows place each column by the placement network `{path}`."));
+            Some(net)
+        }
+        Ok(None) => {
+            notes.push(format!(
+                "The body-placed rows place each column by the fixed rule (weight {}; no {} in the model folder).",
+                crate::body::placed::PLACEMENT_WEIGHT,
+                crate::neural::PLACEMENT_FILE
+            ));
+            None
+        }
+        Err(e) => {
+            tracing::warn!("the body-placed rows use the fixed placement rule: {e}");
+            notes.push(format!("The body-placed rows use the fixed placement rule: {e}"));
+            None
+        }
+    }
+}
+
 /// Runs the evaluation and writes `report.md`, `report.csv` and `error_vs_time.png` into `opts.out`. Subjects
 /// and scans that fail are reported (in the summary and the Markdown) and skipped. The neural methods use the
 /// project's `models/tiny` when they load ([`run_eval_with`] chooses).
@@ -755,8 +792,14 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
     let body = load_body_prior(nopts, &mut notes);
     let options = RuntimeOptions { ep: nopts.ep, ..Default::default() };
     let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &options);
-    let nets =
-        Nets { neural: neural.as_ref(), fof_net: fof_net.as_ref(), body: body.as_ref(), back_pose: back_pose.as_ref() };
+    let placement = load_placement(nopts, &mut notes);
+    let nets = Nets {
+        neural: neural.as_ref(),
+        fof_net: fof_net.as_ref(),
+        body: body.as_ref(),
+        placement: placement.as_ref(),
+        back_pose: back_pose.as_ref(),
+    };
     // Per-method memory, probed once on the first subject that evaluates (at the most divergent view scored).
     let probe_yaw = opts.yaws.iter().copied().max_by(|a, b| {
         let off = |y: f32| (y.rem_euclid(360.0) - 180.0).abs();

@@ -6,6 +6,7 @@
 //! | `fof.onnx` (optional) | as `r2human.fof_inputs` names: `image` `[1,3,R,R]` (optional), `body` and/or `prior` `[1,N,R,R]` | `fof` `[1,N,R,R]` |
 //! | `encoder.onnx` | `image` `[1,3,R,R]`, `fof` `[1,N,R,R]`, `normals` `[1,3,R,R]` | `features` `[1,C,R/4,R/4]` |
 //! | `decoder.onnx` | `features` `[1,C,h,w]`, `zmap` `[1,1,h,w]`, `normals` `[1,3,h,w]`, `warped_rgb` `[1,3,h,w]` | `rgb` `[1,3,h,w]` |
+//! | `placement.onnx` (optional) | `body`, `prior` `[1,N,R,R]` | `shift` `[1,1,R,R]` |
 //!
 //! - `image` is the source photo in the networks' colour space, **sRGB-encoded** and premultiplied by the mask, mapped
 //!   to `[-1, 1]` (`image*2-1`, so the background is `-1`), exactly as the reference feeds its encoder.
@@ -36,6 +37,8 @@
 //!   is residual on one of them (`r2human.residual`; `fof = base + UNet(...)`, zero-initialised last convolution),
 //!   and [`FofNet::refine_with`] applies its correction to that base at full resolution (the pipeline's
 //!   `--geometry fofnet|auto`).
+//! - The placement net ([`PlacementNet`], `train/placement.py`) reads the same two FOFs and outputs the depth (body
+//!   cube z) by which each column of the inflation prior moves (`--geometry body-placed`, [`crate::body::placed`]).
 //!
 //! Every model carries metadata (`r2human.kind`, `r2human.tier`, `r2human.resolution`, `r2human.fof_n`,
 //! `r2human.recipe`, …, see [`ModelInfo`]) that is checked at load, together with the input and output names and
@@ -59,7 +62,7 @@ use std::path::{Path, PathBuf};
 pub(crate) use library::project_roots;
 pub use library::{find_library, library_candidates, ORT_LIBRARY_FILE, ORT_TOOLS_SUBDIR};
 pub use model::{ModelInfo, ModelKind, FORMAT_VERSION};
-pub use nets::{Decoder, Encoder, EncoderInput, FofInput, FofNet, FofPrediction, DECODER_INPUTS};
+pub use nets::{Decoder, Encoder, EncoderInput, FofInput, FofNet, FofPrediction, PlacementNet, DECODER_INPUTS};
 pub(crate) use provider::create_session;
 pub use provider::{environment, ActiveProvider, ExecutionProvider, RuntimeOptions};
 pub use tensor::{Coefficients, FeatureMap, PixelBox};
@@ -170,6 +173,8 @@ pub const ENCODER_FILE: &str = "encoder.onnx";
 pub const DECODER_FILE: &str = "decoder.onnx";
 /// The (optional) FOF network's file name inside a model folder.
 pub const FOF_FILE: &str = "fof.onnx";
+/// File name of the placement network in a model folder (optional; [`PlacementNet`]).
+pub const PLACEMENT_FILE: &str = "placement.onnx";
 
 /// Encoder, decoder and (when present) FOF network of one model folder, loaded and checked against each other.
 pub struct NeuralRuntime {

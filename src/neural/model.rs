@@ -19,6 +19,8 @@ pub enum ModelKind {
     Encoder,
     /// Warped features + Z-map + target normals to RGB: `decoder`.
     Decoder,
+    /// Body FOF + inflation prior to a depth shift per column of the prior: `placement`.
+    Placement,
 }
 
 impl ModelKind {
@@ -28,6 +30,7 @@ impl ModelKind {
             Self::Fof => "fof",
             Self::Encoder => "encoder",
             Self::Decoder => "decoder",
+            Self::Placement => "placement",
         }
     }
 }
@@ -43,7 +46,7 @@ pub struct ModelInfo {
     pub resolution: usize,
     /// Number of FOF-X coefficients `N` (`r2human.fof_n`).
     pub fof_n: usize,
-    /// Encoder feature channels `C` (`r2human.feature_channels`; 0 for the FOF net).
+    /// Encoder feature channels `C` (`r2human.feature_channels`; 0 for the FOF and placement nets).
     pub feature_channels: usize,
     /// Spatial sizes fed to the model must be multiples of this (`r2human.stride`, default 1).
     pub stride: usize,
@@ -79,7 +82,14 @@ impl ModelInfo {
             "fof" => ModelKind::Fof,
             "encoder" => ModelKind::Encoder,
             "decoder" => ModelKind::Decoder,
-            other => return Err(meta_error(path, "r2human.kind", format!("is `{other}`, not fof/encoder/decoder"))),
+            "placement" => ModelKind::Placement,
+            other => {
+                return Err(meta_error(
+                    path,
+                    "r2human.kind",
+                    format!("is `{other}`, not fof/encoder/decoder/placement"),
+                ))
+            }
         };
         if kind != expected {
             return Err(meta_error(
@@ -100,8 +110,9 @@ impl ModelInfo {
         if fof_n == 0 {
             return Err(meta_error(path, "r2human.fof_n", "is 0"));
         }
-        let feature_channels = if kind == ModelKind::Fof { 0 } else { number("r2human.feature_channels")? };
-        if kind != ModelKind::Fof && feature_channels == 0 {
+        let takes_features = matches!(kind, ModelKind::Encoder | ModelKind::Decoder);
+        let feature_channels = if takes_features { number("r2human.feature_channels")? } else { 0 };
+        if takes_features && feature_channels == 0 {
             return Err(meta_error(path, "r2human.feature_channels", "is 0"));
         }
         let stride = match meta.custom("r2human.stride") {

@@ -498,6 +498,122 @@ impl FofNet {
     }
 }
 
+/// The placement network (`placement.onnx`, `train/placement.py`): from the fitted body's FOF and the inflation
+/// prior, each box-averaged to its resolution `R`, the depth (body-cube z) by which each column of the inflation
+/// prior moves (`--geometry body-placed`, [`crate::body::placed`]). Inputs `body`, `prior` `[1,N,R,R]`; output
+/// `shift` `[1,1,R,R]`, zero outside the prior's columns. It keeps the prior's thickness by construction: it has one
+/// number per column to get wrong, not a whole FOF.
+pub struct PlacementNet {
+    net: Net,
+}
+
+impl PlacementNet {
+    /// Loads and checks a placement network (`r2human.kind = placement`, the inputs and output above).
+    pub fn load(path: &Path, options: &RuntimeOptions) -> Result<Self, NeuralError> {
+        let net = Net::load(path, ModelKind::Placement, "placement net", options)?;
+        let (r, n) = (net.info.resolution as i64, net.info.fof_n as i64);
+        for input in PLACEMENT_INPUTS {
+            check_tensor(&net.session, path, false, input, [Dim::Is(n), Dim::Is(r), Dim::Is(r)])?;
+        }
+        check_no_extra_inputs(&net.session, path, &PLACEMENT_INPUTS)?;
+        check_tensor(&net.session, path, true, "shift", [Dim::Is(1), Dim::Is(r), Dim::Is(r)])?;
+        Ok(Self { net })
+    }
+
+    /// The model's metadata.
+    pub fn info(&self) -> &ModelInfo {
+        &self.net.info
+    }
+
+    /// The execution provider the model runs on.
+    pub fn provider(&self) -> ActiveProvider {
+        self.net.provider
+    }
+
+    /// The model file.
+    pub fn path(&self) -> &Path {
+        &self.net.path
+    }
+
+    /// The depth shift of every column of `mask`'s grid: the network at its resolution `R` on `body` and `prior`
+    /// (both on `mask`'s grid with the model's `N`), upsampled bilinearly from the model pixels inside the
+    /// resampled mask (weights renormalised, so the silhouette edge is not pulled toward zero); a pixel of `mask`
+    /// whose four taps all lie outside takes the nearest model pixel inside within two pixels, else 0; 0 outside
+    /// `mask` (below 0.5).
+    pub fn shifts(&mut self, mask: &GrayImage, prior: &Fof, body: &Fof) -> Result<GrayImage, NeuralError> {
+        let model = "placement net";
+        let (r, n) = (self.net.info.resolution, self.net.info.fof_n);
+        let (w, h) = (mask.width, mask.height);
+        for (name, f) in [("prior", prior), ("body", body)] {
+            if (f.width, f.height) != (w, h) || f.n != n {
+                return Err(NeuralError::BadInput {
+                    model,
+                    problem: format!(
+                        "`{name}` is {}x{} with {} coefficients, expected the mask's {w}x{h} and the model's {n}",
+                        f.width, f.height, f.n
+                    ),
+                });
+            }
+        }
+        let small = |f: &Fof| coefficients_tensor(&Coefficients { width: w, height: h, n, data: &f.coeffs }, r);
+        let (body_small, prior_small) = rayon::join(|| small(body), || small(prior));
+        let start = std::time::Instant::now();
+        let (shape, shift) =
+            self.net.run(&[("body", [1, n, r, r], &body_small), ("prior", [1, n, r, r], &prior_small)], "shift")?;
+        tracing::debug!("placement net: session run {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
+        self.net.expect_output_shape(&shape, [1, 1, r, r])?;
+        let small_mask = resample_plane(&mask.data, w, h, r, r);
+        let valid = |c: i64, rr: i64| {
+            (0..r as i64).contains(&c) && (0..r as i64).contains(&rr) && small_mask[rr as usize * r + c as usize] >= 0.5
+        };
+        let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
+        let mut out = vec![0.0f32; w * h];
+        out.par_chunks_mut(w).enumerate().for_each(|(row, line)| {
+            let y = (row as f32 + 0.5) * sy - 0.5;
+            let (y0, ty) = (y.floor(), y - y.floor());
+            for (col, o) in line.iter_mut().enumerate() {
+                if mask.data[row * w + col] <= 0.5 {
+                    continue;
+                }
+                let x = (col as f32 + 0.5) * sx - 0.5;
+                let (x0, tx) = (x.floor(), x - x.floor());
+                let (mut acc, mut wsum) = (0.0f32, 0.0f32);
+                for (dx, dy, wt) in
+                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+                {
+                    let (c, rr) = (x0 as i64 + dx, y0 as i64 + dy);
+                    if wt > 0.0 && valid(c, rr) {
+                        acc += wt * shift[rr as usize * r + c as usize];
+                        wsum += wt;
+                    }
+                }
+                if wsum > 1e-6 {
+                    *o = acc / wsum;
+                    continue;
+                }
+                let (cx, cy) = (x.round() as i64, y.round() as i64);
+                let nearest = (1..=2i64).find_map(|radius| {
+                    let ring = (-radius..=radius).flat_map(|dy| (-radius..=radius).map(move |dx| (dx, dy)));
+                    ring.filter(|&(dx, dy)| valid(cx + dx, cy + dy))
+                        .min_by_key(|&(dx, dy)| dx * dx + dy * dy)
+                        .map(|(dx, dy)| shift[(cy + dy) as usize * r + (cx + dx) as usize])
+                });
+                *o = nearest.unwrap_or(0.0);
+            }
+        });
+        Ok(Image { width: w, height: h, data: out })
+    }
+}
+
+impl std::fmt::Debug for PlacementNet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PlacementNet").field("path", &self.net.path).field("info", &self.net.info).finish()
+    }
+}
+
+/// The placement network's inputs, in order.
+const PLACEMENT_INPUTS: [&str; 2] = ["body", "prior"];
+
 /// Depth samples of the "does this column hold body" test of [`FofNet::refine`].
 const SILHOUETTE_SAMPLES: usize = 64;
 

@@ -39,7 +39,9 @@ use crate::geometry::shells::drop_unexplained_shells;
 use crate::geometry::zmap::{flow_and_zmap_into, FlowZ};
 use crate::geometry::{Camera, TriMesh, SOURCE_RESOLUTION};
 use crate::io::environment::Environment;
-use crate::neural::{Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError, NeuralRuntime, RuntimeOptions};
+use crate::neural::{
+    Coefficients, EncoderInput, FeatureMap, FofNet, NeuralError, NeuralRuntime, PlacementNet, RuntimeOptions,
+};
 
 use fusion::SpatialFusion;
 use input::{InputError, NormalisedInput};
@@ -92,6 +94,13 @@ pub enum PipelineError {
          train/README.md), or use --geometry inflate"
     )]
     FofNetLoad(#[source] NeuralError),
+    /// The model folder's `placement.onnx` is there but cannot be loaded (`--geometry body-placed`): ONNX Runtime
+    /// is missing, or the file is corrupt, not a placement network or of another `N`.
+    #[error(
+        "placement network: {0}. Remove or re-export it (`python -m train export --placement`, see \
+         train/README.md), pass --models DIR without it (the fixed placement rule), or use --geometry inflate"
+    )]
+    PlacementLoad(String),
     /// The body prior's pose model or body data cannot be loaded (`--geometry body`). Worded as
     /// [`PipelineError::NoBody`]; the cause is the source.
     #[error("body prior: {0}. Install them with `bash scripts/setup.sh`, or use --geometry inflate")]
@@ -162,6 +171,9 @@ impl GeometryMode {
 
 /// A loaded FOF network shared by the inputs that use it (it runs under the lock).
 pub type SharedFofNet = Arc<Mutex<FofNet>>;
+
+/// A loaded placement network shared by the inputs that use it (it runs under the lock).
+pub type SharedPlacementNet = Arc<Mutex<PlacementNet>>;
 
 /// The body prior's pose network and fitter, shared by the inputs that use it (it runs under the lock; it keeps
 /// the last frame's fit for warm starts).
@@ -257,6 +269,9 @@ pub struct PrepareOptions {
     /// The body prior for [`GeometryMode::Body`] ([`load_body`]) and for a FOF net that takes the body FOF
     /// ([`load_body_for`]); `None` with `Body` is an error.
     pub body: Option<SharedBody>,
+    /// The placement network of [`GeometryMode::BodyPlaced`] ([`load_placement_net`]); `None`: the fixed rule
+    /// ([`crate::body::placed::PLACEMENT_WEIGHT`] of the body's depth).
+    pub placement: Option<SharedPlacementNet>,
     /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
     pub warm_start: bool,
     /// The pose network that finds the face for the back image ([`load_back_pose`]; [`back::back_image`]); `None`:
@@ -274,6 +289,7 @@ impl Default for PrepareOptions {
             inflate: InflateParams::default(),
             fof_net: None,
             body: None,
+            placement: None,
             warm_start: false,
             back_pose: None,
         }
@@ -353,6 +369,54 @@ pub fn load_fof_net(
     }
 }
 
+/// Resolves `--geometry` and `--models` into the placement network of [`GeometryMode::BodyPlaced`] (also under
+/// [`GeometryMode::Auto`] when [`AUTO_CHOICE`] is it): the model folder's `placement.onnx` when it has one,
+/// `Ok(None)` (the fixed placement rule) when it has none or for the other modes. A file that does not load (or
+/// predicts for another `N` than `fof_order`) is an error under `body-placed` and one warning and the fixed rule
+/// under auto.
+pub fn load_placement_net(
+    mode: GeometryMode,
+    models: Option<&Path>,
+    fof_order: usize,
+    options: &RuntimeOptions,
+) -> Result<Option<SharedPlacementNet>, PipelineError> {
+    if mode.resolved() != GeometryMode::BodyPlaced {
+        return Ok(None);
+    }
+    let Some(path) = model_folder(models).map(|dir| dir.join(crate::neural::PLACEMENT_FILE)).filter(|p| p.is_file())
+    else {
+        tracing::info!("geometry: body placement by the fixed rule (no {})", crate::neural::PLACEMENT_FILE);
+        return Ok(None);
+    };
+    let loaded = PlacementNet::load(&path, options).map_err(|e| e.to_string()).and_then(|net| {
+        if net.info().fof_n == fof_order {
+            Ok(net)
+        } else {
+            Err(format!(
+                "`{}` reads {} FOF coefficients but --fof-order is {fof_order}",
+                path.display(),
+                net.info().fof_n
+            ))
+        }
+    });
+    match loaded {
+        Ok(net) => {
+            tracing::info!(
+                "geometry: body placement by `{}` ({} px) on {}",
+                path.display(),
+                net.info().resolution,
+                net.provider()
+            );
+            Ok(Some(Arc::new(Mutex::new(net))))
+        }
+        Err(e) if mode == GeometryMode::Auto => {
+            tracing::warn!("geometry: placement network not used ({e}); placing the body by the fixed rule");
+            Ok(None)
+        }
+        Err(e) => Err(PipelineError::PlacementLoad(e)),
+    }
+}
+
 /// The options a still photo is prepared with when nothing asks for a geometry (`--geometry auto`): the models
 /// [`AUTO_CHOICE`] needs, from `models` (the FOF net) and the project's tools (the body prior), each replaced by the
 /// inflation prior with one warning when it does not load. `view` and `xr` prepare their stills with these, so a
@@ -361,7 +425,8 @@ pub fn auto_still_options(models: Option<&Path>, options: &RuntimeOptions) -> Re
     let defaults = PrepareOptions::default();
     let fof_net = load_fof_net(GeometryMode::Auto, models, defaults.fof_order, options)?;
     let body = load_body_for(GeometryMode::Auto, fof_net.as_ref(), options)?;
-    Ok(PrepareOptions { geometry: GeometryMode::Auto, fof_net, body, ..defaults })
+    let placement = load_placement_net(GeometryMode::Auto, models, defaults.fof_order, options)?;
+    Ok(PrepareOptions { geometry: GeometryMode::Auto, fof_net, body, placement, ..defaults })
 }
 
 /// Loads the body prior for the modes that fit a body ([`GeometryMode::fits_body`]; `Ok(None)` for the others):
@@ -552,8 +617,12 @@ fn body_placed_geometry(
         Ok((prior, silhouette)) => {
             pose = Some(prior.landmarks.clone());
             let intervals = timings.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
-            let shifts =
-                crate::body::placed::depth_shifts(&intervals, &surfaces.mask, crate::body::placed::PLACEMENT_WEIGHT);
+            let learned = opts.placement.as_ref().and_then(|net| {
+                timings.time("body placement (network)", || placement_net_shifts(net, &surfaces, &intervals, opts))
+            });
+            let shifts = learned.or_else(|| {
+                crate::body::placed::depth_shifts(&intervals, &surfaces.mask, crate::body::placed::PLACEMENT_WEIGHT)
+            });
             match shifts {
                 Some(shifts) => crate::body::placed::place(surfaces, &shifts),
                 None => {
@@ -571,6 +640,36 @@ fn body_placed_geometry(
         Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order)
     })?;
     Ok((fof, pose))
+}
+
+/// The placement network's shifts for the inflation prior `surfaces` and the fitted body's reconciled `intervals`
+/// (both encoded as FOFs, as the network's training data holds them); `None`, with one warning per process, when
+/// the network fails on this input (the caller then places by the fixed rule).
+fn placement_net_shifts(
+    net: &SharedPlacementNet,
+    surfaces: &inflate::InflatedSurfaces,
+    intervals: &crate::buffer::Image<Vec<(f32, f32)>>,
+    opts: &PrepareOptions,
+) -> Option<GrayImage> {
+    let (prior, body) = rayon::join(
+        || Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order),
+        || Fof::from_intervals(intervals, opts.fof_order),
+    );
+    let shifts = match (prior, body) {
+        (Ok(prior), Ok(body)) => {
+            let mut net = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            net.shifts(&surfaces.mask, &prior, &body).map_err(|e| e.to_string())
+        }
+        (Err(e), _) | (_, Err(e)) => Err(e.to_string()),
+    };
+    match shifts {
+        Ok(s) => Some(s),
+        Err(e) => {
+            static WARNED: std::sync::Once = std::sync::Once::new();
+            WARNED.call_once(|| tracing::warn!("placement network failed ({e}); placing the body by the fixed rule"));
+            None
+        }
+    }
 }
 
 /// Places a fitted body (a mesh in the body cube seen by the source camera of `mask`'s grid) in depth before it is

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from train import losses
-from train.depth_centre import centre_fof, centring_shift, fof_centroid_z, fof_depth_range, shift_fof
+from train.depth_centre import centre_fof, centring_shift, fof_centroid_z, fof_depth_range, shift_columns, shift_fof
 from train.dataset import R2Dataset, downsample_view, view_angle_deg
 from train.fit import R2HumanNet, decode_occupancy
 from train.geometry import linear_to_srgb, srgb_to_linear, transfer, visibility, warp_rgb
@@ -248,6 +248,62 @@ class DepthCentreTest(unittest.TestCase):
         zero = torch.zeros(2, 8, 3, 3)
         out, dz = centre_fof(zero)
         self.assertTrue(torch.equal(out, zero) and torch.equal(dz, torch.zeros(2)))
+
+
+class PlacementTest(unittest.TestCase):
+    """train/placement.py: per-column shifts, column moments in closed form, the untrained net is `body-placed`."""
+
+    def test_shift_columns_moves_each_column_by_its_own_shift(self):
+        fof = interval_fof([[-0.5, -0.2]], [[0.1, 0.4]])
+        dz = torch.tensor([[[[0.3, -0.25]]]])
+        moved = shift_columns(fof, dz)
+        for col, (lo, hi, d) in enumerate([(-0.5, 0.1, 0.3), (-0.2, 0.4, -0.25)]):
+            a, b = crossings(moved[..., col:col + 1])
+            self.assertAlmostEqual(a, lo + d, delta=0.01)
+            self.assertAlmostEqual(b, hi + d, delta=0.01)
+        # The same shift everywhere is shift_fof.
+        same = shift_columns(fof, torch.full((1, 1, 1, 2), 0.2))
+        self.assertLess(float((same - shift_fof(fof, torch.tensor([0.2]))).abs().max()), 1e-5)
+
+    def test_column_length_and_centroid_and_about_centroid(self):
+        from train.placement import about_centroid, column_length_and_centroid
+        # [-0.6, -0.2] (length 0.4, middle -0.4), [0.1, 0.9] (0.8, 0.5), an empty column.
+        fof = interval_fof([[-0.6, 0.1, 0.0]], [[-0.2, 0.9, 0.0]])
+        length, centroid, cols = column_length_and_centroid(fof)
+        self.assertEqual(cols[0, 0, 0].tolist(), [True, True, False])
+        for got, want in zip(length[0, 0, 0].tolist(), [0.4, 0.8, 0.0]):
+            self.assertAlmostEqual(got, want, delta=0.01)
+        for got, want in zip(centroid[0, 0, 0].tolist(), [-0.4, 0.5, 0.0]):
+            self.assertAlmostEqual(got, want, delta=0.01)
+        # About the volume-weighted centroid 0.2: -0.6, 0.3, and 0 where empty.
+        for got, want in zip(about_centroid(length, centroid, cols)[0, 0, 0].tolist(), [-0.6, 0.3, 0.0]):
+            self.assertAlmostEqual(got, want, delta=0.01)
+
+    def test_untrained_net_is_body_placed_and_training_moves_it(self):
+        from train.placement import PLACEMENT_WEIGHT, PlacementNet, base_placement
+        # The prior: two columns on the centre plane; the body puts the first 0.4 ahead of the second.
+        # On an 8 x 8 grid (the UNet's stride), the columns in row 0, the rest empty.
+        def grid(lo, hi):
+            a, b = np.zeros((8, 8)), np.zeros((8, 8))
+            a[0, :3], b[0, :3] = lo, hi
+            return interval_fof(a, b)
+
+        prior = grid([-0.2, -0.2, 0.0], [0.2, 0.2, 0.0])
+        body = grid([0.1, -0.3, 0.0], [0.3, -0.1, 0.0])
+        net = PlacementNet("tiny")
+        with torch.no_grad():
+            shift = net(body, prior)
+        # Body centroids 0.2 and -0.2 about their mean 0: shifts 0.5 * (+-0.2); the empty column stays.
+        for got, want in zip(shift[0, 0, 0, :3].tolist(), [PLACEMENT_WEIGHT * 0.2, -PLACEMENT_WEIGHT * 0.2, 0.0]):
+            self.assertAlmostEqual(got, want, delta=0.01)
+        self.assertEqual(float(shift[0, 0, 1:].abs().max()), 0.0)
+        self.assertLess(float((net.place(body, prior) - base_placement(body, prior)).abs().max()), 1e-6)
+        (net.place(body, prior) - 0.3).abs().mean().backward()
+        self.assertGreater(float(net.net.out.weight.grad.abs().sum()), 0.0)
+        # Empty and NaN-free: all-zero inputs give a zero shift.
+        with torch.no_grad():
+            zero = net(torch.zeros(1, 32, 8, 8), torch.zeros(1, 32, 8, 8))
+        self.assertTrue(torch.equal(zero, torch.zeros_like(zero)))
 
 
 class LossTest(unittest.TestCase):

@@ -14,6 +14,9 @@ r2human metadata with kind `fof`, R = 16, N = 4) and a closed-form output:
                      fof = prior + 0 * body + [0.25, 0, 0, 0]  (a net that sees geometry only: no photo fed)
   fof_bad_inputs.onnx  `r2human.fof_inputs = image,depth` (an input this build cannot feed: a clear error)
   fof_bad_residual.onnx  inputs image, prior but `r2human.residual = body` (a base it does not take: an error)
+  placement_split.onnx, placement_split32.onnx  placement nets (inputs body, prior; output shift [1,1,R,R]):
+                     shift 0.1 on the left half, -0.2 on the right (N = 4 and N = 32)
+  placement_nan32.onnx  a placement net (N = 32) whose shift is NaN on the left half (a broken model)
 Needs only `onnx` and `numpy`.
 """
 import os
@@ -96,3 +99,38 @@ save_body("fof_body.onnx", [0.25, 0, 0, 0])
 save_body("fof_geometry.onnx", [0.25, 0, 0, 0], fof_inputs="body,prior", residual="prior", image=False)
 save_body("fof_bad_inputs.onnx", [0, 0, 0, 0], fof_inputs="image,depth", residual="prior", inputs=("prior",))
 save_body("fof_bad_residual.onnx", [0, 0, 0, 0], fof_inputs="image,prior", residual="body", inputs=("prior",))
+
+
+def save_placement(name, left, right, n=N):
+    """A placement net (`r2human.kind = placement`: inputs body, prior [1,n,R,R] -> shift [1,1,R,R]) whose shift is
+    `left` on the model's left half and `right` on its right half, plus 0 * mean(body) + 0 * mean(prior)."""
+    zero = numpy_helper.from_array(np.zeros((1, 1, 1, 1), np.float32), "zero")
+    pattern = np.full((1, 1, R, R), right, np.float32)
+    pattern[..., : R // 2] = left
+    shift = numpy_helper.from_array(pattern, "pattern")
+    nodes = [
+        helper.make_node("ReduceMean", ["body"], ["mb"], keepdims=1),
+        helper.make_node("ReduceMean", ["prior"], ["mp"], keepdims=1),
+        helper.make_node("Add", ["mb", "mp"], ["m"]),
+        helper.make_node("Mul", ["m", "zero"], ["m0"]),
+        helper.make_node("Add", ["pattern", "m0"], ["shift"]),
+    ]
+    graph = helper.make_graph(
+        nodes, name,
+        [helper.make_tensor_value_info(i, TensorProto.FLOAT, [1, n, R, R]) for i in ("body", "prior")],
+        [helper.make_tensor_value_info("shift", TensorProto.FLOAT, [1, 1, R, R])], [zero, shift])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="r2human-fixtures")
+    model.ir_version = 8
+    meta = {"r2human.format": "1", "r2human.kind": "placement", "r2human.tier": "test", "r2human.resolution": str(R),
+            "r2human.fof_n": str(n), "r2human.recipe": "tests/data/fof_net/make_fixtures.py"}
+    for k, v in meta.items():
+        model.metadata_props.append(onnx.StringStringEntryProto(key=k, value=v))
+    onnx.checker.check_model(model)
+    onnx.save(model, os.path.join(HERE, name))
+
+
+# Placement nets (tests/fof_net.rs, `PlacementNet`): a closed-form split shift, the same at N = 32 (the pipeline's
+# order), and a broken one.
+save_placement("placement_split.onnx", 0.1, -0.2)
+save_placement("placement_split32.onnx", 0.1, -0.2, n=32)
+save_placement("placement_nan32.onnx", float("nan"), 0.0, n=32)
