@@ -9,7 +9,12 @@
 //!   `--geometry inflate|body|fofnet|body-placed` draw them;
 //! - `G1`: the ground truth reduced to one interval per column (what any one-interval geometry can reach at best);
 //! - `I|Gd`: the inflation prior's thickness at the ground truth's depths (a perfect depth placement);
-//! - `Gt|Id`: the ground truth's thickness at the inflation prior's depths (a perfect thickness).
+//! - `Gt|Id`: the ground truth's thickness at the inflation prior's depths (a perfect thickness);
+//! - `I|Gd/8`, `I|Gd/32`: the inflation prior's thickness at the ground truth's depths averaged over tiles of 1/32
+//!   and 1/8 of the image side (how much spatial detail a depth placement needs);
+//! - `I|Bd`: the inflation prior's thickness at the body prior's depths (`body-placed` at weight 1);
+//! - `I|kBd`: the same with the body's depths scaled about their mean by the least-squares slope that fits the
+//!   ground truth best for this input (the best single trust in the body per input; the slope goes to stderr).
 //!
 //! `I|Gd` against `Gt|Id` says which of the two the inflation prior lacks more (README "Body-placed inflation").
 //! Each constructed field is placed in depth by the volume-centroid convention, as the pipeline places its own.
@@ -63,21 +68,63 @@ fn one_interval(width: usize, height: usize, thickness: &[Column], depth: &[Colu
     Ok(centre_fof(Fof::from_intervals(&Image { width, height, data }, N)?).0)
 }
 
+/// `depth`'s column depths averaged over `block` x `block` pixel tiles (over the tile's columns that have one):
+/// how much spatial detail of the depth a placement needs.
+fn block_depths(width: usize, height: usize, depth: &[Column], block: usize) -> Vec<Column> {
+    let (bw, bh) = (width.div_ceil(block), height.div_ceil(block));
+    let mut sums = vec![(0.0f32, 0u32); bw * bh];
+    for (i, d) in depth.iter().enumerate() {
+        if let Some((_, z)) = d {
+            let b = (i / width / block) * bw + (i % width) / block;
+            sums[b].0 += z;
+            sums[b].1 += 1;
+        }
+    }
+    (0..width * height)
+        .map(|i| {
+            let b = (i / width / block) * bw + (i % width) / block;
+            depth[i].map(|(t, _)| (t, sums[b].0 / sums[b].1 as f32))
+        })
+        .collect()
+}
+
+/// The body's column depths scaled about their mean by the least-squares slope that fits the ground truth's best
+/// (the depth of the best global trust in the body for this input), where both have the column.
+fn fitted_slope(body: &[Column], truth: &[Column]) -> (f32, Vec<Column>) {
+    let pairs: Vec<(f32, f32)> =
+        body.iter().zip(truth).filter_map(|(b, t)| Some((b.as_ref()?.1, t.as_ref()?.1))).collect();
+    let n = pairs.len().max(1) as f32;
+    let (mb, mt) = (pairs.iter().map(|p| p.0).sum::<f32>() / n, pairs.iter().map(|p| p.1).sum::<f32>() / n);
+    let cov: f32 = pairs.iter().map(|(b, t)| (b - mb) * (t - mt)).sum();
+    let var: f32 = pairs.iter().map(|(b, _)| (b - mb) * (b - mb)).sum();
+    let k = if var > 0.0 { cov / var } else { 0.0 };
+    (k, body.iter().map(|b| b.map(|(t, z)| (t, mb + k * (z - mb)))).collect())
+}
+
 fn main() -> anyhow::Result<()> {
     let (cases, size) = cases::from_args("geometry_oracle")?;
     let base = cases::geometry_options(size)?;
-    cases::print_ious(&["I", "B", "F", "BP", "G1", "I|Gd", "Gt|Id"], &cases, |c| {
+    let names = ["I", "B", "F", "BP", "G1", "I|Gd", "Gt|Id", "I|Gd/8", "I|Gd/32", "I|Bd", "I|kBd"];
+    cases::print_ious(&names, &cases, |c| {
         let inflation = c.geometry(&base, GeometryMode::Inflate)?;
+        let body = c.geometry(&base, GeometryMode::Body)?;
         let (w, h) = (inflation.width, inflation.height);
-        let (ci, cg) = (columns(&inflation), columns(&c.truth));
+        let (ci, cg, cb) = (columns(&inflation), columns(&c.truth), columns(&body));
+        let (k, scaled) = fitted_slope(&cb, &cg);
+        eprintln!("{}: best slope of the body's depths {k:.2}", c.label);
+        let (b8, b32) = (block_depths(w, h, &cg, w / 32), block_depths(w, h, &cg, w / 8));
         Ok(vec![
             inflation,
-            c.geometry(&base, GeometryMode::Body)?,
+            body,
             c.geometry(&base, GeometryMode::FofNet)?,
             c.geometry(&base, GeometryMode::BodyPlaced)?,
             one_interval(w, h, &cg, &cg)?,
             one_interval(w, h, &ci, &cg)?,
             one_interval(w, h, &cg, &ci)?,
+            one_interval(w, h, &ci, &b8)?,
+            one_interval(w, h, &ci, &b32)?,
+            one_interval(w, h, &ci, &cb)?,
+            one_interval(w, h, &ci, &scaled)?,
         ])
     })
 }
