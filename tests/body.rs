@@ -349,6 +349,20 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
             r2human::io::image_io::save_rgb_png(&p, &rgb).unwrap();
         }
         let lm = net.estimate(&rgb, &t.mask, None).expect("runs").expect("a pose in a rendered subject");
+        // A second read of the same photo gives the same landmarks without running the network again (the body
+        // prior reads a cut photo twice, uncut and cut); another photo runs it.
+        let runs = net.network_runs();
+        assert!(runs > 0);
+        let again = net.estimate(&rgb, &t.mask, None).expect("runs").expect("the same pose");
+        assert_eq!(net.network_runs(), runs, "the same inputs are answered from the cache");
+        assert_eq!(
+            again.landmarks.iter().map(|l| l.pixel).collect::<Vec<_>>(),
+            lm.landmarks.iter().map(|l| l.pixel).collect::<Vec<_>>()
+        );
+        let shifted = Image::from_fn(RES, RES, |c, r| *rgb.get((c + RES - 3) % RES, r));
+        let shifted_mask = Image::from_fn(RES, RES, |c, r| *t.mask.get((c + RES - 3) % RES, r));
+        let _ = net.estimate(&shifted, &shifted_mask, None).expect("runs");
+        assert!(net.network_runs() > runs, "a new photo runs the network");
         // Joints the network sees (visibility > 0.5) lie near the true ones (the rig's joint centres and
         // MediaPipe's landmarks are not defined identically: a few centimetres apart).
         let mut errs = Vec::new();

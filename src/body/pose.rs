@@ -521,7 +521,24 @@ pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, BodyError> {
 pub struct PoseEstimator {
     session: Session,
     path: PathBuf,
+    /// The network's last outputs by their exact input tensor ([`RUN_CACHE`] entries, newest last): the body prior
+    /// reads one photo up to three times (uncut and cut frames, each with its region refinements), and those reads
+    /// share network inputs. A hit returns the outputs the same input gave, so caching changes no result.
+    runs: Vec<CachedRun>,
+    /// Session runs so far (cache hits not counted).
+    network_runs: u64,
 }
+
+/// One network run: its input tensor and raw outputs (landmarks, score, world landmarks).
+struct CachedRun {
+    input: Vec<f32>,
+    raw: Vec<f32>,
+    score: f32,
+    world: Vec<f32>,
+}
+
+/// How many runs [`PoseEstimator`] keeps (one photo's reads need at most eight; each entry holds a 256² input).
+const RUN_CACHE: usize = 8;
 
 impl PoseEstimator {
     /// Loads the model (see [`model_path`]) on the execution provider of `options`.
@@ -539,12 +556,25 @@ impl PoseEstimator {
                 )));
             }
         }
-        Ok(Self { session, path })
+        Ok(Self { session, path, runs: Vec::new(), network_runs: 0 })
     }
 
     /// The model file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// How many times the network has run (a read whose input it has seen among the last few is answered from
+    /// them and does not count).
+    pub fn network_runs(&self) -> u64 {
+        self.network_runs
+    }
+
+    /// Forgets the cached runs: the next reads run the network (a caller that times one photo's read calls this
+    /// first, so a photo read before does not make it look free; [`crate::body::prior::BodyEstimator::estimate`]
+    /// does).
+    pub fn forget_runs(&mut self) {
+        self.runs.clear();
     }
 
     /// Runs the network once on `region` of `rgb` (linear RGB; the photo lies in `frame` of it); `None` when it
@@ -556,9 +586,37 @@ impl PoseEstimator {
         frame: PhotoFrame,
     ) -> Result<Option<PoseLandmarks>, BodyError> {
         let input = network_input(rgb, region);
+        let cached = self.runs.iter().position(|r| r.input == input);
+        let (raw, score, world) = match cached {
+            Some(i) => {
+                let hit = self.runs.remove(i);
+                let out = (hit.raw.clone(), hit.score, hit.world.clone());
+                self.runs.push(hit);
+                out
+            }
+            None => {
+                let (raw, score, world) = self.run_network(&input)?;
+                self.network_runs += 1;
+                if self.runs.len() == RUN_CACHE {
+                    self.runs.remove(0);
+                }
+                self.runs.push(CachedRun { input, raw: raw.clone(), score, world: world.clone() });
+                (raw, score, world)
+            }
+        };
+        let seen = if cached.is_some() { " (cached)" } else { "" };
+        tracing::debug!("pose network: score {score:.3} in region {region:?}{seen}");
+        if score.is_nan() || score < MIN_POSE_SCORE {
+            return Ok(None);
+        }
+        Ok(PoseLandmarks::decode(&raw, &world, score, region, frame))
+    }
+
+    /// One session run on a network input: raw landmarks, pose score and world landmarks.
+    fn run_network(&mut self, input: &[f32]) -> Result<(Vec<f32>, f32, Vec<f32>), BodyError> {
         let fail = |e: String| BodyError::Model(format!("running `{}` failed: {e}", self.path.display()));
         let view =
-            ndarray::ArrayView4::from_shape((1, 3, INPUT_SIZE, INPUT_SIZE), &input).map_err(|e| fail(e.to_string()))?;
+            ndarray::ArrayView4::from_shape((1, 3, INPUT_SIZE, INPUT_SIZE), input).map_err(|e| fail(e.to_string()))?;
         let tensor = TensorRef::from_array_view(view).map_err(|e| fail(e.to_string()))?;
         let outputs = self.session.run(ort::inputs!["input_1" => tensor]).map_err(|e| fail(e.to_string()))?;
         let get = |name: &str| -> Result<Vec<f32>, BodyError> {
@@ -568,12 +626,7 @@ impl PoseEstimator {
         };
         let raw = get("Identity")?;
         let score = get("Identity_1")?.first().copied().unwrap_or(0.0);
-        let world = get("Identity_4")?;
-        tracing::debug!("pose network: score {score:.3} in region {region:?}");
-        if score.is_nan() || score < MIN_POSE_SCORE {
-            return Ok(None);
-        }
-        Ok(PoseLandmarks::decode(&raw, &world, score, region, frame))
+        Ok((raw, score, get("Identity_4")?))
     }
 
     /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`; the photo lies in

@@ -112,6 +112,8 @@ impl BodyEstimator {
         timings: &mut dyn FnMut(&'static str, std::time::Duration),
     ) -> Result<Option<BodyPrior>, BodyError> {
         let t = std::time::Instant::now();
+        // The reads below share network inputs (uncut and cut frames); an earlier photo's runs are not reused.
+        self.pose.forget_runs();
         let given = frame.unwrap_or((Vec2::ZERO, Vec2::new(mask.width as f32, mask.height as f32)));
         let cut = effective_frame(mask, Some(given));
         let previous = if warm { self.previous.as_ref() } else { None };
@@ -152,6 +154,7 @@ impl BodyEstimator {
             None
         };
         let landmarks = front_read(landmarks, mirrored);
+        self.pose.forget_runs();
         timings("pose landmarks", t.elapsed());
         let min_visibility = self.options.min_visibility;
         let landmarks = arms_it_sees(standing_legs(legs_it_sees(landmarks), min_visibility), min_visibility);

@@ -42,8 +42,9 @@ pub struct GeometryArgs {
     /// folder correcting that prior; an error without fof.onnx), body (the body prior: pose landmarks -> fitted
     /// MakeHuman body -> its FOF reconciled with the silhouette, no FOF network; needs the pose model of
     /// scripts/setup.d/live.sh), body-placed (the silhouette-inflation prior with each column moved halfway toward
-    /// the fitted body's depth: the silhouette's thickness, the body's placement; same pose model) or auto (the
-    /// default: the geometry that wins the whole evaluation; README "Which geometry, where").
+    /// the fitted body's depth, or as far as the model folder's placement.onnx says when it has one: the
+    /// silhouette's thickness, the body's placement; same pose model) or auto (the default: the geometry that wins
+    /// the whole evaluation; README "Which geometry, where").
     #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]
     pub geometry: GeometryMode,
     /// How surfaces the photo does not show are coloured.
@@ -109,8 +110,9 @@ pub struct NeuralArgs {
     /// Execution provider of the neural renderer: auto tries TensorRT, then CUDA, then the CPU.
     #[arg(long, value_enum, default_value_t = ExecutionProvider::Auto)]
     pub ep: ExecutionProvider,
-    /// Model folder of the neural renderer (encoder.onnx, decoder.onnx) and the FOF network (fof.onnx, for
-    /// --geometry fofnet|auto); default: the project's models/tiny.
+    /// Model folder of the neural renderer (encoder.onnx, decoder.onnx), the FOF network (fof.onnx, for
+    /// --geometry fofnet) and an optional placement network (placement.onnx, for --geometry body-placed|auto);
+    /// default: the project's models/tiny.
     #[arg(long)]
     pub models: Option<PathBuf>,
 }

@@ -132,7 +132,8 @@ pub enum GeometryMode {
     /// inflation prior with a warning.
     Body,
     /// The silhouette-inflation prior with every column moved halfway toward the fitted body's depth there
-    /// ([`crate::body::placed`]): the silhouette's thickness, the body's placement in depth. An input where no pose
+    /// ([`crate::body::placed`]), or by the shift of the model folder's `placement.onnx` when it has one
+    /// ([`load_placement_net`]): the silhouette's thickness, the body's placement in depth. An input where no pose
     /// is found gets the inflation prior with a warning.
     #[value(name = "body-placed")]
     BodyPlaced,
