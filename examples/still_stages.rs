@@ -95,6 +95,7 @@ fn main() -> anyhow::Result<()> {
         let (mask, frame) = (&input.mask, Some(input.frame));
         let mut stages = Stages::default();
         for _ in 0..repeats {
+            pose.forget_runs();
             stages
                 .time("pose landmarks alone", || pose.estimate(&input.rgb, mask, Some(effective_frame(mask, frame))))?;
             let Some(prior) = stages

@@ -29,7 +29,7 @@ use crate::geometry::Camera;
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    compute_geometry, NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, StageTimings,
+    compute_geometry_and_pose, NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, StageTimings,
     ViewRenderer,
 };
 
@@ -140,10 +140,11 @@ impl FrameProcessor for PrepareProcessor {
         let opts = &self.options;
         let mut timings = StageTimings::default();
         let normalised = timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution))?;
-        let mut fof = compute_geometry(&normalised, opts, &mut timings)?;
+        // The back image (with `back_pose`) takes its face from the body's pose read when the geometry fitted one.
+        let (mut fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
         let smoother = &mut self.fof_smoother;
         timings.time("smooth geometry", || smoother.update(&mut fof.coeffs));
-        let prepared = PreparedInput::from_fof(normalised, fof, opts, timings)?;
+        let prepared = PreparedInput::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings)?;
         for (name, d) in &prepared.timings.0 {
             stats.record(name, *d);
         }

@@ -227,12 +227,15 @@ impl fmt::Display for Written {
                 for frame in &report.frames {
                     writeln!(f, "{frame}")?;
                 }
+                let medians: Vec<String> =
+                    report.stages.iter().map(|s| format!("{} {:.1}", s.name, s.median_ms())).collect();
                 write!(
                     f,
-                    "wrote {} frames to {} with the {renderer} renderer ({} skipped)",
+                    "wrote {} frames to {} with the {renderer} renderer ({} skipped)\nper-frame stage medians (ms): {}",
                     report.written.len(),
                     dir.display(),
-                    report.skipped.len()
+                    report.skipped.len(),
+                    medians.join(", ")
                 )
             }
             Written::Demo { orbit, prepare_ms, triangles } => {
