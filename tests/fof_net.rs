@@ -671,7 +671,11 @@ fn body_placed_uses_the_folders_placement_net_and_falls_back_to_the_fixed_rule()
     assert!(load(GeometryMode::BodyPlaced, 32).unwrap().is_none(), "no file: the fixed rule");
     std::fs::copy(fixture("placement_split.onnx"), dir.path().join("placement.onnx")).unwrap();
     let e = load(GeometryMode::BodyPlaced, 32).expect_err("N = 4 file for N = 32");
-    assert!(matches!(e, PipelineError::PlacementLoad(_)) && e.to_string().contains("--fof-order"), "{e}");
+    assert!(matches!(e, PipelineError::PlacementOrder(_)) && e.to_string().contains("--fof-order"), "{e}");
+    std::fs::write(dir.path().join("placement.onnx"), b"not an onnx file").unwrap();
+    let e = load(GeometryMode::BodyPlaced, 32).expect_err("a corrupt file");
+    assert!(matches!(e, PipelineError::PlacementLoad(NeuralError::ModelLoad { .. })), "{e:?}");
+    assert!(load(GeometryMode::Auto, 32).unwrap().is_none(), "auto: the fixed rule");
     assert!(load(GeometryMode::Auto, 32).unwrap().is_none());
     std::fs::copy(fixture("placement_split32.onnx"), dir.path().join("placement.onnx")).unwrap();
     assert!(load(GeometryMode::Inflate, 32).unwrap().is_none());

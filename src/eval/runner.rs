@@ -759,8 +759,9 @@ pub(super) fn load_placement(
             None
         }
         Err(e) => {
-            tracing::warn!("the body-placed rows use the fixed placement rule: {e}");
-            notes.push(format!("The body-placed rows use the fixed placement rule: {e}"));
+            let cause = std::error::Error::source(&e).map(|c| format!(" ({c})")).unwrap_or_default();
+            tracing::warn!("the body-placed rows use the fixed placement rule: {e}{cause}");
+            notes.push(format!("The body-placed rows use the fixed placement rule: {e}{cause}"));
             None
         }
     }

@@ -95,12 +95,18 @@ pub enum PipelineError {
     )]
     FofNetLoad(#[source] NeuralError),
     /// The model folder's `placement.onnx` is there but cannot be loaded (`--geometry body-placed`): ONNX Runtime
-    /// is missing, or the file is corrupt, not a placement network or of another `N`.
+    /// is missing, or the file is corrupt or not a placement network. The cause is the source.
     #[error(
-        "placement network: {0}. Remove or re-export it (`python -m train export --placement`, see \
+        "placement network: it does not load. Remove or re-export it (`python -m train export --placement`, see \
          train/README.md), pass --models DIR without it (the fixed placement rule), or use --geometry inflate"
     )]
-    PlacementLoad(String),
+    PlacementLoad(#[source] NeuralError),
+    /// The model folder's `placement.onnx` reads another number of FOF coefficients than `--fof-order`.
+    #[error(
+        "placement network: {0}. Re-export it for this order, pass --models DIR without it (the fixed placement \
+         rule), or use --geometry inflate"
+    )]
+    PlacementOrder(String),
     /// The body prior's pose model or body data cannot be loaded (`--geometry body`). Worded as
     /// [`PipelineError::NoBody`]; the cause is the source.
     #[error("body prior: {0}. Install them with `bash scripts/setup.sh`, or use --geometry inflate")]
@@ -389,17 +395,15 @@ pub fn load_placement_net(
         tracing::info!("geometry: body placement by the fixed rule (no {})", crate::neural::PLACEMENT_FILE);
         return Ok(None);
     };
-    let loaded = PlacementNet::load(&path, options).map_err(|e| e.to_string()).and_then(|net| {
-        if net.info().fof_n == fof_order {
-            Ok(net)
-        } else {
-            Err(format!(
-                "`{}` reads {} FOF coefficients but --fof-order is {fof_order}",
-                path.display(),
-                net.info().fof_n
-            ))
-        }
-    });
+    let loaded = match PlacementNet::load(&path, options) {
+        Ok(net) if net.info().fof_n == fof_order => Ok(net),
+        Ok(net) => Err(PipelineError::PlacementOrder(format!(
+            "`{}` reads {} FOF coefficients but --fof-order is {fof_order}",
+            path.display(),
+            net.info().fof_n
+        ))),
+        Err(e) => Err(PipelineError::PlacementLoad(e)),
+    };
     match loaded {
         Ok(net) => {
             tracing::info!(
@@ -411,10 +415,11 @@ pub fn load_placement_net(
             Ok(Some(Arc::new(Mutex::new(net))))
         }
         Err(e) if mode == GeometryMode::Auto => {
-            tracing::warn!("geometry: placement network not used ({e}); placing the body by the fixed rule");
+            let cause = std::error::Error::source(&e).map(|c| format!(" ({c})")).unwrap_or_default();
+            tracing::warn!("geometry: {e}{cause}; placing the body by the fixed rule");
             Ok(None)
         }
-        Err(e) => Err(PipelineError::PlacementLoad(e)),
+        Err(e) => Err(e),
     }
 }
 
@@ -656,12 +661,12 @@ fn placement_net_shifts(
         || Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order),
         || Fof::from_intervals(intervals, opts.fof_order),
     );
-    let shifts = match (prior, body) {
+    let shifts: Result<GrayImage, Box<dyn std::error::Error + Send + Sync>> = match (prior, body) {
         (Ok(prior), Ok(body)) => {
             let mut net = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-            net.shifts(&surfaces.mask, &prior, &body).map_err(|e| e.to_string())
+            net.shifts(&surfaces.mask, &prior, &body).map_err(Into::into)
         }
-        (Err(e), _) | (_, Err(e)) => Err(e.to_string()),
+        (Err(e), _) | (_, Err(e)) => Err(e.into()),
     };
     match shifts {
         Ok(s) => Some(s),
