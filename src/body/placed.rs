@@ -17,7 +17,7 @@
 //! not the person as a whole (the pipeline centres the result by the depth convention afterwards).
 
 use crate::buffer::{GrayImage, Image};
-use crate::geometry::depth_centre::intervals_centroid_z;
+use crate::geometry::depth_centre::{centring_shift, intervals_centroid_z, MIN_SHIFT};
 use crate::geometry::inflate::InflatedSurfaces;
 
 /// The fraction of the way from the inflation prior's centre plane to the body's depth that each column moves
@@ -81,12 +81,56 @@ pub fn place(mut surfaces: InflatedSurfaces, shifts: &GrayImage) -> InflatedSurf
     surfaces
 }
 
+/// `surfaces` placed by the body cube's depth convention ([`crate::geometry::depth_centre`]), measured exactly on
+/// the surfaces' intervals `[back, front]` inside their mask: the occupied volume's centroid moves to z = 0 unless
+/// that would push the range out of the cube ([`centring_shift`]). The FOF encoded from the result is centred
+/// already (to the encoding's truncation), so [`crate::geometry::depth_centre::centre_fof`] leaves it as it is
+/// instead of decoding its range and shifting every column in coefficient space.
+pub fn centred(mut surfaces: InflatedSurfaces) -> InflatedSurfaces {
+    let columns = surfaces.mask.data.iter().zip(surfaces.front.data.iter().zip(&surfaces.back.data));
+    let intervals: Vec<[(f32, f32); 1]> =
+        columns.filter(|(m, _)| **m > 0.5).map(|(_, (&front, &back))| [(back, front)]).collect();
+    let Some((centroid, lo, hi)) = intervals_centroid_z(intervals.iter().map(|i| i.as_slice())) else {
+        return surfaces;
+    };
+    let dz = centring_shift(centroid, lo, hi);
+    if dz.abs() >= MIN_SHIFT {
+        let mask = &surfaces.mask.data;
+        for map in [&mut surfaces.front, &mut surfaces.back] {
+            map.data.iter_mut().zip(mask).filter(|(_, m)| **m > 0.5).for_each(|(z, _)| *z += dz);
+        }
+    }
+    surfaces
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn intervals(w: usize, h: usize, f: impl Fn(usize, usize) -> Vec<(f32, f32)>) -> Image<Vec<(f32, f32)>> {
         Image::from_fn(w, h, f)
+    }
+
+    #[test]
+    fn centred_puts_the_volume_centroid_at_zero_inside_the_cube() {
+        // Two columns, [0.1, 0.5] and [0.3, 0.9] (volumes 0.4 and 0.6; centroid (0.4 * 0.3 + 0.6 * 0.6) / 1.0 =
+        // 0.48), a third outside the mask that does not count.
+        let surfaces = |front: [f32; 3], back: [f32; 3]| InflatedSurfaces {
+            front: Image { width: 3, height: 1, data: front.to_vec() },
+            back: Image { width: 3, height: 1, data: back.to_vec() },
+            mask: Image { width: 3, height: 1, data: vec![1.0, 1.0, 0.0] },
+        };
+        let s = centred(surfaces([0.5, 0.9, 5.0], [0.1, 0.3, 4.0]));
+        for (got, want) in s.front.data.iter().zip([0.02, 0.42, 5.0]).chain(s.back.data.iter().zip([-0.38, -0.18, 4.0]))
+        {
+            assert!((got - want).abs() < 1e-6, "{got} vs {want}");
+        }
+        // Centring would push the back past z = -1: only as far as the face.
+        let s = centred(surfaces([0.9, 0.95, 0.0], [-0.9, 0.5, 0.0]));
+        assert!((s.back.data[0] + 1.0).abs() < 1e-6, "{:?}", s.back.data);
+        // No volume: unchanged.
+        let empty = surfaces([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]);
+        assert_eq!(centred(empty.clone()).front.data, empty.front.data);
     }
 
     #[test]

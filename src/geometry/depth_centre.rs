@@ -244,6 +244,11 @@ pub fn shift_fof_in_place(fof: &mut Fof, dz: f32) {
 /// already centred to within [`MIN_SHIFT`]).
 pub fn centre_fof(fof: Fof) -> (Fof, f32) {
     let Some(centroid) = fof_centroid_z(&fof) else { return (fof, 0.0) };
+    // A decoded range lies inside the cube, so the limited shift is never larger than the centroid: a field that is
+    // centred already needs no range (decoding it is most of this function's time).
+    if centroid.abs() < MIN_SHIFT {
+        return (fof, 0.0);
+    }
     let Some((lo, hi)) = fof_depth_range(&fof, 4, 256) else { return (fof, 0.0) };
     let dz = centring_shift(centroid, lo, hi);
     if dz.abs() < MIN_SHIFT {

@@ -643,6 +643,7 @@ fn body_placed_geometry(
         }
     };
     let fof = timings.time("geometry (body placement -> FOF)", || {
+        let surfaces = crate::body::placed::centred(surfaces);
         Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order)
     })?;
     Ok((fof, pose))
