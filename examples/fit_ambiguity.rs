@@ -1,8 +1,9 @@
 //! Does the fit's cost tell which way the legs go in depth? For each input the body prior is fitted as
 //! `--geometry body` fits it (A), and again to the same landmarks with the legs' depths (knees, ankles, heels,
-//! toes; image and world) mirrored about the hips (B). Prints both fits' final costs and the volumetric IoU of
-//! `body-placed` drawn with each body, with the min-cost body, and with the mean of the two placements (a hedge
-//! that leaves the legs where the two disagree): `cargo run --release --example fit_ambiguity -- [SUBJECTS] [SEED]
+//! toes; image and world) mirrored about the hips (B), and with the arms' (elbows to fingers) mirrored about the
+//! shoulders (C). Prints the fits' final costs and the volumetric IoU of `body-placed` drawn with each body, with
+//! the lower-cost of A and B, and with the mean of A's and B's placements (a hedge that leaves the legs where the
+//! two disagree): `cargo run --release --example fit_ambiguity -- [SUBJECTS] [SEED]
 //! [SIZE]` or `-- --scans [--size N] FILE...`. Only volume; a diagnostic for the README's "a steadier fit".
 
 // Only the inputs of the shared harness are used here.
@@ -22,16 +23,28 @@ use r2human::geometry::fof::Fof;
 use r2human::geometry::inflate::{inflate_resolvable, InflateParams};
 use r2human::pipeline::centre_visible_depth;
 
-/// `landmarks` with the legs' depths mirrored about the hips' (image depth and world z).
-fn legs_mirrored(landmarks: &PoseLandmarks) -> PoseLandmarks {
+/// `landmarks` with the depths of `parts` (landmark indices) mirrored about the mean depth of `pivot` (image depth
+/// and world z).
+fn mirrored(landmarks: &PoseLandmarks, parts: std::ops::Range<usize>, pivot: [usize; 2]) -> PoseLandmarks {
     let mut out = landmarks.clone();
-    let hip = 0.5 * (landmarks.landmarks[index::LEFT_HIP].depth + landmarks.landmarks[index::RIGHT_HIP].depth);
-    let hip_world = 0.5 * (landmarks.world[index::LEFT_HIP].z + landmarks.world[index::RIGHT_HIP].z);
-    for i in index::LEFT_KNEE..out.landmarks.len().min(33) {
-        out.landmarks[i].depth = 2.0 * hip - out.landmarks[i].depth;
-        out.world[i].z = 2.0 * hip_world - out.world[i].z;
+    let centre = 0.5 * (landmarks.landmarks[pivot[0]].depth + landmarks.landmarks[pivot[1]].depth);
+    let centre_world = 0.5 * (landmarks.world[pivot[0]].z + landmarks.world[pivot[1]].z);
+    let count = out.landmarks.len().min(out.world.len());
+    for i in parts.filter(|&i| i < count) {
+        out.landmarks[i].depth = 2.0 * centre - out.landmarks[i].depth;
+        out.world[i].z = 2.0 * centre_world - out.world[i].z;
     }
     out
+}
+
+/// The legs (knees to toes) mirrored about the hips.
+fn legs_mirrored(landmarks: &PoseLandmarks) -> PoseLandmarks {
+    mirrored(landmarks, index::LEFT_KNEE..33, [index::LEFT_HIP, index::RIGHT_HIP])
+}
+
+/// The arms (elbows to fingers) mirrored about the shoulders.
+fn arms_mirrored(landmarks: &PoseLandmarks) -> PoseLandmarks {
+    mirrored(landmarks, index::LEFT_ELBOW..index::LEFT_HIP, [index::LEFT_SHOULDER, index::RIGHT_SHOULDER])
 }
 
 fn main() -> anyhow::Result<()> {
@@ -39,8 +52,11 @@ fn main() -> anyhow::Result<()> {
     let mut estimator = BodyEstimator::load(None, &Default::default())?;
     let model = estimator.model();
     let params = InflateParams::default();
-    println!("{:<20}{:>10}{:>10}{:>8}{:>8}{:>8}{:>8}", "input", "cost A", "cost B", "A", "B", "min", "hedge");
-    let mut sums = [0.0f64; 4];
+    println!(
+        "{:<20}{:>10}{:>10}{:>8}{:>8}{:>8}{:>8}{:>10}{:>8}",
+        "input", "cost A", "cost B", "A", "B", "min", "hedge", "cost C", "C"
+    );
+    let mut sums = [0.0f64; 5];
     let mut n = 0;
     for c in &cases {
         let (mask, rgb) = (&c.input.mask, &c.input.rgb);
@@ -62,6 +78,7 @@ fn main() -> anyhow::Result<()> {
             Ok((fit.cost, s))
         };
         let ((cost_a, a), (cost_b, b)) = (shifts(&prior.landmarks)?, shifts(&legs_mirrored(&prior.landmarks))?);
+        let (cost_c, arms) = shifts(&arms_mirrored(&prior.landmarks))?;
         let iou = |s: &GrayImage| -> anyhow::Result<f64> {
             let placed = centred(place(surfaces.clone(), s));
             let fof = centre_fof(Fof::from_depth_maps(&placed.front, &placed.back, &placed.mask, cases::N)?).0;
@@ -69,24 +86,19 @@ fn main() -> anyhow::Result<()> {
         };
         let mut hedge = a.clone();
         hedge.data.iter_mut().zip(&b.data).for_each(|(x, y)| *x = 0.5 * (*x + *y));
-        let (ia, ib, ih) = (iou(&a)?, iou(&b)?, iou(&hedge)?);
+        let (ia, ib, ih, ic) = (iou(&a)?, iou(&b)?, iou(&hedge)?, iou(&arms)?);
         let im = if cost_a <= cost_b { ia } else { ib };
-        for (s, v) in sums.iter_mut().zip([ia, ib, im, ih]) {
+        for (s, v) in sums.iter_mut().zip([ia, ib, im, ih, ic]) {
             *s += v;
         }
         n += 1;
-        println!("{:<20}{cost_a:>10.4}{cost_b:>10.4}{ia:>8.3}{ib:>8.3}{im:>8.3}{ih:>8.3}", c.label);
+        println!(
+            "{:<20}{cost_a:>10.4}{cost_b:>10.4}{ia:>8.3}{ib:>8.3}{im:>8.3}{ih:>8.3}{cost_c:>10.4}{ic:>8.3}",
+            c.label
+        );
     }
     let m = |s: f64| s / n.max(1) as f64;
-    println!(
-        "{:<20}{:>10}{:>10}{:>8.3}{:>8.3}{:>8.3}{:>8.3}",
-        "mean",
-        "",
-        "",
-        m(sums[0]),
-        m(sums[1]),
-        m(sums[2]),
-        m(sums[3])
-    );
+    let [a, b, min, hedge, c] = sums.map(m);
+    println!("{:<20}{:>10}{:>10}{a:>8.3}{b:>8.3}{min:>8.3}{hedge:>8.3}{:>10}{c:>8.3}", "mean", "", "", "");
     Ok(())
 }
