@@ -292,7 +292,12 @@ fn render_video(job: &RenderJob, video: &Path) -> Result<Written> {
     let mut source = open_video_path(video, 25.0)?;
     let neural = job.view.neural()?;
     let live = LiveOptions { segment: job.segment.clone(), ..Default::default() };
-    let prepare = job.view.prepare_options()?;
+    // Frames draw what `--geometry` names; `auto` means the steady inflation prior on frames (FRAMES_AUTO_CHOICE).
+    let geometry = GeometryOptions { geometry: job.view.geometry.geometry.for_frames(), ..job.view.geometry };
+    if job.view.geometry.geometry == GeometryMode::Auto {
+        tracing::info!("video frames: auto draws `{}` (steady between frames)", geometry.geometry.name());
+    }
+    let prepare = geometry.prepare_options(job.view.neural.models.as_deref(), &job.view.neural.options)?;
     let cam = job.view.camera(job.yaw);
     let fill = job.view.geometry.fill;
     let (report, fallbacks) = render_video_views(

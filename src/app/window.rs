@@ -382,7 +382,7 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         // "What the photo does not show").
         let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &opts.neural.options);
         // A still is prepared once: with the geometry `render` draws (`--geometry auto`); live frames keep the
-        // inflation prior (a body fit per frame is not measured in the live loop).
+        // inflation prior (`pipeline::FRAMES_AUTO_CHOICE`: a body geometry flickers between frames).
         let auto = crate::pipeline::auto_still_options(opts.neural.models.as_deref(), &opts.neural.options)?;
         let still_opts = PrepareOptions {
             back_pose,

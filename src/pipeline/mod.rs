@@ -156,7 +156,23 @@ pub enum GeometryMode {
 /// and the fit on every input. Without the body prior's data it draws the inflation prior, with one warning.
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::BodyPlaced;
 
+/// What [`GeometryMode::Auto`] draws on the frames of a video or camera (`render --video`, and the live frames of
+/// `view` and `xr`): the silhouette-inflation prior. A body geometry flickers between frames of a person who
+/// does not move. Session 14 measured one photo copied 20 times, rendered at yaw 90 (`examples/video_stability`):
+/// consecutive-frame mask IoU 0.998 with the inflation prior, 0.942 (min 0.838) with body-placed. It also costs
+/// about 60 ms more per frame (README "Live frames with a body geometry").
+pub const FRAMES_AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
+
 impl GeometryMode {
+    /// The mode frames of a video or camera are prepared with: [`FRAMES_AUTO_CHOICE`] for auto, the mode itself
+    /// otherwise (an explicit `--geometry body-placed` still fits a body per frame, warm-started).
+    pub fn for_frames(self) -> Self {
+        match self {
+            GeometryMode::Auto => FRAMES_AUTO_CHOICE,
+            other => other,
+        }
+    }
+
     /// The mode's `--geometry` value (`auto`, `fofnet`, `inflate`, `body`, `body-placed`).
     pub fn name(self) -> String {
         clap::ValueEnum::to_possible_value(&self).map(|v| v.get_name().to_owned()).unwrap_or_default()
