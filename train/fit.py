@@ -99,6 +99,23 @@ class Logger:
                 f.write(json.dumps(record) + "\n")
 
 
+class RunningMeans:
+    """Sums of the loss parts since the last log line: `add` one step's parts, `take` their means (and restart)."""
+
+    def __init__(self):
+        self.sums, self.n = {}, 0
+
+    def add(self, parts):
+        for k, v in parts.items():
+            self.sums[k] = self.sums.get(k, 0.0) + v
+        self.n += 1
+
+    def take(self):
+        means = {k: v / self.n for k, v in self.sums.items()}
+        self.sums, self.n = {}, 0
+        return means
+
+
 def to_device(b, device):
     return {k: v.to(device, non_blocking=True) for k, v in b.items()}
 
@@ -194,7 +211,7 @@ def fit(args):
     t0 = time.time()
     step, epoch, stop = start_step, 0, False
     gen = torch.Generator().manual_seed(args.seed * 31 + rank)
-    running = {}
+    running = RunningMeans()
     while not stop:
         if sampler is not None:
             sampler.set_epoch(epoch)
@@ -208,15 +225,12 @@ def fit(args):
             loss.backward()
             opt.step()
             step += 1
-            for k, v in parts.items():
-                running[k] = running.get(k, 0.0) + v
-            running["n"] = running.get("n", 0) + 1
+            running.add(parts)
             elapsed = time.time() - t0
             if step % args.log_every == 0:
-                avg = {k: v / running["n"] for k, v in running.items() if k != "n"}
+                avg = running.take()
                 log(f"step {step} epoch {epoch} {elapsed:.0f}s " + " ".join(f"{k} {v:.4f}" for k, v in avg.items()),
                     step=step, epoch=epoch, seconds=round(elapsed, 1), **avg)
-                running = {}
             if rank == 0 and step % args.ckpt_every == 0:
                 save_checkpoint(args, model, opt, step, ds, elapsed, world)
             stop = step >= args.steps or (args.minutes and elapsed > args.minutes * 60)
@@ -493,7 +507,7 @@ def fit_fof(args):
     if rank == 0 and start_step == 0 and not args.no_eval:
         log(f"held-out FOF evaluation at step 0 (= the {residual or 'untrained net'}): " +
             json.dumps(evaluate_fof(model, args.data, args.resolution, device)))
-    t0, step, epoch, stop, running = time.time(), start_step, 0, False, {}
+    t0, step, epoch, stop, running = time.time(), start_step, 0, False, RunningMeans()
     gen = torch.Generator().manual_seed(args.seed * 31 + rank)
     while not stop:
         if sampler is not None:
@@ -507,15 +521,12 @@ def fit_fof(args):
             opt.step()
             step += 1
             parts["loss"] = loss.item()
-            for k, v in parts.items():
-                running[k] = running.get(k, 0.0) + v
-            running["n"] = running.get("n", 0) + 1
+            running.add(parts)
             elapsed = time.time() - t0
             if step % args.log_every == 0:
-                avg = {k: v / running["n"] for k, v in running.items() if k != "n"}
+                avg = running.take()
                 log(f"fof step {step} epoch {epoch} {elapsed:.0f}s " + " ".join(f"{k} {v:.4f}" for k, v in avg.items()),
                     step=step, epoch=epoch, seconds=round(elapsed, 1), **{f"fof_{k}": v for k, v in avg.items()})
-                running = {}
             if rank == 0 and step % args.ckpt_every == 0:
                 ev = None if args.no_eval else evaluate_fof(model, args.data, args.resolution, device)
                 if ev is not None:

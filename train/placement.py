@@ -33,7 +33,7 @@ from torch.utils.data import DataLoader
 from . import losses
 from .dataset import R2Dataset
 from .depth_centre import centre_fof, occupied_columns, shift_columns
-from .fit import Logger, decode_occupancy, flip_batch, occupancy_iou, to_device
+from .fit import Logger, RunningMeans, decode_occupancy, flip_batch, occupancy_iou
 from .nets import TIERS, UNet, count_parameters
 
 # src/body/placed.rs PLACEMENT_WEIGHT: the fixed share of the body's depth `body-placed` moves each column by.
@@ -219,7 +219,7 @@ def fit_placement(args):
     if step == 0 and not args.no_eval:
         log("held-out evaluation at step 0 (net = body-placed): " +
             json.dumps(evaluate_placement(model, args.data, args.resolution)))
-    t0, epoch, stop, running = time.time(), 0, False, {}
+    t0, epoch, stop, running = time.time(), 0, False, RunningMeans()
     gen = torch.Generator().manual_seed(args.seed * 31)
     while not stop:
         for b in loader:
@@ -230,15 +230,12 @@ def fit_placement(args):
             opt.step()
             step += 1
             parts["loss"] = loss.item()
-            for k, v in parts.items():
-                running[k] = running.get(k, 0.0) + v
-            running["n"] = running.get("n", 0) + 1
+            running.add(parts)
             elapsed = time.time() - t0
             if step % args.log_every == 0:
-                avg = {k: v / running["n"] for k, v in running.items() if k != "n"}
+                avg = running.take()
                 log(f"placement step {step} epoch {epoch} {elapsed:.0f}s " +
                     " ".join(f"{k} {v:.4f}" for k, v in avg.items()), step=step, seconds=round(elapsed, 1), **avg)
-                running = {}
             if step % args.ckpt_every == 0:
                 ev = None if args.no_eval else evaluate_placement(model, args.data, args.resolution)
                 if ev is not None:
