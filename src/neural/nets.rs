@@ -451,28 +451,15 @@ impl FofNet {
         coeffs.par_chunks_mut(w * n).enumerate().for_each(|(row, line)| {
             line.copy_from_slice(&base.coeffs[row * w * n..(row + 1) * w * n]);
             let y = (row as f32 + 0.5) * sy - 0.5;
-            let (y0, ty) = (y.floor(), y - y.floor());
             let (mut acc, mut before) = (vec![0.0f32; n], vec![0.0f32; n]);
             for (col, out) in line.chunks_exact_mut(n).enumerate() {
                 if out.iter().all(|v| *v == 0.0) {
                     continue;
                 }
                 let x = (col as f32 + 0.5) * sx - 0.5;
-                let (x0, tx) = (x.floor(), x - x.floor());
                 acc.fill(0.0);
-                let mut wsum = 0.0f32;
-                for (dx, dy, wt) in
-                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
-                {
-                    let (c, rr) = (x0 as i64 + dx, y0 as i64 + dy);
-                    if wt <= 0.0 || c < 0 || rr < 0 || c >= r as i64 || rr >= r as i64 {
-                        continue;
-                    }
-                    let i = rr as usize * r + c as usize;
-                    if !valid[i] {
-                        continue;
-                    }
-                    wsum += wt;
+                let (taps, count, wsum) = masked_taps(x, y, r, &valid);
+                for &(i, wt) in &taps[..count] {
                     for (a, d) in acc.iter_mut().zip(&delta[i * n..(i + 1) * n]) {
                         *a += wt * d;
                     }
@@ -562,31 +549,21 @@ impl PlacementNet {
             self.net.run(&[("body", [1, n, r, r], &body_small), ("prior", [1, n, r, r], &prior_small)], "shift")?;
         tracing::debug!("placement net: session run {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
         self.net.expect_output_shape(&shape, [1, 1, r, r])?;
-        let small_mask = resample_plane(&mask.data, w, h, r, r);
+        let inside: Vec<bool> = resample_plane(&mask.data, w, h, r, r).iter().map(|m| *m >= 0.5).collect();
         let valid = |c: i64, rr: i64| {
-            (0..r as i64).contains(&c) && (0..r as i64).contains(&rr) && small_mask[rr as usize * r + c as usize] >= 0.5
+            (0..r as i64).contains(&c) && (0..r as i64).contains(&rr) && inside[rr as usize * r + c as usize]
         };
         let (sx, sy) = (r as f32 / w as f32, r as f32 / h as f32);
         let mut out = vec![0.0f32; w * h];
         out.par_chunks_mut(w).enumerate().for_each(|(row, line)| {
             let y = (row as f32 + 0.5) * sy - 0.5;
-            let (y0, ty) = (y.floor(), y - y.floor());
             for (col, o) in line.iter_mut().enumerate() {
                 if mask.data[row * w + col] <= 0.5 {
                     continue;
                 }
                 let x = (col as f32 + 0.5) * sx - 0.5;
-                let (x0, tx) = (x.floor(), x - x.floor());
-                let (mut acc, mut wsum) = (0.0f32, 0.0f32);
-                for (dx, dy, wt) in
-                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
-                {
-                    let (c, rr) = (x0 as i64 + dx, y0 as i64 + dy);
-                    if wt > 0.0 && valid(c, rr) {
-                        acc += wt * shift[rr as usize * r + c as usize];
-                        wsum += wt;
-                    }
-                }
+                let (taps, count, wsum) = masked_taps(x, y, r, &inside);
+                let acc = taps[..count].iter().fold(0.0f32, |acc, &(i, wt)| acc + wt * shift[i]);
                 if wsum > 1e-6 {
                     *o = acc / wsum;
                     continue;
@@ -613,6 +590,30 @@ impl std::fmt::Debug for PlacementNet {
 
 /// The placement network's inputs, in order.
 const PLACEMENT_INPUTS: [&str; 2] = ["body", "prior"];
+
+/// The bilinear taps at model coordinates (`x`, `y`) (pixel centres at integers) of an `r x r` model grid that land
+/// inside it on a pixel `valid` holds true, with positive weight: `(model pixel, weight)` in the order (0,0), (1,0),
+/// (0,1), (1,1), how many there are, and their weights' sum. The mask-aware upsampling of [`FofNet::refine_with`]
+/// and [`PlacementNet::shifts`] divides by that sum, so pixels outside the mask do not pull the edge toward zero.
+fn masked_taps(x: f32, y: f32, r: usize, valid: &[bool]) -> ([(usize, f32); 4], usize, f32) {
+    let (x0, tx, y0, ty) = (x.floor(), x - x.floor(), y.floor(), y - y.floor());
+    let (mut taps, mut count, mut wsum) = ([(0usize, 0.0f32); 4], 0, 0.0f32);
+    for (dx, dy, wt) in
+        [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+    {
+        let (c, rr) = (x0 as i64 + dx, y0 as i64 + dy);
+        if wt <= 0.0 || c < 0 || rr < 0 || c >= r as i64 || rr >= r as i64 {
+            continue;
+        }
+        let i = rr as usize * r + c as usize;
+        if valid[i] {
+            taps[count] = (i, wt);
+            count += 1;
+            wsum += wt;
+        }
+    }
+    (taps, count, wsum)
+}
 
 /// Depth samples of the "does this column hold body" test of [`FofNet::refine`].
 const SILHOUETTE_SAMPLES: usize = 64;
