@@ -1,5 +1,5 @@
-//! The body prior per input at 512² (a rendered synthetic subject, seed 3): pose landmarks (two network runs on a
-//! still photo, one when tracking), the cold fit, a warm-started fit (the next live frame: landmarks moved by a
+//! The body prior per input at 512² (a rendered synthetic subject, seed 3): pose landmarks (two network runs; live
+//! frames are read the same way), the cold fit, a warm-started fit (the next live frame: landmarks moved by a
 //! few pixels), the body FOF reconciled with the silhouette (N = 32), the mesh from it (512 depth samples), and
 //! the whole still-photo path (pose + fit + body FOF + mesh). The two fits also run with the forward-difference
 //! Jacobian for comparison.
@@ -51,12 +51,6 @@ fn benches(c: &mut Criterion) {
         b.iter(|| {
             net.forget_runs();
             net.estimate(black_box(&rgb), &mask, None)
-        })
-    });
-    g.bench_function("pose_landmarks_tracked_512", |b| {
-        b.iter(|| {
-            net.forget_runs();
-            net.estimate_tracked(black_box(&rgb), &mask, None, Some(&landmarks))
         })
     });
     g.bench_function("fit_cold", |b| b.iter(|| fit_body(model, black_box(&target), None, &options)));

@@ -391,6 +391,39 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
     }
 }
 
+/// Live frames of a person who stands still: every frame reads the same landmarks, as a still photo would, and from
+/// the second warm fit on the body holds still ([`FitOptions::warm_hold`]; the first warm fit may still finish what
+/// the cold fit's tolerance left). The body prior used to read a live frame in the region the previous frame's
+/// landmarks gave (MediaPipe's tracking): on repeated frames that region wandered, the landmarks moved by up to 25
+/// pixels, and each warm fit slid along the flat directions of the cost; the side view of
+/// `--geometry body-placed` flickered (README "Live frames with a body geometry").
+#[test]
+fn live_frames_of_a_still_person_read_the_same_landmarks_and_hold_the_body() {
+    use r2human::body::prior::BodyEstimator;
+    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
+    if !model_file.is_file() {
+        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
+        return;
+    }
+    let mut estimator = BodyEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
+    let t = truth_textured(3, 512);
+    let view = render_ground_truth(&t.subject.mesh, &Camera::source(RES));
+    let rgb = Image { width: RES, height: RES, data: view.albedo.clone() };
+    let frames: Vec<_> = (0..4)
+        .map(|_| estimator.estimate(&rgb, &t.mask, None, true, &mut |_, _| {}).expect("runs").expect("a pose"))
+        .collect();
+    let pixels = |k: usize| frames[k].landmarks.landmarks.iter().map(|l| l.pixel).collect::<Vec<_>>();
+    for k in 1..frames.len() {
+        assert_eq!(pixels(k), pixels(0), "frame {k} read other landmarks than frame 0");
+    }
+    // The held pose is placed in depth again per frame (`centre_depth`), which may move it by rounding only.
+    for k in 2..frames.len() {
+        let (a, b) = (&frames[k].fit.pose, &frames[1].fit.pose);
+        let held = a.joints == b.joints && a.global == b.global && a.shape == b.shape && a.scale == b.scale;
+        assert!(held && a.translation.distance(b.translation) < 1e-6, "frame {k}: the warm fit moved a still body");
+    }
+}
+
 /// Partial views through the pose network: clothed subjects cropped like photos (`synth::framing`, the frame ending
 /// at the cut) give a body that fits what the photo shows — the visible joints near the subject's own, no legs
 /// invented inside the photo (the fitted knees and ankles lie below its bottom edge), a finite pose — and a

@@ -18,8 +18,9 @@
 //! First the mask's bounding box, squared and enlarged by [`MASK_MARGIN`] around its centre (the person detector's
 //! box in MediaPipe is about 1.25 times the person). When the network finds a pose there, it runs once more on
 //! the region MediaPipe's tracker derives from the auxiliary points (centre = hip centre, side = 1.5 x 2 x
-//! their distance), which is how the network was trained to see people; with a previous frame's region
-//! ([`PoseEstimator::estimate_tracked`]) only that one run is made.
+//! their distance), which is how the network was trained to see people. Live frames are read the same way, each
+//! from its own mask: MediaPipe's tracking (one run on the region the previous frame's points give) made the
+//! region, and the fitted body with it, wander on a still person ([`crate::body::prior::BodyEstimator::estimate`]).
 //!
 //! Landmarks come back in the photo's continuous pixel coordinates (pixel centres at `+0.5`), and depths in the
 //! same pixels with **+ toward the camera** (the body cube's convention); [`PoseLandmarks::transformed`] maps
@@ -787,28 +788,6 @@ impl PoseEstimator {
             Some(next) => self.run_on(rgb, photo, next, frame)?.unwrap_or(first),
             None => first,
         })
-    }
-
-    /// Live input: one run on the previous frame's tracking region when there is one (MediaPipe's tracking),
-    /// else [`PoseEstimator::estimate`].
-    pub fn estimate_tracked(
-        &mut self,
-        rgb: &RgbImage,
-        mask: &GrayImage,
-        frame: Option<PhotoFrame>,
-        previous: Option<&PoseLandmarks>,
-    ) -> Result<Option<PoseLandmarks>, BodyError> {
-        if (rgb.width, rgb.height) != (mask.width, mask.height) {
-            return self.estimate(rgb, mask, frame);
-        }
-        let photo = PhotoFingerprint::of(rgb);
-        let full = frame.unwrap_or((Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32)));
-        if let Some(region) = previous.filter(|p| (p.frame_min, p.frame_max) == full).and_then(|p| p.next_region) {
-            if let Some(found) = self.run_on(rgb, photo, region, full)? {
-                return Ok(Some(found));
-            }
-        }
-        self.estimate_on(rgb, photo, mask, frame)
     }
 }
 

@@ -68,7 +68,8 @@ pub struct BodyEstimator {
     /// Whether the pose network reads the mirror image of an input it sees facing away ([`front_read`]; on by
     /// default).
     pub mirror_read: bool,
-    previous: Option<(PoseLandmarks, Pose)>,
+    /// The last frame's fitted pose (the next warm fit's start).
+    previous: Option<Pose>,
 }
 
 impl std::fmt::Debug for BodyEstimator {
@@ -101,8 +102,11 @@ impl BodyEstimator {
     }
 
     /// Landmarks and the fitted body of the person in a normalised source view (`rgb` linear, `mask` in
-    /// `[0, 1]`, `frame` where the photo lies in it). With `warm` (live input) the network runs on the previous
-    /// frame's tracking region and the fit starts from the previous pose. `None` when no pose is found.
+    /// `[0, 1]`, `frame` where the photo lies in it). With `warm` (live input) the fit starts from the previous
+    /// frame's pose. The network reads every frame as it reads a still, in the region of that frame's mask: reading
+    /// the region the previous frame's landmarks give instead (MediaPipe's tracking) lets the region wander on a
+    /// still person, and the body with it (README "Live frames with a body geometry", session 15). `None` when no
+    /// pose is found.
     pub fn estimate(
         &mut self,
         rgb: &RgbImage,
@@ -116,13 +120,13 @@ impl BodyEstimator {
         self.pose.forget_runs();
         let given = frame.unwrap_or((Vec2::ZERO, Vec2::new(mask.width as f32, mask.height as f32)));
         let cut = effective_frame(mask, Some(given));
-        let previous = if warm { self.previous.as_ref() } else { None };
+        let start = if warm { self.previous } else { None };
         // A straight bottom edge of the mask inside the photo is a cut, unless the person stands on it: read the
         // photo as it is first, and take the cut only when that read does not stand on the edge.
         let mut frame = Some(cut);
         let mut landmarks = None;
         if cut != given {
-            let uncut = self.pose.estimate_tracked(rgb, mask, Some(given), previous.map(|p| &p.0))?;
+            let uncut = self.pose.estimate(rgb, mask, Some(given))?;
             if uncut.as_ref().is_some_and(|l| stands_on(l, mask, cut.1.y, self.options.min_visibility)) {
                 frame = Some(given);
                 landmarks = uncut;
@@ -130,24 +134,21 @@ impl BodyEstimator {
         }
         let landmarks = match landmarks {
             Some(l) => Some(l),
-            None => self.pose.estimate_tracked(rgb, mask, frame, previous.map(|p| &p.0))?,
+            None => self.pose.estimate(rgb, mask, frame)?,
         };
         let Some(landmarks) = landmarks else {
             timings("pose landmarks", t.elapsed());
             self.previous = None;
             return Ok(None);
         };
-        // A read that faces away is asked again on the mirror image (tracked from the previous frame's region,
-        // mirrored); see `front_read`.
+        // A read that faces away is asked again on the mirror image; see `front_read`.
         let mirrored = if self.mirror_read && says_back(&landmarks) {
             let width = rgb.width as f32;
-            let previous = previous.map(|p| p.0.mirrored_left_right(width));
             self.pose
-                .estimate_tracked(
+                .estimate(
                     &mirrored_left_right(rgb),
                     &mirrored_left_right(mask),
                     frame.map(|f| mirrored_frame(f, width)),
-                    previous.as_ref(),
                 )?
                 .map(|m| m.mirrored_left_right(width))
         } else {
@@ -160,12 +161,11 @@ impl BodyEstimator {
         let landmarks = arms_it_sees(standing_legs(legs_it_sees(landmarks), min_visibility), min_visibility);
         let t = std::time::Instant::now();
         let target = FitTarget::new(&landmarks, mask);
-        let start = previous.map(|p| p.1);
         let fit = fit_body(self.model, &target, start.as_ref(), &self.options);
         let (pose, mesh) = centre_depth(self.model, &fit.pose);
         let mesh = self.model.mesh_seen(&mesh, &limbs_seen(&landmarks, min_visibility));
         timings("body fit", t.elapsed());
-        self.previous = Some((landmarks.clone(), pose));
+        self.previous = Some(pose);
         Ok(Some(BodyPrior { landmarks, fit: BodyFit { pose, ..fit }, mesh }))
     }
 }
