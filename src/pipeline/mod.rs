@@ -157,10 +157,12 @@ pub enum GeometryMode {
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::BodyPlaced;
 
 /// What [`GeometryMode::Auto`] draws on the frames of a video or camera (`render --video`, and the live frames of
-/// `view` and `xr`): the silhouette-inflation prior. A body geometry flickers between frames of a person who
-/// does not move. Session 14 measured one photo copied 20 times, rendered at yaw 90 (`examples/video_stability`):
-/// consecutive-frame mask IoU 0.998 with the inflation prior, 0.942 (min 0.838) with body-placed. It also costs
-/// about 60 ms more per frame (README "Live frames with a body geometry").
+/// `view` and `xr`): the silhouette-inflation prior. A body geometry follows the pose network's jitter between
+/// frames of a person who barely moves. Rendered at yaw 90 (`examples/video_stability`), consecutive-frame mask
+/// IoU: one photo copied 20 times, 0.998 with the inflation prior and 0.992 with body-placed (0.942 before
+/// session 15 stopped the region tracking that made the body wander); the same photo shifted by up to 1 px, 0.994
+/// against 0.975 (the network's landmarks move 2-17 px for a 1-px shift). It also costs about 70 ms more per
+/// frame (README "Live frames with a body geometry").
 pub const FRAMES_AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
 
 impl GeometryMode {
