@@ -305,7 +305,8 @@ fn run_method(
         detached.push(detached_fraction(&m));
         views.push(person);
     }
-    let photo = SrgbImage::from_linear_premultiplied(&input.normalised.rgb.map(|c| c.extend(1.0)));
+    // Against the photo as normalised, not the input's colours (whose rim `from_fof_and_pose` replaced).
+    let photo = SrgbImage::from_linear_premultiplied(&reference.normalised.rgb.map(|c| c.extend(1.0)));
     let front = SrgbImage::from_linear_premultiplied(&views[0]);
     let input_psnr = psnr(&photo, &front, &vec![true; photo.data.len()]);
     let doubled = doubled_fraction_beyond(&input.fof, &reference.explained(), &input.normalised.mask, 1);

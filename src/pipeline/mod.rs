@@ -1185,7 +1185,9 @@ impl PreparedInput {
     ) -> Result<Self, PipelineError> {
         let source_camera = Camera::source(opts.resolution);
         let mut back_timings = StageTimings::default();
-        let (geometry, back) = rayon::join(
+        // The colours are only read by the back image and the renderers, so their rim is cleaned beside the mesh.
+        let rim = input::RIM_FRACTION * opts.resolution as f32;
+        let (geometry, (normalised, back)) = rayon::join(
             || -> Result<(TriMesh, GBuffer), PipelineError> {
                 let mesh =
                     timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
@@ -1198,7 +1200,13 @@ impl PreparedInput {
                 let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
                 Ok((mesh, source_gbuffer))
             },
-            || opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings)),
+            || {
+                let normalised =
+                    back_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
+                let back =
+                    opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings));
+                (normalised, back)
+            },
         );
         let (mesh, source_gbuffer) = geometry?;
         timings.0.extend(back_timings.0);
