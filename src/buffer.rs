@@ -121,15 +121,32 @@ pub fn sample_bilinear<T>(img: &Image<T>, x: f32, y: f32, outside: T) -> T
 where
     T: Copy + std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
 {
-    if !(x.is_finite() && y.is_finite()) {
-        return outside;
+    match (bilinear_cell(x), bilinear_cell(y)) {
+        (Some(column), Some(row)) => sample_bilinear_cell(img, column, row, outside),
+        _ => outside,
     }
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x0 = floor_fast(fx);
-    let y0 = floor_fast(fy);
-    let tx = fx - x0;
-    let ty = fy - y0;
+}
+
+/// The bilinear cell of one continuous pixel coordinate (pixel centres at `+0.5`): the lower pixel and the weight
+/// of the next one, as [`sample_bilinear`] finds it; `None` when the coordinate is not finite. A caller sampling
+/// many points on the same columns or rows (an axis-aligned grid) works each one out once.
+#[inline]
+pub fn bilinear_cell(x: f32) -> Option<(i64, f32)> {
+    if !x.is_finite() {
+        return None;
+    }
+    let f = x - 0.5;
+    let x0 = floor_fast(f);
+    Some((x0 as i64, f - x0))
+}
+
+/// [`sample_bilinear`] in the cell of its column and row ([`bilinear_cell`]): pixels outside the image read
+/// `outside`.
+#[inline]
+pub fn sample_bilinear_cell<T>(img: &Image<T>, (c0, tx): (i64, f32), (r0, ty): (i64, f32), outside: T) -> T
+where
+    T: Copy + std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
+{
     let (w, h) = (img.width as i64, img.height as i64);
     let fetch = |c: i64, r: i64| -> T {
         if c < 0 || r < 0 || c >= w || r >= h {
@@ -138,7 +155,6 @@ where
             img.data[(r * w + c) as usize]
         }
     };
-    let (c0, r0) = (x0 as i64, y0 as i64);
     let top = fetch(c0, r0) * (1.0 - tx) + fetch(c0 + 1, r0) * tx;
     let bottom = fetch(c0, r0 + 1) * (1.0 - tx) + fetch(c0 + 1, r0 + 1) * tx;
     top * (1.0 - ty) + bottom * ty
@@ -213,6 +229,16 @@ pub fn neighbours4(p: usize, width: usize, height: usize) -> impl Iterator<Item 
     .flatten()
 }
 
+/// The 8-connected neighbours of pixel index `p` in a row-major `width x height` image, those inside the image
+/// only, row by row (above, beside, below; left to right).
+pub fn neighbours8(p: usize, width: usize, height: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = ((p % width) as i64, (p / width) as i64);
+    (-1i64..=1)
+        .flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy)))
+        .filter(move |&(c, r)| (c, r) != (x, y) && c >= 0 && r >= 0 && c < width as i64 && r < height as i64)
+        .map(move |(c, r)| r as usize * width + c as usize)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -233,6 +259,16 @@ mod tests {
         assert_eq!(n(4), vec![3, 5, 1]);
         assert_eq!(n(5), vec![4, 2]);
         assert_eq!(neighbours4(0, 1, 1).count(), 0);
+    }
+
+    #[test]
+    fn neighbours8_stay_inside_row_by_row() {
+        // 3 x 3: the middle has all eight; a corner three; the middle of the bottom row five.
+        let n = |p| neighbours8(p, 3, 3).collect::<Vec<_>>();
+        assert_eq!(n(4), vec![0, 1, 2, 3, 5, 6, 7, 8]);
+        assert_eq!(n(0), vec![1, 3, 4]);
+        assert_eq!(n(7), vec![3, 4, 5, 6, 8]);
+        assert_eq!(neighbours8(0, 1, 1).count(), 0);
     }
 
     #[test]

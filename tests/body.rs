@@ -104,6 +104,17 @@ fn errors(fit: &[Option<Vec3>], truth: &[Option<Vec3>], which: &[usize]) -> (f32
     (e3 / n, e2 / n)
 }
 
+/// The installed pose landmark model, or `None` after a line saying the test is skipped without it.
+fn installed_pose_model() -> Option<std::path::PathBuf> {
+    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
+    if model_file.is_file() {
+        Some(model_file)
+    } else {
+        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
+        None
+    }
+}
+
 const BODY_JOINTS: [usize; 14] = [11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28, 0, 2];
 
 #[test]
@@ -332,11 +343,7 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
     use r2human::eval::runner::fof_occupancy_iou;
     use r2human::geometry::fof::Fof;
     use r2human::geometry::inflate::{inflate_to_fof, InflateParams};
-    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
-    if !model_file.is_file() {
-        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
-        return;
-    }
+    let Some(model_file) = installed_pose_model() else { return };
     let model = BodyModel::shared().expect("body model data");
     let mut net = PoseEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
     let seeds = [3u64, 42];
@@ -400,11 +407,7 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
 #[test]
 fn live_frames_of_a_still_person_read_the_same_landmarks_and_hold_the_body() {
     use r2human::body::prior::BodyEstimator;
-    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
-    if !model_file.is_file() {
-        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
-        return;
-    }
+    let Some(model_file) = installed_pose_model() else { return };
     let mut estimator = BodyEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
     let t = truth_textured(3, 512);
     let view = render_ground_truth(&t.subject.mesh, &Camera::source(RES));
@@ -433,11 +436,7 @@ fn framed_subjects_fit_what_the_photo_shows() {
     use r2human::body::model::ModelPoint;
     use r2human::body::pose::PoseEstimator;
     use r2human::synth::framing::{crop, Framing};
-    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
-    if !model_file.is_file() {
-        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
-        return;
-    }
+    let Some(model_file) = installed_pose_model() else { return };
     let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
     let model = BodyModel::shared().expect("body model data");
     let mut net = PoseEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
@@ -530,9 +529,7 @@ fn body_placed_keeps_the_inflation_thickness_and_moves_columns_to_the_body() {
     use r2human::geometry::fof::{CosineTable, Fof};
     use r2human::pipeline::input::NormalisedInput;
     use r2human::pipeline::{compute_geometry, load_body, GeometryMode, PrepareOptions, StageTimings};
-    let model_file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".tools/models/pose_landmark_full.onnx");
-    if !model_file.is_file() {
-        eprintln!("skipped: {} is not installed (bash scripts/setup.d/live.sh)", model_file.display());
+    if installed_pose_model().is_none() {
         return;
     }
     let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");

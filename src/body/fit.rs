@@ -729,7 +729,7 @@ pub fn fit_body(model: &BodyModel, target: &FitTarget<'_>, start: Option<&Pose>,
     if warm && cost.is_finite() && start_cost - cost <= options.warm_hold * start_cost {
         BodyFit { pose: start, used, cost: start_cost, evaluations: report.number_of_evaluations }
     } else if pose.is_finite() && cost.is_finite() && cost <= start_cost {
-        BodyFit { pose, used, cost: report.objective_function, evaluations: report.number_of_evaluations }
+        BodyFit { pose, used, cost, evaluations: report.number_of_evaluations }
     } else {
         tracing::warn!("body fit did not converge ({:?}); keeping the starting pose", report.termination);
         BodyFit { pose: start, used, cost: start_cost, evaluations: report.number_of_evaluations }

@@ -33,7 +33,7 @@ use ort::session::Session;
 use ort::value::TensorRef;
 
 use super::BodyError;
-use crate::buffer::{linear_to_srgb, GrayImage, RgbImage};
+use crate::buffer::{bilinear_cell, linear_to_srgb, sample_bilinear_cell, GrayImage, RgbImage};
 use crate::neural::RuntimeOptions;
 
 /// Number of pose landmarks.
@@ -435,25 +435,12 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
     let scale = region.scale();
     let taps = (scale.ceil() as usize).clamp(1, 4);
     // The region is an axis-aligned square, so a tap's photo x depends on its column only and its y on its row
-    // only: each is worked out once, with the bilinear cell and weight `sample_bilinear` would find for it (the
-    // same operations, so the same bits; `tests::network_input_is_the_box_filter_of_bilinear_samples`).
+    // only: each bilinear cell is worked out once (`sample_bilinear` per tap gives the same bits;
+    // `tests::network_input_is_the_box_filter_of_bilinear_samples`).
     let tap = |k: usize| (k / taps) as f32 + ((k % taps) as f32 + 0.5) / taps as f32;
     let photo = |q: Vec2| region.to_photo(q);
     let xs: Vec<Option<(i64, f32)>> = (0..s * taps).map(|k| bilinear_cell(photo(Vec2::new(tap(k), 0.0)).x)).collect();
     let ys: Vec<Option<(i64, f32)>> = (0..s * taps).map(|k| bilinear_cell(photo(Vec2::new(0.0, tap(k))).y)).collect();
-    let (w, h) = (rgb.width as i64, rgb.height as i64);
-    let fetch = |c: i64, r: i64| -> Vec3 {
-        if c < 0 || r < 0 || c >= w || r >= h {
-            Vec3::ZERO
-        } else {
-            rgb.data[(r * w + c) as usize]
-        }
-    };
-    let sample = |(c0, tx): (i64, f32), (r0, ty): (i64, f32)| -> Vec3 {
-        let top = fetch(c0, r0) * (1.0 - tx) + fetch(c0 + 1, r0) * tx;
-        let bottom = fetch(c0, r0 + 1) * (1.0 - tx) + fetch(c0 + 1, r0 + 1) * tx;
-        top * (1.0 - ty) + bottom * ty
-    };
     // Rows in parallel (each pixel on its own: the same values in any order), as RGB triples, then planar.
     let mut rgb_rows = vec![[0.0f32; 3]; s * s];
     rgb_rows.par_chunks_mut(s).enumerate().for_each(|(r, row)| {
@@ -462,7 +449,7 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
             for y in &ys[r * taps..(r + 1) * taps] {
                 for x in &xs[c * taps..(c + 1) * taps] {
                     acc += match (x, y) {
-                        (Some(x), Some(y)) => sample(*x, *y),
+                        (Some(x), Some(y)) => sample_bilinear_cell(rgb, *x, *y, Vec3::ZERO),
                         _ => Vec3::ZERO,
                     };
                 }
@@ -481,17 +468,6 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
         }
     }
     out
-}
-
-/// The bilinear cell of photo coordinate `x` as [`crate::buffer::sample_bilinear`] finds it (left or top pixel, weight of the
-/// next one); `None` for a coordinate that is not finite (the sample is then black).
-fn bilinear_cell(x: f32) -> Option<(i64, f32)> {
-    if !x.is_finite() {
-        return None;
-    }
-    let f = x - 0.5;
-    let x0 = crate::buffer::floor_fast(f);
-    Some((x0 as i64, f - x0))
 }
 
 /// Smallest width of a straight bottom edge of the mask that [`cut_frame`] takes for a cut, as a fraction of the
@@ -647,19 +623,9 @@ impl PoseEstimator {
         self.runs.clear();
     }
 
-    /// Runs the network once on `region` of `rgb` (linear RGB; the photo lies in `frame` of it); `None` when it
-    /// finds no pose there.
-    pub fn run(
-        &mut self,
-        rgb: &RgbImage,
-        region: PoseRegion,
-        frame: PhotoFrame,
-    ) -> Result<Option<PoseLandmarks>, BodyError> {
-        self.run_on(rgb, PhotoFingerprint::of(rgb), region, frame)
-    }
-
-    /// [`PoseEstimator::run`] with the photo's fingerprint computed by the caller (once for all of a read's runs).
-    fn run_on(
+    /// Runs the network once on `region` of `rgb` (linear RGB; the photo lies in `frame` of it; `photo` its
+    /// fingerprint, worked out once for all of a read's runs); `None` when it finds no pose there.
+    fn run(
         &mut self,
         rgb: &RgbImage,
         photo: PhotoFingerprint,
@@ -748,12 +714,12 @@ impl PoseEstimator {
             let side = region.side * grow;
             PoseRegion { centre: Vec2::new(region.centre.x, top + 0.5 * side), side }
         };
-        let mut first = self.run_on(rgb, photo, region, frame)?;
+        let mut first = self.run(rgb, photo, region, frame)?;
         for grow in [2.0f32, 3.0] {
             if first.is_some() || !cut {
                 break;
             }
-            first = self.run_on(rgb, photo, grown(grow), frame)?;
+            first = self.run(rgb, photo, grown(grow), frame)?;
         }
         let Some(first) = first else { return Ok(None) };
         let found = self.refine(rgb, photo, first, cut, frame)?;
@@ -762,7 +728,7 @@ impl PoseEstimator {
         // hidden part of the body falls outside the photo, and keep the first answer that is not folded.
         if cut && found.legs_above_cut(FOLD_MARGIN) {
             for grow in [2.0f32, 3.0] {
-                if let Some(again) = self.run_on(rgb, photo, grown(grow), frame)? {
+                if let Some(again) = self.run(rgb, photo, grown(grow), frame)? {
                     let again = self.refine(rgb, photo, again, cut, frame)?;
                     if !again.legs_above_cut(FOLD_MARGIN) {
                         tracing::debug!("pose: folded body in the mask's region; region grown x{grow} instead");
@@ -785,7 +751,7 @@ impl PoseEstimator {
         frame: PhotoFrame,
     ) -> Result<PoseLandmarks, BodyError> {
         Ok(match first.refined_region(cut) {
-            Some(next) => self.run_on(rgb, photo, next, frame)?.unwrap_or(first),
+            Some(next) => self.run(rgb, photo, next, frame)?.unwrap_or(first),
             None => first,
         })
     }

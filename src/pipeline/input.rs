@@ -5,7 +5,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use crate::buffer::{sample_bilinear, GrayImage, Image, RgbImage};
+use crate::buffer::{neighbours4, neighbours8, sample_bilinear, GrayImage, Image, RgbImage};
 
 /// Fraction of the source image height the person's mask spans (1.8 of the cube's 2 units).
 pub const PERSON_HEIGHT_FRACTION: f32 = 0.9;
@@ -178,32 +178,22 @@ pub fn interior_colours_at_the_rim(mut input: NormalisedInput, rim: f32) -> Norm
         return input;
     }
     let mask = &input.mask.data;
-    // The 8 neighbours of a pixel inside the grid (`diagonal` false: the 4 edge neighbours).
-    let neighbours = |i: usize, diagonal: bool| {
-        let (c, r) = ((i % w) as i64, (i / w) as i64);
-        (-1i64..=1)
-            .flat_map(move |dr| (-1i64..=1).map(move |dc| (c + dc, r + dr)))
-            .filter(move |&(x, y)| (x, y) != (c, r) && (diagonal || x == c || y == r))
-            .filter(move |&(x, y)| x >= 0 && y >= 0 && x < w as i64 && y < h as i64)
-            .map(move |(x, y)| y as usize * w + x as usize)
-    };
     // Ring of every pixel: 0 outside the mask, 1..=rings on the rim, u8::MAX in the interior.
     const INTERIOR: u8 = u8::MAX;
     let mut ring: Vec<u8> = mask.iter().map(|&m| if m >= 0.5 { INTERIOR } else { 0 }).collect();
+    let outside: Vec<usize> = (0..w * h).filter(|&i| ring[i] == 0).collect();
     let mut layers: Vec<Vec<usize>> = Vec::with_capacity(rings as usize);
-    let mut last: Vec<usize> = (0..w * h).filter(|&i| ring[i] == 0 && mask[i] < 0.5).collect();
     for k in 1..=rings {
         let mut next = Vec::new();
-        for &i in &last {
-            for j in neighbours(i, false) {
+        for &i in layers.last().unwrap_or(&outside) {
+            for j in neighbours4(i, w, h) {
                 if ring[j] == INTERIOR {
                     ring[j] = k;
                     next.push(j);
                 }
             }
         }
-        layers.push(next.clone());
-        last = next;
+        layers.push(next);
     }
     let straight = |c: Vec3, m: f32| if m > 0.0 { c / m } else { Vec3::ZERO };
     let rgb = &mut input.rgb.data;
@@ -211,7 +201,7 @@ pub fn interior_colours_at_the_rim(mut input: NormalisedInput, rim: f32) -> Norm
     // neighbours deeper in (already refilled).
     let refill = |i: usize, deeper: &dyn Fn(u8) -> bool, rgb: &mut [Vec3]| {
         let (mut sum, mut n) = (Vec3::ZERO, 0.0f32);
-        for j in neighbours(i, true) {
+        for j in neighbours8(i, w, h) {
             if deeper(ring[j]) && mask[j] > 0.0 {
                 sum += straight(rgb[j], mask[j]);
                 n += 1.0;
