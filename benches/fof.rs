@@ -74,7 +74,7 @@ fn benches(c: &mut Criterion) {
     );
     let mask = person_mask(512);
     let params = InflateParams::default();
-    let person = extract_mesh(&inflate_to_fof(&mask, 32, &params).expect("inflates"), 512);
+    let person = extract_mesh(&inflate_to_fof(&mask, 32, &params, None).expect("inflates"), 512);
     eprintln!("person inflation mesh: {} faces", person.triangle_count());
 
     let mut g = c.benchmark_group("geometry");
@@ -86,10 +86,12 @@ fn benches(c: &mut Criterion) {
     });
     g.bench_function("fof_from_mesh_512_n32", |b| b.iter(|| Fof::from_mesh(black_box(&mesh), 512, 32)));
     g.bench_function("inflate_person_512", |b| b.iter(|| inflate(black_box(&mask), &params)));
-    g.bench_function("inflate_to_fof_person_512_n32", |b| b.iter(|| inflate_to_fof(black_box(&mask), 32, &params)));
+    g.bench_function("inflate_to_fof_person_512_n32", |b| {
+        b.iter(|| inflate_to_fof(black_box(&mask), 32, &params, None))
+    });
     g.bench_function("per_input_inflate_fof_mesh_512_d512_n32", |b| {
         b.iter(|| {
-            let f = inflate_to_fof(black_box(&mask), 32, &params).expect("inflates");
+            let f = inflate_to_fof(black_box(&mask), 32, &params, None).expect("inflates");
             extract_mesh(&f, 512)
         })
     });

@@ -183,9 +183,10 @@ fn bench_fof_net(c: &mut Criterion) {
                 continue;
             }
         };
-        let prior = inflate_to_fof(&mask, net.info().fof_n, &InflateParams::default()).expect("inflation");
+        let prior = inflate_to_fof(&mask, net.info().fof_n, &InflateParams::default(), None).expect("inflation");
         let thicker = InflateParams { thickness: 1.3 * InflateParams::default().thickness, ..Default::default() };
-        let body = net.takes_body().then(|| inflate_to_fof(&mask, net.info().fof_n, &thicker).expect("inflation"));
+        let body =
+            net.takes_body().then(|| inflate_to_fof(&mask, net.info().fof_n, &thicker, None).expect("inflation"));
         group.bench_function(format!("{tier}/512-input"), |b| {
             b.iter(|| black_box(net.refine_with(&rgb, &mask, &prior, body.as_ref()).expect("FOF net run")))
         });

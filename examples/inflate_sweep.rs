@@ -45,7 +45,12 @@ fn main() -> anyhow::Result<()> {
                         if clothed { "clothed" } else { "unclothed" },
                         subject.crop.framing.label()
                     );
-                    match inflate_to_fof(&mask, 32, &InflateParams::default()) {
+                    match inflate_to_fof(
+                        &mask,
+                        32,
+                        &InflateParams::default(),
+                        Some(r2human::pipeline::inflation_frame(&mask, None)),
+                    ) {
                         Ok(fof) => {
                             let c = mask_coverage(&fof, &mask, 2).unwrap_or(1.0);
                             if c < 0.99 {

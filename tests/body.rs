@@ -391,7 +391,7 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
         let (_, mesh) = centre_depth(model, &fit.pose);
         let body = body_fof(&mesh, &t.mask, None, 32, &InflateParams::default()).unwrap();
         let gt = Fof::from_mesh(&t.subject.mesh.mesh, RES, 32).unwrap();
-        let inflated = inflate_to_fof(&t.mask, 32, &InflateParams::default()).unwrap();
+        let inflated = inflate_to_fof(&t.mask, 32, &InflateParams::default(), None).unwrap();
         let (b, i) = (fof_occupancy_iou(&body, &gt, RES), fof_occupancy_iou(&inflated, &gt, RES));
         println!("seed {seed}: volumetric IoU body {b:.3}, inflation {i:.3}");
         assert!(body.coeffs.iter().all(|c| c.is_finite()) && b > 0.0);

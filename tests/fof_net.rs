@@ -75,7 +75,7 @@ fn refine_applies_the_correction_at_full_resolution_inside_the_prior_only() {
     // Thick enough that N = 4 coefficients reach the 0.5 level in (almost) every column (the silhouette rule of
     // `refine` skips columns that hold no body).
     let thick = InflateParams { thickness: 3.0, ..Default::default() };
-    let prior = inflate_to_fof(&mask, N, &thick).unwrap();
+    let prior = inflate_to_fof(&mask, N, &thick, None).unwrap();
     let mut identity = FofNet::load(&fixture("fof_identity.onnx"), &cpu()).unwrap();
     assert!(identity.has_prior());
     assert_eq!(identity.refine(&rgb, &mask, &prior).unwrap(), prior);
@@ -277,7 +277,7 @@ fn shipped_fof_net_sees_geometry_and_beats_its_prior_on_unseen_people() {
         let fof = compute_geometry(&norm, &opts, &mut timings).unwrap_or_else(|e| panic!("{e}"));
         assert!(timings.0.iter().any(|(name, _)| *name == "geometry (FOF net)"), "{:?}", timings.0);
         assert!(fof.coeffs.iter().all(|v| v.is_finite()));
-        let prior = inflate_to_fof(&norm.mask, 32, &InflateParams::default()).unwrap();
+        let prior = inflate_to_fof(&norm.mask, 32, &InflateParams::default(), None).unwrap();
         assert_ne!(fof, prior, "the trained net changes the prior");
         for row in 0..size {
             for col in 0..size {
@@ -415,8 +415,8 @@ fn offset_columns(base: &Fof, fof: &Fof, size: usize) -> (usize, usize) {
 /// FOF, a thicker inflation of the same mask.
 fn blocky_person_with_fofs(size: usize) -> (RgbImage, GrayImage, Fof, Fof) {
     let (rgb, mask) = blocky_person(size);
-    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }).unwrap();
-    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }).unwrap();
+    let prior = inflate_to_fof(&mask, N, &InflateParams { thickness: 3.0, ..Default::default() }, None).unwrap();
+    let body = inflate_to_fof(&mask, N, &InflateParams { thickness: 4.0, ..Default::default() }, None).unwrap();
     (rgb, mask, prior, body)
 }
 
@@ -440,7 +440,7 @@ fn body_fof_net_refines_the_body_fof_and_needs_it() {
     let (inside, corrected) = offset_columns(&body, &fof, size);
     assert!(inside > 500 && corrected as f32 > 0.95 * inside as f32, "{corrected} of {inside}");
     // A body FOF of the wrong order or size is refused, naming it.
-    let small = inflate_to_fof(&mask, N - 1, &InflateParams::default()).unwrap();
+    let small = inflate_to_fof(&mask, N - 1, &InflateParams::default(), None).unwrap();
     let e = net.refine_with(&rgb, &mask, &prior, Some(&small)).expect_err("wrong N");
     assert!(e.to_string().contains("body has 3 coefficients"), "{e}");
     // Old files: image + prior, refining the prior.
@@ -481,7 +481,7 @@ fn pipeline_feeds_the_body_prior_to_a_net_that_takes_it() {
     let norm = r2human::pipeline::input::NormalisedInput::in_source_view(rgb, mask);
     let net = shared(&fixture("fof_body.onnx"));
     let base = PrepareOptions { resolution: size, depth_samples: size, fof_order: N, ..Default::default() };
-    let prior = inflate_to_fof(&norm.mask, N, &base.inflate).unwrap();
+    let prior = inflate_to_fof(&norm.mask, N, &base.inflate, None).unwrap();
     let explicit = PrepareOptions { geometry: GeometryMode::FofNet, fof_net: Some(Arc::clone(&net)), ..base.clone() };
     let e = compute_geometry(&norm, &explicit, &mut StageTimings::default()).expect_err("no body prior loaded");
     assert!(matches!(e, PipelineError::NoFofNet(_)) && e.to_string().contains("body FOF"), "{e}");
@@ -616,7 +616,7 @@ fn shipped_body_input_fof_net_declares_its_inputs() {
 fn placement_net_upsamples_its_shift_inside_the_mask_and_rejects_broken_files() {
     let size = 4 * R;
     let (_, mask) = blocky_person(size);
-    let prior = inflate_to_fof(&mask, N, &InflateParams::default()).unwrap();
+    let prior = inflate_to_fof(&mask, N, &InflateParams::default(), None).unwrap();
     let mut net = PlacementNet::load(&fixture("placement_split.onnx"), &cpu()).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!((net.info().resolution, net.info().fof_n), (R, N));
     let shifts = net.shifts(&mask, &prior, &prior).unwrap();
@@ -642,10 +642,10 @@ fn placement_net_upsamples_its_shift_inside_the_mask_and_rejects_broken_files() 
 
     let e = PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu())
         .unwrap()
-        .shifts(&mask, &inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap(), &prior)
+        .shifts(&mask, &inflate_to_fof(&mask, 32, &InflateParams::default(), None).unwrap(), &prior)
         .expect_err("N = 4 input to an N = 32 net");
     assert!(matches!(e, NeuralError::BadInput { .. }) && e.to_string().contains("32"), "{e}");
-    let prior32 = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+    let prior32 = inflate_to_fof(&mask, 32, &InflateParams::default(), None).unwrap();
     let e = PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu())
         .unwrap()
         .shifts(&mask, &prior32, &prior32)

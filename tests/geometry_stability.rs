@@ -174,7 +174,7 @@ fn disc_inflation_meshes_to_a_ball() {
     let r = 0.6f32;
     let mask = capsule_mask(res, &[((0.0, 0.0), (0.0, 0.0), r)]);
     let params = InflateParams { thickness: 1.0, ..Default::default() };
-    let fof = inflate_to_fof(&mask, 32, &params).unwrap();
+    let fof = inflate_to_fof(&mask, 32, &params, None).unwrap();
     let mesh = extract_mesh(&fof, 128);
     assert_sane(&mesh);
     assert_closed(&mesh);
@@ -188,7 +188,7 @@ fn disc_inflation_meshes_to_a_ball() {
 #[test]
 fn person_inflation_is_closed_and_bounded() {
     let res = 128;
-    let fof = inflate_to_fof(&person(res), 32, &InflateParams::default()).unwrap();
+    let fof = inflate_to_fof(&person(res), 32, &InflateParams::default(), None).unwrap();
     let mesh = extract_mesh(&fof, 128);
     assert_sane(&mesh);
     assert_closed(&mesh);
@@ -215,11 +215,11 @@ fn degenerate_masks_error_or_stay_thin_and_valid() {
             assert!(s.front.data[i] - s.back.data[i] < 0.1, "one-pixel limbs stay thin");
         }
     }
-    let mesh = extract_mesh(&inflate_to_fof(&limbs, 32, &p).unwrap(), 64);
+    let mesh = extract_mesh(&inflate_to_fof(&limbs, 32, &p, None).unwrap(), 64);
     assert_sane(&mesh);
     // Many components (a grid of small blobs), touching the image border too.
     let many = GrayImage::from_fn(res, res, |c, r| if c % 6 < 4 && r % 6 < 4 { 1.0 } else { 0.0 });
-    let fof = inflate_to_fof(&many, 32, &p).unwrap();
+    let fof = inflate_to_fof(&many, 32, &p, None).unwrap();
     assert_sane(&extract_mesh(&fof, 64));
     // A person on a non-square grid.
     let wide = GrayImage::from_fn(96, 64, |c, r| {
@@ -230,7 +230,48 @@ fn degenerate_masks_error_or_stay_thin_and_valid() {
             0.0
         }
     });
-    let fof = inflate_to_fof(&wide, 16, &p).unwrap();
+    let fof = inflate_to_fof(&wide, 16, &p, None).unwrap();
     assert_eq!((fof.width, fof.height), (96, 64));
     assert_sane(&extract_mesh(&fof, 64));
+}
+
+/// A bust cut by the photo's bottom edge, through the pipeline's inflation geometry: the chest keeps its thickness
+/// down to the cut (an open surface, not an egg closing at the photo's edge) and is never thicker than the closed
+/// silhouette's thickest column; a body that ends inside the photo (rounded, no straight edge) still closes.
+#[test]
+fn the_inflation_geometry_stays_open_where_the_photo_cuts_the_person() {
+    use r2human::pipeline::input::normalise;
+    use r2human::pipeline::{compute_geometry, GeometryMode, PrepareOptions, StageTimings};
+    let (w, h) = (160usize, 200usize);
+    // Head and a wide chest running off the photo's bottom edge.
+    let bust = GrayImage::from_fn(w, h, |c, r| {
+        let (x, y) = (c as f32 + 0.5, r as f32 + 0.5);
+        let head = (x - 80.0).powi(2) + (y - 60.0).powi(2) < 30.0f32.powi(2);
+        let chest = y > 95.0 && (x - 80.0).abs() < 60.0 - (115.0 - y).max(0.0);
+        f32::from(head || chest)
+    });
+    let opts = PrepareOptions { geometry: GeometryMode::Inflate, resolution: 128, ..Default::default() };
+    let rgb = Image::new(w, h, Vec3::splat(0.5));
+    let input = normalise(&rgb, &bust, opts.resolution).unwrap();
+    let fof = compute_geometry(&input, &opts, &mut StageTimings::default()).unwrap();
+    // c_0 of a column is its occupied depth (body-cube units).
+    let rows: Vec<usize> = (0..128).filter(|&r| input.mask.get(64, r) > &0.5).collect();
+    let last = *rows.last().unwrap();
+    let thickness = |r: usize| fof.column(64, r)[0];
+    let chest_mid = last - (last - rows[0]) / 5;
+    assert!(thickness(last) > 0.8 * thickness(chest_mid), "{} vs {}", thickness(last), thickness(chest_mid));
+    let closed = inflate_to_fof(&input.mask, fof.n, &InflateParams::default(), None).unwrap();
+    let thickest = (0..128 * 128).map(|i| closed.coeffs[i * fof.n]).fold(0.0f32, f32::max);
+    assert!(closed.column(64, last)[0] < 0.6 * thickness(last), "the closed prior thins at the cut");
+    assert!((0..128 * 128).all(|i| fof.coeffs[i * fof.n] <= thickest + 0.02), "thicker than the closed prior");
+    // The same person with a rounded bottom inside the photo: nothing is cut, the bottom closes.
+    let whole = GrayImage::from_fn(w, h, |c, r| {
+        let (x, y) = (c as f32 + 0.5, r as f32 + 0.5);
+        f32::from((x - 80.0).powi(2) / 55.0f32.powi(2) + (y - 130.0).powi(2) / 60.0f32.powi(2) < 1.0)
+    });
+    let input = normalise(&rgb, &whole, opts.resolution).unwrap();
+    let fof = compute_geometry(&input, &opts, &mut StageTimings::default()).unwrap();
+    let rows: Vec<usize> = (0..128).filter(|&r| input.mask.get(64, r) > &0.5).collect();
+    let (first, last) = (rows[0], *rows.last().unwrap());
+    assert!(fof.column(64, last)[0] < 0.5 * fof.column(64, (first + last) / 2)[0]);
 }

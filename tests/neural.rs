@@ -590,6 +590,50 @@ fn zero_residual_decoder_is_the_geometric_renderer() {
     }
 }
 
+/// The shipped decoder keeps the photo's own colour on every pixel whose surface point the source camera sees
+/// (paper Eq. 9; `pipeline::keep_photo_where_seen`), so the input view is the photo and side views keep what the
+/// photo shows, while it still draws the surfaces the photo does not show (the decoder's own colours there).
+#[test]
+fn shipped_decoder_keeps_the_photo_where_the_photo_sees_the_surface() {
+    let prepared = figure_input(96);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/tiny");
+    let neural = Arc::new(Mutex::new(NeuralRenderer::load(&dir, &cpu()).unwrap()));
+    let encoded = neural.lock().unwrap().encode(&prepared).unwrap();
+    let mut geo = ViewRenderer::new(&prepared, OcclusionFill::MirroredFront, false);
+    let mut net = ViewRenderer::with_neural(&prepared, OcclusionFill::MirroredFront, false, neural, encoded);
+    let mut unseen_changed = 0;
+    // Yaw and how many of the view's pixels the photo sees at least (from behind: none).
+    for (yaw, least_seen) in [(0.0f32, 500), (35.0, 500), (120.0, 20), (180.0, 0)] {
+        let cam = Camera::orbit(yaw, 10.0, 80, 80);
+        let (g, n) = (geo.render_person(&cam).unwrap(), net.render_person(&cam).unwrap());
+        assert_eq!(net.neural_fallbacks(), 0);
+        let mut target = GBuffer::new(80, 80);
+        r2human::geometry::raster::rasterize_into(&mut target, &prepared.mesh, &cam);
+        let flowz = flow_and_zmap(&target, &cam, &prepared.source_camera);
+        let seen = r2human::geometry::zmap::visibility(
+            &flowz,
+            &prepared.source_gbuffer,
+            &prepared.source_camera,
+            r2human::geometry::zmap::VISIBILITY_LAMBDA,
+        );
+        let lookup =
+            photo_lookup(&prepared.normalised.rgb, &prepared.normalised.mask, &prepared.source_camera, &flowz, None);
+        let mut kept = 0;
+        for (i, &seen) in seen.iter().enumerate() {
+            assert!(n.data[i].is_finite());
+            if seen && lookup.data[i].w > 0.0 {
+                kept += 1;
+                let d = (n.data[i] - g.data[i]).abs().max_element();
+                assert!(d < 2e-4, "yaw {yaw} px {i}: {} vs {}", n.data[i], g.data[i]);
+            } else if n.data[i].w > 0.0 && (n.data[i] - g.data[i]).abs().max_element() > 1e-3 {
+                unseen_changed += 1;
+            }
+        }
+        assert!(kept >= least_seen, "yaw {yaw}: only {kept} pixels the photo sees");
+    }
+    assert!(unseen_changed > 50, "the decoder drew nothing of its own ({unseen_changed} pixels)");
+}
+
 /// A decoder that outputs NaN: the view is drawn by the geometric renderer (identical to it, not black) and the
 /// fallback is counted; a working decoder in the same folder layout really draws the neural view.
 #[test]

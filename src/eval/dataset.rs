@@ -348,8 +348,10 @@ fn fof_grid(size: usize) -> usize {
 fn prior_from_render(gt: &GroundTruthView, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
     let hi = gt.width;
     let mask = gt.mask_image();
-    let fof =
-        inflate_to_fof(&mask, n, &InflateParams::default()).map_err(|e| EvalError::stage("inflation prior", e))?;
+    // Closed along the whole outline: the prior the FOF net refines (`pipeline`'s network input), not the inflation
+    // geometry, which stays open where the photo cuts the person.
+    let fof = inflate_to_fof(&mask, n, &InflateParams::default(), None)
+        .map_err(|e| EvalError::stage("inflation prior", e))?;
     Ok(box_downsample(&fof.coeffs, hi, n, hi / size.max(1)))
 }
 
@@ -370,7 +372,7 @@ pub fn body_fof(
     let normalised = NormalisedInput::in_source_view(rgb, mask);
     let opts = PrepareOptions { resolution: hi, fof_order: n, ..Default::default() };
     let prior =
-        inflate_to_fof(&normalised.mask, n, &opts.inflate).map_err(|e| EvalError::stage("inflation prior", e))?;
+        inflate_to_fof(&normalised.mask, n, &opts.inflate, None).map_err(|e| EvalError::stage("inflation prior", e))?;
     let mut timings = StageTimings::default();
     let (fof, fallback) = body_prior_fof(&normalised, &opts, body, prior, &mut timings);
     Ok((box_downsample(&fof.coeffs, hi, n, hi / size.max(1)), fallback))

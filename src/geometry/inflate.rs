@@ -159,18 +159,29 @@ pub struct InflatedSurfaces {
     pub mask: GrayImage,
 }
 
-/// Inflates the person mask (values in `[0, 1]`, threshold 0.5) into front/back depth maps.
+/// Inflates the person mask (values in `[0, 1]`, threshold 0.5) into front/back depth maps, closed along the
+/// whole outline.
 pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfaces, InflateError> {
-    inflate_at_least(mask, params, 0.0)
+    inflate_at_least(mask, params, 0.0, None)
 }
 
-/// [`inflate`] with every masked column's half thickness at least `min_half_depth` (body-cube units) as well as
-/// `params.min_half_thickness` pixels: the one floor of the inflated height. A non-finite or negative
+/// [`inflate`] open where the photo's `frame` cuts the person ([`Frame`]); `None` is [`inflate`].
+pub fn inflate_in_frame(
+    mask: &GrayImage,
+    params: &InflateParams,
+    frame: Option<Frame>,
+) -> Result<InflatedSurfaces, InflateError> {
+    inflate_at_least(mask, params, 0.0, frame)
+}
+
+/// [`inflate_in_frame`] with every masked column's half thickness at least `min_half_depth` (body-cube units) as well
+/// as `params.min_half_thickness` pixels: the one floor of the inflated height. A non-finite or negative
 /// `min_half_depth` adds no floor.
 fn inflate_at_least(
     mask: &GrayImage,
     params: &InflateParams,
     min_half_depth: f32,
+    frame: Option<Frame>,
 ) -> Result<InflatedSurfaces, InflateError> {
     params.validate()?;
     let (w, h) = (mask.width, mask.height);
@@ -194,7 +205,7 @@ fn inflate_at_least(
     }
 
     let loops = trace_loops(&fg, w, h);
-    let mut u = solve_inflation(&loops, w, h, params)?;
+    let (mut u, mut cut) = solve_inflation(&loops, w, h, params, frame)?;
     let mut inflated = inflated_fraction(&fg, &u, w, h);
     if inflated < MIN_INFLATED_FRACTION && params.simplify_tolerance > 0.0 {
         // A fault of the triangulation on the simplified outline (the kind that once emptied the prior): the exact
@@ -205,15 +216,24 @@ fn inflate_at_least(
             100.0 * inflated
         );
         let exact = InflateParams { simplify_tolerance: 0.0, ..params.clone() };
-        if let Ok(again) = solve_inflation(&loops, w, h, &exact) {
+        if let Ok((again, again_cut)) = solve_inflation(&loops, w, h, &exact, frame) {
             let fraction = inflated_fraction(&fg, &again, w, h);
             if fraction > inflated {
-                (u, inflated) = (again, fraction);
+                (u, cut, inflated) = (again, again_cut, fraction);
             }
         }
     }
     if inflated < MIN_INFLATED_FRACTION {
         return Err(InflateError::NotInflated { fraction: inflated });
+    }
+    if cut {
+        // Open at the cut, a wide part would take the thickness of an endless strip (depth about its width, a chest
+        // as deep as the shoulders are wide). The cut only keeps a part from closing: no column gets thicker than
+        // the thickest the closed silhouette makes anywhere.
+        if let Ok((closed, _)) = solve_inflation(&loops, w, h, params, None) {
+            let cap = closed.iter().copied().fold(0.0f32, f32::max);
+            u.iter_mut().for_each(|v| *v = v.min(cap));
+        }
     }
 
     let (sx, sy) = (2.0 / w as f32, 2.0 / h as f32);
@@ -267,23 +287,29 @@ fn inflated_fraction(fg: &[bool], u: &[f32], w: usize, h: usize) -> f32 {
     }
 }
 
-/// [`inflate`], then [`Fof::from_depth_maps`] with `n` coefficients. Every masked column is at least
+/// [`inflate_in_frame`], then [`Fof::from_depth_maps`] with `n` coefficients. Every masked column is at least
 /// [`sheet_thickness`]`(n)` thick about the centre plane: the inflated height of a part narrower than about 16 px at
 /// 512² (a finger, a tripod leg, a strap, the outline's rim) is thinner than `n` coefficients can show, and such a
 /// part vanished from the mesh.
-pub fn inflate_to_fof(mask: &GrayImage, n: usize, params: &InflateParams) -> Result<Fof, InflateError> {
-    let s = inflate_resolvable(mask, n, params)?;
+pub fn inflate_to_fof(
+    mask: &GrayImage,
+    n: usize,
+    params: &InflateParams,
+    frame: Option<Frame>,
+) -> Result<Fof, InflateError> {
+    let s = inflate_resolvable(mask, n, params, frame)?;
     Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
 }
 
-/// The surfaces [`inflate_to_fof`] encodes: [`inflate`] with every masked column at least
+/// The surfaces [`inflate_to_fof`] encodes: [`inflate_in_frame`] with every masked column at least
 /// [`sheet_thickness`]`(n)` thick, so that `n` coefficients resolve it.
 pub fn inflate_resolvable(
     mask: &GrayImage,
     n: usize,
     params: &InflateParams,
+    frame: Option<Frame>,
 ) -> Result<InflatedSurfaces, InflateError> {
-    inflate_at_least(mask, params, 0.5 * sheet_thickness(n))
+    inflate_at_least(mask, params, 0.5 * sheet_thickness(n), frame)
 }
 
 /// The fraction of the mask's interior pixels whose FOF column reaches occupancy 0.5 at some depth (decoded at
@@ -669,15 +695,91 @@ fn drop_spurious_constraints(cdt: &mut Cdt, winding: &Winding, w: usize, h: usiz
     spurious.len()
 }
 
-/// Solves `-Δu = 4`, `u = 0` on the outline over the refined CDT and samples `u` at every pixel centre
+/// Where the photo lies on the mask's grid, `(min, max)` corners in pixels (the pipeline's
+/// `NormalisedInput::frame`, with a straight cut of the mask as its bottom edge where the body prior's
+/// `effective_frame` finds one). The mask's outline along a side of the frame is not where the person ends but where
+/// the photo cuts them: there the inflated surfaces stay open (zero slope, a natural boundary of the Poisson problem)
+/// instead of closing to zero thickness, the way the body prior's reconciliation treats the cut. Without it a
+/// portrait's chest came out egg-shaped from the side, thinning to nothing at the photo's bottom edge.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frame {
+    /// Top-left corner (pixels).
+    pub min: glam::Vec2,
+    /// Bottom-right corner (pixels).
+    pub max: glam::Vec2,
+}
+
+impl Frame {
+    /// How far (pixels) an outline edge may lie from a side of the frame and still be a cut: the mask's outline runs
+    /// on the pixel lattice, at most half a pixel from a frame side at a fractional position.
+    pub const TOLERANCE: f64 = 1.0;
+
+    /// The frame with corners `min` and `max` (pixels).
+    pub fn new(min: glam::Vec2, max: glam::Vec2) -> Self {
+        Self { min, max }
+    }
+
+    /// Whether the outline edge from `a` to `b` (body-cube x and y, on a `w` x `h` grid) lies along one side of the
+    /// frame.
+    fn cuts(&self, a: [f64; 2], b: [f64; 2], w: usize, h: usize) -> bool {
+        let px = |p: [f64; 2]| [(p[0] + 1.0) * 0.5 * w as f64, (1.0 - p[1]) * 0.5 * h as f64];
+        let (a, b) = (px(a), px(b));
+        let near = |v: f64, side: f32| (v - side as f64).abs() <= Self::TOLERANCE;
+        let (lo, hi) = (self.min, self.max);
+        (near(a[1], hi.y) && near(b[1], hi.y))
+            || (near(a[1], lo.y) && near(b[1], lo.y))
+            || (near(a[0], lo.x) && near(b[0], lo.x))
+            || (near(a[0], hi.x) && near(b[0], hi.x))
+    }
+}
+
+/// The vertices held at `u = 0`: every vertex of an outline edge, and the cut vertices of a region of `faces` that
+/// touches no outline at all (a person filling the whole frame), whose problem would otherwise have no solution.
+/// A vertex only on cut edges is an unknown with the natural (zero-slope) boundary.
+fn dirichlet_vertices(faces: &[[usize; 3]], mut outline: Vec<bool>, cut: &[bool]) -> Vec<bool> {
+    if !cut.iter().any(|&c| c) {
+        return outline;
+    }
+    let mut parent: Vec<usize> = (0..outline.len()).collect();
+    fn root(parent: &mut [usize], mut v: usize) -> usize {
+        while parent[v] != v {
+            parent[v] = parent[parent[v]];
+            v = parent[v];
+        }
+        v
+    }
+    for f in faces {
+        for k in 1..3 {
+            let (a, b) = (root(&mut parent, f[0]), root(&mut parent, f[k]));
+            if a != b {
+                parent[a] = b;
+            }
+        }
+    }
+    let mut held = vec![false; outline.len()];
+    for v in (0..outline.len()).filter(|&v| outline[v]) {
+        let r = root(&mut parent, v);
+        held[r] = true;
+    }
+    for v in (0..outline.len()).filter(|&v| cut[v]) {
+        let r = root(&mut parent, v);
+        if !held[r] {
+            outline[v] = true;
+        }
+    }
+    outline
+}
+
+/// Solves `-Δu = 4`, `u = 0` on the outline (zero slope along the `frame`'s sides, [`Frame`]) over the refined CDT and samples `u` at every pixel centre
 /// (0 where no inner triangle covers the centre). Inside and outside come from the loops' winding numbers
-/// ([`label_faces`]), not from the parity of constraint edges.
+/// ([`label_faces`]), not from the parity of constraint edges. Also says whether any outline edge lay on the frame.
 fn solve_inflation(
     loops: &[Vec<(i64, i64)>],
     w: usize,
     h: usize,
     params: &InflateParams,
-) -> Result<Vec<f32>, InflateError> {
+    frame: Option<Frame>,
+) -> Result<(Vec<f32>, bool), InflateError> {
     let tol = params.simplify_tolerance as f64;
     let simplified: Vec<Vec<(i64, i64)>> = loops.par_iter().map(|l| simplify_loop(l, tol)).collect();
     let (mut cdt, conflict) = build_cdt(&simplified, w, h, params.max_outline_vertices)?;
@@ -709,17 +811,22 @@ fn solve_inflation(
     );
     let inside = label_faces(&cdt, &winding, w, h);
     let nv = cdt.num_vertices();
-    let mut boundary = vec![false; nv];
-    for e in cdt.undirected_edges() {
-        if e.is_constraint_edge() {
-            for v in e.vertices() {
-                boundary[v.fix().index()] = true;
-            }
-        }
-    }
     let pos: Vec<[f64; 2]> = cdt.vertices().map(|v| [v.position().x, v.position().y]).collect();
     let faces: Vec<[usize; 3]> =
         cdt.inner_faces().filter(|f| inside[f.fix().index()]).map(|f| f.vertices().map(|v| v.fix().index())).collect();
+    let (mut outline_vertex, mut cut_vertex) = (vec![false; nv], vec![false; nv]);
+    for e in cdt.undirected_edges().filter(|e| e.is_constraint_edge()) {
+        let [a, b] = e.vertices().map(|v| v.fix().index());
+        let on_cut = frame.is_some_and(|f| f.cuts(pos[a], pos[b], w, h));
+        for v in [a, b] {
+            if on_cut {
+                cut_vertex[v] = true;
+            } else {
+                outline_vertex[v] = true;
+            }
+        }
+    }
+    let boundary = dirichlet_vertices(&faces, outline_vertex, &cut_vertex);
 
     // Unknowns: vertices of inner faces that are not on the outline.
     let mut unknown = vec![usize::MAX; nv];
@@ -742,7 +849,7 @@ fn solve_inflation(
             }
         }
     }
-    Ok(rasterise(&faces, &pos, &u_vertex, w, h))
+    Ok((rasterise(&faces, &pos, &u_vertex, w, h), cut_vertex.iter().any(|&c| c)))
 }
 
 /// A symmetric sparse matrix in compressed rows.
@@ -927,6 +1034,67 @@ mod tests {
         })
     }
 
+    fn half_thickness(s: &InflatedSurfaces, c: usize, r: usize) -> f32 {
+        let i = r * s.front.width + c;
+        0.5 * (s.front.data[i] - s.back.data[i])
+    }
+
+    #[test]
+    fn the_photos_cut_is_open_not_an_outline() {
+        // A strip of half width a (pixels) from row 8 down to the frame's bottom edge at row 56: with the frame, the
+        // cut is a natural boundary, so far from the top the thickness is the infinite strip's (u = 2 (a² - x²),
+        // h = κ √2 a at the centre) right down to the last row; without it the bottom is an outline and the last
+        // row is thin.
+        let (size, a_px) = (64usize, 8.0f32);
+        let mask = GrayImage::from_fn(size, size, |c, r| {
+            f32::from((8..56).contains(&r) && (c as f32 + 0.5 - 32.0).abs() <= a_px)
+        });
+        let params = InflateParams { thickness: 1.0, min_half_thickness: 0.0, ..Default::default() };
+        let frame = Frame::new(glam::Vec2::ZERO, glam::Vec2::new(64.0, 56.0));
+        let open = inflate_in_frame(&mask, &params, Some(frame)).unwrap();
+        let closed = inflate(&mask, &params).unwrap();
+        let expected = 2.0f32.sqrt() * a_px * 2.0 / size as f32;
+        for r in [32, 40, 50, 55] {
+            let got = half_thickness(&open, 32, r);
+            assert!((got - expected).abs() < 0.07 * expected, "row {r}: {got} vs {expected}");
+            // Across the strip, the strip's ellipse √2 sqrt(a² - x²) down to the cut, to the solver's accuracy off
+            // the centre line (within 8 % anywhere along a strip, closed or open; the cut adds nothing to that).
+            for c in [25, 28, 36, 38] {
+                let x = c as f32 + 0.5 - 32.0;
+                let ellipse = 2.0f32.sqrt() * (a_px * a_px - x * x).sqrt() * 2.0 / size as f32;
+                let got = half_thickness(&open, c, r);
+                assert!((got - ellipse).abs() < 0.1 * ellipse, "row {r}, column {c}: {got} vs {ellipse}");
+            }
+        }
+        assert!(half_thickness(&closed, 32, 55) < 0.5 * expected, "closed: {}", half_thickness(&closed, 32, 55));
+        // The sides and the top are still outlines, and above the cut's reach both agree.
+        assert!(half_thickness(&open, 32, 8) < 0.5 * expected);
+        assert!((half_thickness(&open, 32, 20) - half_thickness(&closed, 32, 20)).abs() < 0.05 * expected);
+        assert_eq!(open.mask, closed.mask);
+        assert!(open.front.data.iter().chain(&open.back.data).all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn a_frame_that_cuts_nothing_changes_nothing_and_one_that_cuts_everywhere_stays_closed() {
+        let mask = disc_mask(64, 32.0, 32.0, 20.0);
+        let params = InflateParams::default();
+        let closed = inflate(&mask, &params).unwrap();
+        let far = Frame::new(glam::Vec2::ZERO, glam::Vec2::new(64.0, 64.0));
+        assert_eq!(inflate_in_frame(&mask, &params, Some(far)).unwrap(), closed);
+        // A person filling the whole photo (the mask is the frame): every outline edge lies on the frame, and with no
+        // outline left to hold the surface the cut closes (a finite, closed result instead of a singular problem).
+        let boxed = GrayImage::from_fn(64, 64, |c, r| f32::from((10..50).contains(&c) && (12..40).contains(&r)));
+        let frame = Frame::new(glam::Vec2::new(10.0, 12.0), glam::Vec2::new(50.0, 40.0));
+        let framed = inflate_in_frame(&boxed, &params, Some(frame)).unwrap();
+        assert_eq!(framed, inflate(&boxed, &params).unwrap());
+        // Cut on three sides (the mask runs off the frame's left, right and bottom): open there, closed at the top.
+        let frame = Frame::new(glam::Vec2::new(10.0, 0.0), glam::Vec2::new(50.0, 40.0));
+        let framed = inflate_in_frame(&boxed, &params, Some(frame)).unwrap();
+        assert!(half_thickness(&framed, 10, 39) > 2.0 * half_thickness(&inflate(&boxed, &params).unwrap(), 10, 39));
+        assert!(half_thickness(&framed, 30, 12) < half_thickness(&framed, 30, 30));
+        assert!(framed.front.data.iter().chain(&framed.back.data).all(|v| v.is_finite()));
+    }
+
     #[test]
     fn disc_inflates_to_a_sphere_with_thickness_one() {
         let (size, r_px) = (128usize, 40.0f32);
@@ -1028,7 +1196,7 @@ mod tests {
         let mid = 30 * size + 30 + 14;
         let edge = 30 * size + 30 + 19;
         assert!(s.front.data[mid] > s.front.data[edge]);
-        let fof = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+        let fof = inflate_to_fof(&mask, 32, &InflateParams::default(), None).unwrap();
         assert!(fof.coeffs.iter().all(|v| v.is_finite()));
     }
 
@@ -1049,7 +1217,7 @@ mod tests {
         let raw = inflate(&mask, &p).unwrap();
         let bar = 128 * size + 201;
         assert!(raw.front.data[bar] < 0.5 / 32.0, "the bar is thinner than a sheet: {}", raw.front.data[bar]);
-        let widened = inflate_at_least(&mask, &p, 0.5 * sheet_thickness(32)).unwrap();
+        let widened = inflate_at_least(&mask, &p, 0.5 * sheet_thickness(32), None).unwrap();
         assert_eq!(widened.front.data[bar], 1.0 / 32.0);
         assert_eq!(widened.back.data[bar], -1.0 / 32.0);
         let centre = 128 * size + 90;
@@ -1059,10 +1227,10 @@ mod tests {
         // Outside the mask nothing changes; bad floors change nothing.
         assert_eq!(widened.front.data[0], raw.front.data[0]);
         for bad in [f32::NAN, -1.0, 0.0, f32::INFINITY, f32::NEG_INFINITY] {
-            assert_eq!(inflate_at_least(&mask, &p, bad).unwrap(), raw);
+            assert_eq!(inflate_at_least(&mask, &p, bad, None).unwrap(), raw);
         }
         // End to end: the bar decodes above 0.5 at the centre plane (before: below, absent from the mesh).
-        let fof = inflate_to_fof(&mask, 32, &p).unwrap();
+        let fof = inflate_to_fof(&mask, 32, &p, None).unwrap();
         let table = CosineTable::new(32, 128);
         let mut out = vec![0.0f32; 128];
         fof.decode_column_with(&table, 201, 128, &mut out);
@@ -1130,7 +1298,7 @@ mod tests {
         let min_half = 2.0 / mask.width as f32;
         let thick = inside.iter().filter(|&&i| s.front.data[i] - s.back.data[i] > 4.0 * min_half).count();
         assert!(thick * 10 > inside.len() * 8, "most of the person is inflated: {thick} of {}", inside.len());
-        let fof = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+        let fof = inflate_to_fof(&mask, 32, &InflateParams::default(), None).unwrap();
         let coverage = mask_coverage(&fof, &mask, 2).unwrap();
         assert!(coverage >= 0.99, "the decoded prior covers the person: {coverage}");
     }
@@ -1189,7 +1357,7 @@ mod tests {
             let loops = trace_loops(&fg, mask.width, mask.height);
             let exact = InflateParams { simplify_tolerance: 0.0, ..InflateParams::default() };
             for params in [InflateParams::default(), exact] {
-                let u = solve_inflation(&loops, mask.width, mask.height, &params).unwrap();
+                let (u, _) = solve_inflation(&loops, mask.width, mask.height, &params, None).unwrap();
                 let f = inflated_fraction(&fg, &u, mask.width, mask.height);
                 assert!(f >= 0.99, "tolerance {}: {f}", params.simplify_tolerance);
             }
@@ -1199,7 +1367,7 @@ mod tests {
     #[test]
     fn coverage_of_full_empty_and_half_priors() {
         let mask = disc_mask(64, 32.0, 32.0, 20.0);
-        let full = inflate_to_fof(&mask, 32, &InflateParams::default()).unwrap();
+        let full = inflate_to_fof(&mask, 32, &InflateParams::default(), None).unwrap();
         assert_eq!(mask_coverage(&full, &mask, 2), Some(1.0));
         let empty = Fof::zeros(32, 64, 64).unwrap();
         assert_eq!(mask_coverage(&empty, &mask, 2), Some(0.0));

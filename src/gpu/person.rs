@@ -4,9 +4,9 @@
 //! and ONNX Runtime, one view at a time:
 //!
 //! 1. [`Renderer::neural_inputs`]: target raster and flow/Z-map on the GPU in one submission, read back.
-//! 2. On the host: the decoder's colour lookup ([`photo_lookup`]) and the decoder, which samples the encoder's
+//! 2. On the host: [`decode_person_view`], the decoder's colour lookup and the decoder, which samples the encoder's
 //!    features at the flow inside the target mask's box (ONNX Runtime; a GPU execution provider copies its own
-//!    inputs).
+//!    inputs), and the photo's colour where the source camera sees the surface.
 //! 3. [`Renderer::render_frame_from_person`]: the result uploaded for spatial fusion, the panorama composite or
 //!    the AR layer, and presentation.
 //!
@@ -21,7 +21,9 @@ use crate::buffer::RgbaImage;
 use crate::compose::Mode;
 use crate::geometry::Camera;
 use crate::neural::NeuralError;
-use crate::pipeline::{photo_lookup, NeuralInput, NeuralRef, NeuralViewTimes, PersonBackend, SharedNeural, SourceView};
+use crate::pipeline::{
+    decode_person_view, NeuralInput, NeuralRef, NeuralViewTimes, PersonBackend, SharedNeural, SourceView,
+};
 
 /// Why [`gpu_neural_person`] could not draw a view (the person-renderer policy then draws it geometrically).
 #[derive(Debug, thiserror::Error)]
@@ -53,11 +55,10 @@ pub fn gpu_neural_person(
     let (target, flowz) = renderer.neural_inputs(camera).map_err(NeuralViewError::Inputs)?;
     let gpu_inputs = start.elapsed();
     let start = Instant::now();
-    let back = crate::pipeline::neural_back_lookup(renderer.fill()).then_some((&target, camera));
-    let lookup = photo_lookup(source.colours(), source.mask, source.camera, &flowz, back);
+    let fill = renderer.fill();
     let person = {
         let mut n = neural.lock().unwrap_or_else(|p| p.into_inner());
-        n.runtime.decoder.render_view(&encoded.features, &flowz, source.camera.width, &target, &lookup)
+        decode_person_view(&mut n.runtime.decoder, &encoded.features, &flowz, &source, &target, camera, fill)
     }?;
     if person.data.iter().any(|p| !p.is_finite()) {
         return Err(NeuralViewError::NotFinite);

@@ -626,20 +626,27 @@ fn body_placed_geometry(
     timings: &mut StageTimings,
 ) -> Result<GeometryAndPose, PipelineError> {
     let (mut inflation_times, mut body_times) = (StageTimings::default(), StageTimings::default());
+    let frame = inflation_frame(&normalised.mask, Some(normalised.frame));
+    let inflated = |frame: inflate::Frame| {
+        inflate::inflate_resolvable(&normalised.mask, opts.fof_order, &opts.inflate, Some(frame))
+    };
     let (surfaces, fitted) = rayon::join(
-        || {
-            inflation_times.time("geometry (inflate)", || {
-                inflate::inflate_resolvable(&normalised.mask, opts.fof_order, &opts.inflate)
-            })
-        },
+        || inflation_times.time("geometry (inflate)", || inflated(frame)),
         || fitted_body_or_why(normalised, opts, body, &mut body_times),
     );
     timings.0.extend(inflation_times.0.into_iter().chain(body_times.0));
-    let surfaces = surfaces?;
+    let mut surfaces = surfaces?;
     let mut pose = None;
     let surfaces = match fitted {
         Ok((prior, silhouette)) => {
             pose = Some(prior.landmarks.clone());
+            let (min, max) = prior.frame();
+            if inflate::Frame::new(min, max) != frame {
+                // The pose read stood the person on the straight bottom edge (soles, not a cut): inflate again with
+                // the frame the body was fitted in.
+                surfaces =
+                    timings.time("geometry (inflate, body's frame)", || inflated(inflate::Frame::new(min, max)))?;
+            }
             let intervals = timings.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
             let learned = opts.placement.as_ref().and_then(|net| {
                 timings.time("body placement (network)", || placement_net_shifts(net, &surfaces, &intervals, opts))
@@ -781,15 +788,27 @@ pub fn compute_geometry_and_pose(
     Ok((timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0), pose))
 }
 
-/// The silhouette-inflation prior of an input, timed.
+/// The silhouette-inflation prior of an input, timed: open where the photo cuts the person ([`inflation_frame`]) when
+/// `open` (the inflation geometry), closed along the whole outline otherwise (the FOF net's input, as its training
+/// data holds it: `eval::dataset::prior_fof`).
 fn inflation_prior(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
+    open: bool,
     timings: &mut StageTimings,
 ) -> Result<Fof, PipelineError> {
+    let frame = open.then(|| inflation_frame(&normalised.mask, Some(normalised.frame)));
     Ok(timings.time("geometry (inflate -> FOF)", || {
-        inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate)
+        inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate, frame)
     })?)
+}
+
+/// Where the photo cuts the person, for the inflation prior ([`inflate::Frame`]): the photo's `frame` on the mask's
+/// grid (`None`: the whole grid) with a straight cut of the mask as its bottom edge, as the body prior decides before
+/// reading the pose ([`crate::body::prior::effective_frame`]).
+pub fn inflation_frame(mask: &GrayImage, frame: Option<(Vec2, Vec2)>) -> inflate::Frame {
+    let (min, max) = crate::body::prior::effective_frame(mask, frame);
+    inflate::Frame::new(min, max)
 }
 
 /// [`compute_geometry_and_pose`] before the depth centring.
@@ -798,7 +817,7 @@ fn chosen_geometry(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<GeometryAndPose, PipelineError> {
-    let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, timings);
+    let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, true, timings);
     if opts.geometry.fits_body() {
         let Some(body) = &opts.body else {
             // Auto without the body prior: `load_body` said so once.
@@ -823,7 +842,9 @@ fn fof_net_or_inflation(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<GeometryAndPose, PipelineError> {
-    let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, timings);
+    let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, true, timings);
+    // The network refines the closed prior it was trained on.
+    let net_prior = |timings: &mut StageTimings| inflation_prior(normalised, opts, false, timings);
     let net = match (opts.geometry, &opts.fof_net) {
         // The body modes returned above: what is left is the inflation prior or the FOF net.
         (mode, _) if mode.resolved() != GeometryMode::FofNet => return Ok((inflation(timings)?, None)),
@@ -838,14 +859,14 @@ fn fof_net_or_inflation(
     // The body FOF the network takes: the body prior exactly as `--geometry body` computes it (its fall-back, the
     // inflation prior, when no pose is found: what the training data holds for such inputs).
     let (prior, body, pose) = match (takes_body, &opts.body) {
-        (false, _) => (inflation(timings)?, None, None),
+        (false, _) => (net_prior(timings)?, None, None),
         (true, Some(body)) => {
             // The inflation prior and the body prior do not depend on each other: they run side by side (on two
             // cores the body fit is single-threaded, the pose network and the inflation are not). Their stage
             // times overlap; both are recorded, the inflation prior's first.
             let (mut prior_times, mut body_times) = (StageTimings::default(), StageTimings::default());
             let (prior, body_fof) = rayon::join(
-                || inflation(&mut prior_times),
+                || net_prior(&mut prior_times),
                 || body_prior_fof_and_pose_or_why(normalised, opts, body, &mut body_times),
             );
             timings.0.extend(prior_times.0.into_iter().chain(body_times.0));
@@ -1068,15 +1089,59 @@ impl NeuralRenderer {
         fill: OcclusionFill,
     ) -> Result<RgbaImage, NeuralError> {
         flow_and_zmap_into(flowz, target, camera, &input.source_camera);
-        let source = SourceView::of(input);
-        let lookup = photo_lookup(
-            source.colours(),
-            source.mask,
-            source.camera,
+        decode_person_view(
+            &mut self.runtime.decoder,
+            &encoded.features,
             flowz,
-            neural_back_lookup(fill).then_some((target, camera)),
-        );
-        self.runtime.decoder.render_view(&encoded.features, flowz, input.source_camera.width, target, &lookup)
+            &SourceView::of(input),
+            target,
+            camera,
+            fill,
+        )
+    }
+}
+
+/// One view of the person by the neural decoder, from the flow and Z-map of `target` (rasterised for `camera`):
+/// the colour lookup ([`photo_lookup`], with the back image when [`neural_back_lookup`] says so), the decoder, and
+/// then the photo's own colour wherever the source camera sees the surface point ([`keep_photo_where_seen`]). The
+/// CPU pipeline and the Vulkan renderer's host-memory seam both draw through it.
+pub fn decode_person_view(
+    decoder: &mut crate::neural::Decoder,
+    features: &FeatureMap,
+    flowz: &FlowZ,
+    source: &SourceView<'_>,
+    target: &GBuffer,
+    camera: &Camera,
+    fill: OcclusionFill,
+) -> Result<RgbaImage, NeuralError> {
+    let back = neural_back_lookup(fill).then_some((target, camera));
+    let lookup = photo_lookup(source.colours(), source.mask, source.camera, flowz, back);
+    let mut person = decoder.render_view(features, flowz, source.camera.width, target, &lookup)?;
+    let seen = crate::geometry::zmap::visibility(
+        flowz,
+        source.gbuffer,
+        source.camera,
+        crate::geometry::zmap::VISIBILITY_LAMBDA,
+    );
+    keep_photo_where_seen(&mut person, &lookup, &seen);
+    Ok(person)
+}
+
+/// Puts the photo's colour (`lookup`, [`photo_lookup`]) back on every covered pixel of the decoder's `person` whose
+/// surface point the source camera sees (`seen`, paper Eq. 9) and the photo has a colour for. The decoder is
+/// residual on that colour and was trained on synthetic people, where it leaves such pixels within about 0.1 dB of
+/// the photo's; on real photos it shifted their colours (a blue cast on the astronaut's helmet and gloves, 1.3-7.9
+/// dB below the photo at the input view, README "Neural renderer"), so what the photo shows is taken from the photo
+/// and the decoder draws only what it does not show. Arrays of another size leave `person` as it is.
+pub fn keep_photo_where_seen(person: &mut RgbaImage, lookup: &RgbaImage, seen: &[bool]) {
+    let n = person.data.len();
+    if lookup.data.len() != n || seen.len() != n || (lookup.width, lookup.height) != (person.width, person.height) {
+        return;
+    }
+    for ((p, l), &s) in person.data.iter_mut().zip(&lookup.data).zip(seen) {
+        if s && l.w >= 1.0 && p.w > 0.0 {
+            *p = *l;
+        }
     }
 }
 
@@ -1412,5 +1477,27 @@ impl<'a> ViewRenderer<'a> {
             }
             Mode::Ar => RenderedFrame::Ar(compose::compose_ar(&person)),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_photo_is_kept_only_where_it_sees_the_surface_and_has_a_colour() {
+        let decoded = Vec4::new(0.1, 0.2, 0.3, 1.0);
+        let photo = Vec4::new(0.7, 0.6, 0.5, 1.0);
+        let mut person = RgbaImage::new(4, 1, decoded);
+        person.data[3] = Vec4::ZERO; // not covered
+        let mut lookup = RgbaImage::new(4, 1, photo);
+        lookup.data[1] = Vec4::ZERO; // the photo has no colour there
+        keep_photo_where_seen(&mut person, &lookup, &[true, true, false, true]);
+        assert_eq!(person.data, vec![photo, decoded, decoded, Vec4::ZERO]);
+        // Arrays of another size change nothing.
+        let before = person.clone();
+        keep_photo_where_seen(&mut person, &RgbaImage::new(2, 1, photo), &[true; 4]);
+        keep_photo_where_seen(&mut person, &lookup, &[true; 3]);
+        assert_eq!(person, before);
     }
 }
