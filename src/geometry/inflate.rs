@@ -205,7 +205,7 @@ fn inflate_at_least(
     }
 
     let loops = trace_loops(&fg, w, h);
-    let (mut u, mut cut) = solve_inflation(&loops, w, h, params, frame)?;
+    let mut u = solve_inflation(&loops, w, h, params, frame)?;
     let mut inflated = inflated_fraction(&fg, &u, w, h);
     if inflated < MIN_INFLATED_FRACTION && params.simplify_tolerance > 0.0 {
         // A fault of the triangulation on the simplified outline (the kind that once emptied the prior): the exact
@@ -216,26 +216,16 @@ fn inflate_at_least(
             100.0 * inflated
         );
         let exact = InflateParams { simplify_tolerance: 0.0, ..params.clone() };
-        if let Ok((again, again_cut)) = solve_inflation(&loops, w, h, &exact, frame) {
+        if let Ok(again) = solve_inflation(&loops, w, h, &exact, frame) {
             let fraction = inflated_fraction(&fg, &again, w, h);
             if fraction > inflated {
-                (u, cut, inflated) = (again, again_cut, fraction);
+                (u, inflated) = (again, fraction);
             }
         }
     }
     if inflated < MIN_INFLATED_FRACTION {
         return Err(InflateError::NotInflated { fraction: inflated });
     }
-    if cut {
-        // Open at the cut, a wide part would take the thickness of an endless strip (depth about its width, a chest
-        // as deep as the shoulders are wide). The cut only keeps a part from closing: no column gets thicker than
-        // the thickest the closed silhouette makes anywhere.
-        if let Ok((closed, _)) = solve_inflation(&loops, w, h, params, None) {
-            let cap = closed.iter().copied().fold(0.0f32, f32::max);
-            u.iter_mut().for_each(|v| *v = v.min(cap));
-        }
-    }
-
     let (sx, sy) = (2.0 / w as f32, 2.0 / h as f32);
     let depth_floor = if min_half_depth.is_finite() { min_half_depth.max(0.0) } else { 0.0 };
     let h_min = (params.min_half_thickness * sx.min(sy)).max(depth_floor);
@@ -700,7 +690,9 @@ fn drop_spurious_constraints(cdt: &mut Cdt, winding: &Winding, w: usize, h: usiz
 /// `effective_frame` finds one). The mask's outline along a side of the frame is not where the person ends but where
 /// the photo cuts them: there the inflated surfaces stay open (zero slope, a natural boundary of the Poisson problem)
 /// instead of closing to zero thickness, the way the body prior's reconciliation treats the cut. Without it a
-/// portrait's chest came out egg-shaped from the side, thinning to nothing at the photo's bottom edge.
+/// portrait's chest came out egg-shaped from the side, thinning to nothing at the photo's bottom edge. No column
+/// gets thicker than the thickest of the closed problem: open, a wide part would take an endless strip's depth
+/// (about its width).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Frame {
     /// Top-left corner (pixels).
@@ -772,14 +764,15 @@ fn dirichlet_vertices(faces: &[[usize; 3]], mut outline: Vec<bool>, cut: &[bool]
 
 /// Solves `-Δu = 4`, `u = 0` on the outline (zero slope along the `frame`'s sides, [`Frame`]) over the refined CDT and samples `u` at every pixel centre
 /// (0 where no inner triangle covers the centre). Inside and outside come from the loops' winding numbers
-/// ([`label_faces`]), not from the parity of constraint edges. Also says whether any outline edge lay on the frame.
+/// ([`label_faces`]), not from the parity of constraint edges. Where the frame cuts the person, no column is thicker
+/// than the closed problem's thickest (solved on the same triangles).
 fn solve_inflation(
     loops: &[Vec<(i64, i64)>],
     w: usize,
     h: usize,
     params: &InflateParams,
     frame: Option<Frame>,
-) -> Result<(Vec<f32>, bool), InflateError> {
+) -> Result<Vec<f32>, InflateError> {
     let tol = params.simplify_tolerance as f64;
     let simplified: Vec<Vec<(i64, i64)>> = loops.par_iter().map(|l| simplify_loop(l, tol)).collect();
     let (mut cdt, conflict) = build_cdt(&simplified, w, h, params.max_outline_vertices)?;
@@ -826,14 +819,27 @@ fn solve_inflation(
             }
         }
     }
-    let boundary = dirichlet_vertices(&faces, outline_vertex, &cut_vertex);
+    let mut u_vertex = solve_poisson(&faces, &pos, &dirichlet_vertices(&faces, outline_vertex.clone(), &cut_vertex));
+    if cut_vertex.iter().any(|&c| c) {
+        // Open at the cut, a wide part would take the thickness of an endless strip (depth about its width, a chest
+        // as deep as the shoulders are wide). The cut only keeps a part from closing: no column gets thicker than
+        // the thickest the closed silhouette makes anywhere (solved on the same triangles).
+        let closed: Vec<bool> = outline_vertex.iter().zip(&cut_vertex).map(|(&o, &c)| o || c).collect();
+        let cap = solve_poisson(&faces, &pos, &closed).into_iter().fold(0.0f64, f64::max);
+        u_vertex.iter_mut().for_each(|u| *u = u.min(cap));
+    }
+    Ok(rasterise(&faces, &pos, &u_vertex, w, h))
+}
 
-    // Unknowns: vertices of inner faces that are not on the outline.
+/// `-Δu = 4` on the triangles `faces` (P1 elements, conjugate gradients) with `u = 0` on the vertices `held`: the
+/// value at every vertex, 0 on the held ones and on vertices of no face, never negative.
+fn solve_poisson(faces: &[[usize; 3]], pos: &[[f64; 2]], held: &[bool]) -> Vec<f64> {
+    let nv = pos.len();
     let mut unknown = vec![usize::MAX; nv];
     let mut count = 0;
-    for f in &faces {
+    for f in faces {
         for &v in f {
-            if !boundary[v] && unknown[v] == usize::MAX {
+            if !held[v] && unknown[v] == usize::MAX {
                 unknown[v] = count;
                 count += 1;
             }
@@ -841,7 +847,7 @@ fn solve_inflation(
     }
     let mut u_vertex = vec![0.0f64; nv];
     if count > 0 {
-        let (matrix, rhs) = assemble(&faces, &pos, &unknown, count);
+        let (matrix, rhs) = assemble(faces, pos, &unknown, count);
         let x = conjugate_gradient(&matrix, &rhs, 1e-9, 10 * count + 100);
         for v in 0..nv {
             if unknown[v] != usize::MAX {
@@ -849,7 +855,7 @@ fn solve_inflation(
             }
         }
     }
-    Ok((rasterise(&faces, &pos, &u_vertex, w, h), cut_vertex.iter().any(|&c| c)))
+    u_vertex
 }
 
 /// A symmetric sparse matrix in compressed rows.
@@ -1357,7 +1363,7 @@ mod tests {
             let loops = trace_loops(&fg, mask.width, mask.height);
             let exact = InflateParams { simplify_tolerance: 0.0, ..InflateParams::default() };
             for params in [InflateParams::default(), exact] {
-                let (u, _) = solve_inflation(&loops, mask.width, mask.height, &params, None).unwrap();
+                let u = solve_inflation(&loops, mask.width, mask.height, &params, None).unwrap();
                 let f = inflated_fraction(&fg, &u, mask.width, mask.height);
                 assert!(f >= 0.99, "tolerance {}: {f}", params.simplify_tolerance);
             }
