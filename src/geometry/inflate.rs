@@ -819,21 +819,28 @@ fn solve_inflation(
             }
         }
     }
-    let mut u_vertex = solve_poisson(&faces, &pos, &dirichlet_vertices(&faces, outline_vertex.clone(), &cut_vertex));
+    let mut u_vertex =
+        solve_poisson(&faces, &pos, &dirichlet_vertices(&faces, outline_vertex.clone(), &cut_vertex), 1e-9);
     if cut_vertex.iter().any(|&c| c) {
         // Open at the cut, a wide part would take the thickness of an endless strip (depth about its width, a chest
         // as deep as the shoulders are wide). The cut only keeps a part from closing: no column gets thicker than
         // the thickest the closed silhouette makes anywhere (solved on the same triangles).
         let closed: Vec<bool> = outline_vertex.iter().zip(&cut_vertex).map(|(&o, &c)| o || c).collect();
-        let cap = solve_poisson(&faces, &pos, &closed).into_iter().fold(0.0f64, f64::max);
+        // Only its maximum is needed, and that settles long before the residual does (Grace Hopper and the
+        // astronaut: the same to six digits at a relative residual of 1e-4 as at 1e-9, 2-3 ms sooner).
+        let cap = solve_poisson(&faces, &pos, &closed, CAP_TOLERANCE).into_iter().fold(0.0f64, f64::max);
         u_vertex.iter_mut().for_each(|u| *u = u.min(cap));
     }
     Ok(rasterise(&faces, &pos, &u_vertex, w, h))
 }
 
-/// `-Δu = 4` on the triangles `faces` (P1 elements, conjugate gradients) with `u = 0` on the vertices `held`: the
+/// The conjugate gradients' relative residual for the closed problem that caps the thickness at a cut.
+const CAP_TOLERANCE: f64 = 1e-5;
+
+/// `-Δu = 4` on the triangles `faces` (P1 elements, conjugate gradients to a relative residual of `rel_tol`) with
+/// `u = 0` on the vertices `held`: the
 /// value at every vertex, 0 on the held ones and on vertices of no face, never negative.
-fn solve_poisson(faces: &[[usize; 3]], pos: &[[f64; 2]], held: &[bool]) -> Vec<f64> {
+fn solve_poisson(faces: &[[usize; 3]], pos: &[[f64; 2]], held: &[bool], rel_tol: f64) -> Vec<f64> {
     let nv = pos.len();
     let mut unknown = vec![usize::MAX; nv];
     let mut count = 0;
@@ -848,7 +855,7 @@ fn solve_poisson(faces: &[[usize; 3]], pos: &[[f64; 2]], held: &[bool]) -> Vec<f
     let mut u_vertex = vec![0.0f64; nv];
     if count > 0 {
         let (matrix, rhs) = assemble(faces, pos, &unknown, count);
-        let x = conjugate_gradient(&matrix, &rhs, 1e-9, 10 * count + 100);
+        let x = conjugate_gradient(&matrix, &rhs, rel_tol, 10 * count + 100);
         for v in 0..nv {
             if unknown[v] != usize::MAX {
                 u_vertex[v] = x[unknown[v]].max(0.0);
