@@ -123,12 +123,13 @@ fn engine_switches_renderers_on_the_gpu_and_reuses_the_neural_layer() {
     let c = engine.neural_counters();
     assert_eq!((c.views, c.decoder_runs, c.fallbacks), (2, 1, 0));
     assert_eq!(mean_abs_diff(&neural, &again), 0.0);
-    // G: the geometric warp draws the next frame, and it is a different image of the same person.
+    // G: the geometric warp draws the next frame, and it is a different image of the same person: the same photo
+    // colours where the photo sees the surface (`pipeline::keep_photo_where_seen`), the decoder's own elsewhere.
     engine.set_shading(Shading::Geometric).unwrap();
     let geometric = frame(&mut engine, &mut gpu, Mode::Ar);
     assert_eq!(engine.drawn(), Drawn::Geometric);
     let d = mean_abs_diff(&neural, &geometric);
-    assert!(d > 1e-2, "the neural and geometric frames are (nearly) identical ({d})");
+    assert!(d > 1e-3, "the neural and geometric frames are (nearly) identical ({d})");
     assert!((coverage(&neural) - coverage(&geometric)).abs() < 0.02, "both show the same silhouette");
     // N again: the decoder runs again (the GPU layer is the geometric one now) and draws the same image.
     engine.toggle_shading().unwrap();
