@@ -1129,10 +1129,11 @@ pub fn decode_person_view(
 
 /// Puts the photo's colour (`lookup`, [`photo_lookup`]) back on every covered pixel of the decoder's `person` whose
 /// surface point the source camera sees (`seen`, paper Eq. 9) and the photo has a colour for. The decoder is
-/// residual on that colour and was trained on synthetic people, where it leaves such pixels within about 0.1 dB of
-/// the photo's; on real photos it shifted their colours (a blue cast on the astronaut's helmet and gloves, 1.3-7.9
-/// dB below the photo at the input view, README "Neural renderer"), so what the photo shows is taken from the photo
-/// and the decoder draws only what it does not show. Arrays of another size leave `person` as it is.
+/// residual on that colour and was trained on synthetic people, where keeping the photo here moves its views by at
+/// most 0.15 dB; on real photos it shifted their colours (a blue cast on the astronaut's helmet and gloves, up to
+/// 7.5 dB below the geometric renderer at the input view, README "Neural renderer"), so what the photo shows is
+/// taken from the photo and the decoder draws only what it does not show. Arrays of another size leave `person` as
+/// it is.
 pub fn keep_photo_where_seen(person: &mut RgbaImage, lookup: &RgbaImage, seen: &[bool]) {
     let n = person.data.len();
     if lookup.data.len() != n || seen.len() != n || (lookup.width, lookup.height) != (person.width, person.height) {
