@@ -702,9 +702,13 @@ pub struct Frame {
 }
 
 impl Frame {
-    /// How far (pixels) an outline edge may lie from a side of the frame and still be a cut: the mask's outline runs
-    /// on the pixel lattice, at most half a pixel from a frame side at a fractional position.
-    pub const TOLERANCE: f64 = 1.0;
+    /// How far an outline edge may lie from a side of the frame and still be a cut, as a fraction of the grid's
+    /// larger side (at least one pixel): the mask's outline runs on the pixel lattice, up to half a pixel from a
+    /// frame side at a fractional position, and a segmentation often stops a pixel or two short of the image's
+    /// edge (frames of a video moved by a pixel left the chest 1-3 px above it, and the bust closed and opened
+    /// from frame to frame). Half the margin the normalisation leaves beside a person as wide as the grid
+    /// (`pipeline::input::MAX_WIDTH_FRACTION`), so a person touching no side of the photo is never cut.
+    pub const TOLERANCE: f64 = 0.005;
 
     /// The frame with corners `min` and `max` (pixels).
     pub fn new(min: glam::Vec2, max: glam::Vec2) -> Self {
@@ -716,7 +720,8 @@ impl Frame {
     fn cuts(&self, a: [f64; 2], b: [f64; 2], w: usize, h: usize) -> bool {
         let px = |p: [f64; 2]| [(p[0] + 1.0) * 0.5 * w as f64, (1.0 - p[1]) * 0.5 * h as f64];
         let (a, b) = (px(a), px(b));
-        let near = |v: f64, side: f32| (v - side as f64).abs() <= Self::TOLERANCE;
+        let tolerance = (Self::TOLERANCE * w.max(h) as f64).max(1.0);
+        let near = |v: f64, side: f32| (v - side as f64).abs() <= tolerance;
         let (lo, hi) = (self.min, self.max);
         (near(a[1], hi.y) && near(b[1], hi.y))
             || (near(a[1], lo.y) && near(b[1], lo.y))
@@ -1085,6 +1090,23 @@ mod tests {
         assert!((half_thickness(&open, 32, 20) - half_thickness(&closed, 32, 20)).abs() < 0.05 * expected);
         assert_eq!(open.mask, closed.mask);
         assert!(open.front.data.iter().chain(&open.back.data).all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn a_mask_a_pixel_or_two_short_of_the_frame_is_still_cut() {
+        // At 512² the tolerance is 2.56 px: a strip ending 2 px above the frame's bottom edge (a segmentation that
+        // stops short of the image's edge) stays open; one ending 8 px above it is a person ending there.
+        let size = 512usize;
+        let strip = |gap: usize| {
+            GrayImage::from_fn(size, size, |c, r| f32::from((100..size - gap).contains(&r) && (216..296).contains(&c)))
+        };
+        let frame = Frame::new(glam::Vec2::ZERO, glam::Vec2::splat(size as f32));
+        let params = InflateParams::default();
+        let short = inflate_in_frame(&strip(2), &params, Some(frame)).unwrap();
+        let (mid, last) = (half_thickness(&short, 256, 400), half_thickness(&short, 256, size - 3));
+        assert!(last > 0.9 * mid, "2 px short: {last} vs {mid}");
+        let ends = inflate_in_frame(&strip(8), &params, Some(frame)).unwrap();
+        assert!(half_thickness(&ends, 256, size - 9) < 0.5 * mid);
     }
 
     #[test]
