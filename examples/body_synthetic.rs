@@ -265,7 +265,7 @@ fn scan(out: &std::path::Path, file: &std::path::Path, size: usize, body: &Share
     let n = opts.fof_order;
     let truth = Occupancy::of(&Fof::from_mesh(&scan.mesh.mesh, size, n)?);
     let prior =
-        inflate_to_fof(&mask, n, &InflateParams::default(), Some(r2human::pipeline::inflation_frame(&mask, None)))?;
+        inflate_to_fof(&mask, n, &InflateParams::default(), Some(r2human::body::prior::effective_frame(&mask, None)))?;
     let (fitted, fallback) = body_prior_fof(&input, &opts, body, prior.clone(), &mut StageTimings::default());
     let estimate = estimate_again(body, &input)?;
     let mut source = rgb;
@@ -341,7 +341,8 @@ fn main() -> anyhow::Result<()> {
         }
         let n = opts.fof_order;
         let truth = Fof::from_mesh(&s.mesh.mesh, size, n)?;
-        let prior = inflate_to_fof(&mask, n, &inflate_params, Some(r2human::pipeline::inflation_frame(&mask, None)))?;
+        let prior =
+            inflate_to_fof(&mask, n, &inflate_params, Some(r2human::body::prior::effective_frame(&mask, None)))?;
         let (fitted, fallback) = body_prior_fof(&input, &opts, &body, prior.clone(), &mut StageTimings::default());
         let estimate = estimate_again(&body, &input)?;
         let end = s.garments.first().map(|g| g.vertices.start).unwrap_or(s.mesh.mesh.positions.len());

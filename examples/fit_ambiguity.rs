@@ -20,7 +20,7 @@ use r2human::buffer::GrayImage;
 use r2human::eval::runner::fof_occupancy_iou;
 use r2human::geometry::depth_centre::centre_fof;
 use r2human::geometry::fof::Fof;
-use r2human::geometry::inflate::{inflate_resolvable, Frame, InflateParams};
+use r2human::geometry::inflate::{inflate_resolvable, InflateParams};
 use r2human::pipeline::centre_visible_depth;
 
 /// `landmarks` with the depths of `parts` (landmark indices) mirrored about the mean depth of `pivot` (image depth
@@ -66,7 +66,7 @@ fn main() -> anyhow::Result<()> {
         };
         let frame = prior.frame();
         let silhouette = SilhouetteProfile::of(mask);
-        let surfaces = inflate_resolvable(mask, cases::N, &params, Some(Frame::new(frame.0, frame.1)))?;
+        let surfaces = inflate_resolvable(mask, cases::N, &params, Some(frame))?;
         let min_visibility = estimator.options.min_visibility;
         let shifts = |landmarks: &PoseLandmarks| -> anyhow::Result<(f64, GrayImage)> {
             let fit = fit_body(model, &FitTarget::new(landmarks, mask), None, &estimator.options);

@@ -49,7 +49,7 @@ fn main() -> anyhow::Result<()> {
                         &mask,
                         32,
                         &InflateParams::default(),
-                        Some(r2human::pipeline::inflation_frame(&mask, None)),
+                        Some(r2human::body::prior::effective_frame(&mask, None)),
                     ) {
                         Ok(fof) => {
                             let c = mask_coverage(&fof, &mask, 2).unwrap_or(1.0);

@@ -36,8 +36,8 @@ fn ious(mesh: &TexturedMesh, size: usize) -> anyhow::Result<Vec<f32>> {
         .iter()
         .map(|&k| {
             let params = InflateParams { thickness: k, ..InflateParams::default() };
-            let prior =
-                centre_fof(inflate_to_fof(&mask, N, &params, Some(r2human::pipeline::inflation_frame(&mask, None)))?).0;
+            let frame = r2human::body::prior::effective_frame(&mask, None);
+            let prior = centre_fof(inflate_to_fof(&mask, N, &params, Some(frame))?).0;
             Ok(fof_occupancy_iou(&prior, &gt, 128))
         })
         .collect()

@@ -110,9 +110,8 @@ fn main() -> anyhow::Result<()> {
             let cut = Some(effective_frame(mask, frame));
             let reconciled = stages.time("reconciliation", || reconcile(&intervals, mask, cut, &reconcile_params));
             let body_fof = stages.time("body FOF encoding", || Fof::from_intervals(&reconciled, N))?;
-            let prior_fof = stages.time("inflation prior", || {
-                inflate_to_fof(mask, N, &inflate, Some(r2human::pipeline::inflation_frame(mask, frame)))
-            })?;
+            // Closed along the whole outline: the prior the FOF net refines (as `pipeline` feeds it).
+            let prior_fof = stages.time("inflation prior", || inflate_to_fof(mask, N, &inflate, None))?;
             let mut refined =
                 stages.time("FOF net", || net.refine_with(&input.rgb, mask, &prior_fof, Some(&body_fof)))?;
             stages.time("one shell per explained surface", || {

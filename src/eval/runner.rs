@@ -431,7 +431,7 @@ impl SubjectSource {
         let fof = match kind {
             0 => {
                 // Placed in depth like every pipeline geometry (its centroid is at z = 0 by symmetry already).
-                let frame = crate::pipeline::inflation_frame(&self.mask, None);
+                let frame = crate::body::prior::effective_frame(&self.mask, None);
                 let fof = inflate_to_fof(&self.mask, popts.fof_order, &InflateParams::default(), Some(frame))
                     .map_err(|e| EvalError::stage(which, e))?;
                 crate::geometry::depth_centre::centre_fof(fof).0

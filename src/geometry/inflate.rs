@@ -22,6 +22,7 @@
 
 use std::collections::HashMap;
 
+use glam::Vec2;
 use rayon::prelude::*;
 use spade::{AngleLimit, ConstrainedDelaunayTriangulation, Point2, RefinementParameters, Triangulation};
 
@@ -165,11 +166,18 @@ pub fn inflate(mask: &GrayImage, params: &InflateParams) -> Result<InflatedSurfa
     inflate_at_least(mask, params, 0.0, None)
 }
 
-/// [`inflate`] open where the photo's `frame` cuts the person ([`Frame`]); `None` is [`inflate`].
+/// [`inflate`] open where the photo cuts the person: `frame` is where the photo lies on the mask's grid, `(min, max)`
+/// corners in pixels (the pipeline's `NormalisedInput::frame`, with a straight cut of the mask as its bottom edge
+/// where the body prior's `effective_frame` finds one); `None` is [`inflate`]. The mask's outline along a side of
+/// the frame ([`CUT_TOLERANCE`]) is not where the person ends but where the photo cuts them: there the surfaces stay
+/// open (zero slope, a natural boundary of the Poisson problem) instead of closing to zero thickness, as the body
+/// prior's reconciliation treats the cut. Without it a portrait's chest came out egg-shaped from the side, thinning
+/// to nothing at the photo's bottom edge. No column gets thicker than the thickest of the closed problem: open, a
+/// wide part would take an endless strip's depth (about its width).
 pub fn inflate_in_frame(
     mask: &GrayImage,
     params: &InflateParams,
-    frame: Option<Frame>,
+    frame: Option<(Vec2, Vec2)>,
 ) -> Result<InflatedSurfaces, InflateError> {
     inflate_at_least(mask, params, 0.0, frame)
 }
@@ -181,7 +189,7 @@ fn inflate_at_least(
     mask: &GrayImage,
     params: &InflateParams,
     min_half_depth: f32,
-    frame: Option<Frame>,
+    frame: Option<(Vec2, Vec2)>,
 ) -> Result<InflatedSurfaces, InflateError> {
     params.validate()?;
     let (w, h) = (mask.width, mask.height);
@@ -285,7 +293,7 @@ pub fn inflate_to_fof(
     mask: &GrayImage,
     n: usize,
     params: &InflateParams,
-    frame: Option<Frame>,
+    frame: Option<(Vec2, Vec2)>,
 ) -> Result<Fof, InflateError> {
     let s = inflate_resolvable(mask, n, params, frame)?;
     Ok(Fof::from_depth_maps(&s.front, &s.back, &s.mask, n)?)
@@ -297,7 +305,7 @@ pub fn inflate_resolvable(
     mask: &GrayImage,
     n: usize,
     params: &InflateParams,
-    frame: Option<Frame>,
+    frame: Option<(Vec2, Vec2)>,
 ) -> Result<InflatedSurfaces, InflateError> {
     inflate_at_least(mask, params, 0.5 * sheet_thickness(n), frame)
 }
@@ -685,49 +693,25 @@ fn drop_spurious_constraints(cdt: &mut Cdt, winding: &Winding, w: usize, h: usiz
     spurious.len()
 }
 
-/// Where the photo lies on the mask's grid, `(min, max)` corners in pixels (the pipeline's
-/// `NormalisedInput::frame`, with a straight cut of the mask as its bottom edge where the body prior's
-/// `effective_frame` finds one). The mask's outline along a side of the frame is not where the person ends but where
-/// the photo cuts them: there the inflated surfaces stay open (zero slope, a natural boundary of the Poisson problem)
-/// instead of closing to zero thickness, the way the body prior's reconciliation treats the cut. Without it a
-/// portrait's chest came out egg-shaped from the side, thinning to nothing at the photo's bottom edge. No column
-/// gets thicker than the thickest of the closed problem: open, a wide part would take an endless strip's depth
-/// (about its width).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Frame {
-    /// Top-left corner (pixels).
-    pub min: glam::Vec2,
-    /// Bottom-right corner (pixels).
-    pub max: glam::Vec2,
-}
+/// How far an outline edge may lie from a side of the photo's frame and still be a cut (the `frame` of
+/// [`inflate_in_frame`]), as a fraction of the grid's larger side (at least one pixel): the mask's outline runs on the
+/// pixel lattice, up to half a pixel from a frame side at a fractional position, and a segmentation often stops a
+/// pixel or two short of the image's edge (frames of a video moved by a pixel left the chest 1-3 px above it, and the
+/// bust closed and opened from frame to frame). Half the margin the normalisation leaves beside a person as wide as
+/// the grid (`pipeline::input::MAX_WIDTH_FRACTION`), so a person touching no side of the photo is never cut.
+pub const CUT_TOLERANCE: f64 = 0.005;
 
-impl Frame {
-    /// How far an outline edge may lie from a side of the frame and still be a cut, as a fraction of the grid's
-    /// larger side (at least one pixel): the mask's outline runs on the pixel lattice, up to half a pixel from a
-    /// frame side at a fractional position, and a segmentation often stops a pixel or two short of the image's
-    /// edge (frames of a video moved by a pixel left the chest 1-3 px above it, and the bust closed and opened
-    /// from frame to frame). Half the margin the normalisation leaves beside a person as wide as the grid
-    /// (`pipeline::input::MAX_WIDTH_FRACTION`), so a person touching no side of the photo is never cut.
-    pub const TOLERANCE: f64 = 0.005;
-
-    /// The frame with corners `min` and `max` (pixels).
-    pub fn new(min: glam::Vec2, max: glam::Vec2) -> Self {
-        Self { min, max }
-    }
-
-    /// Whether the outline edge from `a` to `b` (body-cube x and y, on a `w` x `h` grid) lies along one side of the
-    /// frame.
-    fn cuts(&self, a: [f64; 2], b: [f64; 2], w: usize, h: usize) -> bool {
-        let px = |p: [f64; 2]| [(p[0] + 1.0) * 0.5 * w as f64, (1.0 - p[1]) * 0.5 * h as f64];
-        let (a, b) = (px(a), px(b));
-        let tolerance = (Self::TOLERANCE * w.max(h) as f64).max(1.0);
-        let near = |v: f64, side: f32| (v - side as f64).abs() <= tolerance;
-        let (lo, hi) = (self.min, self.max);
-        (near(a[1], hi.y) && near(b[1], hi.y))
-            || (near(a[1], lo.y) && near(b[1], lo.y))
-            || (near(a[0], lo.x) && near(b[0], lo.x))
-            || (near(a[0], hi.x) && near(b[0], hi.x))
-    }
+/// Whether the outline edge from `a` to `b` (body-cube x and y, on a `w` x `h` grid) lies along one side of `frame`
+/// (`(min, max)` corners in pixels), within [`CUT_TOLERANCE`].
+fn along_frame_side((lo, hi): (Vec2, Vec2), a: [f64; 2], b: [f64; 2], w: usize, h: usize) -> bool {
+    let px = |p: [f64; 2]| [(p[0] + 1.0) * 0.5 * w as f64, (1.0 - p[1]) * 0.5 * h as f64];
+    let (a, b) = (px(a), px(b));
+    let tolerance = (CUT_TOLERANCE * w.max(h) as f64).max(1.0);
+    let near = |v: f64, side: f32| (v - side as f64).abs() <= tolerance;
+    (near(a[1], hi.y) && near(b[1], hi.y))
+        || (near(a[1], lo.y) && near(b[1], lo.y))
+        || (near(a[0], lo.x) && near(b[0], lo.x))
+        || (near(a[0], hi.x) && near(b[0], hi.x))
 }
 
 /// The vertices held at `u = 0`: every vertex of an outline edge, and the cut vertices of a region of `faces` that
@@ -767,8 +751,8 @@ fn dirichlet_vertices(faces: &[[usize; 3]], mut outline: Vec<bool>, cut: &[bool]
     outline
 }
 
-/// Solves `-Δu = 4`, `u = 0` on the outline (zero slope along the `frame`'s sides, [`Frame`]) over the refined CDT and samples `u` at every pixel centre
-/// (0 where no inner triangle covers the centre). Inside and outside come from the loops' winding numbers
+/// Solves `-Δu = 4`, `u = 0` on the outline (zero slope along the `frame`'s sides, [`inflate_in_frame`]) over the
+/// refined CDT and samples `u` at every pixel centre (0 where no inner triangle covers the centre). Inside and outside come from the loops' winding numbers
 /// ([`label_faces`]), not from the parity of constraint edges. Where the frame cuts the person, no column is thicker
 /// than the closed problem's thickest (solved on the same triangles).
 fn solve_inflation(
@@ -776,7 +760,7 @@ fn solve_inflation(
     w: usize,
     h: usize,
     params: &InflateParams,
-    frame: Option<Frame>,
+    frame: Option<(Vec2, Vec2)>,
 ) -> Result<Vec<f32>, InflateError> {
     let tol = params.simplify_tolerance as f64;
     let simplified: Vec<Vec<(i64, i64)>> = loops.par_iter().map(|l| simplify_loop(l, tol)).collect();
@@ -815,7 +799,7 @@ fn solve_inflation(
     let (mut outline_vertex, mut cut_vertex) = (vec![false; nv], vec![false; nv]);
     for e in cdt.undirected_edges().filter(|e| e.is_constraint_edge()) {
         let [a, b] = e.vertices().map(|v| v.fix().index());
-        let on_cut = frame.is_some_and(|f| f.cuts(pos[a], pos[b], w, h));
+        let on_cut = frame.is_some_and(|f| along_frame_side(f, pos[a], pos[b], w, h));
         for v in [a, b] {
             if on_cut {
                 cut_vertex[v] = true;
@@ -843,8 +827,8 @@ fn solve_inflation(
 const CAP_TOLERANCE: f64 = 1e-5;
 
 /// `-Δu = 4` on the triangles `faces` (P1 elements, conjugate gradients to a relative residual of `rel_tol`) with
-/// `u = 0` on the vertices `held`: the
-/// value at every vertex, 0 on the held ones and on vertices of no face, never negative.
+/// `u = 0` on the vertices `held`: the value at every vertex, 0 on the held ones and on vertices of no face, never
+/// negative.
 fn solve_poisson(faces: &[[usize; 3]], pos: &[[f64; 2]], held: &[bool], rel_tol: f64) -> Vec<f64> {
     let nv = pos.len();
     let mut unknown = vec![usize::MAX; nv];
@@ -1068,7 +1052,7 @@ mod tests {
             f32::from((8..56).contains(&r) && (c as f32 + 0.5 - 32.0).abs() <= a_px)
         });
         let params = InflateParams { thickness: 1.0, min_half_thickness: 0.0, ..Default::default() };
-        let frame = Frame::new(glam::Vec2::ZERO, glam::Vec2::new(64.0, 56.0));
+        let frame = (glam::Vec2::ZERO, glam::Vec2::new(64.0, 56.0));
         let open = inflate_in_frame(&mask, &params, Some(frame)).unwrap();
         let closed = inflate(&mask, &params).unwrap();
         let expected = 2.0f32.sqrt() * a_px * 2.0 / size as f32;
@@ -1100,7 +1084,7 @@ mod tests {
         let strip = |gap: usize| {
             GrayImage::from_fn(size, size, |c, r| f32::from((100..size - gap).contains(&r) && (216..296).contains(&c)))
         };
-        let frame = Frame::new(glam::Vec2::ZERO, glam::Vec2::splat(size as f32));
+        let frame = (glam::Vec2::ZERO, glam::Vec2::splat(size as f32));
         let params = InflateParams::default();
         let short = inflate_in_frame(&strip(2), &params, Some(frame)).unwrap();
         let (mid, last) = (half_thickness(&short, 256, 400), half_thickness(&short, 256, size - 3));
@@ -1114,16 +1098,16 @@ mod tests {
         let mask = disc_mask(64, 32.0, 32.0, 20.0);
         let params = InflateParams::default();
         let closed = inflate(&mask, &params).unwrap();
-        let far = Frame::new(glam::Vec2::ZERO, glam::Vec2::new(64.0, 64.0));
+        let far = (glam::Vec2::ZERO, glam::Vec2::new(64.0, 64.0));
         assert_eq!(inflate_in_frame(&mask, &params, Some(far)).unwrap(), closed);
         // A person filling the whole photo (the mask is the frame): every outline edge lies on the frame, and with no
         // outline left to hold the surface the cut closes (a finite, closed result instead of a singular problem).
         let boxed = GrayImage::from_fn(64, 64, |c, r| f32::from((10..50).contains(&c) && (12..40).contains(&r)));
-        let frame = Frame::new(glam::Vec2::new(10.0, 12.0), glam::Vec2::new(50.0, 40.0));
+        let frame = (glam::Vec2::new(10.0, 12.0), glam::Vec2::new(50.0, 40.0));
         let framed = inflate_in_frame(&boxed, &params, Some(frame)).unwrap();
         assert_eq!(framed, inflate(&boxed, &params).unwrap());
         // Cut on three sides (the mask runs off the frame's left, right and bottom): open there, closed at the top.
-        let frame = Frame::new(glam::Vec2::new(10.0, 0.0), glam::Vec2::new(50.0, 40.0));
+        let frame = (glam::Vec2::new(10.0, 0.0), glam::Vec2::new(50.0, 40.0));
         let framed = inflate_in_frame(&boxed, &params, Some(frame)).unwrap();
         assert!(half_thickness(&framed, 10, 39) > 2.0 * half_thickness(&inflate(&boxed, &params).unwrap(), 10, 39));
         assert!(half_thickness(&framed, 30, 12) < half_thickness(&framed, 30, 30));

@@ -168,8 +168,10 @@ pub const RIM_FRACTION: f32 = 2.0 / 512.0;
 /// `rim` rounded up) of a pixel outside it, and the partly covered pixels outside it. Rings are refilled from the
 /// inside out: each rim pixel takes the mean colour of its 8 neighbours one ring deeper (or in the interior), which
 /// carries the interior's colour out to the outline. A part with no interior of its own (thinner than two rims: a
-/// finger, a tripod leg) spreads its middle ring's colour instead, never another part's. The photo's edge is not
-/// an outside (a person cut by it continues there). Linear in the pixels (about 6 ms at 512²); 8-neighbour rings
+/// finger, a tripod leg) spreads its middle ring's colour instead, never another part's. The grid's own border is
+/// not an outside (a person it cuts continues there); the padding around a photo that does not fill the grid is
+/// (mask 0), so a cut at the photo's edge inside the grid is refilled like an outline. Linear in the pixels (about
+/// 6 ms at 512²); 8-neighbour rings
 /// took a wider band and cost the yaw-0 view more (README "Colours at the outline").
 pub fn interior_colours_at_the_rim(mut input: NormalisedInput, rim: f32) -> NormalisedInput {
     let (w, h) = (input.mask.width, input.mask.height);

@@ -626,10 +626,9 @@ fn body_placed_geometry(
     timings: &mut StageTimings,
 ) -> Result<GeometryAndPose, PipelineError> {
     let (mut inflation_times, mut body_times) = (StageTimings::default(), StageTimings::default());
-    let frame = inflation_frame(&normalised.mask, Some(normalised.frame));
-    let inflated = |frame: inflate::Frame| {
-        inflate::inflate_resolvable(&normalised.mask, opts.fof_order, &opts.inflate, Some(frame))
-    };
+    let frame = crate::body::prior::effective_frame(&normalised.mask, Some(normalised.frame));
+    let inflated =
+        |frame: (Vec2, Vec2)| inflate::inflate_resolvable(&normalised.mask, opts.fof_order, &opts.inflate, Some(frame));
     let (surfaces, fitted) = rayon::join(
         || inflation_times.time("geometry (inflate)", || inflated(frame)),
         || fitted_body_or_why(normalised, opts, body, &mut body_times),
@@ -640,12 +639,10 @@ fn body_placed_geometry(
     let surfaces = match fitted {
         Ok((prior, silhouette)) => {
             pose = Some(prior.landmarks.clone());
-            let (min, max) = prior.frame();
-            if inflate::Frame::new(min, max) != frame {
+            if prior.frame() != frame {
                 // The pose read stood the person on the straight bottom edge (soles, not a cut): inflate again with
                 // the frame the body was fitted in.
-                surfaces =
-                    timings.time("geometry (inflate, body's frame)", || inflated(inflate::Frame::new(min, max)))?;
+                surfaces = timings.time("geometry (inflate, body's frame)", || inflated(prior.frame()))?;
             }
             let intervals = timings.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
             let learned = opts.placement.as_ref().and_then(|net| {
@@ -788,27 +785,19 @@ pub fn compute_geometry_and_pose(
     Ok((timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0), pose))
 }
 
-/// The silhouette-inflation prior of an input, timed: open where the photo cuts the person ([`inflation_frame`]) when
-/// `open` (the inflation geometry), closed along the whole outline otherwise (the FOF net's input, as its training
-/// data holds it: `eval::dataset::prior_fof`).
+/// The silhouette-inflation prior of an input, timed: open where the photo cuts the person when `open` (the inflation
+/// geometry, in the frame the body prior reads the photo in: [`crate::body::prior::effective_frame`]), closed along
+/// the whole outline otherwise (the FOF net's input, as its training data holds it: `eval::dataset::prior_fof`).
 fn inflation_prior(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     open: bool,
     timings: &mut StageTimings,
 ) -> Result<Fof, PipelineError> {
-    let frame = open.then(|| inflation_frame(&normalised.mask, Some(normalised.frame)));
+    let frame = open.then(|| crate::body::prior::effective_frame(&normalised.mask, Some(normalised.frame)));
     Ok(timings.time("geometry (inflate -> FOF)", || {
         inflate::inflate_to_fof(&normalised.mask, opts.fof_order, &opts.inflate, frame)
     })?)
-}
-
-/// Where the photo cuts the person, for the inflation prior ([`inflate::Frame`]): the photo's `frame` on the mask's
-/// grid (`None`: the whole grid) with a straight cut of the mask as its bottom edge, as the body prior decides before
-/// reading the pose ([`crate::body::prior::effective_frame`]).
-pub fn inflation_frame(mask: &GrayImage, frame: Option<(Vec2, Vec2)>) -> inflate::Frame {
-    let (min, max) = crate::body::prior::effective_frame(mask, frame);
-    inflate::Frame::new(min, max)
 }
 
 /// [`compute_geometry_and_pose`] before the depth centring.
