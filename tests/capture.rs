@@ -131,8 +131,8 @@ fn onnx_pose_model_segments_and_tracks_the_walker() {
         Ok(s) => s,
         Err(e) => panic!("model installed but not loadable: {e}"),
     };
-    // A wide frame: the figure is small in the letterboxed first input, then tracked (the region follows the
-    // previous mask), which must keep or improve the IoU on the following frames.
+    // A wide frame: the figure is small in the letterboxed first input; the first frame is read again on the square
+    // around the figure found there, and the following frames are tracked (the region follows the previous mask).
     let p = WalkerParams { width: 320, height: 180, frames: 6, ..params() };
     let mut ious = Vec::new();
     for i in 0..3 {
@@ -143,12 +143,13 @@ fn onnx_pose_model_segments_and_tracks_the_walker() {
         ious.push(iou_soft(&m, &truth));
     }
     eprintln!("pose model IoU per frame: {ious:?}");
-    // First frame: the whole 320x180 frame letterboxed into 256x256, so the figure is ~20 network pixels wide
-    // and its outline is off by about a pixel (measured 0.80). Tracked frames: the region is 1.3x the figure, so
-    // the mask is about 3x finer (measured 0.98). A missed limb, the wrong input layout or value range (mask
-    // empty or everywhere) or a wrong region mapping (mask shifted) fall far below these bounds.
-    assert!(ious[0] > 0.72, "{ious:?}");
-    assert!(ious[1..].iter().all(|&v| v > 0.93), "{ious:?}");
+    // Letterboxed, the whole 320x180 frame goes into 256x256, so the figure is ~20 network pixels wide and its
+    // outline is off by about a pixel (measured 0.80: the first frame's mask before it was read a second time, a
+    // coarser person on a live session's first frame than on the next). On the square around the figure (1.3x its
+    // size) the mask is about 3x finer (measured 0.98), the first frame's included. A missed limb, the wrong input
+    // layout or value range (mask empty or everywhere) or a wrong region mapping (mask shifted) fall far below.
+    assert!(ious.iter().all(|&v| v > 0.93), "{ious:?}");
+    assert!((ious[0] - ious[1]).abs() < 0.03, "the first frame is segmented as finely as the tracked ones: {ious:?}");
 }
 
 #[test]

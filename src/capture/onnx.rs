@@ -156,18 +156,17 @@ impl OnnxSegmenter {
         &self.path
     }
 
-    /// Segments a still photo: like [`Segmenter::segment`], but with the pose model the photo is run twice, the
-    /// second time on the square around the person that the first pass found (the model is trained on such
-    /// crops; the first pass sees the whole photo letterboxed). Tracking state from earlier frames is ignored.
+    /// Segments a still photo: [`Segmenter::segment`] with the tracking state from earlier frames ignored, so
+    /// with the pose model the photo is read letterboxed and then on the square around the person found there.
     pub fn segment_still(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
         self.track = None;
-        let first = self.segment(frame)?;
-        if self.kind != SegmentationModel::MediapipePose || self.track.is_none() {
-            return Ok(first);
-        }
-        let second = self.segment(frame)?;
-        // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
-        Ok(if second.data.iter().any(|&v| v >= 0.5) { second } else { first })
+        self.segment(frame)
+    }
+
+    /// Whether the pose model's next read of a `width` x `height` frame is on the square around the person of
+    /// the frame before (else the whole frame, letterboxed).
+    fn tracking(&self, width: usize, height: usize) -> bool {
+        self.kind == SegmentationModel::MediapipePose && self.track.is_some_and(|(w, h, _)| (w, h) == (width, height))
     }
 
     /// Network input side.
@@ -259,7 +258,26 @@ impl Segmenter for OnnxSegmenter {
         "onnx"
     }
 
+    /// With the pose model, a frame that is not tracked (the first one, a new size, the person lost on the frame
+    /// before) is read twice: letterboxed, then on the square around the person that read found (the model is
+    /// trained on such crops). Read once, a live session's first frame had a coarser mask than the tracked frames
+    /// after it, and its person changed shape on the second frame.
     fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        let tracked = self.tracking(frame.width(), frame.height());
+        let first = self.segment_once(frame)?;
+        if tracked || !self.tracking(frame.width(), frame.height()) {
+            return Ok(first);
+        }
+        let second = self.segment_once(frame)?;
+        // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
+        Ok(if second.data.iter().any(|&v| v >= 0.5) { second } else { first })
+    }
+}
+
+impl OnnxSegmenter {
+    /// One read of `frame` in the region [`OnnxSegmenter::region`] gives, keeping the largest object; with the pose
+    /// model it updates the tracked square.
+    fn segment_once(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
         let (raw, region) = self.infer_region(frame)?;
         let (w, h) = (frame.width(), frame.height());
         let mut mask = GrayImage::from_fn(w, h, |c, r| {
