@@ -563,6 +563,31 @@ fn dataset_writes_the_body_fof_of_the_rendered_source() {
         serde_json::from_slice(&std::fs::read(dir.path().join("dataset.json")).unwrap()).unwrap();
     assert_eq!(manifest["body_fof"], serde_json::json!(true));
     assert_eq!(manifest["body_fof_fallbacks"].as_array().map(|a| a.len()), Some(summary.body_fallbacks.len()));
+
+    // With the body FOF comes the back image of the rendered source (the pose network found this subject's face):
+    // at the dataset's size, colour where the person is and nowhere else, and not the photo itself (the face and
+    // the clothing's details are filtered away).
+    assert_eq!(manifest["back_image"], serde_json::json!(true));
+    assert_eq!(info["back_image"], serde_json::json!(true), "{info}");
+    let load = |f: &str| image::open(dir.path().join("subject_0000").join(f)).unwrap().to_rgba8();
+    let (back, photo) = (load("source_back.png"), load("source_rgba.png"));
+    assert_eq!(back.dimensions(), (64, 64));
+    let (mut person, mut covered, mut far, mut differ) = (0, 0, 0, 0);
+    // The back image is averaged from the finer grid the pipeline works on: it covers the partial pixels of the
+    // outline, which the photo's own render (pixel centres) may leave out, but nothing further out.
+    let near_person = |x: u32, y: u32| {
+        (x.saturating_sub(1)..(x + 2).min(64))
+            .any(|i| (y.saturating_sub(1)..(y + 2).min(64)).any(|j| photo.get_pixel(i, j)[3] > 0))
+    };
+    for (x, y, b) in back.enumerate_pixels() {
+        let p = photo.get_pixel(x, y);
+        person += (p[3] > 0) as usize;
+        covered += (p[3] > 0 && b[3] > 0) as usize;
+        far += (b[3] > 0 && !near_person(x, y)) as usize;
+        differ += (p[3] > 0 && (0..3).any(|c| b[c].abs_diff(p[c]) > 8)) as usize;
+    }
+    assert!(covered * 10 >= person * 9 && far == 0, "{person} {covered} {far}");
+    assert!(differ * 10 >= person, "the back image is the photo: {differ} of {person} pixels differ");
 }
 
 /// The fitted body is placed in depth by the part the photo shows: the centroid of its occupied volume over the

@@ -31,6 +31,9 @@ def main(argv=None):
     _train_args(p)
     p.add_argument("--ckpt-every", type=int, default=200)
     p.add_argument("--resume", default=None, help="continue from a renderer.pt")
+    p.add_argument("--init-from", default=None,
+                   help="start from the weights of a model folder's encoder.onnx and decoder.onnx (e.g. models/tiny: "
+                        "fine-tune the shipped renderer; a fresh optimiser)")
     p.add_argument("--lambda-consistency", type=float, default=100.0, help="the paper: 100")
     p.add_argument("--fof-dropout", type=float, default=0.3,
                    help="probability of feeding zeros instead of the FOF (the released test script feeds zeros)")

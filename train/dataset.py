@@ -117,6 +117,9 @@ class R2Dataset(torch.utils.data.Dataset):
         # `body_fof.npy` (the fitted body's FOF, the reference FOF net's input) exists in datasets written by
         # `r2human dataset` without `--no-body-fof`.
         self.has_body = all(os.path.exists(os.path.join(root, s, "body_fof.npy")) for s in self.subjects)
+        # `source_back.png` (the back image the neural renderer's lookup blends in at run time) is written with the
+        # body FOF by this version of `r2human dataset`: `back_image` in dataset.json.
+        self.has_back = bool(self.meta.get("back_image"))
         self.seed, self.epoch = seed, 0
         self.fixed_views = fixed_views
         self.cache = {} if cache else None
@@ -185,6 +188,20 @@ class R2Dataset(torch.utils.data.Dataset):
             "view_from_world": vfw,
             "half": half,
         }
+        back_path = os.path.join(d, "source_back.png")
+        if self.has_back:
+            # The back image (`r2human dataset`, `eval::dataset::back_image`) like `linear`; where a subject has none
+            # (no face found) or it does not cover a pixel, the photo's colour, as inference looks it up then.
+            src["back_linear"] = src["linear"].clone()
+            if os.path.exists(back_path):
+                back = read_png_rgba(back_path)
+                if self.k > 1:
+                    hb, wb = back.shape[:2]
+                    flat = np.zeros((hb, wb), np.float32)
+                    back, _, _ = downsample_view(back, flat, np.zeros((hb, wb, 3), np.float32), self.k)
+                covered = torch.from_numpy((back[..., 3] > 0).astype(np.float32))[None] * mask
+                back_lin = srgb_to_linear(torch.from_numpy(back[..., :3]).permute(2, 0, 1).float())
+                src["back_linear"] = back_lin * covered + src["linear"] * (1 - covered)
         if prior is not None:
             src["prior"] = torch.from_numpy(prior).permute(2, 0, 1).float().contiguous()
         if body is not None:

@@ -18,7 +18,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from . import losses
 from .depth_centre import centre_fof
 from .dataset import R2Dataset
-from .geometry import transfer, warp, warp_rgb
+from .geometry import back_weight, source_axis, transfer, warp, warp_rgb
 from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters, fof_net_from_checkpoint, parse_fof_inputs
 
 
@@ -33,21 +33,30 @@ class R2HumanNet(nn.Module):
     def render(self, feats, b, view):
         grid, z, mask = transfer(b[f"{view}_depth"], b[f"{view}_view_from_world"], b[f"{view}_half"],
                                  b["src_view_from_world"], b["src_half"])
-        rgb, _ = warp_rgb(b["src_linear"], b["src_mask"], grid, mask)
-        return self.decoder(warp(feats, grid, mask), z, b[f"{view}_normals"] * mask, rgb)
+        return self.decoder(warp(feats, grid, mask), z, b[f"{view}_normals"] * mask, lookup(b, view, grid, mask))
 
     def forward(self, b, fof):
         feats = self.encoder(b["src_image"], fof, b["src_normals"])
         return self.render(feats, b, "ref"), self.render(feats, b, "mv")
 
 
+def lookup(b, view, grid, mask):
+    """The residual decoder's `warped_rgb` input for `view`: the photo looked up at the flow, blended with the back
+    image where the target surface turns away from the source camera when the batch has one (`src_back_linear`,
+    datasets with `source_back.png`), as the neural renderer looks it up at run time with `--fill back`."""
+    if "src_back_linear" not in b:
+        return warp_rgb(b["src_linear"], b["src_mask"], grid, mask)[0]
+    weight = back_weight(b[f"{view}_normals"], source_axis(b[f"{view}_view_from_world"], b["src_view_from_world"]))
+    return warp_rgb(b["src_linear"], b["src_mask"], grid, mask, b["src_back_linear"], weight)[0]
+
+
 def geometric_baseline(b, view):
-    """The geometric renderer for comparison: the source photo looked up at the flow (mask-aware, no occlusion
-    test), i.e. the residual decoder's `warped_rgb` input and an untrained decoder's output."""
+    """The geometric renderer for comparison: the colour lookup at the flow (mask-aware, no occlusion test; with the
+    back image when the data has one), i.e. the residual decoder's `warped_rgb` input and an untrained decoder's
+    output."""
     grid, _, mask = transfer(b[f"{view}_depth"], b[f"{view}_view_from_world"], b[f"{view}_half"],
                              b["src_view_from_world"], b["src_half"])
-    rgb, _ = warp_rgb(b["src_linear"], b["src_mask"], grid, mask)
-    return rgb
+    return lookup(b, view, grid, mask)
 
 
 def masked_psnr_ssim(pred, target, mask):
@@ -175,7 +184,7 @@ def recipe(args, tier, data_meta, steps, seconds, world):
                        "visibility_lambda": 0.02},
             "decoder": "residual: rgb = warped_rgb + UNet(...), last convolution zero-initialised",
             "fof_dropout": getattr(args, "fof_dropout", 0.0), "seed": args.seed, "torch": str(torch.__version__),
-            "resumed_from": getattr(args, "resume", None)}
+            "resumed_from": getattr(args, "resume", None), "initialised_from": getattr(args, "init_from", None)}
 
 
 def fit(args):
@@ -190,6 +199,8 @@ def fit(args):
                         num_workers=args.workers, drop_last=len(ds) >= args.batch * world)
     model = R2HumanNet(args.tier, ds.fof_n).to(device)
     start_step = 0
+    if getattr(args, "init_from", None):
+        args.previous_recipe = load_onnx_weights(model, args.init_from)
     if args.resume and os.path.exists(args.resume):
         ck = torch.load(args.resume, map_location=device)
         model.load_state_dict(ck["model"])
@@ -247,6 +258,32 @@ def fit(args):
             log("held-out evaluation (PSNR dB / SSIM over the person): " + json.dumps(summary), eval=summary)
     if world > 1:
         dist.destroy_process_group()
+
+
+def load_onnx_weights(model, folder):
+    """Sets `model`'s encoder and decoder weights from `folder`'s encoder.onnx and decoder.onnx (`train export`
+    names each initializer after its parameter); every parameter must be found with its shape. Returns the
+    recipe the models were trained with (their `r2human.recipe` metadata)."""
+    import onnx
+    from onnx import numpy_helper
+
+    recipe = None
+    for part in ("encoder", "decoder"):
+        path = os.path.join(folder, f"{part}.onnx")
+        graph = onnx.load(path)
+        weights = {i.name: numpy_helper.to_array(i) for i in graph.graph.initializer}
+        module = getattr(model, part)
+        state = module.state_dict()
+        for name, tensor in state.items():
+            if name not in weights or tuple(weights[name].shape) != tuple(tensor.shape):
+                found = weights[name].shape if name in weights else "missing"
+                raise ValueError(f"{path}: parameter {name} {tuple(tensor.shape)} not found ({found}): a model of "
+                                 f"another tier or FOF order?")
+            state[name] = torch.from_numpy(weights[name].copy())
+        module.load_state_dict(state)
+        meta = {p.key: p.value for p in graph.metadata_props}
+        recipe = json.loads(meta["r2human.recipe"]) if "r2human.recipe" in meta else recipe
+    return recipe
 
 
 def save_checkpoint(args, model, opt, step, ds, elapsed, world):

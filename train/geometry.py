@@ -75,10 +75,34 @@ def linear_to_srgb(v):
     return torch.where(v <= 0.0031308, v * 12.92, 1.055 * v.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
+# How far a surface's unit normal must turn away from the source camera (the source-view z of the normal, negated)
+# before it takes the back image alone (src/pipeline/warp.rs BACK_FACING_RAMP).
+BACK_FACING_RAMP = 0.3
+
+
+def source_axis(vfw_t, vfw_s):
+    """The source camera's view +z axis (toward the source camera) in target view space [B,3]
+    (src/pipeline/warp.rs `source_axis`)."""
+    m = vfw_t @ torch.linalg.inv(vfw_s)  # view t from view s
+    axis = m[:, :3, 2]
+    return axis / axis.norm(dim=1, keepdim=True).clamp_min(1e-12)
+
+
+def back_weight(normals, axis):
+    """How much each target pixel takes the back image [B,1,H,W]: smoothstep(0, BACK_FACING_RAMP, -n . axis) of its
+    target-view unit normal `normals` [B,3,H,W] (src/pipeline/warp.rs `back_weight`; 0 for non-finite normals)."""
+    t = (-(normals * axis[:, :, None, None]).sum(1, keepdim=True) / BACK_FACING_RAMP).clamp(0, 1)
+    t = torch.nan_to_num(t, nan=0.0)
+    return t * t * (3 - 2 * t)
+
+
 @torch.no_grad()
-def warp_rgb(src_linear, src_mask, grid, mask):
+def warp_rgb(src_linear, src_mask, grid, mask, back_linear=None, back=None):
     """The decoder's `warped_rgb` input: the source photo looked up at the flow, exactly as the geometric renderer's
-    `MirroredFront` lookup without the visibility test (src/pipeline/warp.rs `sample_masked`).
+    `MirroredFront` lookup without the visibility test (src/pipeline/warp.rs `sample_masked`); with `back_linear`
+    (the back image, like `src_linear`) and `back` ([B,1,h,w], `back_weight`) the photo and the back image looked up
+    at the same point and blended by `back`, as `SourceColours::sample` does for `--fill back` (the neural
+    renderer's lookup at run time, `pipeline::neural_back_lookup`).
 
     src_linear [B,3,H,W]: linear RGB premultiplied by src_mask [B,1,H,W]; grid [B,h,w,2] from `transfer`; mask
     [B,1,h,w] the target pixels with a flow. Per target pixel the four bilinear taps give sum(w*c) / sum(w*m) (taps
@@ -89,5 +113,9 @@ def warp_rgb(src_linear, src_mask, grid, mask):
     num = F.grid_sample(src_linear, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     den = F.grid_sample(src_mask.clamp(0, 1), grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     known = ((den >= MIN_MASK_WEIGHT) & (mask > 0)).float()
-    colour = linear_to_srgb((num / den.clamp_min(MIN_MASK_WEIGHT)).clamp(0, 1)) * 2 - 1
+    linear = num / den.clamp_min(MIN_MASK_WEIGHT)
+    if back_linear is not None and back is not None:
+        behind = F.grid_sample(back_linear, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+        linear = linear * (1 - back) + behind / den.clamp_min(MIN_MASK_WEIGHT) * back
+    colour = linear_to_srgb(linear.clamp(0, 1)) * 2 - 1
     return colour * known, known

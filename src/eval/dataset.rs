@@ -12,6 +12,11 @@
 //! input. A subject whose body prior falls back (no pose found, fit failed) gets the fall-back the pipeline uses
 //! at run time (the inflation prior), and the fall-back is recorded in its `subject.json` (`body_fof.fallback`) and
 //! in `dataset.json` (`body_fof_fallbacks`), never dropped silently.
+//!
+//! With the body FOF comes `source_back.png` ([`back_image`]): the back image `--fill back` colours hidden
+//! surfaces from, computed on the rendered source as inference computes it on a photo, so the neural decoder trains
+//! on the colour lookup it gets at run time ([`crate::pipeline::neural_back_lookup`]). A subject where the pose
+//! network finds no face has none (inference then looks up the photo alone) and `subject.json` says so.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -29,7 +34,7 @@ use crate::geometry::inflate::{inflate_to_fof, InflateParams};
 use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::{write_atomic, NpyArray, NpyData};
 use crate::pipeline::input::NormalisedInput;
-use crate::pipeline::{body_prior_fof, PrepareOptions, SharedBody, StageTimings};
+use crate::pipeline::{back_image_of, body_prior_fof, PrepareOptions, SharedBody, SharedPose, StageTimings};
 use crate::synth::framing::{self, FramingChoice};
 use crate::synth::{self, Rng, SubjectParams, SynthAssets};
 
@@ -54,7 +59,8 @@ pub struct DatasetOptions {
     pub progress: bool,
     /// Framing of each subject (`--framing`; mixed: full, three-quarter and upper in turn).
     pub framing: FramingChoice,
-    /// Write `body_fof.npy` per subject (needs the pose model: `bash scripts/setup.sh`; `--no-body-fof` skips it).
+    /// Write `body_fof.npy` and `source_back.png` per subject (needs the pose model: `bash scripts/setup.sh`;
+    /// `--no-body-fof` skips both).
     pub body_fof: bool,
 }
 
@@ -138,11 +144,13 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
     check(opts)?;
     let start = Instant::now();
     let assets = SynthAssets::shared()?;
-    let body = if opts.body_fof {
-        let options = crate::neural::RuntimeOptions::default();
-        crate::pipeline::load_body(crate::pipeline::GeometryMode::Body, &options).map_err(EvalError::NoBodyPrior)?
+    let options = crate::neural::RuntimeOptions::default();
+    let (body, back_pose) = if opts.body_fof {
+        let body = crate::pipeline::load_body(crate::pipeline::GeometryMode::Body, &options)
+            .map_err(EvalError::NoBodyPrior)?;
+        (body, crate::pipeline::load_back_pose(crate::pipeline::warp::OcclusionFill::Back, &options))
     } else {
-        None
+        (None, None)
     };
     std::fs::create_dir_all(&opts.out).map_err(|e| EvalError::io(&opts.out, e))?;
     let bar = if opts.progress {
@@ -160,7 +168,7 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
         .into_par_iter()
         .map(|i| {
             let name = format!("subject_{i:04}");
-            let r = write_subject(assets, opts, body.as_ref(), i, &name);
+            let r = write_subject(assets, opts, body.as_ref(), back_pose.as_ref(), i, &name);
             if let Err(e) = &r {
                 bar.println(format!("{name}: {e}"));
             }
@@ -207,6 +215,7 @@ pub fn write_dataset(opts: &DatasetOptions) -> Result<DatasetSummary, EvalError>
         "split": {"train": train, "test": test},
         "failed": failed.iter().map(|(n, e)| json!({"subject": n, "error": e})).collect::<Vec<_>>(),
         "body_fof": opts.body_fof,
+        "back_image": back_pose.is_some(),
         "body_fof_fallbacks": body_fallbacks.iter().map(|(n, e)| json!({"subject": n, "reason": e})).collect::<Vec<_>>(),
     });
     let path = opts.out.join("dataset.json");
@@ -236,6 +245,7 @@ fn write_subject(
     assets: &SynthAssets,
     opts: &DatasetOptions,
     body: Option<&SharedBody>,
+    back_pose: Option<&SharedPose>,
     index: usize,
     name: &str,
 ) -> Result<Written, EvalError> {
@@ -285,6 +295,13 @@ fn write_subject(
     });
     if body.is_some() {
         info["body_fof"] = body_info;
+    }
+    if let Some(pose) = back_pose {
+        let back = back_image(&hi_source, pose, r);
+        info["back_image"] = json!(back.is_some());
+        if let Some(back) = back {
+            write_png(&dir.join("source_back.png"), &back)?;
+        }
     }
     write_json(&dir.join("subject.json"), &info)?;
 
@@ -378,6 +395,31 @@ pub fn body_fof(
     Ok((box_downsample(&fof.coeffs, hi, n, hi / size.max(1)), fallback))
 }
 
+/// The back image of a rendered source view (`gt`, at [`fof_grid`]`(size)`, the person in the body cube) as
+/// inference computes it on a photo ([`back_image_of`]: the pose network's face, the clothing filter), box-averaged
+/// to `size` and stored as 8-bit sRGB with straight alpha (alpha = the share of the box the back image covers, so
+/// with `gt`'s mask). `None` when the pose network finds no usable face (inference then has no back image either).
+pub fn back_image(gt: &GroundTruthView, pose: &SharedPose, size: usize) -> Option<image::RgbaImage> {
+    let hi = gt.width;
+    let rgb: RgbImage = gt.to_linear_rgba().map(|p| p.truncate());
+    let normalised = NormalisedInput::in_source_view(rgb, gt.mask_image());
+    let back = back_image_of(&normalised, pose, &mut StageTimings::default())?;
+    let k = (hi / size.max(1)).max(1);
+    let small = hi / k;
+    // Premultiplied colour and coverage, box-averaged; straight colour where the box has any person.
+    let flat: Vec<f32> =
+        back.data.iter().zip(&normalised.mask.data).flat_map(|(c, &m)| [c.x, c.y, c.z, m.clamp(0.0, 1.0)]).collect();
+    let boxed = box_downsample(&flat, hi, 4, k);
+    let mut out = image::RgbaImage::new(small as u32, small as u32);
+    for (p, v) in out.pixels_mut().zip(boxed.chunks_exact(4)) {
+        if v[3] > 1e-6 {
+            let [r, g, b] = crate::io::mesh_io::linear_to_srgb8(glam::Vec3::new(v[0], v[1], v[2]) / v[3]);
+            *p = image::Rgba([r, g, b, (v[3] * 255.0).round() as u8]);
+        }
+    }
+    Some(out)
+}
+
 /// Box-averages pixel-major (`HWN`) coefficients of a `side x side` grid by an integer factor `k`.
 fn box_downsample(coeffs: &[f32], side: usize, n: usize, k: usize) -> Vec<f32> {
     if k == 1 {
@@ -429,22 +471,25 @@ fn write_npy(path: &Path, shape: Vec<usize>, data: Vec<f32>) -> Result<(), EvalE
 
 /// Writes `{prefix}rgba.png`, `{prefix}depth.npy` and `{prefix}normal.npy` of a view.
 fn write_view(dir: &Path, prefix: &str, gt: &GroundTruthView) -> Result<(), EvalError> {
-    let png = dir.join(format!("{prefix}rgba.png"));
+    write_png(&dir.join(format!("{prefix}rgba.png")), &gt.to_srgba8())?;
+    let (w, h) = (gt.width, gt.height);
+    write_npy(&dir.join(format!("{prefix}depth.npy")), vec![h, w], gt.depth.clone())?;
+    let normals: Vec<f32> = gt.normal.iter().flat_map(|n| n.to_array()).collect();
+    write_npy(&dir.join(format!("{prefix}normal.npy")), vec![h, w, 3], normals)?;
+    Ok(())
+}
+
+/// Writes an 8-bit RGBA PNG (fast compression) through a temporary file.
+fn write_png(png: &Path, img: &image::RgbaImage) -> Result<(), EvalError> {
     let mut bytes = Vec::new();
     let enc = image::codecs::png::PngEncoder::new_with_quality(
         &mut bytes,
         image::codecs::png::CompressionType::Fast,
         image::codecs::png::FilterType::Adaptive,
     );
-    let img = gt.to_srgba8();
     image::ImageEncoder::write_image(enc, img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgba8)
-        .map_err(|e| EvalError::io(&png, std::io::Error::other(e)))?;
-    write_atomic(&png, &bytes).map_err(|e| EvalError::io(&png, e))?;
-    let (w, h) = (gt.width, gt.height);
-    write_npy(&dir.join(format!("{prefix}depth.npy")), vec![h, w], gt.depth.clone())?;
-    let normals: Vec<f32> = gt.normal.iter().flat_map(|n| n.to_array()).collect();
-    write_npy(&dir.join(format!("{prefix}normal.npy")), vec![h, w, 3], normals)?;
-    Ok(())
+        .map_err(|e| EvalError::io(png, std::io::Error::other(e)))?;
+    write_atomic(png, &bytes).map_err(|e| EvalError::io(png, e))
 }
 
 #[cfg(test)]

@@ -14,7 +14,8 @@ from train import losses
 from train.depth_centre import centre_fof, centring_shift, fof_centroid_z, fof_depth_range, shift_columns, shift_fof
 from train.dataset import R2Dataset, downsample_view, view_angle_deg
 from train.fit import R2HumanNet, decode_occupancy
-from train.geometry import linear_to_srgb, srgb_to_linear, transfer, visibility, warp_rgb
+from train.geometry import (back_weight, linear_to_srgb, source_axis, srgb_to_linear, transfer, visibility,
+                            warp_rgb)
 from train.nets import TIERS, Decoder, Encoder, FofNet, UNet, zmap_encoding
 from train.synth import fof_from_intervals, orbit_view_from_world, write_dataset
 
@@ -159,6 +160,35 @@ class WarpRgbTest(unittest.TestCase):
         self.assertTrue(torch.allclose(rgb[0, :, 0, 0], torch.ones(3), atol=1e-5), rgb)
         self.assertEqual(known[0, 0, 0].tolist(), [1.0, 0.0, 0.0])
         self.assertEqual(rgb[0, :, 0, 1:].abs().sum().item(), 0.0)
+
+    def test_back_weight_and_source_axis_match_the_rust_formulas(self):
+        # src/pipeline/warp.rs: smoothstep(0, 0.3, -n . axis); axis = the source camera's +z in target view space.
+        eye = torch.eye(4)[None]
+        self.assertTrue(torch.allclose(source_axis(eye, eye), torch.tensor([[0.0, 0.0, 1.0]])))
+        behind = torch.tensor(orbit_view_from_world(180.0, 0.0), dtype=torch.float32).reshape(1, 4, 4)
+        self.assertTrue(torch.allclose(source_axis(behind, eye), torch.tensor([[0.0, 0.0, -1.0]]), atol=1e-6))
+        axis = torch.tensor([[0.0, 0.0, 1.0]])
+        s = math.sqrt(1 - 0.15 ** 2)
+        normals = torch.tensor([[0, 0, 1], [0, 0, -1], [1, 0, 0], [s, 0, -0.15], [float("nan"), 0, 0]],
+                               dtype=torch.float32).T.reshape(1, 3, 1, 5)
+        self.assertTrue(torch.allclose(back_weight(normals, axis)[0, 0, 0], torch.tensor([0.0, 1.0, 0.0, 0.5, 0.0]),
+                                       atol=1e-6))
+
+    def test_back_lookup_blends_the_photo_and_the_back_image_in_linear_light(self):
+        h = w = 8
+        mask = torch.zeros(1, 1, h, w)
+        mask[..., 2:6, 3:7] = 1
+        g = torch.Generator().manual_seed(2)
+        photo, behind = (srgb_to_linear(torch.rand(1, 3, h, w, generator=g)) * mask for _ in range(2))
+        depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
+        eye, half = torch.eye(4)[None], torch.ones(1, 2)
+        grid, _, tmask = transfer(depth, eye, half, eye, half)
+        alone, _ = warp_rgb(photo, mask, grid, tmask)
+        for weight, want in [(0.0, photo), (1.0, behind), (0.25, 0.75 * photo + 0.25 * behind)]:
+            rgb, known = warp_rgb(photo, mask, grid, tmask, behind, torch.full((1, 1, h, w), weight))
+            self.assertTrue(torch.equal(known, mask))
+            self.assertTrue(torch.allclose(rgb, (linear_to_srgb(want) * 2 - 1) * mask, atol=1e-5), weight)
+        self.assertTrue(torch.allclose(warp_rgb(photo, mask, grid, tmask, behind, torch.zeros(1, 1, h, w))[0], alone))
 
 
 class FofTest(unittest.TestCase):
@@ -490,6 +520,19 @@ class TrainExportTest(unittest.TestCase):
                           meta["r2human.fof_n"], meta["r2human.stride"]), ("decoder", "tiny", "32", "8", "4"))
         self.assertEqual(json.loads(meta["r2human.recipe"])["steps"], 3)
         self.assertEqual([i.name for i in m.graph.input], ["features", "zmap", "normals", "warped_rgb"])
+        # `fit --init-from`: a model folder's weights come back exactly (fine-tuning a shipped renderer).
+        from train.fit import load_onnx_weights
+        trained = torch.load(os.path.join(out, "renderer.pt"))["model"]
+        fresh = R2HumanNet("tiny", 8)
+        self.assertEqual(load_onnx_weights(fresh, models)["steps"], 3)
+        for k, v in fresh.state_dict().items():
+            self.assertTrue(torch.equal(v, trained[k]), k)
+        with self.assertRaisesRegex(ValueError, "another tier or FOF order"):
+            load_onnx_weights(R2HumanNet("tiny", 16), models)
+        tuned = os.path.join(out, "tuned")
+        subprocess.run(base + ["fit", *common, "--init-from", models, "--out", tuned], check=True, env=env,
+                       capture_output=True)
+        self.assertEqual(torch.load(os.path.join(tuned, "renderer.pt"))["recipe"]["previous_stage"]["steps"], 3)
         self.assertLess(report["fof"]["max_abs_diff"], 1e-3)
         f = onnx.load(os.path.join(models, "fof.onnx"))
         self.assertEqual([i.name for i in f.graph.input], ["image", "prior"])
