@@ -589,27 +589,3 @@ fn body_placed_keeps_the_inflation_thickness_and_moves_columns_to_the_body() {
         Image::from_fn(RES, RES, |c, r| if (64..192).contains(&c) && (32..224).contains(&r) { 1.0 } else { 0.0 });
     compare(&NormalisedInput::in_source_view(board.map(|&m| Vec3::splat(0.4) * m), board), "grey board");
 }
-
-/// A photo cut at the chest whose first read folds a small whole body into it (Grace Hopper, `assets/photos`, with
-/// the mask r2human's segmentation finds, `tests/data/photo_masks`): the read goes to the larger regions that extend
-/// below the cut without refining the folded read first, and what it returns is not folded. Session 16's order
-/// (refine the folded read, then look below) ran the network four times here; the refinement found nothing.
-#[test]
-fn a_folded_first_read_looks_below_the_cut_before_refining_it() {
-    use r2human::body::pose::{cut_at_bottom, PoseEstimator, FOLD_MARGIN};
-    let Some(model_file) = installed_pose_model() else { return };
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let photo = r2human::io::image_io::load_image(&root.join("assets/photos/grace_hopper.jpg")).unwrap().rgb;
-    let mask = r2human::io::image_io::load_mask(
-        &root.join("tests/data/photo_masks/grace_hopper.png"),
-        photo.width,
-        photo.height,
-    )
-    .unwrap();
-    let input = r2human::pipeline::input::normalise(&photo, &mask, RES).expect("normalised");
-    assert!(cut_at_bottom(&input.mask, input.frame), "the photo cuts Grace Hopper at the chest");
-    let mut net = PoseEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
-    let lm = net.estimate(&input.rgb, &input.mask, Some(input.frame)).expect("runs").expect("a pose");
-    assert!(!lm.legs_above_cut(FOLD_MARGIN), "the read keeps a folded body");
-    assert!(net.network_runs() <= 3, "{} network runs (the folded read was refined first)", net.network_runs());
-}

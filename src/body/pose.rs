@@ -722,45 +722,22 @@ impl PoseEstimator {
             first = self.run(rgb, photo, grown(grow), frame)?;
         }
         let Some(first) = first else { return Ok(None) };
+        let found = self.refine(rgb, photo, first, cut, frame)?;
         // A photo cut at the bottom cannot show the feet well above its bottom edge: the network folded a small
         // whole body into the visible part (legs over the coat). Look again in the larger regions, where the
-        // hidden part of the body falls outside the photo, and keep the first answer that is not folded. A first
-        // read that is folded already goes there before its own refinement (one network run fewer when a larger
-        // region answers: a refinement of a folded read is mostly folded, or finds nothing, as on Grace Hopper).
-        let folded = |landmarks: &PoseLandmarks| cut && landmarks.legs_above_cut(FOLD_MARGIN);
-        if folded(&first) {
-            if let Some(unfolded) = self.unfolded_in_grown_regions(rgb, photo, &grown, frame)? {
-                return Ok(Some(unfolded));
-            }
-        }
-        let found = self.refine(rgb, photo, first, cut, frame)?;
-        if folded(&found) {
-            if let Some(unfolded) = self.unfolded_in_grown_regions(rgb, photo, &grown, frame)? {
-                return Ok(Some(unfolded));
-            }
-        }
-        Ok(Some(found))
-    }
-
-    /// The first refined read in the regions two and three times as large as the mask's (`grown`, extending below
-    /// a photo cut at the bottom) whose feet are not above the cut; `None` when both are folded or find nothing.
-    fn unfolded_in_grown_regions(
-        &mut self,
-        rgb: &RgbImage,
-        photo: PhotoFingerprint,
-        grown: &dyn Fn(f32) -> PoseRegion,
-        frame: PhotoFrame,
-    ) -> Result<Option<PoseLandmarks>, BodyError> {
-        for grow in [2.0f32, 3.0] {
-            if let Some(again) = self.run(rgb, photo, grown(grow), frame)? {
-                let again = self.refine(rgb, photo, again, true, frame)?;
-                if !again.legs_above_cut(FOLD_MARGIN) {
-                    tracing::debug!("pose: folded body in the mask's region; region grown x{grow} instead");
-                    return Ok(Some(again));
+        // hidden part of the body falls outside the photo, and keep the first answer that is not folded.
+        if cut && found.legs_above_cut(FOLD_MARGIN) {
+            for grow in [2.0f32, 3.0] {
+                if let Some(again) = self.run(rgb, photo, grown(grow), frame)? {
+                    let again = self.refine(rgb, photo, again, cut, frame)?;
+                    if !again.legs_above_cut(FOLD_MARGIN) {
+                        tracing::debug!("pose: folded body in the mask's region; region grown x{grow} instead");
+                        return Ok(Some(again));
+                    }
                 }
             }
         }
-        Ok(None)
+        Ok(Some(found))
     }
 
     /// One more run on the region `first` gives ([`PoseLandmarks::refined_region`]); `first` when that finds
