@@ -35,6 +35,9 @@ def main(argv=None):
                    help="start from the weights of a model folder's encoder.onnx and decoder.onnx (e.g. models/tiny: "
                         "fine-tune the shipped renderer; a fresh optimiser)")
     p.add_argument("--lambda-consistency", type=float, default=100.0, help="the paper: 100")
+    p.add_argument("--permute-colours", action="store_true",
+                   help="permute each item's RGB channels at random (the same way in the photo, its back image and "
+                        "the targets): the decoder cannot learn the synthetic people's colours of hidden surfaces")
     p.add_argument("--fof-dropout", type=float, default=0.3,
                    help="probability of feeding zeros instead of the FOF (the released test script feeds zeros)")
     p.add_argument("--lpips", default=None,

@@ -183,7 +183,8 @@ def recipe(args, tier, data_meta, steps, seconds, world):
                        "perceptual_kind": "lpips" if getattr(args, "lpips", None) else "ssim+gradient (LPIPS substitute)",
                        "visibility_lambda": 0.02},
             "decoder": "residual: rgb = warped_rgb + UNet(...), last convolution zero-initialised",
-            "fof_dropout": getattr(args, "fof_dropout", 0.0), "seed": args.seed, "torch": str(torch.__version__),
+            "fof_dropout": getattr(args, "fof_dropout", 0.0),
+            "permute_colours": getattr(args, "permute_colours", False), "seed": args.seed, "torch": str(torch.__version__),
             "resumed_from": getattr(args, "resume", None), "initialised_from": getattr(args, "init_from", None)}
 
 
@@ -229,6 +230,8 @@ def fit(args):
         ds.set_epoch(epoch)
         for b in loader:
             b = to_device(b, device)
+            if getattr(args, "permute_colours", False):
+                b = permute_colours(b, gen)
             keep = (torch.rand(b["src_fof"].shape[0], 1, 1, 1, generator=gen) >= args.fof_dropout).float().to(device)
             pred_ref, pred_mv = net(b, b["src_fof"] * keep)
             loss, parts = losses.total_loss(pred_ref, pred_mv, b, lpips)
@@ -284,6 +287,26 @@ def load_onnx_weights(model, folder):
         meta = {p.key: p.value for p in graph.metadata_props}
         recipe = json.loads(meta["r2human.recipe"]) if "r2human.recipe" in meta else recipe
     return recipe
+
+
+# Every colour image of a renderer batch: the encoder's input, the photo and back image the lookup reads, the targets.
+COLOUR_KEYS = ("src_image", "src_linear", "src_back_linear", "ref_rgb", "mv_rgb")
+
+
+def permute_colours(b, gen):
+    """The same random permutation of the RGB channels for every colour image of each item (`COLOUR_KEYS`; one of
+    the six per item, the identity included), the other tensors untouched. Exact in sRGB and in linear light alike,
+    so the photo, its lookup and the targets stay consistent. A decoder trained on it cannot learn what colour the
+    synthetic people's hidden surfaces usually are (the back of a head painted cream on real photos, a grey photo
+    included): it has to take the hue from the photo's lookup."""
+    orders = torch.tensor([[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]])
+    pick = orders[torch.randint(0, 6, (b["src_image"].shape[0],), generator=gen)]
+    out = dict(b)
+    for k in COLOUR_KEYS:
+        if k in b:
+            index = pick.to(b[k].device)[:, :, None, None].expand(-1, -1, *b[k].shape[2:])
+            out[k] = torch.gather(b[k], 1, index)
+    return out
 
 
 def save_checkpoint(args, model, opt, step, ds, elapsed, world):

@@ -488,6 +488,26 @@ class NetsTest(unittest.TestCase):
         loss.backward()
         self.assertGreater(float(d.net.out.weight.grad.abs().sum()), 0.0)
 
+    def test_colour_permutation_is_one_per_item_and_the_same_in_every_colour_image(self):
+        from train.fit import COLOUR_KEYS, permute_colours
+        g = torch.Generator().manual_seed(4)
+        b = {k: torch.rand(16, 3, 4, 5, generator=g) for k in COLOUR_KEYS}
+        b["src_mask"] = torch.rand(16, 1, 4, 5, generator=g)
+        b["ref_normals"] = torch.rand(16, 3, 4, 5, generator=g)
+        out = permute_colours(b, torch.Generator().manual_seed(5))
+        self.assertIs(out["src_mask"], b["src_mask"])
+        self.assertIs(out["ref_normals"], b["ref_normals"])
+        orders = set()
+        for i in range(16):
+            # Which input channel each output channel is, read off the first image; every image agrees.
+            order = [next(c for c in range(3) if torch.equal(out["src_image"][i, o], b["src_image"][i, c]))
+                     for o in range(3)]
+            self.assertEqual(sorted(order), [0, 1, 2])
+            orders.add(tuple(order))
+            for k in COLOUR_KEYS:
+                self.assertTrue(torch.equal(out[k][i], b[k][i, order]), k)
+        self.assertGreater(len(orders), 1)
+
     def test_unet_stride(self):
         self.assertEqual(UNet(3, 3, [8, 8, 8], light=True).stride, 4)
 
