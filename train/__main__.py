@@ -38,6 +38,9 @@ def main(argv=None):
     p.add_argument("--permute-colours", action="store_true",
                    help="permute each item's RGB channels at random (the same way in the photo, its back image and "
                         "the targets): the decoder cannot learn the synthetic people's colours of hidden surfaces")
+    p.add_argument("--invert-colours", action="store_true",
+                   help="invert the colours of half the items in linear light (alike in the photo, its back image and "
+                        "the targets): the decoder cannot learn whether hidden surfaces are usually bright or dark")
     p.add_argument("--fof-dropout", type=float, default=0.3,
                    help="probability of feeding zeros instead of the FOF (the released test script feeds zeros)")
     p.add_argument("--lpips", default=None,

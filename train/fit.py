@@ -18,7 +18,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 from . import losses
 from .depth_centre import centre_fof
 from .dataset import R2Dataset
-from .geometry import back_weight, source_axis, transfer, warp, warp_rgb
+from .geometry import back_weight, linear_to_srgb, source_axis, srgb_to_linear, transfer, warp, warp_rgb
 from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters, fof_net_from_checkpoint, parse_fof_inputs
 
 
@@ -184,7 +184,8 @@ def recipe(args, tier, data_meta, steps, seconds, world):
                        "visibility_lambda": 0.02},
             "decoder": "residual: rgb = warped_rgb + UNet(...), last convolution zero-initialised",
             "fof_dropout": getattr(args, "fof_dropout", 0.0),
-            "permute_colours": getattr(args, "permute_colours", False), "seed": args.seed, "torch": str(torch.__version__),
+            "permute_colours": getattr(args, "permute_colours", False),
+            "invert_colours": getattr(args, "invert_colours", False), "seed": args.seed, "torch": str(torch.__version__),
             "resumed_from": getattr(args, "resume", None), "initialised_from": getattr(args, "init_from", None)}
 
 
@@ -232,6 +233,8 @@ def fit(args):
             b = to_device(b, device)
             if getattr(args, "permute_colours", False):
                 b = permute_colours(b, gen)
+            if getattr(args, "invert_colours", False):
+                b = invert_colours(b, gen)
             keep = (torch.rand(b["src_fof"].shape[0], 1, 1, 1, generator=gen) >= args.fof_dropout).float().to(device)
             pred_ref, pred_mv = net(b, b["src_fof"] * keep)
             loss, parts = losses.total_loss(pred_ref, pred_mv, b, lpips)
@@ -306,6 +309,27 @@ def permute_colours(b, gen):
         if k in b:
             index = pick.to(b[k].device)[:, :, None, None].expand(-1, -1, *b[k].shape[2:])
             out[k] = torch.gather(b[k], 1, index)
+    return out
+
+
+def invert_colours(b, gen, p=0.5):
+    """Inverts the colours of a random share `p` of the items in linear light (`L -> 1 - L`), alike in the photo
+    (`src_image`, `src_linear`), its back image and the targets, the other tensors untouched: consistent through the
+    lookup, so a decoder trained on it cannot learn whether the synthetic people's hidden surfaces are usually bright
+    or dark (the permuted fine-tune still painted the back of dark heads white on real photos)."""
+    flip = (torch.rand(b["src_image"].shape[0], generator=gen) < p).to(b["src_image"].device)[:, None, None, None]
+    out = dict(b)
+    mask = b["src_mask"]
+    for k in ("src_linear", "src_back_linear"):
+        if k in b:
+            out[k] = torch.where(flip, mask - b[k], b[k])
+    straight = b["src_linear"] / mask.clamp_min(1e-6)
+    image = torch.where(mask > 0, linear_to_srgb(1 - straight) * 2 - 1, torch.full_like(straight, -1.0))
+    out["src_image"] = torch.where(flip, image, b["src_image"])
+    for k in ("ref_rgb", "mv_rgb"):
+        if k in b:
+            inverted = linear_to_srgb(1 - srgb_to_linear((b[k] + 1) / 2)) * 2 - 1
+            out[k] = torch.where(flip, inverted, b[k])
     return out
 
 

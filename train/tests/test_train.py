@@ -508,6 +508,30 @@ class NetsTest(unittest.TestCase):
                 self.assertTrue(torch.equal(out[k][i], b[k][i, order]), k)
         self.assertGreater(len(orders), 1)
 
+    def test_colour_inversion_commutes_with_the_lookup(self):
+        # Inverted in linear light, the photo's lookup is the inverted lookup, and the encoder's input and the targets
+        # are the inverted colours: every item either all inverted or all as it was.
+        from train.fit import invert_colours
+        h = w = 8
+        mask = torch.zeros(2, 1, h, w)
+        mask[..., 2:6, 3:7] = 1
+        g = torch.Generator().manual_seed(6)
+        srgb = torch.rand(2, 3, h, w, generator=g)
+        b = {"src_mask": mask, "src_linear": srgb_to_linear(srgb) * mask, "src_image": srgb * mask * 2 - 1,
+             "src_back_linear": srgb_to_linear(torch.rand(2, 3, h, w, generator=g)) * mask,
+             "ref_rgb": srgb * 2 - 1}
+        out = invert_colours(b, torch.Generator().manual_seed(0), p=1.0)
+        want = linear_to_srgb(1 - srgb_to_linear(srgb))
+        self.assertTrue(torch.allclose(out["ref_rgb"], want * 2 - 1, atol=1e-5))
+        self.assertTrue(torch.allclose(out["src_image"], torch.where(mask > 0, want * 2 - 1, torch.tensor(-1.0)),
+                                       atol=1e-5))
+        depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
+        eye, half = torch.eye(4)[None].expand(2, 4, 4), torch.ones(2, 2)
+        grid, _, tmask = transfer(depth, eye, half, eye, half)
+        rgb, _ = warp_rgb(out["src_linear"], mask, grid, tmask)
+        self.assertTrue(torch.allclose(rgb, (want * 2 - 1) * mask, atol=1e-5))
+        self.assertTrue(torch.equal(invert_colours(b, torch.Generator().manual_seed(0), p=0.0)["ref_rgb"], b["ref_rgb"]))
+
     def test_unet_stride(self):
         self.assertEqual(UNet(3, 3, [8, 8, 8], light=True).stride, 4)
 
