@@ -47,20 +47,27 @@ def _box(a, k):
     return a.reshape(h // k, k, w // k, k, *a.shape[2:]).mean(axis=(1, 3))
 
 
+def downsample_rgba(rgba, k):
+    """Box-downsamples straight-alpha RGBA [H,W,4] by k (colours averaged premultiplied, then straightened)."""
+    if k == 1:
+        return rgba
+    alpha = _box(rgba[..., 3], k)
+    premul = _box(rgba[..., :3] * rgba[..., 3:], k)
+    rgb = np.where(alpha[..., None] > 1e-6, premul / np.maximum(alpha[..., None], 1e-6), 0)
+    return np.concatenate([rgb, alpha[..., None]], -1)
+
+
 def downsample_view(rgba, depth, normal, k):
     """Downsamples one rendered view (rgba straight [H,W,4], depth [H,W] with -1 background, normals [H,W,3])."""
     if k == 1:
         return rgba, depth, normal
-    alpha = _box(rgba[..., 3], k)
-    premul = _box(rgba[..., :3] * rgba[..., 3:], k)
-    rgb = np.where(alpha[..., None] > 1e-6, premul / np.maximum(alpha[..., None], 1e-6), 0)
     fg = (depth > -1).astype(np.float32)
     cnt = _box(fg, k)
     d = np.where(cnt > 0, _box(np.where(fg > 0, depth, 0), k) / np.maximum(cnt, 1e-6), -1.0)
     n = _box(normal, k)
     n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
     n = np.where(cnt[..., None] > 0, n, 0)
-    return np.concatenate([rgb, alpha[..., None]], -1), d.astype(np.float32), n.astype(np.float32)
+    return downsample_rgba(rgba, k), d.astype(np.float32), n.astype(np.float32)
 
 
 def camera_tensors(cam):
@@ -188,17 +195,13 @@ class R2Dataset(torch.utils.data.Dataset):
             "view_from_world": vfw,
             "half": half,
         }
-        back_path = os.path.join(d, "source_back.png")
         if self.has_back:
             # The back image (`r2human dataset`, `eval::dataset::back_image`) like `linear`; where a subject has none
             # (no face found) or it does not cover a pixel, the photo's colour, as inference looks it up then.
             src["back_linear"] = src["linear"].clone()
+            back_path = os.path.join(d, "source_back.png")
             if os.path.exists(back_path):
-                back = read_png_rgba(back_path)
-                if self.k > 1:
-                    hb, wb = back.shape[:2]
-                    flat = np.zeros((hb, wb), np.float32)
-                    back, _, _ = downsample_view(back, flat, np.zeros((hb, wb, 3), np.float32), self.k)
+                back = downsample_rgba(read_png_rgba(back_path), self.k)
                 covered = torch.from_numpy((back[..., 3] > 0).astype(np.float32))[None] * mask
                 back_lin = srgb_to_linear(torch.from_numpy(back[..., :3]).permute(2, 0, 1).float())
                 src["back_linear"] = back_lin * covered + src["linear"] * (1 - covered)

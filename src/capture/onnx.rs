@@ -247,34 +247,6 @@ impl OnnxSegmenter {
         Ok((GrayImage { width: ow, height: oh, data }, region))
     }
 
-    /// The person probability at the network's resolution, values in `[0, 1]`.
-    pub fn infer(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
-        self.infer_region(frame).map(|(m, _)| m)
-    }
-}
-
-impl Segmenter for OnnxSegmenter {
-    fn name(&self) -> &'static str {
-        "onnx"
-    }
-
-    /// With the pose model, a frame that is not tracked (the first one, a new size, the person lost on the frame
-    /// before) is read twice: letterboxed, then on the square around the person that read found (the model is
-    /// trained on such crops). Read once, a live session's first frame had a coarser mask than the tracked frames
-    /// after it, and its person changed shape on the second frame.
-    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
-        let tracked = self.tracking(frame.width(), frame.height());
-        let first = self.segment_once(frame)?;
-        if tracked || !self.tracking(frame.width(), frame.height()) {
-            return Ok(first);
-        }
-        let second = self.segment_once(frame)?;
-        // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
-        Ok(if second.data.iter().any(|&v| v >= 0.5) { second } else { first })
-    }
-}
-
-impl OnnxSegmenter {
     /// One read of `frame` in the region [`OnnxSegmenter::region`] gives, keeping the largest object; with the pose
     /// model it updates the tracked square.
     fn segment_once(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
@@ -303,6 +275,32 @@ impl OnnxSegmenter {
             });
         }
         Ok(mask)
+    }
+
+    /// The person probability at the network's resolution, values in `[0, 1]`.
+    pub fn infer(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        self.infer_region(frame).map(|(m, _)| m)
+    }
+}
+
+impl Segmenter for OnnxSegmenter {
+    fn name(&self) -> &'static str {
+        "onnx"
+    }
+
+    /// With the pose model, a frame that is not tracked (the first one, a new size, the person lost on the frame
+    /// before) is read twice: letterboxed, then on the square around the person that read found (the model is
+    /// trained on such crops). Read once, a live session's first frame had a coarser mask than the tracked frames
+    /// after it, and its person changed shape on the second frame.
+    fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
+        let tracked = self.tracking(frame.width(), frame.height());
+        let first = self.segment_once(frame)?;
+        if tracked || !self.tracking(frame.width(), frame.height()) {
+            return Ok(first);
+        }
+        let second = self.segment_once(frame)?;
+        // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
+        Ok(if second.data.iter().any(|&v| v >= 0.5) { second } else { first })
     }
 }
 

@@ -27,7 +27,6 @@ use serde_json::json;
 
 use super::ground_truth::{render_ground_truth, GroundTruthView};
 use super::EvalError;
-use crate::buffer::RgbImage;
 use crate::geometry::camera::{Camera, Projection, SOURCE_RESOLUTION};
 use crate::geometry::fof::Fof;
 use crate::geometry::inflate::{inflate_to_fof, InflateParams};
@@ -266,7 +265,12 @@ fn write_subject(
     crate::io::mesh_io::write_glb(&dir.join("mesh.glb"), &subject.mesh).map_err(synth::SynthError::from)?;
     let hi_source = render_ground_truth(&subject.mesh, &Camera::source(fof_grid(r)));
     let prior = prior_from_render(&hi_source, r, opts.fof_n)?;
-    let body_fof = body.map(|b| body_fof(&hi_source, b, r, opts.fof_n)).transpose()?;
+    // The rendered source as the pipeline holds a photo: read by the body prior and the back image alike.
+    let hi_input = (body.is_some() || back_pose.is_some()).then(|| source_input(&hi_source));
+    let body_fof = match (body, &hi_input) {
+        (Some(b), Some(input)) => Some(body_fof(input, b, r, opts.fof_n)?),
+        _ => None,
+    };
     let body_info = match &body_fof {
         None => serde_json::Value::Null,
         Some((_, None)) => json!({"source": "fitted body (pose network + fitter on the rendered source)"}),
@@ -296,8 +300,8 @@ fn write_subject(
     if body.is_some() {
         info["body_fof"] = body_info;
     }
-    if let Some(pose) = back_pose {
-        let back = back_image(&hi_source, pose, r);
+    if let (Some(pose), Some(input)) = (back_pose, &hi_input) {
+        let back = back_image(input, pose, r);
         info["back_image"] = json!(back.is_some());
         if let Some(back) = back {
             write_png(&dir.join("source_back.png"), &back)?;
@@ -372,38 +376,39 @@ fn prior_from_render(gt: &GroundTruthView, size: usize, n: usize) -> Result<Vec<
     Ok(box_downsample(&fof.coeffs, hi, n, hi / size.max(1)))
 }
 
-/// The body FOF of a rendered source view as inference computes it (`body_fof.npy`): the rendered source (`gt`,
-/// at [`fof_grid`]`(size)`, the person already in the body cube) goes through the pipeline's body prior
+/// A rendered source view as the pipeline holds a normalised photo (premultiplied linear RGB and the mask, the
+/// person already in the body cube): the input [`body_fof`] and [`back_image`] read.
+pub fn source_input(gt: &GroundTruthView) -> NormalisedInput {
+    NormalisedInput::in_source_view(gt.to_linear_rgba().map(|p| p.truncate()), gt.mask_image())
+}
+
+/// The body FOF of a rendered source view as inference computes it (`body_fof.npy`): the rendered source
+/// (`normalised`, [`source_input`] of the source rendered at [`fof_grid`]`(size)`) goes through the pipeline's body prior
 /// ([`crate::pipeline::body_prior_fof`]: pose network, fitter, body FOF reconciled with the silhouette; cold start)
 /// and is box-averaged to `size` like [`prior_fof`]. Returns the coefficients (pixel-major `HWN`) and, when the body
 /// prior fell back to the inflation prior (the pipeline's run-time fall-back), why.
 pub fn body_fof(
-    gt: &GroundTruthView,
+    normalised: &NormalisedInput,
     body: &SharedBody,
     size: usize,
     n: usize,
 ) -> Result<(Vec<f32>, Option<String>), EvalError> {
-    let hi = gt.width;
-    let rgb: RgbImage = gt.to_linear_rgba().map(|p| p.truncate());
-    let mask = gt.mask_image();
-    let normalised = NormalisedInput::in_source_view(rgb, mask);
+    let hi = normalised.mask.width;
     let opts = PrepareOptions { resolution: hi, fof_order: n, ..Default::default() };
     let prior =
         inflate_to_fof(&normalised.mask, n, &opts.inflate, None).map_err(|e| EvalError::stage("inflation prior", e))?;
     let mut timings = StageTimings::default();
-    let (fof, fallback) = body_prior_fof(&normalised, &opts, body, prior, &mut timings);
+    let (fof, fallback) = body_prior_fof(normalised, &opts, body, prior, &mut timings);
     Ok((box_downsample(&fof.coeffs, hi, n, hi / size.max(1)), fallback))
 }
 
-/// The back image of a rendered source view (`gt`, at [`fof_grid`]`(size)`, the person in the body cube) as
-/// inference computes it on a photo ([`back_image_of`]: the pose network's face, the clothing filter), box-averaged
+/// The back image of a rendered source view (`normalised`, [`source_input`] of the source rendered at
+/// [`fof_grid`]`(size)`) as inference computes it on a photo ([`back_image_of`]: the pose network's face, the clothing filter), box-averaged
 /// to `size` and stored as 8-bit sRGB with straight alpha (alpha = the share of the box the back image covers, so
-/// with `gt`'s mask). `None` when the pose network finds no usable face (inference then has no back image either).
-pub fn back_image(gt: &GroundTruthView, pose: &SharedPose, size: usize) -> Option<image::RgbaImage> {
-    let hi = gt.width;
-    let rgb: RgbImage = gt.to_linear_rgba().map(|p| p.truncate());
-    let normalised = NormalisedInput::in_source_view(rgb, gt.mask_image());
-    let back = back_image_of(&normalised, pose, &mut StageTimings::default())?;
+/// with the mask). `None` when the pose network finds no usable face (inference then has no back image either).
+pub fn back_image(normalised: &NormalisedInput, pose: &SharedPose, size: usize) -> Option<image::RgbaImage> {
+    let hi = normalised.mask.width;
+    let back = back_image_of(normalised, pose, &mut StageTimings::default())?;
     let k = (hi / size.max(1)).max(1);
     let small = hi / k;
     // Premultiplied colour and coverage, box-averaged; straight colour where the box has any person.
