@@ -588,6 +588,16 @@ fn dataset_writes_the_body_fof_of_the_rendered_source() {
     }
     assert!(covered * 10 >= person * 9 && far == 0, "{person} {covered} {far}");
     assert!(differ * 10 >= person, "the back image is the photo: {differ} of {person} pixels differ");
+
+    // Subject by subject, the same bytes however many subjects share the run: the subjects are written in parallel
+    // through one shared body estimator and one pose network, and no state of one may reach another.
+    let more = tempfile::tempdir().unwrap();
+    write_dataset(&DatasetOptions { subjects: 3, out: more.path().to_path_buf(), ..opts.clone() })
+        .unwrap_or_else(|e| panic!("{e}"));
+    for f in ["body_fof.npy", "source_back.png", "prior_fof.npy"] {
+        let bytes = |d: &std::path::Path| std::fs::read(d.join("subject_0000").join(f)).unwrap();
+        assert!(bytes(dir.path()) == bytes(more.path()), "{f} of subject_0000 depends on the run's size");
+    }
 }
 
 /// The fitted body is placed in depth by the part the photo shows: the centroid of its occupied volume over the
