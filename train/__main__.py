@@ -41,6 +41,10 @@ def main(argv=None):
     p.add_argument("--invert-colours", action="store_true",
                    help="invert the colours of half the items in linear light (alike in the photo, its back image and "
                         "the targets): the decoder cannot learn whether hidden surfaces are usually bright or dark")
+    p.add_argument("--gain-colours", action="store_true",
+                   help="scale each item's colours by a random gain per channel in linear light, log-uniform in "
+                        "[0.2, 1] (alike in the photo, its back image and the targets; after --invert-colours): the "
+                        "decoder cannot tell an inverted item from another")
     p.add_argument("--fof-dropout", type=float, default=0.3,
                    help="probability of feeding zeros instead of the FOF (the released test script feeds zeros)")
     p.add_argument("--lpips", default=None,

@@ -185,7 +185,8 @@ def recipe(args, tier, data_meta, steps, seconds, world):
             "decoder": "residual: rgb = warped_rgb + UNet(...), last convolution zero-initialised",
             "fof_dropout": getattr(args, "fof_dropout", 0.0),
             "permute_colours": getattr(args, "permute_colours", False),
-            "invert_colours": getattr(args, "invert_colours", False), "seed": args.seed, "torch": str(torch.__version__),
+            "invert_colours": getattr(args, "invert_colours", False),
+            "gain_colours": getattr(args, "gain_colours", False), "seed": args.seed, "torch": str(torch.__version__),
             "resumed_from": getattr(args, "resume", None), "initialised_from": getattr(args, "init_from", None)}
 
 
@@ -235,6 +236,8 @@ def fit(args):
                 b = permute_colours(b, gen)
             if getattr(args, "invert_colours", False):
                 b = invert_colours(b, gen)
+            if getattr(args, "gain_colours", False):
+                b = gain_colours(b, gen)
             keep = (torch.rand(b["src_fof"].shape[0], 1, 1, 1, generator=gen) >= args.fof_dropout).float().to(device)
             pred_ref, pred_mv = net(b, b["src_fof"] * keep)
             loss, parts = losses.total_loss(pred_ref, pred_mv, b, lpips)
@@ -330,6 +333,29 @@ def invert_colours(b, gen, p=0.5):
         if k in b:
             inverted = linear_to_srgb(1 - srgb_to_linear((b[k] + 1) / 2)) * 2 - 1
             out[k] = torch.where(flip, inverted, b[k])
+    return out
+
+
+def gain_colours(b, gen, lowest=0.2):
+    """Scales each item's colours by a random gain per channel in linear light, log-uniform in `[lowest, 1]`, alike
+    in the photo (`src_image`, `src_linear`), its back image and the targets, the other tensors untouched. A gain
+    commutes with the lookup (bilinear sampling is linear), so the photo, its lookup and the targets stay consistent.
+    After `invert_colours` the brightness and hue of an item are continuous unknowns: a decoder cannot tell an
+    inverted item from another (the inverted fine-tune painted the back of a dark-haired, dark-uniformed real person's
+    head pale grey: it guessed the item was inverted) and must take the colour of hidden surfaces from the lookup."""
+    n = b["src_image"].shape[0]
+    log_gain = torch.rand(n, 3, generator=gen) * math.log(lowest)
+    gain = log_gain.exp().to(b["src_image"].device)[:, :, None, None]
+    out = dict(b)
+    mask = b["src_mask"]
+    for k in ("src_linear", "src_back_linear"):
+        if k in b:
+            out[k] = b[k] * gain
+    straight = b["src_linear"] * gain / mask.clamp_min(1e-6)
+    out["src_image"] = torch.where(mask > 0, linear_to_srgb(straight) * 2 - 1, torch.full_like(straight, -1.0))
+    for k in ("ref_rgb", "mv_rgb"):
+        if k in b:
+            out[k] = linear_to_srgb(srgb_to_linear((b[k] + 1) / 2) * gain) * 2 - 1
     return out
 
 

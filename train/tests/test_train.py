@@ -532,6 +532,34 @@ class NetsTest(unittest.TestCase):
         self.assertTrue(torch.allclose(rgb, (want * 2 - 1) * mask, atol=1e-5))
         self.assertTrue(torch.equal(invert_colours(b, torch.Generator().manual_seed(0), p=0.0)["ref_rgb"], b["ref_rgb"]))
 
+    def test_colour_gain_commutes_with_the_lookup(self):
+        # One gain per item and channel in linear light, within [0.2, 1], the same in the lookup, the encoder's input
+        # and the targets; the items differ.
+        from train.fit import gain_colours
+        h = w = 8
+        mask = torch.zeros(2, 1, h, w)
+        mask[..., 2:6, 3:7] = 1
+        g = torch.Generator().manual_seed(7)
+        srgb = torch.rand(2, 3, h, w, generator=g)
+        linear = srgb_to_linear(srgb)
+        b = {"src_mask": mask, "src_linear": linear * mask, "src_image": srgb * mask * 2 - 1,
+             "src_back_linear": srgb_to_linear(torch.rand(2, 3, h, w, generator=g)) * mask,
+             "ref_rgb": srgb * 2 - 1}
+        out = gain_colours(b, torch.Generator().manual_seed(0))
+        gain = out["src_linear"][:, :, 3, 4] / linear[:, :, 3, 4]
+        self.assertTrue(bool(((gain >= 0.2 - 1e-6) & (gain <= 1 + 1e-6)).all()), gain)
+        self.assertFalse(torch.allclose(gain[0], gain[1]))
+        want = linear_to_srgb(linear * gain[:, :, None, None])
+        self.assertTrue(torch.allclose(out["ref_rgb"], want * 2 - 1, atol=1e-5))
+        self.assertTrue(torch.allclose(out["src_image"], torch.where(mask > 0, want * 2 - 1, torch.tensor(-1.0)),
+                                       atol=1e-5))
+        self.assertTrue(torch.allclose(out["src_back_linear"], b["src_back_linear"] * gain[:, :, None, None]))
+        depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
+        eye, half = torch.eye(4)[None].expand(2, 4, 4), torch.ones(2, 2)
+        grid, _, tmask = transfer(depth, eye, half, eye, half)
+        rgb, _ = warp_rgb(out["src_linear"], mask, grid, tmask)
+        self.assertTrue(torch.allclose(rgb, (want * 2 - 1) * mask, atol=1e-5))
+
     def test_unet_stride(self):
         self.assertEqual(UNet(3, 3, [8, 8, 8], light=True).stride, 4)
 
