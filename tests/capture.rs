@@ -152,6 +152,27 @@ fn onnx_pose_model_segments_and_tracks_the_walker() {
     assert!((ious[0] - ious[1]).abs() < 0.03, "the first frame is segmented as finely as the tracked ones: {ious:?}");
 }
 
+/// A still person gets the same mask frame after frame: the tracked square holds while the person stays where it
+/// was (without the hold the square and the mask chased each other by a pixel on repeated frames, and every later
+/// stage flickered with them).
+#[test]
+fn onnx_pose_model_gives_a_still_person_one_mask() {
+    let Some(path) = model("pose_landmark_full.onnx") else { return };
+    let mut seg = (SegmentMethod::Onnx { model: Some(path), input_size: 0 }).build(None).unwrap();
+    let photo = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/photos/astronaut.png");
+    let (rgb, _) = r2human::capture::load_image_frame(&photo).unwrap();
+    let masks: Vec<GrayImage> = (0..8u64)
+        .map(|i| {
+            let frame = Frame { index: i, timestamp: Duration::ZERO, rgb: rgb.clone(), alpha: None };
+            seg.segment(&frame).unwrap()
+        })
+        .collect();
+    let changed: Vec<usize> =
+        masks.windows(2).map(|m| m[0].data.iter().zip(&m[1].data).filter(|(a, b)| a != b).count()).collect();
+    eprintln!("pixels changed between consecutive masks: {changed:?}");
+    assert!(changed[2..].iter().all(|&c| c == 0), "a still person's mask keeps changing: {changed:?}");
+}
+
 #[test]
 fn onnx_isnet_model_matches_ground_truth() {
     let Some(path) = model("isnet_seg.onnx") else { return };

@@ -683,11 +683,15 @@ pub fn fit_body(model: &BodyModel, target: &FitTarget<'_>, start: Option<&Pose>,
             Some(Term { point, xy: to_cube(l.pixel, res), depth, weight: l.visibility as f64 })
         })
         .collect();
+    let initial = initial_pose(model, target, options);
     let (start, warm) = match start {
         Some(p) if p.is_finite() => (*p, true),
-        _ => (initial_pose(model, target, options), false),
+        _ => (initial, false),
     };
-    terms.extend(hanging_legs(model, &usable, &terms, start.scale));
+    // The hanging legs' length from the photo alone (the starting pose's scale on a cold fit): taken from a warm
+    // start's scale, each fit moved the next one's targets, and a still person's fits alternated between two poses
+    // (the astronaut's frames repeated: costs 40 and 58 in turn, `--geometry body-placed` flickering from the side).
+    terms.extend(hanging_legs(model, &usable, &terms, initial.scale));
     // Depths relative to the weighted mean of the used landmarks.
     let wsum: f64 = terms.iter().map(|t| t.weight).sum::<f64>().max(1e-9);
     let dmean = terms.iter().map(|t| t.weight * t.depth).sum::<f64>() / wsum;

@@ -162,10 +162,13 @@ impl BodyEstimator {
         let t = std::time::Instant::now();
         let target = FitTarget::new(&landmarks, mask);
         let fit = fit_body(self.model, &target, start.as_ref(), &self.options);
+        // The next warm fit starts from the fit's own pose: the depth centring moves the body along z, which the fit's
+        // depth terms see (started from the centred pose, a still person's next fit began 5 % above this one's cost
+        // and moved on every frame).
+        self.previous = Some(fit.pose);
         let (pose, mesh) = centre_depth(self.model, &fit.pose);
         let mesh = self.model.mesh_seen(&mesh, &limbs_seen(&landmarks, min_visibility));
         timings("body fit", t.elapsed());
-        self.previous = Some(pose);
         Ok(Some(BodyPrior { landmarks, fit: BodyFit { pose, ..fit }, mesh }))
     }
 }

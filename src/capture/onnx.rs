@@ -99,6 +99,30 @@ struct Region {
     sy: f32,
 }
 
+impl Region {
+    /// How far (a fraction of the square's side) the square around the person may move or grow before the tracked
+    /// square follows it ([`Region::holds`]).
+    const HOLD: f32 = 0.02;
+
+    /// Whether the tracked square `self` still serves where the square around this frame's person is `next` (both
+    /// squares read at `input_size` network pixels a side): their
+    /// centres within [`Region::HOLD`] of the side on each axis and their sides within twice that. The square
+    /// around a mask moves with every pixel the mask gains or loses at its outline, and the mask the network gives
+    /// moves with the square: on a still person the two chased each other by a pixel from frame to frame (the
+    /// astronaut repeated 20 times: consecutive masks never equal), and every later stage with them. Held, the
+    /// network reads the same input and a still person gets the same mask; the square's margin around the person
+    /// (0.15 of the person's size on each side) keeps a person who moves that little inside it.
+    fn holds(&self, next: &Region, input_size: f32) -> bool {
+        let side = |r: &Region| r.sx * input_size;
+        let centre = |r: &Region| (r.x0 + 0.5 * side(r), r.y0 + 0.5 * side(r));
+        let ((ax, ay), (bx, by)) = (centre(self), centre(next));
+        let tolerance = Self::HOLD * side(self);
+        (ax - bx).abs() <= tolerance
+            && (ay - by).abs() <= tolerance
+            && (side(self) - side(next)).abs() <= 2.0 * tolerance
+    }
+}
+
 /// An ONNX person segmentation model as a [`Segmenter`].
 ///
 /// With the MediaPipe model the region follows the person: the next frame's input is a square 1.3 times the
@@ -268,10 +292,12 @@ impl OnnxSegmenter {
         }
         if self.kind == SegmentationModel::MediapipePose {
             let s = self.input_size as f32;
+            let held = self.track.filter(|&(tw, th, _)| (tw, th) == (w, h)).map(|(_, _, r)| r);
             self.track = bbox.map(|(c0, r0, c1, r1)| {
                 let side = (1.3 * ((c1 - c0) as f32).max((r1 - r0) as f32)).max(64.0);
                 let (cx, cy) = (0.5 * (c0 + c1) as f32, 0.5 * (r0 + r1) as f32);
-                (w, h, Region { x0: cx - 0.5 * side, y0: cy - 0.5 * side, sx: side / s, sy: side / s })
+                let next = Region { x0: cx - 0.5 * side, y0: cy - 0.5 * side, sx: side / s, sy: side / s };
+                (w, h, held.filter(|r| r.holds(&next, s)).unwrap_or(next))
             });
         }
         Ok(mask)
