@@ -105,9 +105,8 @@ impl Region {
     const HOLD: f32 = 0.02;
 
     /// Whether the tracked square `self` still serves where the square around this frame's person is `next` (both
-    /// squares read at `input_size` network pixels a side): their
-    /// centres within [`Region::HOLD`] of the side on each axis and their sides within twice that. The square
-    /// around a mask moves with every pixel the mask gains or loses at its outline, and the mask the network gives
+    /// squares read at `input_size` network pixels a side): their centres within [`Region::HOLD`] of the side on
+    /// each axis and their sides within twice that. The square around a mask moves with every pixel the mask gains or loses at its outline, and the mask the network gives
     /// moves with the square: on a still person the two chased each other by a pixel from frame to frame (the
     /// astronaut repeated 20 times: consecutive masks never equal), and every later stage with them. Held, the
     /// network reads the same input and a still person gets the same mask; the square's margin around the person
@@ -127,7 +126,8 @@ impl Region {
 ///
 /// With the MediaPipe model the region follows the person: the next frame's input is a square 1.3 times the
 /// current mask's bounding box (the whole frame, letterboxed, when there is no mask yet), so a person far from
-/// the camera still fills the network's input.
+/// the camera still fills the network's input; the square stays where it is while the person barely moves
+/// ([`Region::holds`]), so a still person gets one mask.
 pub struct OnnxSegmenter {
     session: Session,
     kind: SegmentationModel,
