@@ -127,7 +127,7 @@ impl Region {
 /// With the MediaPipe model the region follows the person: the next frame's input is a square 1.3 times the
 /// current mask's bounding box (the whole frame, letterboxed, when there is no mask yet), so a person far from
 /// the camera still fills the network's input; the square stays where it is while the person barely moves
-/// ([`Region::holds`]), so a still person gets one mask.
+/// (`Region::holds`), so a still person gets one mask.
 pub struct OnnxSegmenter {
     session: Session,
     kind: SegmentationModel,

@@ -59,7 +59,7 @@ const SPAN_TOLERANCE_TEXELS: f32 = 0.02;
 /// The panorama coordinates of a view ray are a smooth function of the pixel, so they are computed exactly every
 /// [`PANORAMA_SPAN`] columns (and at the middle, as a check) and interpolated in between: four arc tangents per
 /// span instead of sixteen. Spans that cross the longitude wrap, come near a pole, or bend by more than
-/// [`SPAN_TOLERANCE_TEXELS`] at their middle are computed per pixel, so a lookup moves by at most about that much
+/// `SPAN_TOLERANCE_TEXELS` at their middle are computed per pixel, so a lookup moves by at most about that much
 /// (tested against the exact path).
 pub fn compose_vr(person: &RgbaImage, environment: &Environment, camera: &Camera) -> RgbImage {
     let rays = background_camera(camera).ray_grid();

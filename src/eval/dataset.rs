@@ -365,7 +365,7 @@ fn fof_grid(size: usize) -> usize {
     size * (SOURCE_RESOLUTION / size.max(1)).max(1)
 }
 
-/// [`prior_fof`] of an already rendered source view at [`fof_grid`]`(size)`.
+/// [`prior_fof`] of an already rendered source view at `fof_grid(size)`.
 fn prior_from_render(gt: &GroundTruthView, size: usize, n: usize) -> Result<Vec<f32>, EvalError> {
     let hi = gt.width;
     let mask = gt.mask_image();
@@ -383,7 +383,7 @@ pub fn source_input(gt: &GroundTruthView) -> NormalisedInput {
 }
 
 /// The body FOF of a rendered source view as inference computes it (`body_fof.npy`): the rendered source
-/// (`normalised`, [`source_input`] of the source rendered at [`fof_grid`]`(size)`) goes through the pipeline's body prior
+/// (`normalised`, [`source_input`] of the source rendered at `fof_grid(size)`) goes through the pipeline's body prior
 /// ([`crate::pipeline::body_prior_fof`]: pose network, fitter, body FOF reconciled with the silhouette; cold start)
 /// and is box-averaged to `size` like [`prior_fof`]. Returns the coefficients (pixel-major `HWN`) and, when the body
 /// prior fell back to the inflation prior (the pipeline's run-time fall-back), why.
@@ -403,7 +403,7 @@ pub fn body_fof(
 }
 
 /// The back image of a rendered source view (`normalised`, [`source_input`] of the source rendered at
-/// [`fof_grid`]`(size)`) as inference computes it on a photo ([`back_image_of`]: the pose network's face, the clothing filter), box-averaged
+/// `fof_grid(size)`) as inference computes it on a photo ([`back_image_of`]: the pose network's face, the clothing filter), box-averaged
 /// to `size` and stored as 8-bit sRGB with straight alpha (alpha = the share of the box the back image covers, so
 /// with the mask). `None` when the pose network finds no usable face (inference then has no back image either).
 pub fn back_image(normalised: &NormalisedInput, pose: &SharedPose, size: usize) -> Option<image::RgbaImage> {

@@ -3,7 +3,7 @@
 //! A counting global allocator would miss what ONNX Runtime allocates (its own arenas, through its own
 //! allocator), so the probe reads the process's resident set instead: [`PhaseMemory::start`] hands freed heap
 //! back to the OS (`malloc_trim`, glibc), resets the kernel's peak counter (`5` into `/proc/self/clear_refs`,
-//! Linux 4.0+) and records the resident set; [`PhaseMemory::finish`] reads the peak (`VmHWM`) since then.
+//! Linux 4.0+) and records the resident set; [`PhaseStart::finish`] reads the peak (`VmHWM`) since then.
 //! The phase's memory is that peak minus the resident set at the start: what the phase needed on top of what was
 //! already resident (code, loaded models, the subject). Phases must not overlap (the counter is per process).
 //! Elsewhere (not Linux, or a kernel that refuses the reset) both readings are `None` and reports say so.

@@ -251,7 +251,7 @@ fn inflate_at_least(
     Ok(InflatedSurfaces { front, back, mask: out_mask })
 }
 
-/// The fewest of a mask's interior pixels ([`inflated_fraction`]) that [`inflate`] accepts as inflated; below it
+/// The fewest of a mask's interior pixels (`inflated_fraction`) that [`inflate`] accepts as inflated; below it
 /// the triangulation went wrong and the prior would be an empty or partial person. The decoded prior of every one
 /// of 3,120 synthetic masks (clothed and unclothed, three framings, 128-512 px, seeds 0 and 5;
 /// `cargo run --release --example inflate_sweep`) covers 0.993 or more of the interior ([`mask_coverage`]).

@@ -153,7 +153,7 @@ pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option
     Some(out)
 }
 
-/// Colours in the clothing's palette ([`palette`]).
+/// Colours in the clothing's palette (`palette`).
 pub const PALETTE_SIZE: usize = 8;
 /// k-means iterations of the palette.
 pub const PALETTE_ITERATIONS: usize = 8;
@@ -211,7 +211,7 @@ fn palette(colours: &[Vec3], k: usize, iterations: usize) -> Vec<Vec3> {
     centres
 }
 
-/// Colours in the head top's palette ([`dominant_colour`]).
+/// Colours in the head top's palette (`dominant_colour`).
 pub const HEAD_PALETTE_SIZE: usize = 4;
 
 /// The mean of the largest of [`HEAD_PALETTE_SIZE`] colour clusters of `pixels` (straight linear colours): a

@@ -43,7 +43,7 @@ impl Default for GuardLimits {
 /// The guard's measurements of one predicted FOF.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GuardReport {
-    /// Fraction of the person's columns (sampled every [`GUARD_STEP`]) with more shells than the prior.
+    /// Fraction of the person's columns (sampled every `GUARD_STEP`) with more shells than the prior.
     pub doubled: f32,
     /// Fraction of the occupied volume outside the largest connected piece.
     pub detached: f32,

@@ -11,11 +11,11 @@
 //! - flow: `vec4(source u, source v, Z-map z_src, visibility 0/1)`;
 //! - person layers: premultiplied `vec4` RGBA; output: `vec4` (VR: RGB and 1, AR: premultiplied RGBA).
 //!
-//! Files, by concern: this one holds the types, the renderer's state and its accessors; [`bindings`] creates the
-//! resources, pipelines and descriptor set; [`upload`] takes the inputs (mesh, source, panorama, features,
-//! overlay); [`frame`] renders whole views (and the neural seam); [`stages`] runs one pass on given inputs, as the
-//! CPU reference's functions do; [`record`] records and submits a frame's passes; [`readback`] reads results and
-//! GPU timestamps back; [`pack`] packs host data for upload.
+//! Files, by concern: this one holds the types, the renderer's state and its accessors; `bindings` creates the
+//! resources, pipelines and descriptor set; `upload` takes the inputs (mesh, source, panorama, features,
+//! overlay); `frame` renders whole views (and the neural seam); `stages` runs one pass on given inputs, as the
+//! CPU reference's functions do; `record` records and submits a frame's passes; `readback` reads results and
+//! GPU timestamps back; `pack` packs host data for upload.
 
 use std::sync::Arc;
 use std::time::Duration;

@@ -12,7 +12,7 @@ use crate::gpu::GpuError;
 use crate::pipeline::fusion::previous_weight;
 
 impl Renderer {
-    /// Flow, Z-map (paper Eq. 4) and visibility (Eq. 9, [`VISIBILITY_LAMBDA`]) of a given target G-buffer
+    /// Flow, Z-map (paper Eq. 4) and visibility (Eq. 9, [`crate::geometry::zmap::VISIBILITY_LAMBDA`]) of a given target G-buffer
     /// rendered by `camera`, against the uploaded source: the GPU version of `geometry::zmap::flow_and_zmap`
     /// followed by `geometry::zmap::visibility`.
     pub fn flow_and_zmap(&mut self, target: &GBuffer, camera: &Camera) -> Result<(FlowZ, Vec<bool>), GpuError> {
