@@ -334,6 +334,43 @@ fn a_warm_start_converges_in_few_evaluations() {
     assert!((shift - expected).length() < 0.01, "{shift:?} vs {expected:?}");
 }
 
+/// A warm fit is anchored to the last frame's pose ([`FitOptions::warm_anchor`]): landmarks that jitter by a few
+/// pixels from frame to frame (the pose network on a photo moved by a pixel) move the anchored fits less than the
+/// free ones, and the anchored fit still follows the person (`a_warm_start_converges_in_few_evaluations`).
+#[test]
+fn an_anchored_warm_fit_follows_less_of_the_landmarks_jitter() {
+    let model = BodyModel::shared().expect("body model data");
+    let t = truth(11);
+    let lm = landmarks_of(&t.points);
+    let cold = fit_body(model, &FitTarget::new(&lm, &t.mask), None, &FitOptions::default());
+    // Five frames of the same person, each landmark off by up to 3 pixels (a fixed pseudo-random sequence).
+    let frames: Vec<PoseLandmarks> = (0..5u32)
+        .map(|f| {
+            let mut j = lm.clone();
+            for (i, l) in j.landmarks.iter_mut().enumerate() {
+                let h = |k: u32| (((i as u32 * 73 + f * 151 + k * 29) * 2654435761u32) >> 16) as f32 / 65536.0;
+                l.pixel += Vec2::new(h(1) - 0.5, h(2) - 0.5) * 6.0;
+            }
+            j
+        })
+        .collect();
+    let motion = |anchor: f64| {
+        let options = FitOptions { warm_anchor: anchor, ..FitOptions::default() };
+        let mut pose = cold.pose;
+        let mut total = 0.0;
+        for lm in &frames {
+            let next = fit_body(model, &FitTarget::new(lm, &t.mask), Some(&pose), &options).pose;
+            total += next.joints.iter().zip(&pose.joints).map(|(a, b)| (a - b).abs()).sum::<f64>();
+            total += (next.translation - pose.translation).length() * 10.0;
+            pose = next;
+        }
+        total
+    };
+    let (free, anchored) = (motion(0.0), motion(FitOptions::default().warm_anchor));
+    println!("pose motion over five jittered frames: free {free:.4}, anchored {anchored:.4}");
+    assert!(anchored < 0.8 * free, "free {free}, anchored {anchored}");
+}
+
 /// The pose network on a rendered subject finds its joints, and the body fitted to them stays near the true
 /// joints. (How the body FOF compares with the other geometries is measured by `r2human eval`, not asserted.)
 #[test]
