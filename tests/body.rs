@@ -348,7 +348,7 @@ fn an_anchored_warm_fit_follows_less_of_the_landmarks_jitter() {
         .map(|f| {
             let mut j = lm.clone();
             for (i, l) in j.landmarks.iter_mut().enumerate() {
-                let h = |k: u32| (((i as u32 * 73 + f * 151 + k * 29) * 2654435761u32) >> 16) as f32 / 65536.0;
+                let h = |k: u32| ((i as u32 * 73 + f * 151 + k * 29).wrapping_mul(2654435761) >> 16) as f32 / 65536.0;
                 l.pixel += Vec2::new(h(1) - 0.5, h(2) - 0.5) * 6.0;
             }
             j
