@@ -5,27 +5,34 @@
 //! README "Live frames with a body geometry" measures with it, each clip rendered at `--yaw 90` with `--geometry
 //! inflate` and `--geometry body-placed`:
 //! - a still person: one photo copied 20 times into a folder;
-//! - a barely moving one: frames shifted by up to 1 px.
+//! - a barely moving one: frames shifted by up to 1 px;
+//! - a moving one: the photo moved right by 3 px a frame for 12 of 20 frames (README "The warm fit is anchored to
+//!   the last frame", where its frames are also rendered one by one as the reference for lag).
 //!
 //! A geometry that follows the photo steadily scores near the inflation prior's 0.996-0.998.
 //!
-//! `-- --make-clips PHOTO DIR` writes both clips from one photo: `DIR/still` (the photo 20 times) and
+//! `-- --make-clips PHOTO DIR` writes the three clips from one photo: `DIR/still` (the photo 20 times),
 //! `DIR/shifted` (30 frames, each the photo moved by -1, 0 or 1 px in x and y, a fixed pseudo-random sequence,
-//! black where the photo moved away), so the README's figures can be made again.
+//! black where the photo moved away) and `DIR/moving` (20 frames: 4 still, 12 each 3 px further right, 4 still;
+//! the columns the photo moved away from repeat its first column), so the README's figures can be made again.
 
 use anyhow::Context;
 
 /// Frames of the still clip and of the shifted clip.
 const STILL_FRAMES: usize = 20;
 const SHIFTED_FRAMES: usize = 30;
+/// The moving clip: its frames, the frames during which the photo moves, and by how much per frame (pixels).
+const MOVING_FRAMES: usize = 20;
+const MOVING_SPAN: std::ops::Range<usize> = 4..16;
+const MOVING_STEP: u32 = 3;
 
-/// Writes the still and the shifted clip of `photo` into `dir/still` and `dir/shifted`.
+/// Writes the still, the shifted and the moving clip of `photo` into `dir/still`, `dir/shifted` and `dir/moving`.
 fn make_clips(photo: &str, dir: &str) -> anyhow::Result<()> {
     let image = image::open(photo).with_context(|| format!("reading {photo}"))?.to_rgb8();
     let (w, h) = image.dimensions();
     let root = std::path::Path::new(dir);
-    let (still, shifted) = (root.join("still"), root.join("shifted"));
-    for d in [&still, &shifted] {
+    let (still, shifted, moving) = (root.join("still"), root.join("shifted"), root.join("moving"));
+    for d in [&still, &shifted, &moving] {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
     for k in 0..STILL_FRAMES {
@@ -51,7 +58,16 @@ fn make_clips(photo: &str, dir: &str) -> anyhow::Result<()> {
         let path = shifted.join(format!("frame_{k:03}.png"));
         frame.save(&path).with_context(|| format!("writing {}", path.display()))?;
     }
-    println!("wrote {} and {}", still.display(), shifted.display());
+    let mut offset = 0u32;
+    for k in 0..MOVING_FRAMES {
+        if MOVING_SPAN.contains(&k) {
+            offset += MOVING_STEP;
+        }
+        let frame = image::RgbImage::from_fn(w, h, |x, y| *image.get_pixel(x.saturating_sub(offset), y));
+        let path = moving.join(format!("frame_{k:03}.png"));
+        frame.save(&path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    println!("wrote {}, {} and {}", still.display(), shifted.display(), moving.display());
     Ok(())
 }
 
