@@ -472,17 +472,12 @@ fn live_frames_of_a_still_person_read_the_same_landmarks_and_hold_the_body() {
 #[test]
 fn live_frames_of_a_still_cut_person_hold_the_body() {
     use r2human::body::prior::BodyEstimator;
-    use r2human::synth::framing::{crop, Framing};
+    use r2human::synth::framing::Framing;
     let Some(model_file) = installed_pose_model() else { return };
     let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
     let mut estimator = BodyEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
     for (index, framing) in [(23usize, Framing::Upper), (10, Framing::ThreeQuarter)] {
-        let seed = r2human::eval::dataset::subject_seed(0, index);
-        let full = synth::generate(assets, &SubjectParams::sample(seed), 64).expect("subject");
-        let s = crop(&full, framing, &assets.rig).expect("crop");
-        let view = render_ground_truth(&s.mesh, &Camera::source(RES));
-        let rgb = Image { width: RES, height: RES, data: view.albedo.clone() };
-        let (mask, frame) = (view.mask_image(), s.source_frame(RES));
+        let (_, rgb, mask, frame) = framed_source(assets, index, framing);
         estimator.reset();
         let fits: Vec<_> =
             (0..4).map(|_| estimator.estimate(&rgb, &mask, Some(frame), true, &mut |_, _| {}).expect("runs")).collect();
@@ -495,6 +490,23 @@ fn live_frames_of_a_still_cut_person_hold_the_body() {
     }
 }
 
+/// Subject `index` of `r2human eval --subjects N` (seed 0) cropped to `framing` like a photo (`synth::framing`):
+/// the cropped subject, its source view's colours and mask, and where the photo lies in that view (ending at the
+/// cut).
+fn framed_source(
+    assets: &SynthAssets,
+    index: usize,
+    framing: r2human::synth::framing::Framing,
+) -> (Subject, Image<Vec3>, GrayImage, (Vec2, Vec2)) {
+    let seed = r2human::eval::dataset::subject_seed(0, index);
+    let full = synth::generate(assets, &SubjectParams::sample(seed), 64).expect("subject");
+    let s = r2human::synth::framing::crop(&full, framing, &assets.rig).expect("crop");
+    let view = render_ground_truth(&s.mesh, &Camera::source(RES));
+    let rgb = Image { width: RES, height: RES, data: view.albedo.clone() };
+    let (mask, frame) = (view.mask_image(), s.source_frame(RES));
+    (s, rgb, mask, frame)
+}
+
 /// Partial views through the pose network: clothed subjects cropped like photos (`synth::framing`, the frame ending
 /// at the cut) give a body that fits what the photo shows — the visible joints near the subject's own, no legs
 /// invented inside the photo (the fitted knees and ankles lie below its bottom edge), a finite pose — and a
@@ -503,7 +515,7 @@ fn live_frames_of_a_still_cut_person_hold_the_body() {
 fn framed_subjects_fit_what_the_photo_shows() {
     use r2human::body::model::ModelPoint;
     use r2human::body::pose::PoseEstimator;
-    use r2human::synth::framing::{crop, Framing};
+    use r2human::synth::framing::Framing;
     let Some(model_file) = installed_pose_model() else { return };
     let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
     let model = BodyModel::shared().expect("body model data");
@@ -516,13 +528,8 @@ fn framed_subjects_fit_what_the_photo_shows() {
     let cases = [(23usize, Framing::Upper), (10, Framing::ThreeQuarter)];
     for (index, framing) in cases {
         let seed = r2human::eval::dataset::subject_seed(0, index);
-        let full = synth::generate(assets, &SubjectParams::sample(seed), 64).expect("subject");
-        let s = crop(&full, framing, &assets.rig).expect("crop");
+        let (s, rgb, mask, frame) = framed_source(assets, index, framing);
         assert_eq!(s.crop.framing, framing, "seed {seed}: the crop fell back");
-        let view = render_ground_truth(&s.mesh, &Camera::source(RES));
-        let rgb = Image { width: RES, height: RES, data: view.albedo.clone() };
-        let mask = view.mask_image();
-        let frame = s.source_frame(RES);
         assert!(frame.1.y < RES as f32 - 4.0, "a cropped subject's photo ends at the cut: {frame:?}");
         let lm = net.estimate(&rgb, &mask, Some(frame)).expect("runs").expect("a pose");
         let fit = fit_body(model, &FitTarget::new(&lm, &mask), None, &FitOptions::default());
