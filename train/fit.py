@@ -315,25 +315,34 @@ def permute_colours(b, gen):
     return out
 
 
+def recoloured(b, f):
+    """`b` with every colour image recoloured in linear light by `f(colour, coverage)`, which maps premultiplied
+    linear colours over their coverage (the mask for the photo and its back image, 1 for straight colours) and acts
+    on each item alone: the photo (`src_linear`) and its back image, the encoder's sRGB input (`src_image`, from the
+    recoloured straight photo, -1 outside the mask) and the targets (`ref_rgb`, `mv_rgb`, sRGB in [-1, 1]); the other
+    tensors as they are. A recolouring that is linear per item (an inversion, a gain) commutes with the lookup."""
+    out = dict(b)
+    mask = b["src_mask"]
+    for k in ("src_linear", "src_back_linear"):
+        if k in b:
+            out[k] = f(b[k], mask)
+    straight = f(b["src_linear"] / mask.clamp_min(1e-6), torch.ones_like(mask))
+    out["src_image"] = torch.where(mask > 0, linear_to_srgb(straight) * 2 - 1, torch.full_like(straight, -1.0))
+    for k in ("ref_rgb", "mv_rgb"):
+        if k in b:
+            linear = srgb_to_linear((b[k] + 1) / 2)
+            out[k] = linear_to_srgb(f(linear, torch.ones_like(linear[:, :1]))) * 2 - 1
+    return out
+
+
 def invert_colours(b, gen, p=0.5):
     """Inverts the colours of a random share `p` of the items in linear light (`L -> 1 - L`), alike in the photo
     (`src_image`, `src_linear`), its back image and the targets, the other tensors untouched: consistent through the
     lookup, so a decoder trained on it cannot learn whether the synthetic people's hidden surfaces are usually bright
     or dark (the permuted fine-tune still painted the back of dark heads white on real photos)."""
     flip = (torch.rand(b["src_image"].shape[0], generator=gen) < p).to(b["src_image"].device)[:, None, None, None]
-    out = dict(b)
-    mask = b["src_mask"]
-    for k in ("src_linear", "src_back_linear"):
-        if k in b:
-            out[k] = torch.where(flip, mask - b[k], b[k])
-    straight = b["src_linear"] / mask.clamp_min(1e-6)
-    image = torch.where(mask > 0, linear_to_srgb(1 - straight) * 2 - 1, torch.full_like(straight, -1.0))
-    out["src_image"] = torch.where(flip, image, b["src_image"])
-    for k in ("ref_rgb", "mv_rgb"):
-        if k in b:
-            inverted = linear_to_srgb(1 - srgb_to_linear((b[k] + 1) / 2)) * 2 - 1
-            out[k] = torch.where(flip, inverted, b[k])
-    return out
+    inverted = recoloured(b, lambda colour, coverage: coverage - colour)
+    return {k: torch.where(flip, inverted[k], v) if k in COLOUR_KEYS and k in inverted else v for k, v in b.items()}
 
 
 def gain_colours(b, gen, lowest=0.2):
@@ -346,17 +355,7 @@ def gain_colours(b, gen, lowest=0.2):
     n = b["src_image"].shape[0]
     log_gain = torch.rand(n, 3, generator=gen) * math.log(lowest)
     gain = log_gain.exp().to(b["src_image"].device)[:, :, None, None]
-    out = dict(b)
-    mask = b["src_mask"]
-    for k in ("src_linear", "src_back_linear"):
-        if k in b:
-            out[k] = b[k] * gain
-    straight = b["src_linear"] * gain / mask.clamp_min(1e-6)
-    out["src_image"] = torch.where(mask > 0, linear_to_srgb(straight) * 2 - 1, torch.full_like(straight, -1.0))
-    for k in ("ref_rgb", "mv_rgb"):
-        if k in b:
-            out[k] = linear_to_srgb(srgb_to_linear((b[k] + 1) / 2) * gain) * 2 - 1
-    return out
+    return recoloured(b, lambda colour, coverage: colour * gain)
 
 
 def save_checkpoint(args, model, opt, step, ds, elapsed, world):

@@ -370,6 +370,21 @@ class LossTest(unittest.TestCase):
         self.assertGreater(float(l_bad), 8 * float(l_gt))
 
 
+def colour_batch(seed):
+    """Two items of an 8x8 renderer batch for the colour augmentations: the mask (a 4x4 square), the photo's sRGB
+    colours, and the batch (photo premultiplied in linear light and as the encoder's input, a back image, targets
+    equal to the photo)."""
+    h = w = 8
+    mask = torch.zeros(2, 1, h, w)
+    mask[..., 2:6, 3:7] = 1
+    g = torch.Generator().manual_seed(seed)
+    srgb = torch.rand(2, 3, h, w, generator=g)
+    b = {"src_mask": mask, "src_linear": srgb_to_linear(srgb) * mask, "src_image": srgb * mask * 2 - 1,
+         "src_back_linear": srgb_to_linear(torch.rand(2, 3, h, w, generator=g)) * mask,
+         "ref_rgb": srgb * 2 - 1}
+    return mask, srgb, b
+
+
 class NetsTest(unittest.TestCase):
     def test_shapes_per_tier(self):
         for tier in ("tiny", "small"):
@@ -512,48 +527,30 @@ class NetsTest(unittest.TestCase):
         # Inverted in linear light, the photo's lookup is the inverted lookup, and the encoder's input and the targets
         # are the inverted colours: every item either all inverted or all as it was.
         from train.fit import invert_colours
-        h = w = 8
-        mask = torch.zeros(2, 1, h, w)
-        mask[..., 2:6, 3:7] = 1
-        g = torch.Generator().manual_seed(6)
-        srgb = torch.rand(2, 3, h, w, generator=g)
-        b = {"src_mask": mask, "src_linear": srgb_to_linear(srgb) * mask, "src_image": srgb * mask * 2 - 1,
-             "src_back_linear": srgb_to_linear(torch.rand(2, 3, h, w, generator=g)) * mask,
-             "ref_rgb": srgb * 2 - 1}
+        mask, srgb, b = colour_batch(6)
         out = invert_colours(b, torch.Generator().manual_seed(0), p=1.0)
-        want = linear_to_srgb(1 - srgb_to_linear(srgb))
-        self.assertTrue(torch.allclose(out["ref_rgb"], want * 2 - 1, atol=1e-5))
-        self.assertTrue(torch.allclose(out["src_image"], torch.where(mask > 0, want * 2 - 1, torch.tensor(-1.0)),
-                                       atol=1e-5))
-        depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
-        eye, half = torch.eye(4)[None].expand(2, 4, 4), torch.ones(2, 2)
-        grid, _, tmask = transfer(depth, eye, half, eye, half)
-        rgb, _ = warp_rgb(out["src_linear"], mask, grid, tmask)
-        self.assertTrue(torch.allclose(rgb, (want * 2 - 1) * mask, atol=1e-5))
+        self.assert_recoloured(out, mask, linear_to_srgb(1 - srgb_to_linear(srgb)))
         self.assertTrue(torch.equal(invert_colours(b, torch.Generator().manual_seed(0), p=0.0)["ref_rgb"], b["ref_rgb"]))
 
     def test_colour_gain_commutes_with_the_lookup(self):
         # One gain per item and channel in linear light, within [0.2, 1], the same in the lookup, the encoder's input
         # and the targets; the items differ.
         from train.fit import gain_colours
-        h = w = 8
-        mask = torch.zeros(2, 1, h, w)
-        mask[..., 2:6, 3:7] = 1
-        g = torch.Generator().manual_seed(7)
-        srgb = torch.rand(2, 3, h, w, generator=g)
+        mask, srgb, b = colour_batch(7)
         linear = srgb_to_linear(srgb)
-        b = {"src_mask": mask, "src_linear": linear * mask, "src_image": srgb * mask * 2 - 1,
-             "src_back_linear": srgb_to_linear(torch.rand(2, 3, h, w, generator=g)) * mask,
-             "ref_rgb": srgb * 2 - 1}
         out = gain_colours(b, torch.Generator().manual_seed(0))
         gain = out["src_linear"][:, :, 3, 4] / linear[:, :, 3, 4]
         self.assertTrue(bool(((gain >= 0.2 - 1e-6) & (gain <= 1 + 1e-6)).all()), gain)
         self.assertFalse(torch.allclose(gain[0], gain[1]))
-        want = linear_to_srgb(linear * gain[:, :, None, None])
+        self.assertTrue(torch.allclose(out["src_back_linear"], b["src_back_linear"] * gain[:, :, None, None]))
+        self.assert_recoloured(out, mask, linear_to_srgb(linear * gain[:, :, None, None]))
+
+    def assert_recoloured(self, out, mask, want):
+        """The targets and the encoder's input are `want` (sRGB in [0, 1]; -1 outside the mask), and the photo's lookup
+        through a view onto itself gives `want` where the person is."""
         self.assertTrue(torch.allclose(out["ref_rgb"], want * 2 - 1, atol=1e-5))
         self.assertTrue(torch.allclose(out["src_image"], torch.where(mask > 0, want * 2 - 1, torch.tensor(-1.0)),
                                        atol=1e-5))
-        self.assertTrue(torch.allclose(out["src_back_linear"], b["src_back_linear"] * gain[:, :, None, None]))
         depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
         eye, half = torch.eye(4)[None].expand(2, 4, 4), torch.ones(2, 2)
         grid, _, tmask = transfer(depth, eye, half, eye, half)
