@@ -106,11 +106,12 @@ impl Region {
 
     /// Whether the tracked square `self` still serves where the square around this frame's person is `next` (both
     /// squares read at `input_size` network pixels a side): their centres within [`Region::HOLD`] of the side on
-    /// each axis and their sides within twice that. The square around a mask moves with every pixel the mask gains or loses at its outline, and the mask the network gives
-    /// moves with the square: on a still person the two chased each other by a pixel from frame to frame (the
-    /// astronaut repeated 20 times: consecutive masks never equal), and every later stage with them. Held, the
-    /// network reads the same input and a still person gets the same mask; the square's margin around the person
-    /// (0.15 of the person's size on each side) keeps a person who moves that little inside it.
+    /// each axis and their sides within twice that. The square around a mask moves with every pixel the mask gains
+    /// or loses at its outline, and the mask the network gives moves with the square: on a still person the two
+    /// chased each other by a pixel from frame to frame (the astronaut repeated 20 times: consecutive masks never
+    /// equal), and every later stage with them. Held, the network reads the same input and a still person gets the
+    /// same mask; the square's margin around the person (0.15 of the person's size on each side) keeps a person who
+    /// moves that little inside it.
     fn holds(&self, next: &Region, input_size: f32) -> bool {
         let side = |r: &Region| r.sx * input_size;
         let centre = |r: &Region| (r.x0 + 0.5 * side(r), r.y0 + 0.5 * side(r));
