@@ -102,7 +102,7 @@ fn main() {
                 Image { width: RES, height: RES, data: b.data.iter().zip(m).map(|(c, &w)| c.extend(w)).collect() };
             save_rgba(&img, &dir.join(format!("{name}_back_image.png")));
         }
-        let colours = SourceColours { rgb: &src_rgb, back: back.as_ref() };
+        let colours = SourceColours { rgb: &src_rgb, back: back.as_ref(), side: None };
         println!("{name}: {} triangles", mesh.triangle_count());
         for &(yaw, pitch) in &views {
             let cam = Camera::orbit(yaw, pitch, RES, RES);

@@ -18,7 +18,7 @@ layout(std140, set = 0, binding = 0) uniform Frame {
     Cam viewer;    // panorama lookup camera (VR)
     Cam previous;  // the previous view (spatial fusion)
     // x: environment yaw (radians), y: weight of the previous output in spatial fusion (Eq. 8),
-    // z: visibility lambda (Eq. 9), w: occlusion fill (0 mirrored front, 1 propagate)
+    // z: visibility lambda (Eq. 9), w: occlusion fill (0 mirrored front, 1 propagate, 2 back)
     vec4 params;
     // rgb: mean colour of the person in the photo (fill when the view sees nothing of the photo)
     vec4 mean_color;
@@ -29,6 +29,8 @@ layout(std140, set = 0, binding = 0) uniform Frame {
     // x: swizzle to BGRA when encoding (0/1), y: output is an AR layer shown over grey (0/1),
     // z, w: size of the text overlay rectangle at the top left (0: none)
     uvec4 output_format;
+    // x: the side images (warp.rs: SideImages) are stored after the photo and the back image (0/1)
+    uvec4 source_images;
 } frame;
 
 vec2 pixel_to_ndc(Cam c, vec2 px) {

@@ -290,7 +290,7 @@ fn psnr_rgba(a: &RgbaImage, b: &RgbaImage) -> f64 {
 
 #[test]
 fn warp_and_hole_fill_match_cpu() {
-    use r2human::pipeline::warp::{render_from_flow, OcclusionFill, SourceColours};
+    use r2human::pipeline::warp::{render_from_flow, OcclusionFill, SideImages, SourceColours};
     let Some(ctx) = context() else { return };
     let mesh = scene();
     let n = 64;
@@ -299,10 +299,13 @@ fn warp_and_hole_fill_match_cpu() {
     // A back image unlike the photo (its complement, premultiplied by the same mask), stored after the photo.
     let back_img = src_img.map(|p| ((Vec3::ONE - p.truncate()) * p.w).extend(p.w));
     let back_rgb = back_img.map(|p| p.truncate());
-    let colours = SourceColours { rgb: &src_rgb, back: Some(&back_rgb) };
+    // With the side images (both blurred) that surfaces seen edge-on take.
+    let side = SideImages::of(&src_rgb, Some(&back_rgb), &src_mask);
+    let colours = SourceColours { rgb: &src_rgb, back: Some(&back_rgb), side: Some(&side) };
+    let sharp = SourceColours { side: None, ..colours };
     let mut r = Renderer::new(ctx.clone(), n, n).unwrap();
-    r.set_source_with_back(&src_img, Some(&back_img), &src_g, &src_cam).unwrap();
-    let mut back_differs = 0;
+    r.set_source_parts(colours, &src_mask, &src_g, &src_cam).unwrap();
+    let (mut back_differs, mut side_differs) = (0, 0);
     for fill in [OcclusionFill::MirroredFront, OcclusionFill::Propagate, OcclusionFill::Back] {
         r.set_fill(fill);
         for cam in cameras(n) {
@@ -311,6 +314,9 @@ fn warp_and_hole_fill_match_cpu() {
             let vis = visibility(&flowz, &src_g, &src_cam, VISIBILITY_LAMBDA);
             let cpu = render_from_flow(colours, &src_mask, &src_cam, &target, &cam, &flowz, &vis, fill);
             let gpu = r.warp_from_flow(&target, &flowz, &vis, &cam).unwrap();
+            let without_side = render_from_flow(sharp, &src_mask, &src_cam, &target, &cam, &flowz, &vis, fill);
+            side_differs +=
+                gpu.data.iter().zip(&without_side.data).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3).count();
             let p = psnr_rgba(&cpu, &gpu);
             let max = cpu.data.iter().zip(&gpu.data).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
             eprintln!("warp {fill:?} {:?}: PSNR {p:.1} dB, max abs {max:.2e}", cam.projection);
@@ -333,8 +339,10 @@ fn warp_and_hole_fill_match_cpu() {
             }
         }
     }
-    // The back image was used where surfaces face away from the source (the back view's pixels).
+    // The back image was used where surfaces face away from the source (the back view's pixels), the side images
+    // where they turn edge-on.
     assert!(back_differs > 100, "{back_differs}");
+    assert!(side_differs > 100, "{side_differs}");
     // Without a back image the back fill is the mirrored-front fill.
     r.set_source(&src_img, &src_g, &src_cam).unwrap();
     let cam = Camera::orbit(180.0, -35.0, n, n);

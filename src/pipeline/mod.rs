@@ -1103,8 +1103,11 @@ pub fn decode_person_view(
     camera: &Camera,
     fill: OcclusionFill,
 ) -> Result<RgbaImage, NeuralError> {
-    let back = neural_back_lookup(fill).then_some((target, camera));
-    let lookup = photo_lookup(source.colours(), source.mask, source.camera, flowz, back);
+    let mut colours = source.colours();
+    if !neural_back_lookup(fill) {
+        colours.back = None;
+    }
+    let lookup = photo_lookup(colours, source.mask, source.camera, flowz, Some((target, camera)));
     let mut person = decoder.render_view(features, flowz, source.camera.width, target, &lookup)?;
     let seen = crate::geometry::zmap::visibility(
         flowz,
@@ -1137,16 +1140,18 @@ pub fn keep_photo_where_seen(person: &mut RgbaImage, lookup: &RgbaImage, seen: &
 
 /// The residual decoder's colour lookup (its `warped_rgb` input): for every target pixel with a flow, the source
 /// colour at the flow by the geometric renderer's lookup ([`warp::SourceColours::sample`]: the photo, `rgb` linear
-/// premultiplied by `source_mask`, sampled mask-aware and bilinearly; with `back`, surfaces facing away from the
-/// source camera blended into the back image by [`warp::back_weight`]), clamped to `[0, 1]`. Without `back` this is
-/// the geometric renderer's `MirroredFront` lookup without the visibility test and without filling holes: alpha is
-/// 1 where the photo has a colour and 0 where the flow lands outside the source silhouette (or there is no flow).
+/// premultiplied by `source_mask`, sampled mask-aware and bilinearly), clamped to `[0, 1]`. With `target` (the
+/// view's G-buffer, of the flow's size, and camera) its normals blend in the colours' back image on surfaces facing
+/// away from the source camera ([`warp::back_weight`]) and their side images on surfaces it sees edge-on
+/// ([`warp::side_weight`]), each when the colours have them. Without `target` this is the geometric renderer's
+/// `MirroredFront` lookup of the sharp photo without the visibility test and without filling holes: alpha is 1
+/// where the photo has a colour and 0 where the flow lands outside the source silhouette (or there is no flow).
 pub fn photo_lookup<'a>(
     source_rgb: impl Into<warp::SourceColours<'a>>,
     source_mask: &GrayImage,
     source_cam: &Camera,
     flowz: &FlowZ,
-    back: Option<(&GBuffer, &Camera)>,
+    target: Option<(&GBuffer, &Camera)>,
 ) -> RgbaImage {
     let colours: warp::SourceColours = source_rgb.into();
     let source_rgb = colours.rgb;
@@ -1159,10 +1164,11 @@ pub fn photo_lookup<'a>(
     {
         return out;
     }
-    // The back image only with a target G-buffer of the flow's size (its normals decide the weight).
-    let back = back.filter(|(g, _)| (g.width, g.height) == (w, h) && colours.back.is_some());
-    let fill = if back.is_some() { OcclusionFill::Back } else { OcclusionFill::MirroredFront };
-    let axis = back.map_or(glam::Vec3::ZERO, |(_, cam)| warp::source_axis(cam, source_cam));
+    // The normals only from a target G-buffer of the flow's size.
+    let target = target.filter(|(g, _)| (g.width, g.height) == (w, h));
+    let fill =
+        if target.is_some() && colours.back.is_some() { OcclusionFill::Back } else { OcclusionFill::MirroredFront };
+    let axis = target.map_or(glam::Vec3::ZERO, |(_, cam)| warp::source_axis(cam, source_cam));
     // Flow is in the source camera's pixels; the photo may have another size.
     let scale = Vec2::new(
         source_rgb.width as f32 / source_cam.width.max(1) as f32,
@@ -1172,8 +1178,10 @@ pub fn photo_lookup<'a>(
         for (col, o) in line.iter_mut().enumerate() {
             let i = row * w + col;
             if flowz.mask[i] {
-                let b = back.map_or(0.0, |(g, _)| warp::back_weight(g.normal[i], axis));
-                if let Some(c) = colours.sample(source_mask, flowz.flow.data[i] * scale, b, fill) {
+                let (b, s) = target.map_or((0.0, 0.0), |(g, _)| {
+                    (warp::back_weight(g.normal[i], axis), warp::side_weight(g.normal[i], axis))
+                });
+                if let Some(c) = colours.sample(source_mask, flowz.flow.data[i] * scale, b, s, fill) {
                     *o = c.clamp(glam::Vec3::ZERO, glam::Vec3::ONE).extend(1.0);
                 }
             }
@@ -1203,6 +1211,8 @@ pub struct PreparedInput {
     pub source_gbuffer: GBuffer,
     /// The back image ([`back::back_image`]) when `back_pose` was given and found a face.
     pub back: Option<RgbImage>,
+    /// The photo and the back image blurred for the surfaces the photo sees edge-on ([`warp::SideImages`]).
+    pub side: warp::SideImages,
     /// How long each per-input stage took.
     pub timings: StageTimings,
 }
@@ -1242,7 +1252,7 @@ impl PreparedInput {
         let mut back_timings = StageTimings::default();
         // The colours are only read by the back image and the renderers, so their rim is cleaned beside the mesh.
         let rim = input::RIM_FRACTION * opts.resolution as f32;
-        let (geometry, (normalised, back)) = rayon::join(
+        let (geometry, (normalised, back, side)) = rayon::join(
             || -> Result<(TriMesh, GBuffer), PipelineError> {
                 let mesh =
                     timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
@@ -1260,12 +1270,14 @@ impl PreparedInput {
                     back_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
                 let back =
                     opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings));
-                (normalised, back)
+                let side = back_timings
+                    .time("side images", || warp::SideImages::of(&normalised.rgb, back.as_ref(), &normalised.mask));
+                (normalised, back, side)
             },
         );
         let (mesh, source_gbuffer) = geometry?;
         timings.0.extend(back_timings.0);
-        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, timings })
+        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, side, timings })
     }
 }
 

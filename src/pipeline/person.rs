@@ -14,6 +14,7 @@ use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::raster::GBuffer;
 use crate::geometry::{Camera, TriMesh};
 
+use super::warp::SideImages;
 use super::{NeuralInput, PreparedInput, SharedNeural};
 
 /// The person as every renderer receives it: the mesh in body-cube coordinates and the source view it warps
@@ -32,6 +33,8 @@ pub struct SourceView<'a> {
     pub camera: &'a Camera,
     /// The input's back image ([`super::back`]), when it has one.
     pub back: Option<&'a RgbImage>,
+    /// The photo and the back image blurred for surfaces seen edge-on ([`super::warp::SideImages`]), when given.
+    pub side: Option<&'a SideImages>,
 }
 
 impl<'a> SourceView<'a> {
@@ -44,12 +47,13 @@ impl<'a> SourceView<'a> {
             gbuffer: &input.source_gbuffer,
             camera: &input.source_camera,
             back: input.back.as_ref(),
+            side: Some(&input.side),
         }
     }
 
-    /// The colours the renderers sample: the photo and the back image.
+    /// The colours the renderers sample: the photo, the back image and the side images.
     pub fn colours(&self) -> super::warp::SourceColours<'a> {
-        super::warp::SourceColours { rgb: self.rgb, back: self.back }
+        super::warp::SourceColours { rgb: self.rgb, back: self.back, side: self.side }
     }
 }
 
@@ -85,6 +89,8 @@ pub struct Scene {
     pub camera: Camera,
     /// The input's back image, when it has one.
     pub back: Option<RgbImage>,
+    /// The side images ([`SideImages`]), when given.
+    pub side: Option<SideImages>,
     /// The neural renderer and the encoder's output for this input; `None` draws geometrically.
     pub neural: Option<SceneNeural>,
 }
@@ -99,6 +105,7 @@ impl Scene {
             gbuffer: input.source_gbuffer.clone(),
             camera: input.source_camera,
             back: input.back.clone(),
+            side: Some(input.side.clone()),
             neural,
         }
     }
@@ -112,6 +119,7 @@ impl Scene {
             gbuffer: &self.gbuffer,
             camera: &self.camera,
             back: self.back.as_ref(),
+            side: self.side.as_ref(),
         }
     }
 
@@ -381,6 +389,7 @@ mod tests {
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
             back: None,
+            side: None,
             neural: None,
         }
     }

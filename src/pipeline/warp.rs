@@ -3,7 +3,8 @@
 //!
 //! [`render_geometric`] follows the data path of the paper with the decoder replaced by a colour lookup: target
 //! depth -> flow and Z-map (Eq. 4) -> visibility (Eq. 9) -> visible pixels take the source colour at the flow
-//! (bilinear, mask-aware) -> occluded pixels get an [`OcclusionFill`].
+//! (bilinear, mask-aware; surfaces the photo sees edge-on blend in its blurred [`SideImages`]) -> occluded pixels
+//! get an [`OcclusionFill`].
 //!
 //! # Colour conventions
 //! - `source_rgb` is linear RGB **premultiplied by `source_mask`** (the reference feeds `img * mask`), so the
@@ -67,20 +68,96 @@ pub enum OcclusionFill {
     Propagate,
 }
 
-/// The colours the renderers sample at the flow: the photo (linear RGB premultiplied by the source mask) and, for
-/// [`OcclusionFill::Back`], the input's back image (the same size, premultiplied by the same mask).
+/// The colours the renderers sample at the flow: the photo (linear RGB premultiplied by the source mask), for
+/// [`OcclusionFill::Back`] the input's back image (the same size, premultiplied by the same mask), and the side
+/// images ([`SideImages`]) that surfaces the photo sees edge-on take.
 #[derive(Clone, Copy, Debug)]
 pub struct SourceColours<'a> {
     /// The photo.
     pub rgb: &'a RgbImage,
     /// The back image, when the input has one.
     pub back: Option<&'a RgbImage>,
+    /// The photo and the back image blurred for surfaces seen edge-on; without them those surfaces take the
+    /// sharp images' colours (the photo's pixels stretched along the surface).
+    pub side: Option<&'a SideImages>,
 }
 
 impl<'a> From<&'a RgbImage> for SourceColours<'a> {
     fn from(rgb: &'a RgbImage) -> Self {
-        Self { rgb, back: None }
+        Self { rgb, back: None, side: None }
     }
+}
+
+/// How much a surface takes the side images: where the photo sees it edge-on, one photo pixel's colour is stretched
+/// along its whole depth, so the vertical run of pixels along the outline (an ear, a collar, spectacles, the hem)
+/// became horizontal stripes in every view from the side (README "Colours from the side"). A blur of the photo
+/// along and across the outline turns them into the mean colour of that stretch of outline.
+/// The blur is a standard deviation of [`SIDE_BLUR`] of the source image's width; the weight is
+/// [`side_weight`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct SideImages {
+    /// The photo blurred (mask-aware), premultiplied by the sharp mask.
+    pub rgb: RgbImage,
+    /// The back image blurred the same way, when the input has one.
+    pub back: Option<RgbImage>,
+}
+
+/// Standard deviation of the side images' blur as a fraction of the source image's width (4 px at 512²).
+pub const SIDE_BLUR: f32 = 4.0 / 512.0;
+
+/// Up to which `|source-view z|` of a surface's unit normal the side images blend in: 1 seen edge-on, 0 from
+/// this on (`1 - smoothstep(0, SIDE_RAMP, |z|)`).
+pub const SIDE_RAMP: f32 = 0.5;
+
+impl SideImages {
+    /// The side images of a photo and its back image (both premultiplied by `mask`, of its size; a back image of
+    /// another size is left out): each blurred mask-aware, `blur(c m) / blur(m)` (the background never bleeds in),
+    /// premultiplied again by the sharp mask so that [`sample_masked`] reads them like the sharp images.
+    pub fn of(rgb: &RgbImage, back: Option<&RgbImage>, mask: &GrayImage) -> Self {
+        let sigma = SIDE_BLUR * rgb.width as f32;
+        let back = back.filter(|b| (b.width, b.height) == (rgb.width, rgb.height));
+        Self { rgb: blur_masked(rgb, mask, sigma), back: back.map(|b| blur_masked(b, mask, sigma)) }
+    }
+
+    /// The blurred colours as [`SourceColours`] without side images of their own.
+    fn colours(&self) -> SourceColours<'_> {
+        SourceColours { rgb: &self.rgb, back: self.back.as_ref(), side: None }
+    }
+}
+
+/// `blur(c m) / blur(m)` with a Gaussian-like blur of standard deviation `sigma` pixels (`image`'s
+/// `fast_blur`: three box passes), premultiplied by `mask`; an image and a mask of other sizes give the image
+/// unchanged.
+fn blur_masked(rgb: &RgbImage, mask: &GrayImage, sigma: f32) -> RgbImage {
+    let (w, h) = (rgb.width, rgb.height);
+    if mask.data.len() != w * h || w == 0 || h == 0 || sigma.is_nan() || sigma <= 0.0 {
+        return rgb.clone();
+    }
+    // Premultiplied colour in the first three channels, coverage in the fourth.
+    let flat: Vec<f32> = rgb
+        .data
+        .iter()
+        .zip(&mask.data)
+        .flat_map(|(c, &m)| {
+            let m = if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 };
+            [c.x, c.y, c.z, m]
+        })
+        .collect();
+    let Some(buffer) = image::ImageBuffer::<image::Rgba<f32>, Vec<f32>>::from_raw(w as u32, h as u32, flat) else {
+        return rgb.clone();
+    };
+    let blurred = image::imageops::fast_blur(&buffer, sigma);
+    let mut out = Image::new(w, h, Vec3::ZERO);
+    for ((o, px), &m) in out.data.iter_mut().zip(blurred.pixels()).zip(&mask.data) {
+        let [r, g, b, cover] = px.0;
+        if cover > 1e-6 && m > 0.0 {
+            let c = Vec3::new(r, g, b) / cover * m.min(1.0);
+            if c.is_finite() {
+                *o = c;
+            }
+        }
+    }
+    out
 }
 
 impl<'a> SourceColours<'a> {
@@ -90,10 +167,23 @@ impl<'a> SourceColours<'a> {
     }
 
     /// The source colour at `p` (continuous source pixels): the photo blended with the back image by `back`
-    /// (0: the photo, 1: the back image; the back image is ignored when absent), both by [`sample_masked`]. The
-    /// one lookup every renderer of the fill follows (`render_from_flow`, [`crate::pipeline::photo_lookup`],
-    /// `shaders/warp.comp`, the glTF export's texture).
-    pub fn sample(&self, mask: &GrayImage, p: Vec2, back: f32, fill: OcclusionFill) -> Option<Vec3> {
+    /// (0: the photo, 1: the back image; the back image is ignored when absent), both by [`sample_masked`], and
+    /// that blended with the same lookup in the side images by `side` (0: sharp, 1: the side images; ignored when
+    /// absent). The one lookup every renderer of the fill follows (`render_from_flow`,
+    /// [`crate::pipeline::photo_lookup`], `shaders/warp.comp`; the glTF export's texture is the sharp images').
+    pub fn sample(&self, mask: &GrayImage, p: Vec2, back: f32, side: f32, fill: OcclusionFill) -> Option<Vec3> {
+        let sharp = self.sample_sharp(mask, p, back, fill)?;
+        match self.side.filter(|_| side > 0.0) {
+            Some(images) => {
+                let blurred = images.colours().sample_sharp(mask, p, back, fill).unwrap_or(sharp);
+                Some(if side >= 1.0 { blurred } else { sharp * (1.0 - side) + blurred * side })
+            }
+            None => Some(sharp),
+        }
+    }
+
+    /// [`SourceColours::sample`] without the side images.
+    fn sample_sharp(&self, mask: &GrayImage, p: Vec2, back: f32, fill: OcclusionFill) -> Option<Vec3> {
         let Some(image) = self.back_for(fill).filter(|_| back > 0.0) else { return sample_masked(self.rgb, mask, p) };
         // Both images are premultiplied by the same mask: they have a colour at the same points.
         let behind = sample_masked(image, mask, p)?;
@@ -122,6 +212,18 @@ pub fn back_weight(normal: Vec3, axis: Vec3) -> f32 {
     let t = (-normal.dot(axis) / BACK_FACING_RAMP).clamp(0.0, 1.0);
     if t.is_finite() {
         t * t * (3.0 - 2.0 * t)
+    } else {
+        0.0
+    }
+}
+
+/// How much the surface with unit target-view normal `normal` takes the side images ([`SideImages`]):
+/// `1 - smoothstep(0, SIDE_RAMP, |normal . axis|)` with `axis` = [`source_axis`]: 1 for a surface the source camera
+/// sees edge-on, 0 for one facing toward or away from it by [`SIDE_RAMP`] or more. 0 for a non-finite normal.
+pub fn side_weight(normal: Vec3, axis: Vec3) -> f32 {
+    let t = (normal.dot(axis).abs() / SIDE_RAMP).clamp(0.0, 1.0);
+    if t.is_finite() {
+        1.0 - t * t * (3.0 - 2.0 * t)
     } else {
         0.0
     }
@@ -185,8 +287,10 @@ pub fn render_from_flow<'a>(
             }
             let take = vis[i] || fill != OcclusionFill::Propagate;
             if take && same_size {
-                let b = if back && !vis[i] { back_weight(target_gbuf.normal[i], axis) } else { 0.0 };
-                if let Some(c) = colours.sample(source_mask, flowz.flow.data[i] * scale, b, fill) {
+                let normal = target_gbuf.normal[i];
+                let b = if back && !vis[i] { back_weight(normal, axis) } else { 0.0 };
+                let s = side_weight(normal, axis);
+                if let Some(c) = colours.sample(source_mask, flowz.flow.data[i] * scale, b, s, fill) {
                     cr[col] = c;
                     kr[col] = true;
                 }
@@ -568,10 +672,116 @@ mod tests {
     }
 
     #[test]
+    fn side_weight_in_closed_form() {
+        let src = Camera::source(8);
+        let axis = source_axis(&src, &src);
+        // Seen edge-on: the side images alone; facing the camera or away from it by the ramp or more: none.
+        assert_eq!(side_weight(Vec3::X, axis), 1.0);
+        assert_eq!(side_weight(Vec3::Z, axis), 0.0);
+        assert_eq!(side_weight(-Vec3::Z, axis), 0.0);
+        assert_eq!(side_weight(Vec3::new(0.0, 0.8, -0.6), axis), 0.0);
+        // Halfway through the ramp, toward or away: 1 - smoothstep(0.5) = 0.5.
+        for z in [0.25f32, -0.25] {
+            let n = Vec3::new(0.0, (1.0 - z * z).sqrt(), z);
+            assert!((side_weight(n, axis) - 0.5).abs() < 1e-6, "{z}");
+        }
+        // A tenth of the ramp: 1 - (3 t^2 - 2 t^3) with t = 0.1.
+        let n = Vec3::new((1.0 - 0.0025f32).sqrt(), 0.0, 0.05);
+        assert!((side_weight(n, axis) - 0.972).abs() < 1e-5);
+        assert_eq!(side_weight(Vec3::NAN, axis), 0.0);
+    }
+
+    #[test]
+    fn side_images_blur_inside_the_mask_only() {
+        // A disc of horizontal stripes (red and green rows, 2 px each) on black, its back image all blue.
+        let res = 256;
+        let mask = Image::from_fn(res, res, |c, r| {
+            let (x, y) = (c as f32 + 0.5 - 128.0, r as f32 + 0.5 - 128.0);
+            if x * x + y * y < 80.0 * 80.0 {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        let stripes = Image::from_fn(res, res, |c, r| {
+            let colour = if (r / 2) % 2 == 0 { Vec3::X } else { Vec3::Y };
+            colour * mask.data[r * res + c]
+        });
+        let back = mask.map(|&m| Vec3::Z * m);
+        let side = SideImages::of(&stripes, Some(&back), &mask);
+        // sigma = 2 px at 256 (SIDE_BLUR of the width).
+        assert!((SIDE_BLUR * res as f32 - 2.0).abs() < 1e-6);
+        for (i, &m) in mask.data.iter().enumerate() {
+            let (c, b) = (side.rgb.data[i], side.back.as_ref().unwrap().data[i]);
+            if m == 0.0 {
+                // Outside the person nothing, as in the sharp images.
+                assert_eq!((c, b), (Vec3::ZERO, Vec3::ZERO));
+                continue;
+            }
+            // Inside: a mix of the stripes only (no black from the background, even on the outline) and the back
+            // image's blue unchanged.
+            assert!((c.x + c.y - 1.0).abs() < 1e-4 && c.z.abs() < 1e-6, "{i}: {c}");
+            assert!((b - Vec3::Z).abs().max_element() < 1e-4, "{i}: {b}");
+        }
+        // The stripes are flattened: row to row the blurred colour changes far less than the sharp one.
+        let step = |img: &RgbImage| {
+            (60..196).map(|r| (img.data[r * res + 128] - img.data[(r + 1) * res + 128]).x.abs()).sum::<f32>()
+        };
+        assert!(step(&side.rgb) < 0.1 * step(&stripes), "{} {}", step(&side.rgb), step(&stripes));
+        // A back image of another size is left out; an image without a person stays black.
+        let small = Image::new(8, 8, Vec3::Z);
+        assert!(SideImages::of(&stripes, Some(&small), &mask).back.is_none());
+        let none = SideImages::of(&Image::new(16, 16, Vec3::ZERO), None, &Image::new(16, 16, 0.0));
+        assert!(none.rgb.data.iter().all(|c| *c == Vec3::ZERO));
+    }
+
+    #[test]
+    fn surfaces_seen_edge_on_take_the_side_images() {
+        // A sphere whose photo has horizontal stripes, seen from the side (yaw 90): the pixels near the sphere's
+        // outline in the photo (the surface the photo sees edge-on) are striped without the side images and take
+        // the blurred stripes with them; the surface facing the target camera head-on keeps the photo's.
+        let res = 256;
+        let mesh = TriMesh::uv_sphere(Vec3::ZERO, 0.7, 48, 96);
+        let cam = Camera::source(res);
+        let g = rasterize(&mesh, &cam);
+        let mask = g.mask_image();
+        let stripes = Image::from_fn(res, res, |c, r| {
+            let colour = if (r / 3) % 2 == 0 { Vec3::new(0.9, 0.2, 0.2) } else { Vec3::new(0.2, 0.2, 0.9) };
+            colour * mask.data[r * res + c]
+        });
+        let side = SideImages::of(&stripes, None, &mask);
+        let with = SourceColours { rgb: &stripes, back: None, side: Some(&side) };
+        let tgt = Camera::orbit(90.0, 0.0, res, res);
+        let gt = rasterize(&mesh, &tgt);
+        let sharp = render_geometric(&stripes, &mask, &g, &cam, &gt, &tgt, OcclusionFill::MirroredFront);
+        let soft = render_geometric(with, &mask, &g, &cam, &gt, &tgt, OcclusionFill::MirroredFront);
+        let axis = source_axis(&tgt, &cam);
+        let (mut edge_on, mut sharp_step, mut soft_step) = (0, 0.0f32, 0.0f32);
+        for r in 40..res - 41 {
+            for c in 0..res {
+                let (i, j) = (r * res + c, (r + 1) * res + c);
+                if !(gt.mask[i] && gt.mask[j]) {
+                    continue;
+                }
+                let w = side_weight(gt.normal[i], axis);
+                if w >= 0.99 {
+                    edge_on += 1;
+                    sharp_step += (sharp.data[i] - sharp.data[j]).truncate().abs().max_element();
+                    soft_step += (soft.data[i] - soft.data[j]).truncate().abs().max_element();
+                } else if w == 0.0 {
+                    assert_eq!(sharp.data[i], soft.data[i], "{c},{r}");
+                }
+            }
+        }
+        assert!(edge_on > 200, "{edge_on}");
+        assert!(soft_step < 0.5 * sharp_step, "{soft_step} {sharp_step}");
+    }
+
+    #[test]
     fn the_back_fill_samples_the_back_image_behind_and_the_photo_in_front() {
         let (rgb, mask, g, cam, mesh) = gradient_source(64);
         let back_rgb = mask.map(|&m| Vec3::new(0.0, 0.0, 1.0) * m);
-        let colours = SourceColours { rgb: &rgb, back: Some(&back_rgb) };
+        let colours = SourceColours { rgb: &rgb, back: Some(&back_rgb), side: None };
         // The identity view is all visible: the photo.
         let out = render_geometric(colours, &mask, &g, &cam, &g, &cam, OcclusionFill::Back);
         for i in 0..64 * 64 {
@@ -597,7 +807,7 @@ mod tests {
         );
         // A back image of another size is ignored.
         let small = Image::new(8, 8, Vec3::ONE);
-        let odd = SourceColours { rgb: &rgb, back: Some(&small) };
+        let odd = SourceColours { rgb: &rgb, back: Some(&small), side: None };
         assert_eq!(render_geometric(odd, &mask, &g, &cam, &gt, &tgt, OcclusionFill::Back).data, mirrored.data);
     }
 

@@ -322,6 +322,7 @@ mod tests {
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
             back: None,
+            side: None,
             neural: None,
         };
         let mut feed = StaticScene::new(scene);

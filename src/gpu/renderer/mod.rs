@@ -89,6 +89,7 @@ struct FrameUniforms {
     sizes: [u32; 4],
     flags: [u32; 4],
     output_format: [u32; 4],
+    source_images: [u32; 4],
 }
 
 fn gpu_camera(camera: &Camera, bounds: Option<(Vec3, Vec3)>) -> GpuCamera {

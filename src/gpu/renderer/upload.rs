@@ -120,16 +120,19 @@ impl Renderer {
     /// Uploads the source view (once per input): its premultiplied linear RGB (mask in alpha), its G-buffer
     /// (depth and normals of the mesh seen by the source camera) and the source camera, all of one size.
     pub fn set_source(&mut self, color: &RgbaImage, gbuffer: &GBuffer, camera: &Camera) -> Result<(), GpuError> {
-        self.set_source_with_back(color, None, gbuffer, camera)
+        self.set_source_with_back(color, None, None, gbuffer, camera)
     }
 
     /// [`Renderer::set_source`] with the input's back image ([`crate::pipeline::back`]; premultiplied linear RGB,
     /// the same mask in alpha, the photo's size), which [`OcclusionFill::Back`] samples on surfaces facing away from
-    /// the source camera. It is stored after the photo in the one source colour buffer.
+    /// the source camera, and its side images (the photo and the back image blurred,
+    /// [`crate::pipeline::warp::SideImages`], same layout), which surfaces seen edge-on blend in. One source colour
+    /// buffer holds them at fixed offsets: the photo, the back image, the side photo, the side back image.
     pub fn set_source_with_back(
         &mut self,
         color: &RgbaImage,
         back: Option<&RgbaImage>,
+        side: Option<(&RgbaImage, Option<&RgbaImage>)>,
         gbuffer: &GBuffer,
         camera: &Camera,
     ) -> Result<(), GpuError> {
@@ -140,22 +143,31 @@ impl Renderer {
                 color.width, color.height, gbuffer.width, gbuffer.height
             )));
         }
-        if back.is_some_and(|b| (b.width, b.height) != (w, h)) {
-            return Err(GpuError::Invalid("the back image and the source image differ in size".into()));
+        let wrong = |img: Option<&RgbaImage>| img.is_some_and(|b| (b.width, b.height) != (w, h));
+        if wrong(back) || wrong(side.map(|s| s.0)) || wrong(side.and_then(|s| s.1)) {
+            return Err(GpuError::Invalid("the back or side images and the source image differ in size".into()));
         }
         let bytes = (w * h * 16) as u64;
-        // Room for the photo and the back image.
-        if self.source_color.size < 2 * bytes || self.source_geometry.size < bytes {
-            self.source_color = storage(&self.ctx, 2 * bytes)?;
+        // Room for the photo, the back image and their side images.
+        if self.source_color.size < 4 * bytes || self.source_geometry.size < bytes {
+            self.source_color = storage(&self.ctx, 4 * bytes)?;
             self.source_geometry = storage(&self.ctx, bytes)?;
             self.counters.resources_created += 2;
             self.write_all_descriptors();
         }
-        match back {
-            Some(b) => self.source_color.write(&[color.data.as_slice(), b.data.as_slice()].concat()),
-            None => self.source_color.write(&color.data),
+        // Each image at its fixed offset, up to the last one present (a missing one in between stays zero).
+        let parts = [Some(color), back, side.map(|s| s.0), side.and_then(|s| s.1)];
+        let last = parts.iter().rposition(Option::is_some).unwrap_or(0);
+        let mut packed = Vec::with_capacity((last + 1) * w * h);
+        for part in &parts[..=last] {
+            match part {
+                Some(img) => packed.extend_from_slice(&img.data),
+                None => packed.resize(packed.len() + w * h, glam::Vec4::ZERO),
+            }
         }
+        self.source_color.write(&packed);
         self.has_back = back.is_some();
+        self.uniforms.source_images[0] = u32::from(side.is_some());
         self.source_geometry.write(&pack_geometry(gbuffer));
         self.source_size = (w as u32, h as u32);
         self.counters.source_uploads += 1;
@@ -168,8 +180,8 @@ impl Renderer {
         Ok(())
     }
 
-    /// [`Renderer::set_source_with_back`] from the pipeline's parts: premultiplied linear RGB, its mask and the
-    /// back image (premultiplied by the same mask), when the input has one.
+    /// [`Renderer::set_source_with_back`] from the pipeline's parts: premultiplied linear RGB, its mask, the back
+    /// image and the side images (premultiplied by the same mask), when the input has them.
     pub fn set_source_parts(
         &mut self,
         colours: crate::pipeline::warp::SourceColours<'_>,
@@ -186,8 +198,19 @@ impl Renderer {
             height: img.height,
             data: img.data.iter().zip(&mask.data).map(|(c, m)| c.extend(*m)).collect(),
         };
-        let back = colours.back.filter(|b| (b.width, b.height) == (rgb.width, rgb.height)).map(with_mask);
-        self.set_source_with_back(&with_mask(rgb), back.as_ref(), gbuffer, camera)
+        let fits = |b: &&RgbImage| (b.width, b.height) == (rgb.width, rgb.height);
+        let back = colours.back.filter(fits).map(with_mask);
+        let side = colours.side.filter(|s| fits(&&s.rgb));
+        let side_photo = side.map(|s| with_mask(&s.rgb));
+        // The side back image only beside a back image, as the CPU lookup pairs them.
+        let side_back = back.as_ref().and(side).and_then(|s| s.back.as_ref()).filter(fits).map(with_mask);
+        self.set_source_with_back(
+            &with_mask(rgb),
+            back.as_ref(),
+            side_photo.as_ref().map(|p| (p, side_back.as_ref())),
+            gbuffer,
+            camera,
+        )
     }
 
     /// Uploads what the person renderers draw from: the mesh and the source view (colour, mask, back image,
