@@ -18,7 +18,8 @@ from torch.utils.data import DataLoader, DistributedSampler
 from . import losses
 from .depth_centre import centre_fof
 from .dataset import R2Dataset
-from .geometry import back_weight, linear_to_srgb, source_axis, srgb_to_linear, transfer, warp, warp_rgb
+from .geometry import (back_weight, linear_to_srgb, side_image, side_weight, source_axis, srgb_to_linear, transfer, warp,
+                       warp_rgb)
 from .nets import TIERS, Decoder, Encoder, FofNet, count_parameters, fof_net_from_checkpoint, parse_fof_inputs
 
 
@@ -43,11 +44,15 @@ class R2HumanNet(nn.Module):
 def lookup(b, view, grid, mask):
     """The residual decoder's `warped_rgb` input for `view`: the photo looked up at the flow, blended with the back
     image where the target surface turns away from the source camera when the batch has one (`src_back_linear`,
-    datasets with `source_back.png`), as the neural renderer looks it up at run time with `--fill back`."""
-    if "src_back_linear" not in b:
-        return warp_rgb(b["src_linear"], b["src_mask"], grid, mask)[0]
-    weight = back_weight(b[f"{view}_normals"], source_axis(b[f"{view}_view_from_world"], b["src_view_from_world"]))
-    return warp_rgb(b["src_linear"], b["src_mask"], grid, mask, b["src_back_linear"], weight)[0]
+    datasets with `source_back.png`), and with the side images (`side_image`) where the source camera sees the
+    surface edge-on, as the neural renderer looks it up at run time with `--fill back`."""
+    axis = source_axis(b[f"{view}_view_from_world"], b["src_view_from_world"])
+    normals = b[f"{view}_normals"]
+    behind = b.get("src_back_linear")
+    side_back = side_image(behind, b["src_mask"]) if behind is not None else None
+    side = (side_image(b["src_linear"], b["src_mask"]), side_back, side_weight(normals, axis))
+    weight = back_weight(normals, axis) if behind is not None else None
+    return warp_rgb(b["src_linear"], b["src_mask"], grid, mask, behind, weight, side)[0]
 
 
 def geometric_baseline(b, view):

@@ -5,6 +5,8 @@ Conventions (reference-facts.md): view space x right, y up, +z towards the camer
 A point at view coordinates (x, y) of a view with half extents (hw, hh) is at grid_sample coordinates
 (x/hw, -y/hh) with align_corners=False, which puts -1/+1 on the outer pixel edges exactly like the pixel centres above.
 """
+import math
+
 import torch
 import torch.nn.functional as F
 
@@ -96,13 +98,62 @@ def back_weight(normals, axis):
     return t * t * (3 - 2 * t)
 
 
+# Up to which |source-view z| of a surface's unit normal the side images blend in, and their blur as a fraction of
+# the source image's width (src/pipeline/warp.rs SIDE_RAMP, SIDE_BLUR).
+SIDE_RAMP = 0.5
+SIDE_BLUR = 4.0 / 512.0
+
+
+def side_weight(normals, axis):
+    """How much each target pixel takes the side images [B,1,H,W]: 1 - smoothstep(0, SIDE_RAMP, |n . axis|) of its
+    target-view unit normal `normals` [B,3,H,W] (src/pipeline/warp.rs `side_weight`; 0 for non-finite normals)."""
+    t = ((normals * axis[:, :, None, None]).sum(1, keepdim=True).abs() / SIDE_RAMP).clamp(0, 1)
+    weight = 1 - t * t * (3 - 2 * t)
+    return torch.where(torch.isfinite(weight), weight, torch.zeros_like(weight))
+
+
+def box_radii(sigma, passes=3):
+    """The box radii of the `image` crate's `fast_blur` for standard deviation `sigma` (Kovesi's boxes for a
+    Gaussian, with the crate's rounding: src/pipeline/warp.rs blurs the side images with it)."""
+    w_ideal = math.sqrt(12.0 * sigma * sigma / passes + 1.0)
+    w_l = math.floor(w_ideal)
+    if w_l % 2 == 0:
+        w_l -= 1
+    w_u = w_l + 2
+    m = math.floor(0.25 * passes * (w_l + 3.0) - 3.0 * sigma * sigma / (w_l + 1.0) + 0.5)  # Rust's f32::round
+    radii = []
+    for i in range(passes):
+        r = (max((w_l if i < m else w_u) - 1, 0)) // 2
+        radii.append(r + 1 if r % 2 == 0 else r)
+    return radii
+
+
 @torch.no_grad()
-def warp_rgb(src_linear, src_mask, grid, mask, back_linear=None, back=None):
+def side_image(linear, mask):
+    """The side image of `linear` [B,3,H,W] (premultiplied by `mask` [B,1,H,W]) as `warp::SideImages::of` makes it:
+    blur(c m) / blur(m) by the `image` crate's `fast_blur` (box passes along rows, then columns, each with the edge
+    pixel repeated, values kept in [0, 1]) of standard deviation SIDE_BLUR of the width, premultiplied again by the
+    mask; 0 where the blurred mask is below 1e-6."""
+    m = mask.clamp(0, 1)
+    x = torch.cat([linear, m], 1)
+    for r in box_radii(SIDE_BLUR * linear.shape[-1]):
+        k = 2 * r + 1
+        x = F.avg_pool2d(F.pad(x, (r, r, 0, 0), mode="replicate"), (1, k), stride=1).clamp(0, 1)
+        x = F.avg_pool2d(F.pad(x, (0, 0, r, r), mode="replicate"), (k, 1), stride=1).clamp(0, 1)
+    cover = x[:, 3:]
+    ok = (cover > 1e-6) & (m > 0)
+    return torch.where(ok, x[:, :3] / cover.clamp_min(1e-6) * m, torch.zeros_like(linear))
+
+
+@torch.no_grad()
+def warp_rgb(src_linear, src_mask, grid, mask, back_linear=None, back=None, side=None):
     """The decoder's `warped_rgb` input: the source photo looked up at the flow, exactly as the geometric renderer's
     `MirroredFront` lookup without the visibility test (src/pipeline/warp.rs `sample_masked`); with `back_linear`
     (the back image, like `src_linear`) and `back` ([B,1,h,w], `back_weight`) the photo and the back image looked up
     at the same point and blended by `back`, as `SourceColours::sample` does for `--fill back` (the neural
-    renderer's lookup at run time, `pipeline::neural_back_lookup`).
+    renderer's lookup at run time, `pipeline::neural_back_lookup`). With `side` = (side_linear, side_back_linear,
+    weight) (`side_image` of the photo and of the back image or None, and [B,1,h,w] `side_weight`) the same lookup
+    in the side images is blended in by `weight`, as `SourceColours::sample` does with the input's side images.
 
     src_linear [B,3,H,W]: linear RGB premultiplied by src_mask [B,1,H,W]; grid [B,h,w,2] from `transfer`; mask
     [B,1,h,w] the target pixels with a flow. Per target pixel the four bilinear taps give sum(w*c) / sum(w*m) (taps
@@ -110,12 +161,21 @@ def warp_rgb(src_linear, src_mask, grid, mask, back_linear=None, back=None):
     [0,1], sRGB-encoded and mapped to [-1,1]. Pixels whose mask weight sum(w*m) is below MIN_MASK_WEIGHT (the flow
     lands outside the source silhouette) and pixels outside `mask` are 0.
     Returns (rgb [B,3,h,w], known [B,1,h,w])."""
-    num = F.grid_sample(src_linear, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     den = F.grid_sample(src_mask.clamp(0, 1), grid, mode="bilinear", padding_mode="zeros", align_corners=False)
     known = ((den >= MIN_MASK_WEIGHT) & (mask > 0)).float()
-    linear = num / den.clamp_min(MIN_MASK_WEIGHT)
-    if back_linear is not None and back is not None:
-        behind = F.grid_sample(back_linear, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
-        linear = linear * (1 - back) + behind / den.clamp_min(MIN_MASK_WEIGHT) * back
+
+    def looked_up(photo, behind):
+        linear = F.grid_sample(photo, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+        linear = linear / den.clamp_min(MIN_MASK_WEIGHT)
+        if behind is not None and back is not None:
+            far = F.grid_sample(behind, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+            linear = linear * (1 - back) + far / den.clamp_min(MIN_MASK_WEIGHT) * back
+        return linear
+
+    linear = looked_up(src_linear, back_linear)
+    if side is not None:
+        side_linear, side_back_linear, weight = side
+        blurred = looked_up(side_linear, side_back_linear if back_linear is not None else None)
+        linear = linear * (1 - weight) + blurred * weight
     colour = linear_to_srgb(linear.clamp(0, 1)) * 2 - 1
     return colour * known, known

@@ -736,6 +736,23 @@ mod tests {
     }
 
     #[test]
+    fn side_images_are_three_box_passes() {
+        // A step from white to black at column 64 of a 128-wide image (sigma 1 px: `image`'s fast_blur makes three
+        // boxes of 3): the kernel [1, 3, 6, 7, 6, 3, 1] / 27, so columns 60..67 are 27, 26, 23, 17, 10, 4, 1, 0 / 27.
+        // train/tests/test_train.py test_side_image_is_three_box_passes_inside_the_mask checks the training
+        // code's copy against the same numbers.
+        let (w, h) = (128, 8);
+        let rgb = Image::from_fn(w, h, |c, _| if c < 64 { Vec3::ONE } else { Vec3::ZERO });
+        let side = SideImages::of(&rgb, None, &Image::new(w, h, 1.0));
+        for (k, want) in [27.0f32, 26.0, 23.0, 17.0, 10.0, 4.0, 1.0, 0.0].iter().enumerate() {
+            for r in 0..h {
+                let got = side.rgb.data[r * w + 60 + k];
+                assert!((got - Vec3::splat(want / 27.0)).abs().max_element() < 1e-5, "{k} {r}: {got}");
+            }
+        }
+    }
+
+    #[test]
     fn surfaces_seen_edge_on_take_the_side_images() {
         // A sphere whose photo has horizontal stripes, seen from the side (yaw 90): the pixels near the sphere's
         // outline in the photo (the surface the photo sees edge-on) are striped without the side images and take

@@ -14,8 +14,8 @@ from train import losses
 from train.depth_centre import centre_fof, centring_shift, fof_centroid_z, fof_depth_range, shift_columns, shift_fof
 from train.dataset import R2Dataset, downsample_view, view_angle_deg
 from train.fit import R2HumanNet, decode_occupancy
-from train.geometry import (back_weight, linear_to_srgb, source_axis, srgb_to_linear, transfer, visibility,
-                            warp_rgb)
+from train.geometry import (back_weight, box_radii, linear_to_srgb, side_image, side_weight, source_axis, srgb_to_linear,
+                            transfer, visibility, warp_rgb)
 from train.nets import TIERS, Decoder, Encoder, FofNet, UNet, zmap_encoding
 from train.synth import fof_from_intervals, orbit_view_from_world, write_dataset
 
@@ -174,21 +174,78 @@ class WarpRgbTest(unittest.TestCase):
         self.assertTrue(torch.allclose(back_weight(normals, axis)[0, 0, 0], torch.tensor([0.0, 1.0, 0.0, 0.5, 0.0]),
                                        atol=1e-6))
 
-    def test_back_lookup_blends_the_photo_and_the_back_image_in_linear_light(self):
-        h = w = 8
+    @staticmethod
+    def identity_lookup(h, w, rows, cols, seed):
+        """A random photo and back image (linear, premultiplied) on a box mask, and the identity view's flow."""
         mask = torch.zeros(1, 1, h, w)
-        mask[..., 2:6, 3:7] = 1
-        g = torch.Generator().manual_seed(2)
+        mask[..., rows, cols] = 1
+        g = torch.Generator().manual_seed(seed)
         photo, behind = (srgb_to_linear(torch.rand(1, 3, h, w, generator=g)) * mask for _ in range(2))
         depth = torch.where(mask > 0, torch.tensor(0.1), torch.tensor(-1.0))
         eye, half = torch.eye(4)[None], torch.ones(1, 2)
         grid, _, tmask = transfer(depth, eye, half, eye, half)
+        return mask, photo, behind, grid, tmask
+
+    def test_back_lookup_blends_the_photo_and_the_back_image_in_linear_light(self):
+        h = w = 8
+        mask, photo, behind, grid, tmask = self.identity_lookup(h, w, slice(2, 6), slice(3, 7), 2)
         alone, _ = warp_rgb(photo, mask, grid, tmask)
         for weight, want in [(0.0, photo), (1.0, behind), (0.25, 0.75 * photo + 0.25 * behind)]:
             rgb, known = warp_rgb(photo, mask, grid, tmask, behind, torch.full((1, 1, h, w), weight))
             self.assertTrue(torch.equal(known, mask))
             self.assertTrue(torch.allclose(rgb, (linear_to_srgb(want) * 2 - 1) * mask, atol=1e-5), weight)
         self.assertTrue(torch.allclose(warp_rgb(photo, mask, grid, tmask, behind, torch.zeros(1, 1, h, w))[0], alone))
+
+
+    def test_side_weight_and_box_radii_match_the_rust_formulas(self):
+        # src/pipeline/warp.rs: 1 - smoothstep(0, 0.5, |n . axis|); the image crate's fast_blur boxes.
+        axis = torch.tensor([[0.0, 0.0, 1.0]])
+        s = math.sqrt(1 - 0.25 ** 2)
+        normals = torch.tensor([[1, 0, 0], [0, 0, 1], [0, 0, -1], [0, s, 0.25], [0, s, -0.25], [float("nan"), 0, 0]],
+                               dtype=torch.float32).T.reshape(1, 3, 1, 6)
+        self.assertTrue(torch.allclose(side_weight(normals, axis)[0, 0, 0],
+                                       torch.tensor([1.0, 0.0, 0.0, 0.5, 0.5, 0.0]), atol=1e-6))
+        # sigma 4 (512 px): boxes 7, 7, 9 -> radii 3, 3, 5 (the crate rounds each radius up to an odd one).
+        self.assertEqual(box_radii(4.0), [3, 3, 5])
+        self.assertEqual(box_radii(2.0), [1, 1, 3])
+        self.assertEqual(box_radii(1.0), [1, 1, 1])
+
+    def test_side_image_is_three_box_passes_inside_the_mask(self):
+        # A step from white to black at column 64 of a 128-wide image (sigma 1 px: three boxes of 3): the kernel
+        # [1, 3, 6, 7, 6, 3, 1] / 27, so columns 61..66 are 26, 23, 17, 10, 4, 1 / 27. The same numbers in
+        # `cargo test --lib side_images_are_three_box_passes`.
+        h, w = 8, 128
+        linear = torch.zeros(1, 3, h, w)
+        linear[..., :64] = 1
+        side = side_image(linear, torch.ones(1, 1, h, w))
+        want = torch.tensor([27, 26, 23, 17, 10, 4, 1, 0]) / 27
+        self.assertTrue(torch.allclose(side[0, :, :, 60:68], want.expand(3, h, 8), atol=1e-5), side[0, 0, 0, 58:70])
+        # Mask-aware: a disc of one colour on black stays that colour to its outline, and nothing outside.
+        yy, xx = torch.meshgrid(torch.arange(32.0), torch.arange(32.0), indexing="ij")
+        mask = (((yy - 15.5) ** 2 + (xx - 15.5) ** 2) < 100).float()[None, None]
+        colour = torch.tensor([0.2, 0.5, 0.9])[None, :, None, None]
+        side = side_image(colour * mask, mask)
+        self.assertTrue(torch.allclose(side, colour * mask, atol=1e-5))
+
+    def test_side_lookup_blends_the_side_images_by_their_weight(self):
+        h = w = 16
+        mask, photo, behind, grid, tmask = self.identity_lookup(h, w, slice(3, 13), slice(4, 12), 3)
+        side_photo, side_behind = side_image(photo, mask), side_image(behind, mask)
+        back = torch.full((1, 1, h, w), 0.25)
+        sharp, _ = warp_rgb(photo, mask, grid, tmask, behind, back)
+        blurred, _ = warp_rgb(side_photo, mask, grid, tmask, side_behind, back)
+        for weight in (0.0, 0.5, 1.0):
+            rgb, known = warp_rgb(photo, mask, grid, tmask, behind, back,
+                                  (side_photo, side_behind, torch.full((1, 1, h, w), weight)))
+            self.assertTrue(torch.equal(known, mask))
+            if weight in (0.0, 1.0):
+                self.assertTrue(torch.allclose(rgb, sharp if weight == 0 else blurred, atol=1e-5), weight)
+            else:
+                # The blend is in linear light, before the sRGB encoding.
+                lin = lambda x: srgb_to_linear((x + 1) / 2)
+                self.assertTrue(torch.allclose(lin(rgb) * mask, (lin(sharp) + lin(blurred)) / 2 * mask, atol=1e-5))
+        # The side images differ from the photo: the test sees the blend.
+        self.assertGreater((sharp - blurred).abs().max().item(), 0.05)
 
 
 class FofTest(unittest.TestCase):
