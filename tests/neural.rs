@@ -591,7 +591,7 @@ fn zero_residual_decoder_is_the_geometric_renderer() {
 }
 
 /// The shipped decoder keeps the photo's own colour on every pixel whose surface point the source camera sees
-/// (paper Eq. 9; `pipeline::keep_photo_where_seen`), so the input view is the photo and side views keep what the
+/// (paper Eq. 9; `pipeline::keep_lookup_where`), so the input view is the photo and side views keep what the
 /// photo shows, while it still draws the surfaces the photo does not show (the decoder's own colours there).
 #[test]
 fn shipped_decoder_keeps_the_photo_where_the_photo_sees_the_surface() {

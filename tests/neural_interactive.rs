@@ -124,7 +124,7 @@ fn engine_switches_renderers_on_the_gpu_and_reuses_the_neural_layer() {
     assert_eq!((c.views, c.decoder_runs, c.fallbacks), (2, 1, 0));
     assert_eq!(mean_abs_diff(&neural, &again), 0.0);
     // G: the geometric warp draws the next frame, and it is a different image of the same person: the same photo
-    // colours where the photo sees the surface (`pipeline::keep_photo_where_seen`), the decoder's own elsewhere.
+    // colours where the photo sees the surface (`pipeline::keep_lookup_where`), the decoder's own elsewhere.
     engine.set_shading(Shading::Geometric).unwrap();
     let geometric = frame(&mut engine, &mut gpu, Mode::Ar);
     assert_eq!(engine.drawn(), Drawn::Geometric);

@@ -122,6 +122,14 @@ impl FaceFrame {
 /// is. Same size as `rgb`, premultiplied by the same mask. `None` when the face points are unusable (degenerate or
 /// not finite) or the sizes disagree; every colour is finite and in `[0, 1]`.
 pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<RgbImage> {
+    back_image_and_head(rgb, mask, face).map(|(back, _)| back)
+}
+
+/// [`back_image`] and, per source pixel, how much of its colour is the head top's (the feathered head ellipse times
+/// the face's frontality; 0 everywhere when no head colour was found, and outside the mask): where the back image
+/// knows what the back of the head looks like, which the neural renderer keeps
+/// ([`super::lookup_kept`]).
+pub fn back_image_and_head(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<(RgbImage, GrayImage)> {
     let (w, h) = (rgb.width, rgb.height);
     if (mask.width, mask.height) != (w, h) || w == 0 || h == 0 {
         return None;
@@ -134,8 +142,9 @@ pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option
     let clothing = clothing(rgb, mask, frame.d);
     let head = head_colour(w, h, &straight, &frame);
     let mut out = Image::new(w, h, Vec3::ZERO);
-    out.data.par_chunks_mut(w).enumerate().for_each(|(row, line)| {
-        for (col, o) in line.iter_mut().enumerate() {
+    let mut weights = Image::new(w, h, 0.0f32);
+    out.data.par_chunks_mut(w).zip(weights.data.par_chunks_mut(w)).enumerate().for_each(|(row, (line, hws))| {
+        for (col, (o, hw_out)) in line.iter_mut().zip(hws.iter_mut()).enumerate() {
             let i = row * w + col;
             let m = mask.data[i].clamp(0.0, 1.0);
             if m <= 0.0 {
@@ -148,9 +157,10 @@ pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option
             };
             let c = clothing.data[i] * (1.0 - hw) + head.unwrap_or(Vec3::ZERO) * hw;
             *o = c.clamp(Vec3::ZERO, Vec3::ONE) * m;
+            *hw_out = hw;
         }
     });
-    Some(out)
+    Some((out, weights))
 }
 
 /// Colours in the clothing's palette (`palette`).
@@ -401,6 +411,16 @@ mod tests {
         for (c, r) in [(63, 90), (64, 100), (50, 100), (80, 70)] {
             assert!((at(c, r) - blue).abs().max_element() < 1e-4, "({c}, {r}): {}", at(c, r));
         }
+        // Where the head colour went in: the head weights say so (1 inside the ellipse, 0 on the body and outside
+        // the mask), and the back image is the same as `back_image`'s.
+        let (same, head) = back_image_and_head(&rgb, &mask, &face).unwrap();
+        assert_eq!(same, back);
+        for (c, r) in [(64, 34), (60, 32), (64, 40)] {
+            assert_eq!(head.data[r * 128 + c], 1.0, "({c}, {r})");
+        }
+        for (c, r) in [(63, 90), (64, 100), (50, 100), (80, 70), (0, 0)] {
+            assert_eq!(head.data[r * 128 + c], 0.0, "({c}, {r})");
+        }
         // Premultiplied by the same mask: zero outside, finite everywhere.
         for (b, &m) in back.data.iter().zip(&mask.data) {
             assert!(b.is_finite() && b.min_element() >= 0.0 && b.max_element() <= 1.0);
@@ -415,9 +435,11 @@ mod tests {
         let (rgb, mask, mut face) = person();
         // Ears 2 px apart over d = 8: a profile, frontality 0, the head keeps the (filtered) photo.
         face.ears = [Vec2::new(65.0, 33.0), Vec2::new(63.0, 33.0)];
-        let back = back_image(&rgb, &mask, &face).unwrap();
+        let (back, head) = back_image_and_head(&rgb, &mask, &face).unwrap();
         let hair = Vec3::new(0.3, 0.15, 0.05);
         assert!((back.data[34 * 128 + 64] - hair).abs().max_element() > 0.2, "{}", back.data[34 * 128 + 64]);
+        // No head colour went in anywhere: nothing for the neural renderer to keep.
+        assert!(head.data.iter().all(|&w| w == 0.0));
         // A bald head: the head top is skin, so the head is skin.
         let (mut rgb, mask, face) = person();
         let skin = Vec3::new(0.8, 0.55, 0.45);

@@ -249,6 +249,16 @@ pub fn back_image_with(
     read: Option<&PoseLandmarks>,
     timings: &mut StageTimings,
 ) -> Option<RgbImage> {
+    back_image_and_head_with(normalised, pose, read, timings).map(|(back, _)| back)
+}
+
+/// [`back_image_with`] and where the back image drew the head ([`back::back_image_and_head`]).
+pub fn back_image_and_head_with(
+    normalised: &NormalisedInput,
+    pose: &SharedPose,
+    read: Option<&PoseLandmarks>,
+    timings: &mut StageTimings,
+) -> Option<(RgbImage, GrayImage)> {
     let face = read.and_then(back::FacePoints::from_pose).or_else(|| {
         let found = timings.time("back image (face landmarks)", || {
             let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
@@ -263,8 +273,9 @@ pub fn back_image_with(
             }
         }
     });
-    let back = face
-        .and_then(|f| timings.time("back image (filter)", || back::back_image(&normalised.rgb, &normalised.mask, &f)));
+    let back = face.and_then(|f| {
+        timings.time("back image (filter)", || back::back_image_and_head(&normalised.rgb, &normalised.mask, &f))
+    });
     if back.is_none() {
         static WARNED: AtomicBool = AtomicBool::new(false);
         warn_once(
@@ -1092,7 +1103,8 @@ impl NeuralRenderer {
 
 /// One view of the person by the neural decoder, from the flow and Z-map of `target` (rasterised for `camera`):
 /// the colour lookup ([`photo_lookup`], with the back image when [`neural_back_lookup`] says so), the decoder, and
-/// then the photo's own colour wherever the source camera sees the surface point ([`keep_photo_where_seen`]). The
+/// then the lookup's colour wherever the source camera sees the surface point or the back image knows the back of the
+/// head ([`lookup_kept`], [`keep_lookup_where`]). The
 /// CPU pipeline and the Vulkan renderer's host-memory seam both draw through it.
 pub fn decode_person_view(
     decoder: &mut crate::neural::Decoder,
@@ -1115,23 +1127,65 @@ pub fn decode_person_view(
         source.camera,
         crate::geometry::zmap::VISIBILITY_LAMBDA,
     );
-    keep_photo_where_seen(&mut person, &lookup, &seen);
+    let head = source.back_head.filter(|_| colours.back.is_some());
+    let axis = warp::source_axis(camera, source.camera);
+    let kept = lookup_kept(&seen, flowz, target, axis, head, source.camera.width);
+    keep_lookup_where(&mut person, &lookup, &kept);
     Ok(person)
 }
 
-/// Puts the photo's colour (`lookup`, [`photo_lookup`]) back on every covered pixel of the decoder's `person` whose
-/// surface point the source camera sees (`seen`, paper Eq. 9) and the photo has a colour for. The decoder is
-/// residual on that colour and was trained on synthetic people, where keeping the photo here moves its views by at
-/// most 0.15 dB; on real photos it shifted their colours (a blue cast on the astronaut's helmet and gloves, up to
-/// 7.5 dB below the geometric renderer at the input view, README "Neural renderer"), so what the photo shows is
-/// taken from the photo and the decoder draws only what it does not show. Arrays of another size leave `person` as
-/// it is.
-pub fn keep_photo_where_seen(person: &mut RgbaImage, lookup: &RgbaImage, seen: &[bool]) {
+/// How much of the back image's colour must be the head top's ([`back::back_image_and_head`]) for the neural
+/// renderer to keep it on the back of the head ([`lookup_kept`]).
+pub const HEAD_KEPT: f32 = 0.5;
+
+/// Which pixels of a neural view take the colour lookup ([`photo_lookup`]) instead of the decoder's output: those
+/// whose surface point the source camera sees (`seen`, paper Eq. 9), and, with the back image's `head` weights
+/// (source pixels of a camera `source_width` wide, or another size scaled to it), the surfaces that face away from
+/// the source camera ([`warp::back_weight`] 1 against `axis`, [`warp::source_axis`]) and whose flow lands where the
+/// back image drew the head in the head top's colour (weight at least [`HEAD_KEPT`], nearest pixel). The decoder,
+/// trained on synthetic people, painted a pale oval where a face would be on the back of real people's dark heads
+/// (README "The back of the head in the neural renderer"); the back image's head colour is what the photo says.
+pub fn lookup_kept(
+    seen: &[bool],
+    flowz: &FlowZ,
+    target: &GBuffer,
+    axis: glam::Vec3,
+    head: Option<&GrayImage>,
+    source_width: usize,
+) -> Vec<bool> {
+    let n = seen.len();
+    let Some(head) = head.filter(|_| flowz.mask.len() == n && target.normal.len() == n && flowz.flow.data.len() == n)
+    else {
+        return seen.to_vec();
+    };
+    let scale = head.width as f32 / source_width.max(1) as f32;
+    let on_head = |i: usize| {
+        let p = flowz.flow.data[i] * scale;
+        if !p.is_finite() || p.x < 0.0 || p.y < 0.0 {
+            return false;
+        }
+        let (c, r) = (p.x as usize, p.y as usize);
+        c < head.width && r < head.height && head.data[r * head.width + c] >= HEAD_KEPT
+    };
+    (0..n)
+        .into_par_iter()
+        .map(|i| seen[i] || (flowz.mask[i] && warp::back_weight(target.normal[i], axis) >= 1.0 && on_head(i)))
+        .collect()
+}
+
+/// Puts the colour lookup (`lookup`, [`photo_lookup`]) back on every covered pixel of the decoder's `person` that
+/// `kept` marks ([`lookup_kept`]: the photo sees its surface point, or it is the back of the head the back image
+/// knows) and the lookup has a colour for. The decoder is residual on that colour and was trained on synthetic
+/// people, where keeping the photo here moves its views by at most 0.15 dB; on real photos it shifted their colours
+/// (a blue cast on the astronaut's helmet and gloves, up to 7.5 dB below the geometric renderer at the input view,
+/// README "Neural renderer"), so what the photo shows is taken from the photo and the decoder draws only what it
+/// does not show. Arrays of another size leave `person` as it is.
+pub fn keep_lookup_where(person: &mut RgbaImage, lookup: &RgbaImage, kept: &[bool]) {
     let n = person.data.len();
-    if lookup.data.len() != n || seen.len() != n || (lookup.width, lookup.height) != (person.width, person.height) {
+    if lookup.data.len() != n || kept.len() != n || (lookup.width, lookup.height) != (person.width, person.height) {
         return;
     }
-    for ((p, l), &s) in person.data.iter_mut().zip(&lookup.data).zip(seen) {
+    for ((p, l), &s) in person.data.iter_mut().zip(&lookup.data).zip(kept) {
         if s && l.w >= 1.0 && p.w > 0.0 {
             *p = *l;
         }
@@ -1211,6 +1265,9 @@ pub struct PreparedInput {
     pub source_gbuffer: GBuffer,
     /// The back image ([`back::back_image`]) when `back_pose` was given and found a face.
     pub back: Option<RgbImage>,
+    /// With the back image: how much of each source pixel's back colour is the head top's
+    /// ([`back::back_image_and_head`]).
+    pub back_head: Option<GrayImage>,
     /// The photo and the back image blurred for the surfaces the photo sees edge-on ([`warp::SideImages`]).
     pub side: warp::SideImages,
     /// How long each per-input stage took.
@@ -1252,7 +1309,7 @@ impl PreparedInput {
         let mut back_timings = StageTimings::default();
         // The colours are only read by the back image and the renderers, so their rim is cleaned beside the mesh.
         let rim = input::RIM_FRACTION * opts.resolution as f32;
-        let (geometry, (normalised, back, side)) = rayon::join(
+        let (geometry, (normalised, back, back_head, side)) = rayon::join(
             || -> Result<(TriMesh, GBuffer), PipelineError> {
                 let mesh =
                     timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
@@ -1268,16 +1325,19 @@ impl PreparedInput {
             || {
                 let normalised =
                     back_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
-                let back =
-                    opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings));
+                let (back, back_head) = opts
+                    .back_pose
+                    .as_ref()
+                    .and_then(|net| back_image_and_head_with(&normalised, net, pose, &mut back_timings))
+                    .unzip();
                 let side = back_timings
                     .time("side images", || warp::SideImages::of(&normalised.rgb, back.as_ref(), &normalised.mask));
-                (normalised, back, side)
+                (normalised, back, back_head, side)
             },
         );
         let (mesh, source_gbuffer) = geometry?;
         timings.0.extend(back_timings.0);
-        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, side, timings })
+        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, back_head, side, timings })
     }
 }
 
@@ -1485,6 +1545,46 @@ impl<'a> ViewRenderer<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn the_lookup_is_kept_on_the_back_of_the_head_the_back_image_knows() {
+        // Six target pixels, seen from behind the source camera's axis (+z): the flows land on a 4x1 source whose
+        // left half is head (weight 1, 0.6) and right half not (0.4, 0).
+        let head = GrayImage { width: 4, height: 1, data: vec![1.0, 0.6, 0.4, 0.0] };
+        let mut flowz = FlowZ {
+            flow: Image::new(6, 1, Vec2::ZERO),
+            z: GrayImage::new(6, 1, 0.0),
+            mask: vec![true, true, true, true, false, true],
+        };
+        // Pixel 0 on the head facing away, 1 on the 0.6 head facing away, 2 on 0.4 facing away, 3 on the head but
+        // edge-on (back weight below 1), 4 no flow, 5 flowing outside the source.
+        for (i, x) in [0.5f32, 1.5, 2.5, 0.5, 0.5, 7.5].into_iter().enumerate() {
+            flowz.flow.data[i] = Vec2::new(x, 0.5);
+        }
+        let mut target = GBuffer::new(6, 1);
+        target.normal = vec![-Vec3::Z, -Vec3::Z, -Vec3::Z, Vec3::new(0.99, 0.0, -0.141), -Vec3::Z, -Vec3::Z];
+        let axis = Vec3::Z;
+        let seen = [false, false, false, false, false, false];
+        let kept = lookup_kept(&seen, &flowz, &target, axis, Some(&head), 4);
+        assert_eq!(kept, vec![true, true, false, false, false, false]);
+        // What the photo sees is kept anyway; without head weights only that.
+        let seen = [false, false, true, false, false, false];
+        assert_eq!(
+            lookup_kept(&seen, &flowz, &target, axis, Some(&head), 4),
+            vec![true, true, true, false, false, false]
+        );
+        assert_eq!(lookup_kept(&seen, &flowz, &target, axis, None, 4), seen.to_vec());
+        // Head weights of another size are scaled to the source camera: a 2x wider map read at twice the flow.
+        let wide = GrayImage { width: 8, height: 2, data: [[1.0, 1.0, 0.6, 0.6, 0.4, 0.4, 0.0, 0.0]; 2].concat() };
+        assert_eq!(
+            lookup_kept(&seen, &flowz, &target, axis, Some(&wide), 4),
+            vec![true, true, true, false, false, false]
+        );
+        // Mismatched arrays: only what is seen.
+        let short = FlowZ::default();
+        assert_eq!(lookup_kept(&seen, &short, &target, axis, Some(&head), 4), seen.to_vec());
+    }
 
     #[test]
     fn the_photo_is_kept_only_where_it_sees_the_surface_and_has_a_colour() {
@@ -1494,12 +1594,12 @@ mod tests {
         person.data[3] = Vec4::ZERO; // not covered
         let mut lookup = RgbaImage::new(4, 1, photo);
         lookup.data[1] = Vec4::ZERO; // the photo has no colour there
-        keep_photo_where_seen(&mut person, &lookup, &[true, true, false, true]);
+        keep_lookup_where(&mut person, &lookup, &[true, true, false, true]);
         assert_eq!(person.data, vec![photo, decoded, decoded, Vec4::ZERO]);
         // Arrays of another size change nothing.
         let before = person.clone();
-        keep_photo_where_seen(&mut person, &RgbaImage::new(2, 1, photo), &[true; 4]);
-        keep_photo_where_seen(&mut person, &lookup, &[true; 3]);
+        keep_lookup_where(&mut person, &RgbaImage::new(2, 1, photo), &[true; 4]);
+        keep_lookup_where(&mut person, &lookup, &[true; 3]);
         assert_eq!(person, before);
     }
 }

@@ -33,6 +33,9 @@ pub struct SourceView<'a> {
     pub camera: &'a Camera,
     /// The input's back image ([`super::back`]), when it has one.
     pub back: Option<&'a RgbImage>,
+    /// With the back image: how much of each pixel's back colour is the head top's
+    /// ([`super::back::back_image_and_head`]; the neural renderer keeps it there, [`super::lookup_kept`]).
+    pub back_head: Option<&'a GrayImage>,
     /// The photo and the back image blurred for surfaces seen edge-on ([`super::warp::SideImages`]), when given.
     pub side: Option<&'a SideImages>,
 }
@@ -47,6 +50,7 @@ impl<'a> SourceView<'a> {
             gbuffer: &input.source_gbuffer,
             camera: &input.source_camera,
             back: input.back.as_ref(),
+            back_head: input.back_head.as_ref(),
             side: Some(&input.side),
         }
     }
@@ -89,6 +93,8 @@ pub struct Scene {
     pub camera: Camera,
     /// The input's back image, when it has one.
     pub back: Option<RgbImage>,
+    /// Where the back image drew the head ([`SourceView::back_head`]).
+    pub back_head: Option<GrayImage>,
     /// The side images ([`SideImages`]), when given.
     pub side: Option<SideImages>,
     /// The neural renderer and the encoder's output for this input; `None` draws geometrically.
@@ -105,6 +111,7 @@ impl Scene {
             gbuffer: input.source_gbuffer.clone(),
             camera: input.source_camera,
             back: input.back.clone(),
+            back_head: input.back_head.clone(),
             side: Some(input.side.clone()),
             neural,
         }
@@ -119,6 +126,7 @@ impl Scene {
             gbuffer: &self.gbuffer,
             camera: &self.camera,
             back: self.back.as_ref(),
+            back_head: self.back_head.as_ref(),
             side: self.side.as_ref(),
         }
     }
@@ -389,6 +397,7 @@ mod tests {
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
             back: None,
+            back_head: None,
             side: None,
             neural: None,
         }
