@@ -95,7 +95,7 @@ fn main() {
         // Source pixel of a body-cube point (orthographic source camera).
         let px = |x: f32, y: f32| Vec2::new((x + 1.0) * 0.5 * RES as f32, (1.0 - y) * 0.5 * RES as f32);
         let face = FacePoints { eyes: px(0.0, 0.74), mouth: px(0.0, 0.66), ears: [px(0.12, 0.73), px(-0.12, 0.73)] };
-        let back = (*name == "person").then(|| back_image(&src_rgb, &src_mask, &face)).flatten();
+        let back = (*name == "person").then(|| back_image(&src_rgb, &src_mask, &face)).flatten().map(|b| b.rgb);
         if let Some(b) = &back {
             let m = &src_mask.data;
             let img =

@@ -113,7 +113,10 @@ fn export_validates_reloads_in_metres_and_matches_the_input_view() {
     // 5. Back: with a back image (here pure blue), the triangles facing away from the photo take it; the front is
     //    unchanged and the model seen from behind is blue. Without one, one image (checked in 1-3: the default).
     let mut with_back = input.clone();
-    with_back.back = Some(input.normalised.mask.map(|&m| Vec3::new(0.0, 0.0, 1.0) * m));
+    with_back.back = Some(r2human::pipeline::back::BackImage {
+        rgb: input.normalised.mask.map(|&m| Vec3::new(0.0, 0.0, 1.0) * m),
+        head: input.normalised.mask.map(|_| 0.0),
+    });
     let (b, b_report) = person_mesh(&with_back, &mask, &ExportOptions::default()).unwrap();
     assert_eq!(b_report.texture, (2 * report.texture.0, report.texture.1));
     let share = b_report.back_triangles as f32 / b_report.triangles as f32;

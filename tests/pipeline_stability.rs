@@ -192,7 +192,7 @@ fn the_pose_network_finds_the_face_of_a_rendered_subject_and_nothing_in_a_blank(
     let framed = pose.0.lock().unwrap().estimate(&input.rgb, &input.mask, Some(input.frame)).unwrap().unwrap();
     let mut given_timings = StageTimings::default();
     let given = back_image_with(&input, &pose, Some(&framed), &mut given_timings).expect("a face in the given read");
-    assert_eq!(given.data, back.data);
+    assert_eq!(given.rgb.data, back.data);
     assert!(!given_timings.0.iter().any(|(n, _)| *n == "back image (face landmarks)"), "{:?}", given_timings.0);
     let face = FacePoints::from_pose(&lm).unwrap();
     let i = face.eyes.y as usize * res + face.eyes.x as usize;

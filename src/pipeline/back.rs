@@ -118,18 +118,23 @@ impl FaceFrame {
     }
 }
 
-/// The back image of a person (see the module docs): `rgb` linear premultiplied by `mask`, `face` where the face
-/// is. Same size as `rgb`, premultiplied by the same mask. `None` when the face points are unusable (degenerate or
-/// not finite) or the sizes disagree; every colour is finite and in `[0, 1]`.
-pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<RgbImage> {
-    back_image_and_head(rgb, mask, face).map(|(back, _)| back)
+/// A person's back image and where it drew the head: what [`back_image`] returns and an input keeps
+/// ([`super::PreparedInput::back`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BackImage {
+    /// The colours: linear, premultiplied by the photo's mask, the photo's size.
+    pub rgb: RgbImage,
+    /// Per source pixel, how much of the colour is the head top's (the feathered head ellipse times the face's
+    /// frontality; 0 everywhere when no head colour was found, and outside the mask): where the back image knows
+    /// what the back of the head looks like, which the neural renderer keeps ([`super::lookup_kept`]).
+    pub head: GrayImage,
 }
 
-/// [`back_image`] and, per source pixel, how much of its colour is the head top's (the feathered head ellipse times
-/// the face's frontality; 0 everywhere when no head colour was found, and outside the mask): where the back image
-/// knows what the back of the head looks like, which the neural renderer keeps
-/// ([`super::lookup_kept`]).
-pub fn back_image_and_head(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<(RgbImage, GrayImage)> {
+/// The back image of a person (see the module docs): `rgb` linear premultiplied by `mask`, `face` where the face
+/// is. Same size as `rgb`, premultiplied by the same mask, with its head weights ([`BackImage::head`]). `None` when
+/// the face points are unusable (degenerate or not finite) or the sizes disagree; every colour is finite and in
+/// `[0, 1]`.
+pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<BackImage> {
     let (w, h) = (rgb.width, rgb.height);
     if (mask.width, mask.height) != (w, h) || w == 0 || h == 0 {
         return None;
@@ -160,7 +165,7 @@ pub fn back_image_and_head(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) 
             *hw_out = hw;
         }
     });
-    Some((out, weights))
+    Some(BackImage { rgb: out, head: weights })
 }
 
 /// Colours in the clothing's palette (`palette`).
@@ -399,7 +404,7 @@ mod tests {
     #[test]
     fn the_face_becomes_the_head_tops_colour_and_the_tie_the_clothing() {
         let (rgb, mask, face) = person();
-        let back = back_image(&rgb, &mask, &face).unwrap();
+        let BackImage { rgb: back, head } = back_image(&rgb, &mask, &face).unwrap();
         let at = |c: usize, r: usize| back.data[r * 128 + c];
         let hair = Vec3::new(0.3, 0.15, 0.05);
         // Face centre, an eye and the mouth: hair colour (the head-top band holds only hair).
@@ -412,9 +417,7 @@ mod tests {
             assert!((at(c, r) - blue).abs().max_element() < 1e-4, "({c}, {r}): {}", at(c, r));
         }
         // Where the head colour went in: the head weights say so (1 inside the ellipse, 0 on the body and outside
-        // the mask), and the back image is the same as `back_image`'s.
-        let (same, head) = back_image_and_head(&rgb, &mask, &face).unwrap();
-        assert_eq!(same, back);
+        // the mask).
         for (c, r) in [(64, 34), (60, 32), (64, 40)] {
             assert_eq!(head.data[r * 128 + c], 1.0, "({c}, {r})");
         }
@@ -435,7 +438,7 @@ mod tests {
         let (rgb, mask, mut face) = person();
         // Ears 2 px apart over d = 8: a profile, frontality 0, the head keeps the (filtered) photo.
         face.ears = [Vec2::new(65.0, 33.0), Vec2::new(63.0, 33.0)];
-        let (back, head) = back_image_and_head(&rgb, &mask, &face).unwrap();
+        let BackImage { rgb: back, head } = back_image(&rgb, &mask, &face).unwrap();
         let hair = Vec3::new(0.3, 0.15, 0.05);
         assert!((back.data[34 * 128 + 64] - hair).abs().max_element() > 0.2, "{}", back.data[34 * 128 + 64]);
         // No head colour went in anywhere: nothing for the neural renderer to keep.
@@ -450,7 +453,7 @@ mod tests {
                 }
             }
         }
-        let back = back_image(&rgb, &mask, &face).unwrap();
+        let back = back_image(&rgb, &mask, &face).unwrap().rgb;
         assert!((back.data[34 * 128 + 64] - skin).abs().max_element() < 1e-4);
     }
 
@@ -461,20 +464,20 @@ mod tests {
         // sides of the head (hair at |across| >= d) decide.
         let cut = Image::from_fn(128, 128, |c, r| if r < 31 { 0.0 } else { *mask.get(c, r) });
         let rgb_cut = Image::from_fn(128, 128, |c, r| if r < 31 { Vec3::ZERO } else { *rgb.get(c, r) });
-        let back = back_image(&rgb_cut, &cut, &face).unwrap();
+        let back = back_image(&rgb_cut, &cut, &face).unwrap().rgb;
         assert!(back.data.iter().all(|c| c.is_finite()));
         let hair = Vec3::new(0.3, 0.15, 0.05);
         assert!((back.data[36 * 128 + 64] - hair).abs().max_element() < 1e-4, "{}", back.data[36 * 128 + 64]);
         // A face landmark far outside the frame: still finite, nothing panics.
         let far = FacePoints { eyes: Vec2::new(-500.0, -400.0), mouth: Vec2::new(-500.0, -390.0), ..face };
-        let back = back_image(&rgb, &mask, &far).unwrap();
+        let back = back_image(&rgb, &mask, &far).unwrap().rgb;
         assert!(back.data.iter().all(|c| c.is_finite()));
         // Degenerate: eyes on the mouth, NaN, an empty mask, mismatched sizes.
         assert!(back_image(&rgb, &mask, &FacePoints { mouth: face.eyes, ..face }).is_none());
         assert!(back_image(&rgb, &mask, &FacePoints { eyes: Vec2::NAN, ..face }).is_none());
         assert!(back_image(&rgb, &mask, &FacePoints { ears: [Vec2::NAN, Vec2::ZERO], ..face }).is_none());
         let empty = Image::new(128, 128, 0.0f32);
-        let out = back_image(&Image::new(128, 128, Vec3::ZERO), &empty, &face).unwrap();
+        let out = back_image(&Image::new(128, 128, Vec3::ZERO), &empty, &face).unwrap().rgb;
         assert!(out.data.iter().all(|c| *c == Vec3::ZERO));
         assert!(back_image(&rgb, &Image::new(64, 64, 1.0f32), &face).is_none());
         assert!(back_image(&Image::new(0, 0, Vec3::ZERO), &Image::new(0, 0, 0.0f32), &face).is_none());

@@ -414,7 +414,7 @@ pub fn person_mesh(
         let front = front_image(&input.normalised.rgb, &input.normalised.mask);
         let rim = match (second, &input.back) {
             (Second::Rim, _) => Some(rim_image(&front, &input.normalised.mask, (res / 50).max(2))),
-            (Second::Back, Some(back)) => Some(front_image(back, &input.normalised.mask)),
+            (Second::Back, Some(back)) => Some(front_image(&back.rgb, &input.normalised.mask)),
             _ => None,
         };
         let mut texture = image::RgbImage::new((res * images) as u32, res as u32);

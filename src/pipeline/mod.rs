@@ -238,27 +238,17 @@ pub fn load_back_pose(fill: OcclusionFill, options: &RuntimeOptions) -> Option<S
 /// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning
 /// per process, then debug messages) when the pose network finds no person or no usable face, or fails.
 pub fn back_image_of(normalised: &NormalisedInput, pose: &SharedPose, timings: &mut StageTimings) -> Option<RgbImage> {
-    back_image_with(normalised, pose, None, timings)
+    back_image_with(normalised, pose, None, timings).map(|back| back.rgb)
 }
 
-/// [`back_image_of`] with the face of `read` (pose landmarks of the same input, e.g. the body prior's,
-/// [`compute_geometry_and_pose`]) when it has a usable one: the pose network runs only without it.
+/// [`back_image_of`], with its head weights, from the face of `read` (pose landmarks of the same input, e.g. the
+/// body prior's, [`compute_geometry_and_pose`]) when it has a usable one: the pose network runs only without it.
 pub fn back_image_with(
     normalised: &NormalisedInput,
     pose: &SharedPose,
     read: Option<&PoseLandmarks>,
     timings: &mut StageTimings,
-) -> Option<RgbImage> {
-    back_image_and_head_with(normalised, pose, read, timings).map(|(back, _)| back)
-}
-
-/// [`back_image_with`] and where the back image drew the head ([`back::back_image_and_head`]).
-pub fn back_image_and_head_with(
-    normalised: &NormalisedInput,
-    pose: &SharedPose,
-    read: Option<&PoseLandmarks>,
-    timings: &mut StageTimings,
-) -> Option<(RgbImage, GrayImage)> {
+) -> Option<back::BackImage> {
     let face = read.and_then(back::FacePoints::from_pose).or_else(|| {
         let found = timings.time("back image (face landmarks)", || {
             let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
@@ -273,9 +263,8 @@ pub fn back_image_and_head_with(
             }
         }
     });
-    let back = face.and_then(|f| {
-        timings.time("back image (filter)", || back::back_image_and_head(&normalised.rgb, &normalised.mask, &f))
-    });
+    let back = face
+        .and_then(|f| timings.time("back image (filter)", || back::back_image(&normalised.rgb, &normalised.mask, &f)));
     if back.is_none() {
         static WARNED: AtomicBool = AtomicBool::new(false);
         warn_once(
@@ -1127,14 +1116,14 @@ pub fn decode_person_view(
         source.camera,
         crate::geometry::zmap::VISIBILITY_LAMBDA,
     );
-    let head = source.back_head.filter(|_| colours.back.is_some());
+    let head = source.back.map(|b| &b.head).filter(|_| colours.back.is_some());
     let axis = warp::source_axis(camera, source.camera);
     let kept = lookup_kept(&seen, flowz, target, axis, head, source.camera.width);
     keep_lookup_where(&mut person, &lookup, &kept);
     Ok(person)
 }
 
-/// How much of the back image's colour must be the head top's ([`back::back_image_and_head`]) for the neural
+/// How much of the back image's colour must be the head top's ([`back::BackImage::head`]) for the neural
 /// renderer to keep it on the back of the head ([`lookup_kept`]).
 pub const HEAD_KEPT: f32 = 0.5;
 
@@ -1263,11 +1252,9 @@ pub struct PreparedInput {
     pub mesh: TriMesh,
     /// Source-view depth and normals of the mesh.
     pub source_gbuffer: GBuffer,
-    /// The back image ([`back::back_image`]) when `back_pose` was given and found a face.
-    pub back: Option<RgbImage>,
-    /// With the back image: how much of each source pixel's back colour is the head top's
-    /// ([`back::back_image_and_head`]).
-    pub back_head: Option<GrayImage>,
+    /// The back image and where it drew the head ([`back::back_image`]) when `back_pose` was given and found a
+    /// face.
+    pub back: Option<back::BackImage>,
     /// The photo and the back image blurred for the surfaces the photo sees edge-on ([`warp::SideImages`]).
     pub side: warp::SideImages,
     /// How long each per-input stage took.
@@ -1309,7 +1296,7 @@ impl PreparedInput {
         let mut back_timings = StageTimings::default();
         // The colours are only read by the back image and the renderers, so their rim is cleaned beside the mesh.
         let rim = input::RIM_FRACTION * opts.resolution as f32;
-        let (geometry, (normalised, back, back_head, side)) = rayon::join(
+        let (geometry, (normalised, back, side)) = rayon::join(
             || -> Result<(TriMesh, GBuffer), PipelineError> {
                 let mesh =
                     timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
@@ -1325,19 +1312,17 @@ impl PreparedInput {
             || {
                 let normalised =
                     back_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
-                let (back, back_head) = opts
-                    .back_pose
-                    .as_ref()
-                    .and_then(|net| back_image_and_head_with(&normalised, net, pose, &mut back_timings))
-                    .unzip();
-                let side = back_timings
-                    .time("side images", || warp::SideImages::of(&normalised.rgb, back.as_ref(), &normalised.mask));
-                (normalised, back, back_head, side)
+                let back =
+                    opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings));
+                let side = back_timings.time("side images", || {
+                    warp::SideImages::of(&normalised.rgb, back.as_ref().map(|b| &b.rgb), &normalised.mask)
+                });
+                (normalised, back, side)
             },
         );
         let (mesh, source_gbuffer) = geometry?;
         timings.0.extend(back_timings.0);
-        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, back_head, side, timings })
+        Ok(Self { source_camera, normalised, fof, mesh, source_gbuffer, back, side, timings })
     }
 }
 

@@ -14,6 +14,7 @@ use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::raster::GBuffer;
 use crate::geometry::{Camera, TriMesh};
 
+use super::back::BackImage;
 use super::warp::SideImages;
 use super::{NeuralInput, PreparedInput, SharedNeural};
 
@@ -31,11 +32,8 @@ pub struct SourceView<'a> {
     pub gbuffer: &'a GBuffer,
     /// The orthographic source camera.
     pub camera: &'a Camera,
-    /// The input's back image ([`super::back`]), when it has one.
-    pub back: Option<&'a RgbImage>,
-    /// With the back image: how much of each pixel's back colour is the head top's
-    /// ([`super::back::back_image_and_head`]; the neural renderer keeps it there, [`super::lookup_kept`]).
-    pub back_head: Option<&'a GrayImage>,
+    /// The input's back image and where it drew the head ([`super::back`]), when it has one.
+    pub back: Option<&'a BackImage>,
     /// The photo and the back image blurred for surfaces seen edge-on ([`super::warp::SideImages`]), when given.
     pub side: Option<&'a SideImages>,
 }
@@ -50,14 +48,13 @@ impl<'a> SourceView<'a> {
             gbuffer: &input.source_gbuffer,
             camera: &input.source_camera,
             back: input.back.as_ref(),
-            back_head: input.back_head.as_ref(),
             side: Some(&input.side),
         }
     }
 
     /// The colours the renderers sample: the photo, the back image and the side images.
     pub fn colours(&self) -> super::warp::SourceColours<'a> {
-        super::warp::SourceColours { rgb: self.rgb, back: self.back, side: self.side }
+        super::warp::SourceColours { rgb: self.rgb, back: self.back.map(|b| &b.rgb), side: self.side }
     }
 }
 
@@ -91,10 +88,8 @@ pub struct Scene {
     pub gbuffer: GBuffer,
     /// The source camera.
     pub camera: Camera,
-    /// The input's back image, when it has one.
-    pub back: Option<RgbImage>,
-    /// Where the back image drew the head ([`SourceView::back_head`]).
-    pub back_head: Option<GrayImage>,
+    /// The input's back image and where it drew the head, when it has one.
+    pub back: Option<BackImage>,
     /// The side images ([`SideImages`]), when given.
     pub side: Option<SideImages>,
     /// The neural renderer and the encoder's output for this input; `None` draws geometrically.
@@ -111,7 +106,6 @@ impl Scene {
             gbuffer: input.source_gbuffer.clone(),
             camera: input.source_camera,
             back: input.back.clone(),
-            back_head: input.back_head.clone(),
             side: Some(input.side.clone()),
             neural,
         }
@@ -126,7 +120,6 @@ impl Scene {
             gbuffer: &self.gbuffer,
             camera: &self.camera,
             back: self.back.as_ref(),
-            back_head: self.back_head.as_ref(),
             side: self.side.as_ref(),
         }
     }
@@ -397,7 +390,6 @@ mod tests {
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
             back: None,
-            back_head: None,
             side: None,
             neural: None,
         }

@@ -322,7 +322,6 @@ mod tests {
             gbuffer: GBuffer::new(4, 4),
             camera: Camera::source(4),
             back: None,
-            back_head: None,
             side: None,
             neural: None,
         };
