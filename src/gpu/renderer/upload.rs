@@ -198,12 +198,12 @@ impl Renderer {
             height: img.height,
             data: img.data.iter().zip(&mask.data).map(|(c, m)| c.extend(*m)).collect(),
         };
-        let fits = |b: &&RgbImage| (b.width, b.height) == (rgb.width, rgb.height);
-        let back = colours.back.filter(fits).map(with_mask);
-        let side = colours.side.filter(|s| fits(&&s.rgb));
+        let fits = |b: &RgbImage| (b.width, b.height) == (rgb.width, rgb.height);
+        let back = colours.back.filter(|b| fits(b)).map(with_mask);
+        let side = colours.side.filter(|s| fits(&s.rgb));
         let side_photo = side.map(|s| with_mask(&s.rgb));
         // The side back image only beside a back image, as the CPU lookup pairs them.
-        let side_back = back.as_ref().and(side).and_then(|s| s.back.as_ref()).filter(fits).map(with_mask);
+        let side_back = back.as_ref().and(side).and_then(|s| s.back.as_ref()).filter(|b| fits(b)).map(with_mask);
         self.set_source_with_back(
             &with_mask(rgb),
             back.as_ref(),
