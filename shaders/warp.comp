@@ -91,7 +91,11 @@ void main() {
         }
         result = sample_blend(f.xy, sw, sh, 0, back);
         if (frame.source_images.x != 0u && result.w > 0.0) {
-            float side = 1.0 - smoothstep(0.0, SIDE_RAMP, abs(dot(geometry[index].xyz, axis)));
+            // The photo's shrink of the surface against this view (warp.rs side_weight); a surface this view
+            // sees edge-on keeps the sharp photo.
+            float here = abs(geometry[index].z);
+            float ratio = here > 0.0 ? abs(dot(geometry[index].xyz, axis)) / here : 1e30;
+            float side = 1.0 - smoothstep(0.0, SIDE_RAMP, ratio);
             if (side > 0.0) {
                 vec4 blurred = sample_blend(f.xy, sw, sh, 2 * sw * sh, back);
                 if (blurred.w > 0.0) {

@@ -4,7 +4,7 @@
 //! (HDR environments may exceed 1). RGBA images are **premultiplied** by alpha. sRGB encoding happens only at
 //! the file/display edge ([`srgb_to_linear`], [`linear_to_srgb`]).
 
-use glam::{Vec3, Vec4};
+use glam::{Vec2, Vec3, Vec4};
 
 /// Buffers at least this large are backed by transparent huge pages where the system allows ([`zeroed_f32`]).
 pub const HUGE_PAGE_MIN_BYTES: usize = 4 << 20;
@@ -112,6 +112,31 @@ pub type RgbImage = Image<Vec3>;
 pub type RgbaImage = Image<Vec4>;
 /// Single-channel float image (masks in `[0, 1]`, depths).
 pub type GrayImage = Image<f32>;
+
+/// A `size` x `size` grid of cells read from `img`: each cell the mean of `taps` x `taps` bilinear samples
+/// ([`sample_bilinear`], black off the image) at `map(q)`, `q` the sample's point in grid coordinates (cell `(c, r)`
+/// spans `[c, c + 1] x [r, r + 1]`). Row-major; rows in parallel (each cell on its own, so the same values in any
+/// order). How the networks' square crops are read (the pose region, the rotated face region).
+pub fn supersampled(img: &RgbImage, size: usize, taps: usize, map: impl Fn(Vec2) -> Vec2 + Sync) -> Vec<Vec3> {
+    use rayon::prelude::*;
+    let taps = taps.max(1);
+    let mut out = vec![Vec3::ZERO; size * size];
+    out.par_chunks_mut(size.max(1)).enumerate().for_each(|(r, row)| {
+        for (c, cell) in row.iter_mut().enumerate() {
+            let mut acc = Vec3::ZERO;
+            for j in 0..taps {
+                for i in 0..taps {
+                    let q =
+                        Vec2::new(c as f32 + (i as f32 + 0.5) / taps as f32, r as f32 + (j as f32 + 0.5) / taps as f32);
+                    let p = map(q);
+                    acc += sample_bilinear(img, p.x, p.y, Vec3::ZERO);
+                }
+            }
+            *cell = acc / (taps * taps) as f32;
+        }
+    });
+    out
+}
 
 /// Bilinear sample of an image at continuous pixel coordinates (pixel centres at `+0.5`).
 ///

@@ -105,9 +105,11 @@ SIDE_BLUR = 4.0 / 512.0
 
 
 def side_weight(normals, axis):
-    """How much each target pixel takes the side images [B,1,H,W]: 1 - smoothstep(0, SIDE_RAMP, |n . axis|) of its
-    target-view unit normal `normals` [B,3,H,W] (src/pipeline/warp.rs `side_weight`; 0 for non-finite normals)."""
-    t = ((normals * axis[:, :, None, None]).sum(1, keepdim=True).abs() / SIDE_RAMP).clamp(0, 1)
+    """How much each target pixel takes the side images [B,1,H,W]: 1 - smoothstep(0, SIDE_RAMP, |n . axis| / |n_z|)
+    of its target-view unit normal `normals` [B,3,H,W]: how much the photo shrinks the surface against this view
+    (src/pipeline/warp.rs `side_weight`; 0 for non-finite normals and surfaces seen edge-on here)."""
+    ratio = (normals * axis[:, :, None, None]).sum(1, keepdim=True).abs() / (SIDE_RAMP * normals[:, 2:3].abs())
+    t = ratio.clamp(0, 1)
     weight = 1 - t * t * (3 - 2 * t)
     return torch.where(torch.isfinite(weight), weight, torch.zeros_like(weight))
 

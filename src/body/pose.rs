@@ -30,7 +30,6 @@ use std::path::{Path, PathBuf};
 
 use glam::{Vec2, Vec3};
 use ort::session::Session;
-use ort::value::TensorRef;
 
 use super::BodyError;
 use crate::buffer::{bilinear_cell, linear_to_srgb, sample_bilinear_cell, GrayImage, RgbImage};
@@ -505,24 +504,7 @@ pub fn cut_at_bottom(mask: &GrayImage, frame: PhotoFrame) -> bool {
 /// The pose model: `explicit`, else `R2HUMAN_POSE_MODEL`, else `.tools/models/pose_landmark_full.onnx` in the
 /// project (installed by `scripts/setup.d/live.sh`).
 pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, BodyError> {
-    let missing = |p: &Path| BodyError::Model(format!("pose model `{}` does not exist", p.display()));
-    if let Some(p) = explicit {
-        return if p.is_file() { Ok(p.into()) } else { Err(missing(p)) };
-    }
-    if let Some(p) = std::env::var_os("R2HUMAN_POSE_MODEL").filter(|p| !p.is_empty()) {
-        return model_path(Some(Path::new(&p)));
-    }
-    let candidates: Vec<PathBuf> = [super::tools_dir()]
-        .into_iter()
-        .chain(crate::neural::project_roots().into_iter().map(|r| r.join(".tools")))
-        .map(|t| t.join("models").join(MODEL_FILE))
-        .collect();
-    candidates.iter().find(|p| p.is_file()).cloned().ok_or_else(|| {
-        BodyError::Model(format!(
-            "the pose model is not installed (.tools/models/{MODEL_FILE}); run `bash scripts/setup.d/live.sh`, \
-             or use --geometry inflate"
-        ))
-    })
+    super::installed_model(explicit, "R2HUMAN_POSE_MODEL", MODEL_FILE, "pose model", ", or use --geometry inflate")
 }
 
 /// The MediaPipe pose landmark network in an ONNX Runtime session.
@@ -662,19 +644,12 @@ impl PoseEstimator {
 
     /// One session run on a network input: raw landmarks, pose score and world landmarks.
     fn run_network(&mut self, input: &[f32]) -> Result<(Vec<f32>, f32, Vec<f32>), BodyError> {
-        let fail = |e: String| BodyError::Model(format!("running `{}` failed: {e}", self.path.display()));
-        let view =
-            ndarray::ArrayView4::from_shape((1, 3, INPUT_SIZE, INPUT_SIZE), input).map_err(|e| fail(e.to_string()))?;
-        let tensor = TensorRef::from_array_view(view).map_err(|e| fail(e.to_string()))?;
-        let outputs = self.session.run(ort::inputs!["input_1" => tensor]).map_err(|e| fail(e.to_string()))?;
-        let get = |name: &str| -> Result<Vec<f32>, BodyError> {
-            let v = outputs.get(name).ok_or_else(|| fail(format!("no output {name}")))?;
-            let a = v.try_extract_array::<f32>().map_err(|e| fail(e.to_string()))?;
-            Ok(a.iter().copied().collect())
-        };
-        let raw = get("Identity")?;
-        let score = get("Identity_1")?.first().copied().unwrap_or(0.0);
-        Ok((raw, score, get("Identity_4")?))
+        let shape = (1, 3, INPUT_SIZE, INPUT_SIZE);
+        let outputs = ["Identity", "Identity_1", "Identity_4"];
+        let mut out = super::run_image_network(&mut self.session, &self.path, shape, input, &outputs)?.into_iter();
+        let (raw, score, world) = (out.next(), out.next(), out.next());
+        let score = score.and_then(|s| s.first().copied()).unwrap_or(0.0);
+        Ok((raw.unwrap_or_default(), score, world.unwrap_or_default()))
     }
 
     /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`; the photo lies in
@@ -760,7 +735,7 @@ impl PoseEstimator {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::buffer::{sample_bilinear, Image};
+    use crate::buffer::Image;
 
     #[test]
     fn region_from_mask_is_a_square_around_the_box() {
@@ -998,25 +973,12 @@ pub(crate) mod tests {
     fn network_input_by_definition(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
         let s = INPUT_SIZE;
         let taps = (region.scale().ceil() as usize).clamp(1, 4);
+        let cells = crate::buffer::supersampled(rgb, s, taps, |q| region.to_photo(q));
         let mut out = vec![0.0f32; 3 * s * s];
-        for r in 0..s {
-            for c in 0..s {
-                let mut acc = Vec3::ZERO;
-                for j in 0..taps {
-                    for i in 0..taps {
-                        let q = Vec2::new(
-                            c as f32 + (i as f32 + 0.5) / taps as f32,
-                            r as f32 + (j as f32 + 0.5) / taps as f32,
-                        );
-                        let p = region.to_photo(q);
-                        acc += sample_bilinear(rgb, p.x, p.y, Vec3::ZERO);
-                    }
-                }
-                let v = acc / (taps * taps) as f32;
-                for ch in 0..3 {
-                    let x = linear_to_srgb(v[ch]);
-                    out[ch * s * s + r * s + c] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
-                }
+        for (k, v) in cells.iter().enumerate() {
+            for ch in 0..3 {
+                let x = linear_to_srgb(v[ch]);
+                out[ch * s * s + k] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
             }
         }
         out

@@ -70,6 +70,8 @@ pub struct BodyEstimator {
     pub mirror_read: bool,
     /// The last frame's fitted pose (the next warm fit's start).
     previous: Option<Pose>,
+    /// MediaPipe's face mesh ([`super::face`]), or why it could not be loaded (said once, on first use).
+    face: Result<super::face::FaceEstimator, String>,
 }
 
 impl std::fmt::Debug for BodyEstimator {
@@ -88,12 +90,28 @@ impl BodyEstimator {
     pub fn load(pose_model: Option<&Path>, options: &RuntimeOptions) -> Result<Self, BodyError> {
         let model = BodyModel::shared()?;
         let pose = PoseEstimator::load(pose_model, options)?;
-        Ok(Self { pose, model, options: FitOptions::default(), mirror_read: true, previous: None })
+        let face = super::face::FaceEstimator::load(None, options).map_err(|e| e.to_string());
+        Ok(Self { pose, model, options: FitOptions::default(), mirror_read: true, previous: None, face })
     }
 
     /// The body model.
     pub fn model(&self) -> &'static BodyModel {
         self.model
+    }
+
+    /// The face mesh ([`super::face::FaceEstimator::estimate`]) of the person whose landmarks `pose` were read
+    /// from `rgb` (linear RGB, the same pixels). `None` when no face is found, and, with one warning per process,
+    /// when the face model is not installed or fails.
+    pub fn face_mesh(&mut self, rgb: &RgbImage, pose: &PoseLandmarks) -> Option<super::face::FaceMesh> {
+        static WARNED: std::sync::Once = std::sync::Once::new();
+        let found = match &mut self.face {
+            Ok(face) => face.estimate(rgb, pose).map_err(|e| e.to_string()),
+            Err(why) => Err(why.clone()),
+        };
+        found.unwrap_or_else(|why| {
+            WARNED.call_once(|| tracing::warn!("no face relief: {why}"));
+            None
+        })
     }
 
     /// Forgets the previous frame (the next [`BodyEstimator::estimate`] with `warm` starts cold).

@@ -644,19 +644,30 @@ fn body_placed_geometry(
                 // the frame the body was fitted in.
                 surfaces = timings.time("geometry (inflate, body's frame)", || inflated(prior.frame()))?;
             }
-            let intervals = timings.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
+            // The face mesh needs only the pose landmarks: it runs beside the body's intervals.
+            let (mut interval_times, mut face_times) = (StageTimings::default(), StageTimings::default());
+            let landmarks = prior.landmarks.clone();
+            let (intervals, face) = rayon::join(
+                || interval_times.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette)),
+                || face_times.time("face mesh", || face_mesh(normalised, body, &landmarks)),
+            );
+            timings.0.extend(interval_times.0.into_iter().chain(face_times.0));
             let learned = opts.placement.as_ref().and_then(|net| {
                 timings.time("body placement (network)", || placement_net_shifts(net, &surfaces, &intervals, opts))
             });
             let shifts = learned.or_else(|| {
                 crate::body::placed::depth_shifts(&intervals, &surfaces.mask, crate::body::placed::PLACEMENT_WEIGHT)
             });
-            match shifts {
+            let surfaces = match shifts {
                 Some(shifts) => crate::body::placed::place(surfaces, &shifts),
                 None => {
                     warn_no_body_fof(&NoBodyFof::NoVolume);
                     surfaces
                 }
+            };
+            match face {
+                Some(face) => timings.time("face relief", || with_face_relief(surfaces, &face)),
+                None => surfaces,
             }
         }
         Err(why) => {
@@ -669,6 +680,40 @@ fn body_placed_geometry(
         Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order)
     })?;
     Ok((fof, pose))
+}
+
+/// The face mesh ([`crate::body::face`]) of the person `pose` was read from; `None` when no face is found (said
+/// at debug level) or the face model is not installed (one warning per process).
+fn face_mesh(
+    normalised: &NormalisedInput,
+    body: &SharedBody,
+    pose: &PoseLandmarks,
+) -> Option<crate::body::face::FaceMesh> {
+    let mut guard = body.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mesh = guard.face_mesh(&normalised.rgb, pose);
+    if mesh.is_none() {
+        tracing::debug!("face relief: no face found");
+    }
+    mesh
+}
+
+/// `surfaces` with the front of the face shaped by `face` ([`crate::body::face::with_face_relief`]); as they are
+/// when its relief is skipped (said at debug level).
+fn with_face_relief(
+    surfaces: inflate::InflatedSurfaces,
+    face: &crate::body::face::FaceMesh,
+) -> inflate::InflatedSurfaces {
+    let (surfaces, skipped) = crate::body::face::with_face_relief(surfaces, face);
+    match skipped {
+        Some(why) => tracing::debug!("face relief skipped: {why:?}"),
+        None => tracing::debug!(
+            "face relief: width {:.1} px, yaw {:.2} rad, score {:.3}",
+            face.width(),
+            face.yaw(),
+            face.score
+        ),
+    }
+    surfaces
 }
 
 /// The placement network's shifts for the inflation prior `surfaces` and the fitted body's reconciled `intervals`

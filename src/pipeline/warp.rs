@@ -105,8 +105,9 @@ pub struct SideImages {
 /// Standard deviation of the side images' blur as a fraction of the source image's width (4 px at 512²).
 pub const SIDE_BLUR: f32 = 4.0 / 512.0;
 
-/// Up to which `|source-view z|` of a surface's unit normal the side images blend in: 1 seen edge-on, 0 from
-/// this on (`1 - smoothstep(0, SIDE_RAMP, |z|)`).
+/// Up to which ratio of a surface's unit normal's `|source-view z|` to its `|target-view z|` the side images blend
+/// in: 1 where the photo sees the surface edge-on and the view does not, 0 from this ratio on
+/// (`1 - smoothstep(0, SIDE_RAMP, ratio)`). A view from the photo's own direction has ratio 1 everywhere.
 pub const SIDE_RAMP: f32 = 0.5;
 
 impl SideImages {
@@ -218,10 +219,13 @@ pub fn back_weight(normal: Vec3, axis: Vec3) -> f32 {
 }
 
 /// How much the surface with unit target-view normal `normal` takes the side images ([`SideImages`]):
-/// `1 - smoothstep(0, SIDE_RAMP, |normal . axis|)` with `axis` = [`source_axis`]: 1 for a surface the source camera
-/// sees edge-on, 0 for one facing toward or away from it by [`SIDE_RAMP`] or more. 0 for a non-finite normal.
+/// `1 - smoothstep(0, SIDE_RAMP, |normal . axis| / |normal . z|)` with `axis` = [`source_axis`] and `z` the target
+/// camera's own axis. The ratio is how much the photo shrinks the surface against this view (one photo pixel
+/// covers `1 / ratio` pixels here): 1 for a surface the source camera sees edge-on and this view face-on, 0 where
+/// the photo sees the surface at least [`SIDE_RAMP`] as well as this view does, so the photo's own view (ratio 1)
+/// and surfaces this view sees edge-on keep the sharp photo. 0 for a non-finite normal.
 pub fn side_weight(normal: Vec3, axis: Vec3) -> f32 {
-    let t = (normal.dot(axis).abs() / SIDE_RAMP).clamp(0.0, 1.0);
+    let t = (normal.dot(axis).abs() / (SIDE_RAMP * normal.z.abs())).clamp(0.0, 1.0);
     if t.is_finite() {
         1.0 - t * t * (3.0 - 2.0 * t)
     } else {
@@ -674,21 +678,31 @@ mod tests {
     #[test]
     fn side_weight_in_closed_form() {
         let src = Camera::source(8);
-        let axis = source_axis(&src, &src);
-        // Seen edge-on: the side images alone; facing the camera or away from it by the ramp or more: none.
-        assert_eq!(side_weight(Vec3::X, axis), 1.0);
-        assert_eq!(side_weight(Vec3::Z, axis), 0.0);
-        assert_eq!(side_weight(-Vec3::Z, axis), 0.0);
-        assert_eq!(side_weight(Vec3::new(0.0, 0.8, -0.6), axis), 0.0);
-        // Halfway through the ramp, toward or away: 1 - smoothstep(0.5) = 0.5.
-        for z in [0.25f32, -0.25] {
-            let n = Vec3::new(0.0, (1.0 - z * z).sqrt(), z);
-            assert!((side_weight(n, axis) - 0.5).abs() < 1e-6, "{z}");
+        // From the photo's own direction the ratio is 1 for every surface: the sharp photo everywhere.
+        let own = source_axis(&src, &src);
+        for n in [Vec3::Z, Vec3::new(0.0, 0.8, 0.6), Vec3::new(0.99, 0.0, 0.141), Vec3::X] {
+            assert_eq!(side_weight(n.normalize(), own), 0.0, "{n}");
         }
-        // A tenth of the ramp: 1 - (3 t^2 - 2 t^3) with t = 0.1.
-        let n = Vec3::new((1.0 - 0.0025f32).sqrt(), 0.0, 0.05);
+        // Seen from the side (the photo's axis is the view's x): edge-on in the photo and face-on here, the side
+        // images alone; the photo sees it at least half as well as this view: none; seen edge-on here: none.
+        let tgt = Camera::orbit(90.0, 0.0, 8, 8);
+        let axis = source_axis(&tgt, &src);
+        assert!((axis.abs() - Vec3::X).length() < 1e-5, "{axis}");
+        assert_eq!(side_weight(Vec3::Z, axis), 1.0);
+        assert_eq!(side_weight(-Vec3::Z, axis), 1.0);
+        assert_eq!(side_weight(Vec3::new(0.6, 0.0, 0.8), axis), 0.0);
+        assert_eq!(side_weight(Vec3::X, axis), 0.0);
+        assert_eq!(side_weight(Vec3::Y, axis), 0.0);
+        // Halfway through the ramp (ratio 0.25), facing the photo or away: 1 - smoothstep(0.5) = 0.5.
+        for x in [0.25f32, -0.25] {
+            let n = Vec3::new(x, 0.0, 1.0).normalize();
+            assert!((side_weight(n, axis) - 0.5).abs() < 1e-6, "{x}");
+        }
+        // A tenth of the ramp (ratio 0.05): 1 - (3 t^2 - 2 t^3) with t = 0.1.
+        let n = Vec3::new(0.05, 0.0, 1.0).normalize();
         assert!((side_weight(n, axis) - 0.972).abs() < 1e-5);
         assert_eq!(side_weight(Vec3::NAN, axis), 0.0);
+        assert_eq!(side_weight(Vec3::ZERO, axis), 0.0);
     }
 
     #[test]
@@ -792,6 +806,9 @@ mod tests {
         }
         assert!(edge_on > 200, "{edge_on}");
         assert!(soft_step < 0.5 * sharp_step, "{soft_step} {sharp_step}");
+        // The photo's own view keeps the sharp photo everywhere, the sphere's rim included.
+        let own = render_geometric(with, &mask, &g, &cam, &g, &cam, OcclusionFill::MirroredFront);
+        assert_eq!(own, render_geometric(&stripes, &mask, &g, &cam, &g, &cam, OcclusionFill::MirroredFront));
     }
 
     #[test]

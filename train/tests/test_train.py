@@ -198,13 +198,18 @@ class WarpRgbTest(unittest.TestCase):
 
 
     def test_side_weight_and_box_radii_match_the_rust_formulas(self):
-        # src/pipeline/warp.rs: 1 - smoothstep(0, 0.5, |n . axis|); the image crate's fast_blur boxes.
-        axis = torch.tensor([[0.0, 0.0, 1.0]])
-        s = math.sqrt(1 - 0.25 ** 2)
-        normals = torch.tensor([[1, 0, 0], [0, 0, 1], [0, 0, -1], [0, s, 0.25], [0, s, -0.25], [float("nan"), 0, 0]],
-                               dtype=torch.float32).T.reshape(1, 3, 1, 6)
-        self.assertTrue(torch.allclose(side_weight(normals, axis)[0, 0, 0],
-                                       torch.tensor([1.0, 0.0, 0.0, 0.5, 0.5, 0.0]), atol=1e-6))
+        # src/pipeline/warp.rs: 1 - smoothstep(0, 0.5, |n . axis| / |n_z|) (the same cases as
+        # `cargo test --lib side_weight_in_closed_form`); the image crate's fast_blur boxes.
+        s = 1 / math.sqrt(1 + 0.25 ** 2)
+        normals = torch.tensor([[0, 0, 1], [0, 0, -1], [0.6, 0, 0.8], [1, 0, 0], [0, 1, 0], [0.25 * s, 0, s],
+                                [-0.25 * s, 0, s], [float("nan"), 0, 0], [0, 0, 0]],
+                               dtype=torch.float32).T.reshape(1, 3, 1, 9)
+        side_view = torch.tensor([[1.0, 0.0, 0.0]])
+        self.assertTrue(torch.allclose(side_weight(normals, side_view)[0, 0, 0],
+                                       torch.tensor([1.0, 1.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0]), atol=1e-6))
+        # From the photo's own direction: the sharp photo everywhere.
+        own_view = torch.tensor([[0.0, 0.0, 1.0]])
+        self.assertTrue(torch.all(side_weight(normals, own_view) == 0))
         # sigma 4 (512 px): boxes 7, 7, 9 -> radii 3, 3, 5 (the crate rounds each radius up to an odd one).
         self.assertEqual(box_radii(4.0), [3, 3, 5])
         self.assertEqual(box_radii(2.0), [1, 1, 3])
