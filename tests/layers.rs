@@ -429,7 +429,11 @@ const CAUSE_AS_TEXT_ALLOWED: [(&str, usize, &str); 20] = [
     ("body/base.rs", 1, "serde_json (the embedded vertex groups)"),
     ("body/model.rs", 1, "the load-once cache keeps the message (errors are not Clone; see STRING_ERRORS_ALLOWED)"),
     ("body/morph.rs", 2, "zip (the MakeHuman targets archive)"),
-    ("body/pose.rs", 4, "ndarray's ShapeError and ort (tensor, run, extract)"),
+    (
+        "body/mod.rs",
+        4,
+        "ndarray's ShapeError and ort (tensor, run, extract): run_image_network, the pose and face networks",
+    ),
     ("body/rig.rs", 3, "serde_json (rig, weights) and a path as text"),
     ("capture/mod.rs", 1, "std::io::Error of `metadata`"),
     ("capture/onnx.rs", 3, "ort (tensor, run, extract)"),

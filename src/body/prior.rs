@@ -71,7 +71,7 @@ pub struct BodyEstimator {
     /// The last frame's fitted pose (the next warm fit's start).
     previous: Option<Pose>,
     /// MediaPipe's face mesh ([`super::face`]), or why it could not be loaded (said once, on first use).
-    face: Result<super::face::FaceEstimator, String>,
+    face: Result<super::face::FaceEstimator, BodyError>,
 }
 
 impl std::fmt::Debug for BodyEstimator {
@@ -90,7 +90,7 @@ impl BodyEstimator {
     pub fn load(pose_model: Option<&Path>, options: &RuntimeOptions) -> Result<Self, BodyError> {
         let model = BodyModel::shared()?;
         let pose = PoseEstimator::load(pose_model, options)?;
-        let face = super::face::FaceEstimator::load(None, options).map_err(|e| e.to_string());
+        let face = super::face::FaceEstimator::load(None, options);
         Ok(Self { pose, model, options: FitOptions::default(), mirror_read: true, previous: None, face })
     }
 
@@ -104,14 +104,17 @@ impl BodyEstimator {
     /// when the face model is not installed or fails.
     pub fn face_mesh(&mut self, rgb: &RgbImage, pose: &PoseLandmarks) -> Option<super::face::FaceMesh> {
         static WARNED: std::sync::Once = std::sync::Once::new();
-        let found = match &mut self.face {
-            Ok(face) => face.estimate(rgb, pose).map_err(|e| e.to_string()),
-            Err(why) => Err(why.clone()),
-        };
-        found.unwrap_or_else(|why| {
-            WARNED.call_once(|| tracing::warn!("no face relief: {why}"));
-            None
-        })
+        let warn = |why: &BodyError| WARNED.call_once(|| tracing::warn!("no face relief: {why}"));
+        match &mut self.face {
+            Ok(face) => face.estimate(rgb, pose).unwrap_or_else(|why| {
+                warn(&why);
+                None
+            }),
+            Err(why) => {
+                warn(why);
+                None
+            }
+        }
     }
 
     /// Forgets the previous frame (the next [`BodyEstimator::estimate`] with `warm` starts cold).
