@@ -48,8 +48,13 @@ pub const MAX_FACE_YAW: f32 = 0.6;
 /// Width of the fade from the old surface at the face's outline to the mesh's relief, as a fraction of the face's
 /// width.
 pub const FEATHER: f32 = 0.15;
-/// Smallest fraction of the face outline's points inside the person's mask for the relief to be applied.
+/// Smallest fraction of the face outline's points in or next to the person's mask (within [`OUTLINE_SLACK`]) for
+/// the relief to be applied: a face the mask does not hold is not this person's.
 pub const MIN_OUTLINE_IN_MASK: f32 = 0.9;
+/// How far outside the mask an outline point still counts as on the person, as a fraction of the face's width: the
+/// jaw's points lie on the face's own outline, and a segmentation a pixel or two tight puts them outside (Obama's
+/// portraits in `face_recognition`'s test images: 4-6 of 36 points 1-3 px out).
+pub const OUTLINE_SLACK: f32 = 0.08;
 
 /// The face oval of MediaPipe's canonical face mesh, in order around the face (`FACEMESH_FACE_OVAL` of the
 /// `mediapipe` package, Apache-2.0).
@@ -330,7 +335,17 @@ pub fn with_face_relief(mut surfaces: InflatedSurfaces, mesh: &FaceMesh) -> (Inf
         let (c, r) = (p.x.floor(), p.y.floor());
         c >= 0.0 && r >= 0.0 && (c as usize) < w && (r as usize) < h && *surfaces.mask.get(c as usize, r as usize) > 0.5
     };
-    let inside_share = outline.iter().filter(|&&p| in_mask(p)).count() as f32 / outline.len() as f32;
+    let slack = (OUTLINE_SLACK * width).ceil() as i64;
+    let near_mask = |p: Vec2| {
+        let (c, r) = (p.x.floor() as i64, p.y.floor() as i64);
+        (-slack..=slack).any(|dr| {
+            (-slack..=slack).any(|dc| {
+                let (cc, rr) = (c + dc, r + dr);
+                dc * dc + dr * dr <= slack * slack && in_mask(Vec2::new(cc as f32 + 0.5, rr as f32 + 0.5))
+            })
+        })
+    };
+    let inside_share = outline.iter().filter(|&&p| near_mask(p)).count() as f32 / outline.len() as f32;
     if inside_share < MIN_OUTLINE_IN_MASK {
         return (surfaces, Some(NoRelief::OutsideMask(inside_share)));
     }
@@ -578,6 +593,17 @@ mod tests {
         let (out, why) = with_face_relief(half.clone(), &mesh(centre, 30.0, |_| 0.0));
         assert!(matches!(why, Some(NoRelief::OutsideMask(_))), "{why:?}");
         assert_eq!(out, half);
+        // A mask two pixels tighter than the outline (the jaw on the face's own edge): still the person's face.
+        let mut tight = s.clone();
+        tight.mask = Image::from_fn(128, 128, |c, r| {
+            let d = Vec2::new(c as f32 + 0.5, r as f32 + 0.5).distance(centre);
+            if d < 28.0 || r < 64 {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        assert_eq!(with_face_relief(tight, &mesh(centre, 30.0, |_| 0.0)).1, None);
         // Degenerate: every point at one place; NaN depths.
         let mut m = mesh(centre, 30.0, |_| 0.0);
         m.points.iter_mut().for_each(|p| *p = Vec3::new(64.0, 64.0, 0.0));
