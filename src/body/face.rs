@@ -335,7 +335,8 @@ pub fn with_face_relief(mut surfaces: InflatedSurfaces, mesh: &FaceMesh) -> (Inf
         let (c, r) = (p.x.floor(), p.y.floor());
         c >= 0.0 && r >= 0.0 && (c as usize) < w && (r as usize) < h && *surfaces.mask.get(c as usize, r as usize) > 0.5
     };
-    let slack = (OUTLINE_SLACK * width).ceil() as i64;
+    // At most 32 px: the search is a disc around each of the 36 points.
+    let slack = ((OUTLINE_SLACK * width).ceil() as i64).clamp(0, 32);
     let near_mask = |p: Vec2| {
         let (c, r) = (p.x.floor() as i64, p.y.floor() as i64);
         (-slack..=slack).any(|dr| {
