@@ -24,9 +24,9 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DVec3, Vec2, Vec3};
 use ort::session::Session;
 
-use super::pose::PoseLandmarks;
+use super::pose::{network_value, sigmoid, PoseLandmarks};
 use super::BodyError;
-use crate::buffer::{linear_to_srgb, supersampled, RgbImage};
+use crate::buffer::{supersampled, RgbImage};
 use crate::geometry::inflate::InflatedSurfaces;
 use crate::neural::RuntimeOptions;
 
@@ -87,12 +87,6 @@ impl FaceRegion {
     pub fn to_photo(&self, q: Vec2) -> Vec2 {
         let d = (q / INPUT_SIZE as f32 - Vec2::splat(0.5)) * self.side;
         self.centre + Vec2::from_angle(self.angle).rotate(d)
-    }
-
-    /// Photo pixels to network input coordinates (the inverse of [`FaceRegion::to_photo`]).
-    pub fn to_input(&self, p: Vec2) -> Vec2 {
-        let d = Vec2::from_angle(-self.angle).rotate(p - self.centre);
-        (d / self.side + Vec2::splat(0.5)) * INPUT_SIZE as f32
     }
 
     /// The first region, from the pose network's face landmarks: level with the eyes, centred a little below
@@ -166,7 +160,7 @@ impl FaceMesh {
                 Vec3::new(xy.x, xy.y, -p[2] * scale)
             })
             .collect();
-        let score = 1.0 / (1.0 + (-logit.clamp(-60.0, 60.0)).exp());
+        let score = sigmoid(logit);
         Some(Self { points, score, region })
     }
 
@@ -195,18 +189,7 @@ pub fn model_path(explicit: Option<&Path>) -> Result<PathBuf, BodyError> {
 pub fn network_input(rgb: &RgbImage, region: FaceRegion) -> Vec<f32> {
     let taps = ((region.side / INPUT_SIZE as f32).ceil() as usize).clamp(1, 4);
     let cells = supersampled(rgb, INPUT_SIZE, taps, |q| region.to_photo(q));
-    cells
-        .iter()
-        .flat_map(|v| v.to_array())
-        .map(|v| {
-            let x = linear_to_srgb(v);
-            if x.is_finite() {
-                x.clamp(0.0, 1.0)
-            } else {
-                0.0
-            }
-        })
-        .collect()
+    cells.iter().flat_map(|v| v.to_array()).map(network_value).collect()
 }
 
 /// MediaPipe's face landmark network in an ONNX Runtime session.
@@ -331,20 +314,16 @@ pub fn with_face_relief(mut surfaces: InflatedSurfaces, mesh: &FaceMesh) -> (Inf
         return (surfaces, Some(NoRelief::Turned(yaw)));
     }
     let outline: Vec<Vec2> = FACE_OVAL.iter().map(|&i| mesh.points[i].truncate()).collect();
-    let in_mask = |p: Vec2| {
-        let (c, r) = (p.x.floor(), p.y.floor());
-        c >= 0.0 && r >= 0.0 && (c as usize) < w && (r as usize) < h && *surfaces.mask.get(c as usize, r as usize) > 0.5
+    let mask_at = |c: i64, r: i64| {
+        (0..w as i64).contains(&c) && (0..h as i64).contains(&r) && *surfaces.mask.get(c as usize, r as usize) > 0.5
     };
+    let in_mask = |p: Vec2| mask_at(p.x.floor() as i64, p.y.floor() as i64);
     // At most 32 px: the search is a disc around each of the 36 points.
     let slack = ((OUTLINE_SLACK * width).ceil() as i64).clamp(0, 32);
     let near_mask = |p: Vec2| {
         let (c, r) = (p.x.floor() as i64, p.y.floor() as i64);
-        (-slack..=slack).any(|dr| {
-            (-slack..=slack).any(|dc| {
-                let (cc, rr) = (c + dc, r + dr);
-                dc * dc + dr * dr <= slack * slack && in_mask(Vec2::new(cc as f32 + 0.5, rr as f32 + 0.5))
-            })
-        })
+        (-slack..=slack)
+            .any(|dr| (-slack..=slack).any(|dc| dc * dc + dr * dr <= slack * slack && mask_at(c + dc, r + dr)))
     };
     let inside_share = outline.iter().filter(|&&p| near_mask(p)).count() as f32 / outline.len() as f32;
     if inside_share < MIN_OUTLINE_IN_MASK {
@@ -491,8 +470,13 @@ mod tests {
         assert!(region.to_photo(Vec2::splat(96.0)).distance(region.centre) < 1e-4);
         let right = region.to_photo(Vec2::new(192.0, 96.0)) - region.centre;
         assert!((right - 48.0 * Vec2::new(0.3f32.cos(), 0.3f32.sin())).length() < 1e-3);
+        // Its inverse, by definition: undo the turn, then the scale and the centre.
+        let to_input = |p: Vec2| {
+            let d = Vec2::from_angle(-region.angle).rotate(p - region.centre);
+            (d / region.side + Vec2::splat(0.5)) * INPUT_SIZE as f32
+        };
         for q in [Vec2::new(0.0, 0.0), Vec2::new(12.5, 170.0), Vec2::new(191.0, 3.0)] {
-            assert!(region.to_input(region.to_photo(q)).distance(q) < 1e-3);
+            assert!(to_input(region.to_photo(q)).distance(q) < 1e-3);
         }
     }
 

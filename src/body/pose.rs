@@ -255,8 +255,18 @@ pub struct PoseLandmarks {
 /// padding, not a place where the body ends.
 pub type PhotoFrame = (Vec2, Vec2);
 
-fn sigmoid(v: f32) -> f32 {
+pub(super) fn sigmoid(v: f32) -> f32 {
     1.0 / (1.0 + (-v.clamp(-60.0, 60.0)).exp())
+}
+
+/// One linear colour channel as MediaPipe's networks (pose, face mesh) read it: sRGB in `[0, 1]`, 0 when not finite.
+pub(super) fn network_value(linear: f32) -> f32 {
+    let x = linear_to_srgb(linear);
+    if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
 }
 
 impl PoseLandmarks {
@@ -455,8 +465,7 @@ pub fn network_input(rgb: &RgbImage, region: PoseRegion) -> Vec<f32> {
             }
             let v = acc / (taps * taps) as f32;
             for ch in 0..3 {
-                let x = linear_to_srgb(v[ch]);
-                out[ch] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+                out[ch] = network_value(v[ch]);
             }
         }
     });
@@ -977,8 +986,7 @@ pub(crate) mod tests {
         let mut out = vec![0.0f32; 3 * s * s];
         for (k, v) in cells.iter().enumerate() {
             for ch in 0..3 {
-                let x = linear_to_srgb(v[ch]);
-                out[ch * s * s + k] = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+                out[ch * s * s + k] = network_value(v[ch]);
             }
         }
         out

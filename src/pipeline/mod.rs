@@ -638,7 +638,7 @@ fn body_placed_geometry(
     let mut pose = None;
     let surfaces = match fitted {
         Ok((prior, silhouette)) => {
-            pose = Some(prior.landmarks.clone());
+            let landmarks: &PoseLandmarks = pose.insert(prior.landmarks.clone());
             if prior.frame() != frame {
                 // The pose read stood the person on the straight bottom edge (soles, not a cut): inflate again with
                 // the frame the body was fitted in.
@@ -646,10 +646,9 @@ fn body_placed_geometry(
             }
             // The face mesh needs only the pose landmarks: it runs beside the body's intervals.
             let (mut interval_times, mut face_times) = (StageTimings::default(), StageTimings::default());
-            let landmarks = prior.landmarks.clone();
             let (intervals, face) = rayon::join(
                 || interval_times.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette)),
-                || face_times.time("face mesh", || face_mesh(normalised, body, &landmarks)),
+                || face_times.time("face mesh", || face_mesh(normalised, body, landmarks)),
             );
             timings.0.extend(interval_times.0.into_iter().chain(face_times.0));
             let learned = opts.placement.as_ref().and_then(|net| {
