@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # BlazePose GHUM "heavy" as an ONNX model with the interface of the shipped pose landmark model, for measuring it
-# against "full" (README "How much depth does the fitted body know?", session 15). Not used at run time: nothing in
+# against "full" (docs/geometry.md, "Ideas measured and not kept"). Not used at run time: nothing in
 # the app loads it unless R2HUMAN_POSE_MODEL points at it.
 #
 #   bash scripts/pose-heavy.sh            # writes .tools/models/pose_landmark_heavy.onnx (and _full for a check)

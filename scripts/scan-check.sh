@@ -21,7 +21,7 @@
 #    tail), merman (a fish tail instead of legs), skelebot (a robot skeleton). The players dmo and slshish named in
 #    the package have no model in it (empty folders).
 #
-# 3. Three more characters, new to the project in session 13 and read once, after `--geometry auto` had been chosen on
+# 3. Three more characters kept apart from every choice: they are read once, after `--geometry auto` was chosen on
 #    the others: neko from OpenArena 0.8.8 (`openarena-088-data`, GPL-2+) and angelyss and ayumi from the 0.8.1
 #    "mature" players (`openarena-081-players-mature`, GPL-2+), converted like the others. Left out: arachna (a
 #    spider below the waist) and sorceress (no default skin). Evaluated in an eval of their own, OUT/fresh/report.md,

@@ -71,8 +71,8 @@ def main(argv=None):
                    help="share of training items whose body FOF input is mirrored front to back (the pose "
                         "network's facing-away failure), so the net learns when not to trust it (default 0)")
     p.add_argument("--no-centre-output", action="store_true",
-                   help="compare the raw output with the ground truth (before session 7: the default now places "
-                        "the output by the depth convention first, as the pipeline does)")
+                   help="compare the raw output with the ground truth (the default places the output by the "
+                        "depth convention first, as the pipeline does)")
 
     p = sub.add_parser("fit-placement", help="train the placement net (body FOF + inflation prior -> a depth shift "
                                              "per column of the prior; train/placement.py)")

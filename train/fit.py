@@ -526,8 +526,9 @@ def flip_batch(b, gen):
 def flip_body_in_depth(b, gen, p):
     """Mirrors the body FOF (`src_body`) front to back for a random share `p` of the batch, the other inputs and the
     target untouched: the pose network's known failure (a person read as seen from behind, arms and back fitted on
-    the wrong side; README "Body prior") shown to the net, so it learns to trust the body FOF only where the rest
-    agrees. Mirroring z -> -z maps occupancy(s) to occupancy(1 - s), i.e. coefficient k to (-1)^k times itself."""
+    the wrong side; docs/geometry.md, "The body prior") shown to the net, so it learns to trust the body FOF only
+    where the rest agrees. Mirroring z -> -z maps occupancy(s) to occupancy(1 - s), i.e. coefficient k to (-1)^k
+    times itself."""
     if p <= 0 or "src_body" not in b:
         return b
     body = b["src_body"]
