@@ -1,7 +1,7 @@
-//! The README's architecture table is the law of the imports: every top-level module of `src/` is in exactly one
-//! row, and a module may use (`crate::…`) only modules of the rows below its own. This test reads the table from
-//! README.md and the imports from the sources, so the two cannot drift apart: a new dependency that points up fails
-//! here with the file and line that adds it.
+//! The layer table of docs/architecture.md is the law of the imports: every top-level module of `src/` is in
+//! exactly one row, and a module may use (`crate::…`) only modules of the rows below its own. This test reads the
+//! table from docs/architecture.md and the imports from the sources, so the two cannot drift apart: a new
+//! dependency that points up fails here with the file and line that adds it.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -10,10 +10,10 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The rows of the README's "Architecture" table, top (highest layer) first: the backticked module names of each
-/// row's first cell.
-fn layer_rows(readme: &str) -> Vec<Vec<String>> {
-    let section = readme.split("\n## Architecture").nth(1).expect("README has an `## Architecture` section");
+/// The rows of the "Layers" table of docs/architecture.md, top (highest layer) first: the backticked module names
+/// of each row's first cell.
+fn layer_rows(page: &str) -> Vec<Vec<String>> {
+    let section = page.split("\n## Layers").nth(1).expect("docs/architecture.md has a `## Layers` section");
     let section = section.split("\n## ").next().unwrap_or(section);
     section
         .lines()
@@ -116,26 +116,26 @@ fn crate_paths_are_read_from_plain_and_grouped_uses() {
     assert_eq!(refs("use other_crate::gpu; // crate::xr in a comment is cut by `code`"), ["xr"]);
     assert_eq!(refs(code("use other_crate::gpu; // crate::xr")), Vec::<String>::new());
     assert_eq!(refs("use crate::{\n    capture::Frame,\n    gpu::{self, Context},\n};"), ["capture", "gpu"]);
-    let rows = layer_rows("x\n## Architecture (y)\n\n| layer | contents |\n|---|---|\n| `cli` | a |\n| `io`, `neural` | b |\n\n## Next\n| `z` | c |\n");
+    let rows = layer_rows("x\n## Layers (y)\n\n| layer | contents |\n|---|---|\n| `cli` | a |\n| `io`, `neural` | b |\n\n## Next\n| `z` | c |\n");
     assert_eq!(rows, [vec!["cli".to_string()], vec!["io".to_string(), "neural".to_string()]]);
 }
 
 #[test]
 fn lower_layers_never_import_higher_ones() {
-    let readme = std::fs::read_to_string(root().join("README.md")).expect("README.md");
-    let rows = layer_rows(&readme);
+    let page = std::fs::read_to_string(root().join("docs/architecture.md")).expect("docs/architecture.md");
+    let rows = layer_rows(&page);
     let mut rank: BTreeMap<String, usize> = BTreeMap::new();
     for (i, row) in rows.iter().enumerate() {
         for m in row {
             // Rows are listed top first: a higher rank is a lower layer.
-            assert!(rank.insert(m.clone(), i).is_none(), "`{m}` is in two rows of the README's architecture table");
+            assert!(rank.insert(m.clone(), i).is_none(), "`{m}` is in two rows of docs/architecture.md's layer table");
         }
     }
     let modules = top_modules(&root().join("src"));
     let unlisted: Vec<&String> = modules.keys().filter(|m| !rank.contains_key(*m)).collect();
     assert!(
         unlisted.is_empty(),
-        "src/ modules missing from the README's architecture table (add each to the row of its layer): {unlisted:?}"
+        "src/ modules missing from docs/architecture.md's layer table (add each to the row of its layer): {unlisted:?}"
     );
     let mut violations = Vec::new();
     for (module, path) in &modules {
@@ -152,7 +152,7 @@ fn lower_layers_never_import_higher_ones() {
                 let (Some(&own), Some(&theirs)) = (rank.get(module), rank.get(&used)) else { continue };
                 if used != *module && theirs <= own {
                     violations.push(format!(
-                        "{}:{}: `{module}` uses `{used}`, which is not below it in the README's table",
+                        "{}:{}: `{module}` uses `{used}`, which is not below it in docs/architecture.md's table",
                         file.strip_prefix(root()).unwrap_or(&file).display(),
                         code_only[..at].matches('\n').count() + 1
                     ));
@@ -163,7 +163,7 @@ fn lower_layers_never_import_higher_ones() {
     assert!(
         violations.is_empty(),
         "imports that point up or sideways (move the code down, or — if the dependency is meant and acyclic — \
-         move the rows of README.md's architecture table):\n{}",
+         move the rows of docs/architecture.md's layer table):\n{}",
         violations.join("\n")
     );
 }
