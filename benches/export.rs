@@ -2,7 +2,7 @@
 //! (assets/demo/person.png, a full body with an exact alpha mask): reconstruction (normalise, FOF, marching
 //! cubes, source raster), then the export itself with and without `--decimate 20000` — decimation (meshoptimizer),
 //! UVs + metres, texture bake, glTF encode + write — and the whole export after reconstruction.
-//! `cargo bench --bench export`; the README quotes the medians.
+//! `cargo bench --bench export`; docs/performance.md quotes the medians.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use r2human::capture::segment::segment_photo;

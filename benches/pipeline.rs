@@ -1,6 +1,6 @@
 //! End-to-end stage times at 512x512 on a synthetic figure: the per-input stages (normalise, inflation -> FOF,
 //! marching cubes, source raster) and the per-view stages (target raster, flow/Z-map/warp, panorama compose).
-//! `cargo bench --bench pipeline`; the README quotes the medians.
+//! `cargo bench --bench pipeline`; docs/performance.md quotes the medians.
 
 #[path = "../tests/common/mod.rs"]
 mod common;

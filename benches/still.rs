@@ -1,21 +1,21 @@
 //! The whole still-photo path per input at 512², as `r2human render --image PHOTO` runs it
 //! ([`PreparedInput::prepare`]: normalise -> geometry -> depth centring -> mesh -> source raster), for four
 //! geometries: `fofnet` (the shipped FOF net on the body prior, `models/tiny/fof.onnx`, with the inputs it declares:
-//! since session 11 geometry only, body FOF + inflation prior and no image ([`FofNet::takes_image`] false), so pose
-//! landmarks, the body fit, the reconciled body FOF, the inflation prior and the network all run), `body` (the body
-//! prior alone), `body-placed` (`--geometry auto` since session 13: the inflation prior moved by the body's depths)
-//! and `inflate` (the silhouette-inflation prior).
+//! geometry only, body FOF + inflation prior and no image ([`FofNet::takes_image`] false), so pose landmarks, the
+//! body fit, the reconciled body FOF, the inflation prior and the network all run), `body` (the body prior alone),
+//! `body-placed` (what `--geometry auto` draws on stills: the inflation prior moved by the body's depths) and
+//! `inflate` (the silhouette-inflation prior).
 //! Inputs: a rendered synthetic subject (seed 3, the `body` bench's) and the shipped photos (`assets/photos`,
 //! segmented once up front as `render` does, `--segment auto`).
 //!
 //! Criterion times the whole `prepare`; every iteration's own stage times ([`PreparedInput::timings`]) and its
-//! wall-clock time are kept, and at the end a table of their medians is printed (markdown, the README's "Speed"
-//! table), with the target: everything from the photo's normalised view to the mesh (inflation prior, pose
-//! landmarks, body fit, body FOF, FOF net, guard, depth centring, mesh), measured as the iteration's wall-clock
-//! time minus its normalisation and source raster (the median over iterations). Stage times do not add up to it:
-//! the inflation prior runs side by side with the pose, the fit and the body FOF. The last column is the process
-//! CPU time of the whole `prepare` (every thread's, `getrusage`): on a machine others share, wall-clock times
-//! grow with their load, this much less.
+//! wall-clock time are kept, and at the end a table of their medians is printed (markdown, the still-photo
+//! table of docs/performance.md), with the target: everything from the photo's normalised view to the mesh
+//! (inflation prior, pose landmarks, body fit, body FOF, FOF net, guard, depth centring, mesh), measured as the
+//! iteration's wall-clock time minus its normalisation and source raster (the median over iterations). Stage times
+//! do not add up to it: the inflation prior runs side by side with the pose, the fit and the body FOF. The last
+//! column is the process CPU time of the whole `prepare` (every thread's, `getrusage`): on a machine others share,
+//! wall-clock times grow with their load, this much less.
 //!
 //! Run: `cargo bench --bench still` (all; about three minutes) or a subset, e.g. `cargo bench --bench still --
 //! fofnet/synthetic`. Needs `.tools` (`bash scripts/setup.sh`: ONNX Runtime, the pose and segmentation models,
@@ -152,7 +152,7 @@ fn print_hashes(modes: &[(&str, PrepareOptions)], inputs: &[Input]) {
             p.mesh.positions.iter().for_each(|v| v.to_array().map(f32::to_bits).hash(&mut mesh));
             p.mesh.triangles.hash(&mut mesh);
             let mut fof = DefaultHasher::new();
-            p.fof.coeffs.iter().for_each(|c| c.to_bits().hash(&mut fof));
+            p.fof.iter().flat_map(|f| &f.coeffs).for_each(|c| c.to_bits().hash(&mut fof));
             println!(
                 "{mode} {}: mesh {} vertices {} triangles {:016x}, FOF {:016x}",
                 input.name,

@@ -4,7 +4,8 @@
 //! shoulders (C). Prints the fits' final costs and the volumetric IoU of `body-placed` drawn with each body, with
 //! the lower-cost of A and B, and with the mean of A's and B's placements (a hedge that leaves the legs where the
 //! two disagree): `cargo run --release --example fit_ambiguity -- [SUBJECTS] [SEED]
-//! [SIZE]` or `-- --scans [--size N] FILE...`. Only volume; a diagnostic for the README's "a steadier fit".
+//! [SIZE]` or `-- --scans [--size N] FILE...`. Only volume; a diagnostic for docs/geometry.md, "Which geometry wins
+//! where".
 
 // Only the inputs of the shared harness are used here.
 #[allow(dead_code)]

@@ -12,7 +12,8 @@
 //! vote). Each geometry comes from [`r2human::pipeline::compute_geometry`] exactly as `--geometry` draws it (placed
 //! in depth by the volume-centroid convention); a blend is placed again the same way
 //! ([`r2human::geometry::depth_centre::centre_fof`]). Prints one row per input and the mean: a blend is worth
-//! shipping only if the synthetic people and the independent characters agree (README "Which geometry, where").
+//! shipping only if the synthetic people and the independent characters agree (docs/geometry.md, "Which geometry
+//! wins where").
 
 #[path = "common/cases.rs"]
 mod cases;

@@ -16,7 +16,8 @@
 //! - `I|kBd`: the same with the body's depths scaled about their mean by the least-squares slope that fits the
 //!   ground truth best for this input (the best single trust in the body per input; the slope goes to stderr).
 //!
-//! `I|Gd` against `Gt|Id` says which of the two the inflation prior lacks more (README "Body-placed inflation").
+//! `I|Gd` against `Gt|Id` says which of the two the inflation prior lacks more (docs/geometry.md, "Which geometry
+//! wins where").
 //! Each constructed field is placed in depth by the volume-centroid convention, as the pipeline places its own.
 
 #[path = "common/cases.rs"]

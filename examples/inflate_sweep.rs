@@ -4,7 +4,7 @@
 //!
 //! Per mask it runs [`inflate_to_fof`] and measures [`mask_coverage`] (the fraction of the mask's interior whose
 //! FOF column reaches occupancy 0.5 anywhere). Prints one line per mask below 0.99 and a summary per size: masks
-//! tried, failures of the prior, the minimum and the 1st percentile of the coverage. The session-6 bug (an outline
+//! tried, failures of the prior, the minimum and the 1st percentile of the coverage. A bug of this kind (an outline
 //! edge walked twice flipped the inside/outside labels of the triangulation) gave coverage 0 on an ordinary
 //! full-body mask; the sweep is how such a bug is found before a user meets it.
 

@@ -1,6 +1,7 @@
 //! Per-stage wall times of the CPU pipeline on the embedded demo person, medians over repeated runs, with the
 //! mesh size that drives the raster cost: `cargo run --release --example stage_times [-- DEPTH_SAMPLES]`.
-//! A quick profiling aid next to the criterion benches (`cargo bench --bench pipeline`), which the README quotes.
+//! A quick profiling aid next to the criterion benches (`cargo bench --bench pipeline`), which docs/performance.md
+//! quotes.
 
 use std::time::Duration;
 

@@ -2,19 +2,19 @@
 //! wrote (OUT/frame_*.png, premultiplied RGBA) and prints the mean and the minimum mask IoU of consecutive frames
 //! (alpha above one half): `cargo run --release --example video_stability -- OUT [OUT2 ...]`.
 //!
-//! README "Live frames with a body geometry" measures with it, each clip rendered at `--yaw 90` with `--geometry
+//! docs/live.md ("Stability") measures with it, each clip rendered at `--yaw 90` with `--geometry
 //! inflate` and `--geometry body-placed`:
 //! - a still person: one photo copied 20 times into a folder;
 //! - a barely moving one: frames shifted by up to 1 px;
-//! - a moving one: the photo moved right by 3 px a frame for 12 of 20 frames (README "The warm fit is anchored to
-//!   the last frame", where its frames are also rendered one by one as the reference for lag).
+//! - a moving one: the photo moved right by 3 px a frame for 12 of 20 frames (its frames can also be rendered
+//!   one by one, each as a clip of its own, as the reference for lag).
 //!
 //! A geometry that follows the photo steadily scores near the inflation prior's 0.996-0.998.
 //!
 //! `-- --make-clips PHOTO DIR` writes the three clips from one photo: `DIR/still` (the photo 20 times),
 //! `DIR/shifted` (30 frames, each the photo moved by -1, 0 or 1 px in x and y, a fixed pseudo-random sequence,
 //! black where the photo moved away) and `DIR/moving` (20 frames: 4 still, 12 each 3 px further right, 4 still;
-//! the columns the photo moved away from repeat its first column), so the README's figures can be made again.
+//! the columns the photo moved away from repeat its first column), so docs/live.md's figures can be made again.
 
 use anyhow::Context;
 

@@ -6,7 +6,7 @@
 //! paper Eq. 4, warps the source appearance, fuses with the previous view (Eq. 8) and composites the person
 //! into a panorama (VR) or a premultiplied alpha layer (AR).
 //!
-//! Layers (dependencies point downward only; the README's architecture table is the reference, and
+//! Layers (dependencies point downward only; the layer table of docs/architecture.md is the reference, and
 //! `tests/layers.rs` checks the imports against it):
 //! - [`cli`]: command-line commands; no algorithm lives there.
 //! - [`app`]: the use cases (offline render, the `view` window, the XR session, live capture).

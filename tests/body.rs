@@ -27,7 +27,7 @@ fn truth_textured(seed: u64, texture: usize) -> Truth {
     let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
     let model = BodyModel::shared().expect("body model data");
     // Without garments (`Outfit::none`): these tests measure the pose network and the fitter against the body's own
-    // joints, which loose clothes hide; clothed people are measured by `r2human eval` (README, body prior).
+    // joints, which loose clothes hide; clothed people are measured by `r2human eval` (docs/geometry.md).
     let mut params = SubjectParams::sample(seed);
     params.outfit = synth::Outfit::none(params.appearance.top_fabric);
     let subject = synth::generate(assets, &params, texture).expect("subject");
@@ -440,7 +440,7 @@ fn pose_network_and_body_fof_on_rendered_subjects() {
 /// the cold fit's tolerance left). The body prior used to read a live frame in the region the previous frame's
 /// landmarks gave (MediaPipe's tracking): on repeated frames that region wandered, the landmarks moved by up to 25
 /// pixels, and each warm fit slid along the flat directions of the cost; the side view of
-/// `--geometry body-placed` flickered (README "Live frames with a body geometry").
+/// `--geometry body-placed` flickered (docs/geometry.md, "Frames of a video or camera").
 #[test]
 fn live_frames_of_a_still_person_read_the_same_landmarks_and_hold_the_body() {
     use r2human::body::prior::BodyEstimator;
@@ -521,7 +521,7 @@ fn framed_subjects_fit_what_the_photo_shows() {
     let model = BodyModel::shared().expect("body model data");
     let mut net = PoseEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
     // Subjects 23 (upper body) and 10 (three-quarter) of `r2human eval --subjects 24`. Known failures, not asserted
-    // here (README, body prior): on subject 11 (upper) the fit is 0.63 times the subject's size, on 14 and 20
+    // here (docs/geometry.md): on subject 11 (upper) the fit is 0.63 times the subject's size, on 14 and 20
     // (upper) the network sees only two of the arm and hip joints, on 7 (three-quarter) it puts the knees inside
     // the photo, above the cut. (Before the fold check counted hidden feet, the upper crop of subject 2 folded a
     // whole tiny body into the head: fitted scale 0.08 instead of 0.23.)
@@ -665,7 +665,7 @@ fn body_placed_keeps_the_inflation_thickness_and_moves_columns_to_the_body() {
     compare(&NormalisedInput::in_source_view(board.map(|&m| Vec3::splat(0.4) * m), board), "grey board");
 }
 
-/// Faces from the face mesh (`body::face`; README "Faces from the face mesh"): through the pipeline, a real photo's
+/// Faces from the face mesh (`body::face`; docs/geometry.md): through the pipeline, a real photo's
 /// body-placed geometry has a nose. Grace Hopper's nose tip (the mesh's point 1) stands ahead of her cheeks (the
 /// outline's points 234 and 454) by far more than the silhouette-inflation dome alone puts it, and the rest of her
 /// stays where body-placed puts it.

@@ -217,7 +217,7 @@ fn cli_geometry_fofnet_without_a_model_fails_clearly() {
 
 /// A synthetic subject's source view at `size`: linear premultiplied RGB, mask, and the ground-truth FOF. Without
 /// garments (`Outfit::none`): the unclothed subjects the shipped `models/tiny` FOF net was trained on (it predates
-/// clothes as geometry; on clothed subjects it is not reliably better than the prior: README, evaluation).
+/// clothes as geometry; on clothed subjects it is not reliably better than the prior: docs/evaluation.md).
 fn subject_source(seed: u64, size: usize) -> (RgbImage, GrayImage, Fof) {
     let assets = SynthAssets::shared().unwrap();
     let mut params = SubjectParams::sample(seed);

@@ -362,7 +362,7 @@ fn every_loader_survives_mutated_inputs() {
         "targets": reports,
     });
     std::fs::write(&report_path, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
-    // The same as a Markdown table (the README's reliability table is made from a long run's).
+    // The same as a Markdown table (docs/reliability.md's table is made from a long run's).
     let mut md = format!(
         "| loader (target) | cases (seed {seed}) | accepted | rejected | failures | slowest case | largest allocation |\n\
          |---|---:|---:|---:|---:|---:|---:|\n"

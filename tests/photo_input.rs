@@ -176,7 +176,7 @@ fn the_bundled_jpeg_renders_with_no_flags_beyond_image_yaw_out() {
 
 /// From behind, the neural renderer draws the back of Grace Hopper's head in the colour the back image gives it
 /// (her dark hair, as the geometric renderer draws it), not the pale face-shaped oval the shipped decoder paints
-/// there on its own (`pipeline::lookup_kept`; README "The back of the head in the neural renderer"): the mean
+/// there on its own (`pipeline::lookup_kept`; docs/rendering.md, "The neural renderer"): the mean
 /// colour of the middle of her head differs by 14-18 levels per channel without the rule, by none with it.
 #[test]
 fn the_neural_renderer_draws_the_back_of_a_real_head_in_the_hairs_colour() {

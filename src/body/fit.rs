@@ -20,7 +20,7 @@
 //!   rest pose (weak knee and ankle targets, [`HANGING_WEIGHT`]); without them such a leg followed the pelvis, and
 //!   a person bent at the waist got legs sticking out behind (with [`super::prior::legs_it_sees`], release
 //!   builds: `r2human eval --subjects 8` mean volumetric IoU of the body prior 0.560 -> 0.567, the Mr. Fixit scan
-//!   0.436 -> 0.476; README "Body prior").
+//!   0.436 -> 0.476; docs/geometry.md, "The body prior").
 //! - **Prior**: every joint rotation is pulled toward the rest pose, the shape toward the neutral body, the hip
 //!   centre toward depth 0; joint limits (hinge penalties) keep elbows and knees bending one way and every joint
 //!   inside a plausible range, so a bad landmark cannot give an impossible body.
@@ -76,8 +76,8 @@ pub struct FitOptions {
     /// photo's own terms outweigh when the person moves. Live frames of a photo shifted by up to a pixel (the
     /// pose network's landmarks then move 2-17 px) flickered from the side with the fit following them (body
     /// frozen: 0.997 consecutive mask IoU, followed: 0.983); at 0.5 a person moving 3 px a frame agrees with
-    /// fits made cold frame by frame no worse than without it (README "A still person stays still"). 0 turns it
-    /// off; cold fits have none.
+    /// fits made cold frame by frame no worse than without it (docs/live.md, "Stability"). 0 turns it off; cold fits
+    /// have none.
     pub warm_anchor: f64,
 }
 

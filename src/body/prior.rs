@@ -126,8 +126,8 @@ impl BodyEstimator {
     /// `[0, 1]`, `frame` where the photo lies in it). With `warm` (live input) the fit starts from the previous
     /// frame's pose. The network reads every frame as it reads a still, in the region of that frame's mask: reading
     /// the region the previous frame's landmarks give instead (MediaPipe's tracking) lets the region wander on a
-    /// still person, and the body with it (README "Live frames with a body geometry", session 15). `None` when no
-    /// pose is found.
+    /// still person, and the body with it (docs/live.md, "Ideas measured and not kept"). `None` when no pose is
+    /// found.
     pub fn estimate(
         &mut self,
         rgb: &RgbImage,

@@ -1,5 +1,5 @@
 //! `r2human dataset`: synthetic subjects with every view known, in a format numpy alone can read (PNG + `.npy`
-//! + JSON; see the README and SPEC "Dataset format").
+//! + JSON; see docs/dataset.md).
 //!
 //! Each subject is written into a hidden temporary folder next to its destination and renamed into place when
 //! complete, so a failed or interrupted subject leaves no half-written files; `dataset.json` is written last

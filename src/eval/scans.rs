@@ -4,8 +4,8 @@
 //! Nothing is measured here: the numbers are the report's own rows ([`super::runner::ReportRow`]) and per-scan
 //! geometry IoUs ([`super::runner::EvalReport::set_geometry_iou`]), each character weighted equally.
 //!
-//! The split is a fixed rule on the scans' names, set before any method's number was looked at (session 11,
-//! issue 14): sorted alphabetically (case-folded), the 1st, 3rd, 5th … scan is **dev** and the 2nd, 4th, 6th …
+//! The split is a fixed rule on the scans' names, set before any method's number was looked at (issue 14):
+//! sorted alphabetically (case-folded), the 1st, 3rd, 5th … scan is **dev** and the 2nd, 4th, 6th …
 //! is **held out** ([`held_out`]). Decisions are taken on dev; held out says whether they carry over.
 
 use std::path::Path;
