@@ -1,8 +1,17 @@
 #!/usr/bin/env bash
 # Installs everything r2human needs on a fresh Debian/Ubuntu machine (idempotent, non-interactive, as root or
 # with sudo). Each layer adds its own needs in scripts/setup.d/*.sh, which this script runs in order.
+# `--gpu` also installs ONNX Runtime's GPU build with its CUDA / cuDNN / TensorRT libraries (scripts/setup-gpu.sh,
+# about 2.4 GB in .tools/onnxruntime-gpu); without it nothing GPU-specific is installed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+GPU=0
+for arg in "$@"; do
+  case "$arg" in
+    --gpu) GPU=1 ;;
+    *) echo "setup: unknown option $arg (the only option is --gpu)" >&2; exit 2 ;;
+  esac
+done
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
@@ -32,4 +41,8 @@ for part in scripts/setup.d/*.sh; do
   echo "setup: $part"
   bash "$part"
 done
+if [ "$GPU" = 1 ]; then
+  echo "setup: scripts/setup-gpu.sh"
+  bash scripts/setup-gpu.sh
+fi
 echo "setup: done"

@@ -1,6 +1,7 @@
 //! Command-line commands: argument parsing and hand-over to the library. No algorithm lives here.
 
 mod data;
+mod doctor;
 mod live;
 mod render;
 
@@ -41,6 +42,9 @@ pub enum Command {
     Xr(live::XrArgs),
     /// List the cameras that can feed the pipeline.
     Devices,
+    /// Say what this machine offers (Vulkan devices, OpenXR runtime, cameras, ONNX Runtime and which execution
+    /// providers load, and why the others do not) and what `auto` chooses.
+    Doctor(doctor::DoctorArgs),
 }
 
 /// Entry point of the binary: parses arguments, runs the command, prints errors as sentences.
@@ -58,6 +62,7 @@ pub fn main() -> ExitCode {
         Command::View(args) => live::run_view(&args),
         Command::Xr(args) => live::run_xr(&args),
         Command::Devices => live::run_devices(),
+        Command::Doctor(args) => doctor::run_doctor(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -211,12 +211,14 @@ unsafe fn destroy_instance(instance: &ash::Instance, debug: &Option<Messenger>) 
     }
 }
 
-fn load_entry() -> Result<ash::Entry, GpuError> {
+/// Loads the system's Vulkan loader.
+pub(crate) fn load_entry() -> Result<ash::Entry, GpuError> {
     // SAFETY: loading the system Vulkan loader, which implements the Vulkan ABI; failure is reported.
     unsafe { ash::Entry::load() }.map_err(|e| GpuError::NoVulkan(e.to_string()))
 }
 
-fn application_info(name: &CStr) -> vk::ApplicationInfo<'_> {
+/// The application info of r2human's instances (Vulkan 1.2).
+pub(crate) fn application_info(name: &CStr) -> vk::ApplicationInfo<'_> {
     vk::ApplicationInfo::default()
         .application_name(name)
         .application_version(1)

@@ -14,6 +14,7 @@
 
 pub mod commands;
 pub mod context;
+pub mod devices;
 pub mod offline;
 pub mod overlay;
 pub mod person;
@@ -24,6 +25,7 @@ pub mod shaders;
 
 pub use commands::CommandSlot;
 pub use context::{Context, ContextOptions, DeviceFactory, ValidationLog, VALIDATION_ENV};
+pub use devices::{list_devices, DeviceSummary};
 pub use overlay::OverlayMask;
 pub use person::{gpu_neural_person, GpuView, NeuralViewError};
 pub use present::{Acquired, Swapchain, SwapchainOptions};

@@ -1,8 +1,10 @@
-//! Finding the ONNX Runtime shared library: `ORT_DYLIB_PATH`, else the project's `.tools/onnxruntime` install.
+//! Finding the ONNX Runtime shared library: `ORT_DYLIB_PATH`, else the project's GPU build
+//! (`.tools/onnxruntime-gpu`, from `bash scripts/setup.sh --gpu`), else its CPU build (`.tools/onnxruntime`).
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 
+use super::gpu_libs::GPU_TOOLS_SUBDIR;
 use super::NeuralError;
 
 /// Where `scripts/setup.d/neural.sh` unpacks the `onnxruntime` wheel, relative to the project root.
@@ -43,14 +45,18 @@ pub(crate) fn project_roots() -> Vec<PathBuf> {
     roots
 }
 
-/// The paths tried, in order: `env_override` (the value of `ORT_DYLIB_PATH`) when set and non-empty, then
-/// `<root>/.tools/onnxruntime/<ORT_LIBRARY_FILE>` for every root.
+/// The paths tried, in order: `env_override` (the value of `ORT_DYLIB_PATH`) when set and non-empty, then for every
+/// root `<root>/.tools/onnxruntime-gpu/<ORT_LIBRARY_FILE>` (the GPU build, which runs on the CPU too) and
+/// `<root>/.tools/onnxruntime/<ORT_LIBRARY_FILE>` (the CPU build).
 pub fn library_candidates(env_override: Option<&OsStr>, roots: &[PathBuf]) -> Vec<PathBuf> {
     let mut out = Vec::new();
     if let Some(p) = env_override.filter(|p| !p.is_empty()) {
         out.push(PathBuf::from(p));
     }
-    out.extend(roots.iter().map(|r| r.join(ORT_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE)));
+    for root in roots {
+        out.push(root.join(GPU_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE));
+        out.push(root.join(ORT_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE));
+    }
     out
 }
 
@@ -81,9 +87,11 @@ mod tests {
         let roots = vec![PathBuf::from("/a"), PathBuf::from("/b")];
         let c = library_candidates(Some(OsStr::new("/x/lib.so")), &roots);
         assert_eq!(c[0], PathBuf::from("/x/lib.so"));
-        assert_eq!(c[1], PathBuf::from("/a").join(ORT_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE));
-        assert_eq!(c.len(), 3);
-        assert_eq!(library_candidates(Some(OsStr::new("")), &roots).len(), 2);
+        assert_eq!(c[1], PathBuf::from("/a").join(GPU_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE));
+        assert_eq!(c[2], PathBuf::from("/a").join(ORT_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE));
+        assert_eq!(c[3], PathBuf::from("/b").join(GPU_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE));
+        assert_eq!(c.len(), 5);
+        assert_eq!(library_candidates(Some(OsStr::new("")), &roots).len(), 4);
     }
 
     #[test]
@@ -103,6 +111,17 @@ mod tests {
             }
             other => panic!("expected LibraryNotFound, got {other:?}"),
         }
+        // With the GPU build installed beside the CPU build, the GPU build (which also runs on the CPU) is chosen.
+        let gpu = full.join(GPU_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE);
+        std::fs::create_dir_all(gpu.parent().unwrap()).unwrap();
+        std::fs::write(&gpu, b"x").unwrap();
+        assert_eq!(find_library(None, &[empty.clone(), full.clone()]).unwrap(), gpu);
+        // A nearer root's CPU build still wins over a farther root's GPU build.
+        let near = tmp.path().join("near");
+        let near_cpu = near.join(ORT_TOOLS_SUBDIR).join(ORT_LIBRARY_FILE);
+        std::fs::create_dir_all(near_cpu.parent().unwrap()).unwrap();
+        std::fs::write(&near_cpu, b"x").unwrap();
+        assert_eq!(find_library(None, &[near, full.clone()]).unwrap(), near_cpu);
         // An explicit override that does not exist is an error, not a silent fallback to the project install.
         let bad = tmp.path().join("missing.so");
         assert!(matches!(find_library(Some(bad.as_os_str()), &[full]), Err(NeuralError::LibraryLoad { .. })));

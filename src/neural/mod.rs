@@ -47,24 +47,35 @@
 //!
 //! # Runtime
 //! The ONNX Runtime library is loaded at run time (`ort` with `load-dynamic`): from `ORT_DYLIB_PATH`, else from the
-//! project's `.tools/onnxruntime` (installed by `scripts/setup.d/neural.sh`). Execution providers are chosen with
-//! [`ExecutionProvider`] (`--ep auto|tensorrt|cuda|cpu`); one that fails to register falls back to the next with a
-//! warning.
+//! project's `.tools/onnxruntime-gpu` (the GPU build, installed by `bash scripts/setup.sh --gpu`), else from its
+//! `.tools/onnxruntime` (the CPU build, `scripts/setup.d/neural.sh`). With the GPU build, the CUDA / cuDNN /
+//! TensorRT libraries of its tree are opened by path before a GPU provider is registered ([`preload`]). Execution
+//! providers are chosen with [`ExecutionProvider`] (`--ep auto|tensorrt|cuda|cpu`); one that fails to register
+//! falls back to the next with a warning. [`runtime_report`] (`r2human doctor`) says which providers work here and
+//! why the others do not.
 
+mod gpu_libs;
 mod library;
 mod model;
 mod nets;
 mod provider;
+mod report;
 mod tensor;
 
 use std::path::{Path, PathBuf};
 
+pub use gpu_libs::{
+    preload, system_has, Found, GpuManifest, NeededLibrary, PreloadReport, GPU_MANIFEST_FILE, GPU_TOOLS_SUBDIR,
+};
 pub(crate) use library::project_roots;
 pub use library::{find_library, library_candidates, ORT_LIBRARY_FILE, ORT_TOOLS_SUBDIR};
 pub use model::{ModelInfo, ModelKind, FORMAT_VERSION};
 pub use nets::{Decoder, Encoder, EncoderInput, FofInput, FofNet, FofPrediction, PlacementNet, DECODER_INPUTS};
 pub(crate) use provider::create_session;
-pub use provider::{environment, ActiveProvider, ExecutionProvider, RuntimeOptions};
+pub use provider::{
+    default_trt_cache, environment, loaded_library, ActiveProvider, ExecutionProvider, RuntimeOptions, TRT_CACHE_SUBDIR,
+};
+pub use report::{classify_failure, runtime_report, ProviderCheck, ProviderStatus, RuntimeReport};
 pub use tensor::{Coefficients, FeatureMap, PixelBox};
 
 /// Errors of the neural layer. Every message says what went wrong and what to do about it.
@@ -164,6 +175,32 @@ pub enum NeuralError {
         count: usize,
         /// Number of values.
         total: usize,
+    },
+    /// The GPU tree's library manifest (`scripts/setup-gpu.sh`) has a line that does not parse.
+    #[error("{path}, line {line}: {problem}. Rewrite it with `bash scripts/setup-gpu.sh`")]
+    GpuManifest {
+        /// The manifest file.
+        path: PathBuf,
+        /// The line (1-based).
+        line: usize,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// A GPU runtime library of the manifest could not be opened.
+    #[error("cannot open the GPU runtime library {path}: {reason}")]
+    GpuLibraryOpen {
+        /// The library file.
+        path: PathBuf,
+        /// The dynamic loader's message (it names a library that is missing).
+        reason: String,
+    },
+    /// The GPU tree's library manifest exists but cannot be read.
+    #[error("cannot read {path}: {source}. Rewrite it with `bash scripts/setup-gpu.sh`")]
+    GpuManifestRead {
+        /// The manifest file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
     },
 }
 
