@@ -8,7 +8,7 @@ script handles exactly the operators that model has (float16 weights behind DEQU
 DEPTHWISE_CONV_2D, PRELU, ADD, MAX_POOL_2D, PAD) and refuses any other, so a changed model fails loudly instead of
 converting wrongly. The graph keeps the TFLite interface: input NHWC float, outputs NHWC as TFLite has them.
 Checked once against tf2onnx's conversion of the same file (max |difference| of the 1404 landmark outputs on
-photos: see README "Faces from the face mesh").
+photos: see docs/geometry.md).
 
 Needs `tflite`, `onnx` and `numpy` (the live-venv of scripts/setup.d/live.sh has them).
 """

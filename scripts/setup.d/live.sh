@@ -6,7 +6,7 @@
 #       (Apache-2.0), converted with `tflite2onnx` 0.4.1. tflite2onnx transforms a Pad op's paddings tensor in
 #       place, so a tensor shared by two Pad ops is transformed twice and crashes; a one-line guard is patched
 #       into the private venv's copy (skip tensors that are already flat).
-#     - face_landmark.onnx (faces from the face mesh, README "Faces from the face mesh"): MediaPipe's face landmark
+#     - face_landmark.onnx (faces from the face mesh, docs/geometry.md): MediaPipe's face landmark
 #       model from the same wheel, converted by scripts/tflite_to_onnx.py (tflite2onnx 0.4.1 fails on its PReLU
 #       slopes; the script handles exactly this model's operators).
 #     - isnet_seg.onnx (alternative): ISNet "small" (quantized; the model is listed as MIT) from the npm package

@@ -22,16 +22,14 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use crate::buffer::{GrayImage, RgbaImage};
-use crate::capture::smooth::{MaskSmoother, VecSmoother};
-use crate::capture::stats::{StageStats, StageSummary};
+use crate::capture::smooth::MaskSmoother;
+use crate::capture::stats::{DurationHistogram, StageStats, StageSummary};
 use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter, SourceEvent, SourceFactory};
 use crate::geometry::Camera;
+use crate::pipeline::frame::FramePath;
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{
-    compute_geometry_and_pose, NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, StageTimings,
-    ViewRenderer,
-};
+use crate::pipeline::{NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
 
 /// Errors of the live loop and offline video rendering.
 #[derive(Debug, thiserror::Error)]
@@ -110,21 +108,22 @@ impl FrameProcessor for NormaliseProcessor {
     }
 }
 
-/// The full per-frame stages of the core pipeline: normalise -> geometry (FOF) -> temporal smoothing of the FOF
-/// coefficients -> mesh -> source raster. Stage names in the statistics are the pipeline's own plus
-/// "smooth geometry".
+/// The per-frame stages of the core pipeline: the frame path ([`FramePath`]: normalise -> one-shell geometry ->
+/// smoothing over time -> mesh and source view straight from the depth maps; the back image's face at its own
+/// rate). Stage names in the statistics are the frame path's.
 pub struct PrepareProcessor {
-    /// Pipeline settings.
-    pub options: PrepareOptions,
-    fof_smoother: VecSmoother,
+    path: FramePath,
 }
 
 impl PrepareProcessor {
-    /// A processor with FOF smoothing weight 0.6 (new frame) and a reset when the coefficients change by more
-    /// than 50% (relative L2: a cut or the person entering), so geometry never lags behind a real change. The body
-    /// prior (`--geometry body`) warm-starts each frame from the previous one ([`PrepareOptions::warm_start`]).
+    /// A processor preparing frames with `options` ([`FramePath::new`]: frames' geometry, warm-started body fit).
     pub fn new(options: PrepareOptions) -> Self {
-        Self { options: PrepareOptions { warm_start: true, ..options }, fof_smoother: VecSmoother::new(0.6, 0.5) }
+        Self { path: FramePath::new(options) }
+    }
+
+    /// The options frames are prepared with.
+    pub fn options(&self) -> &PrepareOptions {
+        self.path.options()
     }
 }
 
@@ -137,14 +136,7 @@ impl FrameProcessor for PrepareProcessor {
         mask: &GrayImage,
         stats: &mut StageStats,
     ) -> Result<PreparedInput, PipelineError> {
-        let opts = &self.options;
-        let mut timings = StageTimings::default();
-        let normalised = timings.time("normalise", || normalise(&frame.rgb, mask, opts.resolution))?;
-        // The back image (with `back_pose`) takes its face from the body's pose read when the geometry fitted one.
-        let (mut fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
-        let smoother = &mut self.fof_smoother;
-        timings.time("smooth geometry", || smoother.update(&mut fof.coeffs));
-        let prepared = PreparedInput::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings)?;
+        let prepared = self.path.prepare(&frame.rgb, mask)?;
         for (name, d) in &prepared.timings.0 {
             stats.record(name, *d);
         }
@@ -152,7 +144,7 @@ impl FrameProcessor for PrepareProcessor {
     }
 
     fn reset(&mut self) {
-        self.fof_smoother.reset();
+        self.path.reset();
     }
 }
 
@@ -269,12 +261,18 @@ pub struct LiveStats {
     pub completed: u64,
     /// Errors reported (source and stages).
     pub errors: u64,
+    /// Frames whose segmentation found no person (not processed, not errors).
+    pub no_person: u64,
     /// Per-stage medians ("segment", "smooth", processor stages, "frame" = arrival to completion).
     pub stages: Vec<StageSummary>,
     /// Completed frames per second over the window.
     pub throughput_fps: f64,
     /// Frames per second arriving from the source.
     pub source_fps: f64,
+    /// Median time from a frame's arrival to its completion, over every completed frame.
+    pub latency_p50: Duration,
+    /// 95th percentile of the same.
+    pub latency_p95: Duration,
 }
 
 impl LiveStats {
@@ -336,18 +334,38 @@ impl<T> LatestReader<T> {
 struct Shared<T> {
     mailbox: Mutex<Option<(Frame, Instant)>>,
     wake: Condvar,
+    /// The newest segmented frame, waiting for the processing thread (one slot, as the mailbox).
+    segmented: Mutex<Option<Segmented>>,
+    segmented_wake: Condvar,
     latest: Arc<LatestSlot<Completed<T>>>,
     stats: Mutex<StageStats>,
     arrivals: Mutex<StageStats>,
+    /// Arrival -> completion of every completed frame.
+    latency: Mutex<DurationHistogram>,
     messages: Mutex<Vec<String>>,
     max_messages: usize,
     read: AtomicU64,
     dropped: AtomicU64,
     completed: AtomicU64,
     errors: AtomicU64,
+    /// Frames whose segmentation found no person.
+    no_person: AtomicU64,
+    /// The newest segmented frame held no person (cleared by the next frame that holds one).
+    absent: AtomicBool,
     stop: AtomicBool,
     source_done: AtomicBool,
+    segmenter_done: AtomicBool,
     worker_done: AtomicBool,
+}
+
+/// A frame segmented by the first worker thread, waiting for the second.
+struct Segmented {
+    frame: Frame,
+    arrived: Instant,
+    mask: GrayImage,
+    /// The frame starts a new shot (another size): the processor forgets earlier frames first.
+    new_shot: bool,
+    stats: StageStats,
 }
 
 impl<T> Shared<T> {
@@ -379,35 +397,38 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
         let shared = Arc::new(Shared {
             mailbox: Mutex::new(None),
             wake: Condvar::new(),
+            segmented: Mutex::new(None),
+            segmented_wake: Condvar::new(),
             latest: Arc::new(LatestSlot::default()),
             stats: Mutex::new(StageStats::new(options.stats_window)),
             arrivals: Mutex::new(StageStats::new(options.stats_window)),
+            latency: Mutex::new(DurationHistogram::default()),
             messages: Mutex::new(Vec::new()),
             max_messages: options.max_messages,
             read: AtomicU64::new(0),
             dropped: AtomicU64::new(0),
             completed: AtomicU64::new(0),
             errors: AtomicU64::new(0),
+            no_person: AtomicU64::new(0),
+            absent: AtomicBool::new(false),
             stop: AtomicBool::new(false),
             source_done: AtomicBool::new(false),
+            segmenter_done: AtomicBool::new(false),
             worker_done: AtomicBool::new(false),
         });
         let (opened_tx, opened_rx) = mpsc::channel::<Result<(String, bool), CaptureError>>();
         let cap_shared = Arc::clone(&shared);
         let pace = options.pace;
-        let capture = std::thread::Builder::new()
-            .name("r2human-capture".into())
-            .spawn(move || match factory() {
-                Ok(mut source) => {
-                    let _ = opened_tx.send(Ok((source.describe(), source.is_live())));
-                    capture_loop(source.as_mut(), &cap_shared, pace);
-                }
-                Err(e) => {
-                    cap_shared.source_done.store(true, Ordering::SeqCst);
-                    let _ = opened_tx.send(Err(e));
-                }
-            })
-            .map_err(|e| LiveError::Thread(e.to_string()))?;
+        let capture = spawn("r2human-capture", move || match factory() {
+            Ok(mut source) => {
+                let _ = opened_tx.send(Ok((source.describe(), source.is_live())));
+                capture_loop(source.as_mut(), &cap_shared, pace);
+            }
+            Err(e) => {
+                cap_shared.source_done.store(true, Ordering::SeqCst);
+                let _ = opened_tx.send(Err(e));
+            }
+        })?;
         let (description, live) = match opened_rx.recv() {
             Ok(Ok(d)) => d,
             Ok(Err(e)) => {
@@ -419,15 +440,19 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
                 return Err(LiveError::Thread("the capture thread ended while opening the source".into()));
             }
         };
+        let seg_shared = Arc::clone(&shared);
+        let seg_options = options.clone();
+        let segmenter = spawn("r2human-segment", move || {
+            segment_loop(&seg_shared, &seg_options);
+            seg_shared.segmenter_done.store(true, Ordering::SeqCst);
+            seg_shared.segmented_wake.notify_all();
+        })?;
         let work_shared = Arc::clone(&shared);
-        let worker = std::thread::Builder::new()
-            .name("r2human-frame".into())
-            .spawn(move || {
-                worker_loop(&work_shared, processor, &options);
-                work_shared.worker_done.store(true, Ordering::SeqCst);
-            })
-            .map_err(|e| LiveError::Thread(e.to_string()))?;
-        Ok(Self { shared, description, live, threads: vec![capture, worker] })
+        let worker = spawn("r2human-frame", move || {
+            process_loop(&work_shared, processor);
+            work_shared.worker_done.store(true, Ordering::SeqCst);
+        })?;
+        Ok(Self { shared, description, live, threads: vec![capture, segmenter, worker] })
     }
 
     /// The source's description.
@@ -449,15 +474,26 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
     pub fn stats(&self) -> LiveStats {
         let s = self.shared.stats.lock().unwrap_or_else(|p| p.into_inner());
         let arrivals = self.shared.arrivals.lock().unwrap_or_else(|p| p.into_inner());
+        let latency = self.shared.latency.lock().unwrap_or_else(|p| p.into_inner());
         LiveStats {
             read: self.shared.read.load(Ordering::Relaxed),
             dropped: self.shared.dropped.load(Ordering::Relaxed),
             completed: self.shared.completed.load(Ordering::Relaxed),
             errors: self.shared.errors.load(Ordering::Relaxed),
+            no_person: self.shared.no_person.load(Ordering::Relaxed),
             stages: s.summary(),
             throughput_fps: s.throughput_fps(),
             source_fps: arrivals.throughput_fps(),
+            latency_p50: latency.quantile(0.5),
+            latency_p95: latency.quantile(0.95),
         }
+    }
+
+    /// Whether the newest segmented frame holds no person (an empty room, a blank wall, a dark frame, the person
+    /// gone). The display then shows no person ([`LiveStats::no_person`] counts such frames); the latest
+    /// completed frame stays readable for when the person comes back.
+    pub fn person_absent(&self) -> bool {
+        self.shared.absent.load(Ordering::SeqCst)
     }
 
     /// Recent messages (oldest first): corrupt frames, a lost camera, segmentation failures.
@@ -489,6 +525,7 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
     fn shutdown(&mut self) {
         self.shared.stop.store(true, Ordering::SeqCst);
         self.shared.wake.notify_all();
+        self.shared.segmented_wake.notify_all();
         for t in self.threads.drain(..) {
             // A camera read can block for one frame period; the join waits for it.
             let _ = t.join();
@@ -500,6 +537,11 @@ impl<T: Send + Sync + 'static> Drop for LivePipeline<T> {
     fn drop(&mut self) {
         self.shutdown();
     }
+}
+
+/// Starts a named pipeline thread.
+fn spawn(name: &str, f: impl FnOnce() + Send + 'static) -> Result<JoinHandle<()>, LiveError> {
+    std::thread::Builder::new().name(name.into()).spawn(f).map_err(|e| LiveError::Thread(e.to_string()))
 }
 
 fn capture_loop<T>(source: &mut dyn FrameSource, shared: &Shared<T>, pace: bool) {
@@ -540,10 +582,12 @@ fn capture_loop<T>(source: &mut dyn FrameSource, shared: &Shared<T>, pace: bool)
     shared.wake.notify_all();
 }
 
-fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, options: &LiveOptions) {
+/// The first worker thread: segments the newest frame and smooths its mask, then hands it to the processing thread
+/// (replacing a segmented frame still waiting there, counted as dropped), so frame n+1 is segmented while frame n's
+/// geometry is built.
+fn segment_loop<T>(shared: &Shared<T>, options: &LiveOptions) {
     let mut segmenter: Option<Box<dyn Segmenter>> = None;
     let mut smoother = MaskSmoother::new(options.mask_alpha, options.mask_reset_iou);
-    let mut sequence = 0u64;
     let mut last_size = None;
     loop {
         let (frame, arrived) = {
@@ -572,15 +616,14 @@ fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, 
             }
         }
         let Some(seg) = segmenter.as_mut() else { continue };
-        if last_size.replace((frame.width(), frame.height())).is_some_and(|s| s != (frame.width(), frame.height())) {
+        let size = (frame.width(), frame.height());
+        let new_shot = last_size.replace(size).is_some_and(|s| s != size);
+        if new_shot {
             // A frame of another size (a folder of photos) is a new shot: no smoothing across it.
             smoother.reset();
-            processor.reset();
         }
         let mut local = StageStats::new(1);
-        let t = Instant::now();
-        let mask = seg.segment(&frame);
-        local.record("segment", t.elapsed());
+        let mask = local.time("segment", || seg.segment(&frame));
         let mask = match mask {
             Ok(m) => m,
             Err(e) => {
@@ -589,6 +632,58 @@ fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, 
             }
         };
         let mask = local.time("smooth", || smoother.update(&mask));
+        if !holds_a_person(&mask) {
+            // No person: nothing to build. The display shows none until a frame holds one again.
+            shared.no_person.fetch_add(1, Ordering::Relaxed);
+            shared.absent.store(true, Ordering::SeqCst);
+            smoother.reset();
+            merge_stats(shared, &local, None);
+            continue;
+        }
+        let item = Segmented { frame, arrived, mask, new_shot, stats: local };
+        let mut slot = shared.segmented.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(old) = slot.replace(item) {
+            tracing::trace!("dropped segmented frame {}", old.frame.index);
+            shared.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+        drop(slot);
+        shared.segmented_wake.notify_one();
+    }
+}
+
+/// The fewest mask pixels (a fraction of the frame) a frame needs to hold a person: the normalisation's own floor
+/// ([`crate::pipeline::input::MIN_COVERAGE`]), below which a frame could not be prepared anyway.
+fn holds_a_person(mask: &GrayImage) -> bool {
+    let count = mask.data.iter().filter(|&&v| v >= 0.5).count();
+    !mask.data.is_empty() && count as f32 >= crate::pipeline::input::MIN_COVERAGE * mask.data.len() as f32
+}
+
+/// The second worker thread: builds the newest segmented frame ([`FrameProcessor::process`]) and publishes it.
+fn process_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P) {
+    let mut sequence = 0u64;
+    loop {
+        let Segmented { frame, arrived, mask, new_shot, stats: mut local } = {
+            let mut slot = shared.segmented.lock().unwrap_or_else(|p| p.into_inner());
+            loop {
+                if shared.stop.load(Ordering::SeqCst) {
+                    return;
+                }
+                if let Some(f) = slot.take() {
+                    break f;
+                }
+                if shared.segmenter_done.load(Ordering::SeqCst) {
+                    return;
+                }
+                slot = shared
+                    .segmented_wake
+                    .wait_timeout(slot, Duration::from_millis(50))
+                    .unwrap_or_else(|p| p.into_inner())
+                    .0;
+            }
+        };
+        if new_shot {
+            processor.reset();
+        }
         let output = processor.process(&frame, &mask, &mut local);
         let output = match output {
             Ok(o) => o,
@@ -603,6 +698,8 @@ fn worker_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P, 
         let done = Completed { frame_index: frame.index, timestamp: frame.timestamp, mask, output, latency, sequence };
         shared.latest.publish(Arc::new(done));
         shared.completed.fetch_add(1, Ordering::Relaxed);
+        shared.absent.store(false, Ordering::SeqCst);
+        shared.latency.lock().unwrap_or_else(|p| p.into_inner()).record(latency);
         local.record("frame", latency);
         merge_stats(shared, &local, Some(Instant::now()));
     }
@@ -758,6 +855,11 @@ pub fn render_video<P: FrameProcessor>(
         };
         outcome.segmented_by = Some(seg.name());
         let mask = stats.time("smooth", || smoother.update(&mask));
+        if !holds_a_person(&mask) {
+            smoother.reset();
+            skip(&mut report, outcome, format!("frame {}: no person in this frame", frame.index));
+            continue;
+        }
         let output = match processor.process(&frame, &mask, &mut stats) {
             Ok(o) => o,
             Err(source) => {
@@ -888,6 +990,7 @@ mod tests {
             }],
             throughput_fps: 7.5,
             source_fps: 30.0,
+            ..Default::default()
         };
         assert_eq!(stats.overlay_line(), "segment 12.0 ms · 7.5/30.0 fps · 3 dropped");
     }

@@ -369,7 +369,9 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         let live_opts = LiveOptions { segment: opts.segment.clone(), ..LiveOptions::default() };
         // The worker encodes with its own instance of the models: the display's decoder never waits for it.
         let worker_neural = neural.second_instance().context("loading the neural models for the live worker")?;
-        let processor = EncodeProcessor::new(prepare, worker_neural);
+        let frames =
+            crate::pipeline::auto_frame_options(opts.neural.models.as_deref(), opts.resolution, &opts.neural.options)?;
+        let processor = EncodeProcessor::new(frames, worker_neural);
         let encodes = processor.encode_counter();
         let pipeline = LivePipeline::start(factory, processor, live_opts)?;
         tracing::info!("live input: {}", pipeline.describe());
@@ -378,8 +380,8 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
     } else {
         let person = crate::capture::segment::segment_photo(&opts.image, opts.mask.as_deref(), &opts.segment)?;
         tracing::info!("preparing the input (geometry, mesh)");
-        // A still pays for the back image once (the pose network finds the face); live frames do not (README,
-        // "What the photo does not show").
+        // A still pays for the back image once (the pose network finds the face); live frames read the face at
+        // their own rate (`pipeline::frame`).
         let back_pose = crate::pipeline::load_back_pose(OcclusionFill::default(), &opts.neural.options);
         // A still is prepared once: with the geometry `render` draws (`--geometry auto`); live frames keep the
         // inflation prior (`pipeline::FRAMES_AUTO_CHOICE`: a body geometry flickers between frames).
@@ -471,6 +473,8 @@ struct LiveInput {
     pipeline: LivePipeline<LiveFrame>,
     reader: LatestReader<Completed<LiveFrame>>,
     current: Option<Arc<Completed<LiveFrame>>>,
+    /// The newest frame held no person: none is drawn until one does ([`LivePipeline::person_absent`]).
+    absent: bool,
     camera: bool,
     stats: LiveStats,
     stats_at: Option<Instant>,
@@ -487,6 +491,7 @@ impl LiveInput {
             pipeline,
             reader,
             current: None,
+            absent: false,
             camera,
             stats: LiveStats::default(),
             stats_at: None,
@@ -699,6 +704,7 @@ impl<'a> Engine<'a> {
         // Asked before reading the latest frame: the worker publishes its last frame before it reports being
         // finished, so a source seen as ended here has its last frame picked up just below.
         let ended = live.pipeline.is_finished();
+        live.absent = live.pipeline.person_absent();
         if let Some(done) = live.reader.get() {
             if live.current.as_ref().is_none_or(|c| c.sequence != done.sequence) {
                 live.current = Some(Arc::clone(done));
@@ -741,7 +747,7 @@ impl<'a> Engine<'a> {
     fn has_person(&self) -> bool {
         match &self.input {
             PersonInput::Still(_) => true,
-            PersonInput::Live(live) => live.current.is_some(),
+            PersonInput::Live(live) => live.current.is_some() && !live.absent,
         }
     }
 
@@ -789,7 +795,8 @@ impl<'a> Engine<'a> {
         }
         let (input, encoded, sequence) = match &self.input {
             PersonInput::Still(p) => (Some(*p), self.still_encoded.as_ref(), 0),
-            PersonInput::Live(live) => match live.current.as_ref() {
+            // A frame without a person shows none (not the last person, who has left).
+            PersonInput::Live(live) => match live.current.as_ref().filter(|_| !live.absent) {
                 Some(c) => (Some(&c.output.input), c.output.neural.as_ref(), c.sequence),
                 None => (None, None, 0),
             },

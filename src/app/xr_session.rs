@@ -73,6 +73,9 @@ pub struct XrOptions {
     pub mirror: bool,
     /// `--renderer`, `--models`, `--ep` (the default loads none: geometric).
     pub neural: NeuralSetup,
+    /// Which engine renders the eyes (auto: the CPU reference on a software Vulkan device, the Vulkan passes on a
+    /// GPU).
+    pub backend: crate::app::Backend,
     /// Folder the export action writes the person to (`r2human-person-NNNNN.glb`).
     pub export_dir: PathBuf,
     /// How the export action writes the person (height, decimation; the fill is the eyes').
@@ -92,6 +95,7 @@ impl Default for XrOptions {
             duration: None,
             mirror: true,
             neural: NeuralSetup::default(),
+            backend: crate::app::Backend::Auto,
             export_dir: PathBuf::from("."),
             export: ExportOptions::default(),
             export_at_frames: Vec::new(),
@@ -224,6 +228,10 @@ impl SceneFeed for LiveFeed {
         Some(Arc::new(Scene::from_prepared(&done.output.input, neural)))
     }
 
+    fn person_absent(&self) -> bool {
+        self.pipeline.person_absent()
+    }
+
     fn take_messages(&mut self) -> Vec<String> {
         let stats = self.pipeline.stats();
         let mut out = std::mem::take(&mut self.pending);
@@ -293,14 +301,14 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
             if !(*fps > 0.0 && fps.is_finite()) {
                 bail!("--fps {fps} must be a positive number of frames per second");
             }
-            let feed = LiveFeed::start(video_source(path, *fps), segment.clone(), PrepareOptions::default(), &neural)
+            let frames = frame_options(opts)?;
+            let feed = LiveFeed::start(video_source(path, *fps), segment.clone(), frames, &neural)
                 .with_context(|| format!("opening {}", path.display()))?;
             Box::new(feed.sharing_shown(&shown))
         }
         XrInput::Camera { request, segment } => {
-            let feed =
-                LiveFeed::start(camera_source(request.clone()), segment.clone(), PrepareOptions::default(), &neural)
-                    .with_context(|| format!("opening camera {}", request.index))?;
+            let feed = LiveFeed::start(camera_source(request.clone()), segment.clone(), frame_options(opts)?, &neural)
+                .with_context(|| format!("opening camera {}", request.index))?;
             Box::new(feed.sharing_shown(&shown))
         }
     };
@@ -322,12 +330,22 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
             options: opts.export.clone(),
         }))),
         export_at_frames: opts.export_at_frames.clone(),
+        backend: opts.backend,
     };
     let report = crate::xr::run_session(&config, feed, environment)?;
     if let crate::xr::EndReason::RenderFailed(e) = &report.end {
         bail!("the person renderer failed during the XR session: {e}");
     }
     Ok(report)
+}
+
+/// The options the session's live frames are prepared with ([`crate::pipeline::auto_frame_options`]).
+fn frame_options(opts: &XrOptions) -> Result<PrepareOptions> {
+    Ok(crate::pipeline::auto_frame_options(
+        opts.neural.models.as_deref(),
+        crate::geometry::SOURCE_RESOLUTION,
+        &opts.neural.options,
+    )?)
 }
 
 #[cfg(test)]

@@ -36,7 +36,7 @@ pub const MODEL_FILES: &[&str] = &["pose_landmark_full.onnx", "isnet_seg.onnx"];
 /// The same models in order of preference for still photos: ISNet first. The pose model expects a crop around a
 /// whole body and misses most of a head-and-shoulders portrait (on the bundled grace_hopper.jpg it keeps the face
 /// but loses the cap, the shoulders and most of the dark uniform, even on a second pass over the crop it found);
-/// ISNet outlines the whole person in a few seconds, which a still photo can afford. See the README.
+/// ISNet outlines the whole person in a few seconds, which a still photo can afford (docs/live.md, "Segmentation").
 pub const STILL_MODEL_FILES: &[&str] = &["isnet_seg.onnx", "pose_landmark_full.onnx"];
 
 /// ISNet's input side for still photos: its native 1024 (the live default is [`DEFAULT_INPUT_SIZE`]).
@@ -123,6 +123,11 @@ impl Region {
     }
 }
 
+/// The pose model's presence score (a probability) below which a frame holds no person: the pose network's own
+/// threshold for a pose ([`crate::capture`] cannot name `body::pose::MIN_POSE_SCORE`, a layer beside it; both are
+/// 0.5).
+pub const MIN_PERSON_PRESENCE: f32 = 0.5;
+
 /// An ONNX person segmentation model as a [`Segmenter`].
 ///
 /// With the MediaPipe model the region follows the person: the next frame's input is a square 1.3 times the
@@ -137,6 +142,10 @@ pub struct OnnxSegmenter {
     output_index: usize,
     path: PathBuf,
     track: Option<(usize, usize, Region)>,
+    /// The pose model's presence output (`Identity_1`), when this is the pose model.
+    presence_index: Option<usize>,
+    /// Its value on the last read (1 for models without one).
+    presence: f32,
 }
 
 impl OnnxSegmenter {
@@ -168,7 +177,21 @@ impl OnnxSegmenter {
             Some(i) if session.outputs().len() >= 5 => (SegmentationModel::MediapipePose, i, 256),
             _ => (SegmentationModel::Isnet, 0, (input_size.max(64) + 16) / 32 * 32),
         };
-        Ok(Self { session, kind, input_size, input_name, output_index, path, track: None })
+        let presence_index = match kind {
+            SegmentationModel::MediapipePose => session.outputs().iter().position(|o| o.name() == "Identity_1"),
+            SegmentationModel::Isnet => None,
+        };
+        Ok(Self {
+            session,
+            kind,
+            input_size,
+            input_name,
+            output_index,
+            path,
+            track: None,
+            presence_index,
+            presence: 1.0,
+        })
     }
 
     /// Which network this is.
@@ -192,6 +215,11 @@ impl OnnxSegmenter {
     /// the frame before (else the whole frame, letterboxed).
     fn tracking(&self, width: usize, height: usize) -> bool {
         self.kind == SegmentationModel::MediapipePose && self.track.is_some_and(|(w, h, _)| (w, h) == (width, height))
+    }
+
+    /// The pose model's presence score on the last read (1 for a model without one, such as ISNet).
+    pub fn presence(&self) -> f32 {
+        self.presence
     }
 
     /// Network input side.
@@ -245,7 +273,13 @@ impl OnnxSegmenter {
         let tensor = TensorRef::from_array_view(&input).map_err(|e| fail(e.to_string()))?;
         let outputs =
             self.session.run(ort::inputs![self.input_name.as_str() => tensor]).map_err(|e| fail(e.to_string()))?;
-        let out = outputs[self.output_index].try_extract_array::<f32>().map_err(|e| fail(e.to_string()))?;
+        let extract = |i: usize| outputs[i].try_extract_array::<f32>().map_err(|e| fail(e.to_string()));
+        if let Some(i) = self.presence_index {
+            // Already a probability; a non-finite value counts as no person.
+            let p = extract(i)?.iter().next().copied().filter(|v| v.is_finite()).unwrap_or(0.0);
+            self.presence = p.clamp(0.0, 1.0);
+        }
+        let out = extract(self.output_index)?;
         let shape = out.shape().to_vec();
         let (oh, ow) = match shape.as_slice() {
             [1, 1, h, w] | [1, h, w, 1] | [1, h, w] => (*h, *w),
@@ -319,15 +353,32 @@ impl Segmenter for OnnxSegmenter {
     /// before) is read twice: letterboxed, then on the square around the person that read found (the model is
     /// trained on such crops). Read once, a live session's first frame had a coarser mask than the tracked frames
     /// after it, and its person changed shape on the second frame.
+    ///
+    /// The pose model also says whether it sees a person at all (its presence output): below
+    /// [`MIN_PERSON_PRESENCE`] on the frame's last read the mask is empty (no person: a blank wall, an empty room,
+    /// a dark frame, the person gone), whatever its mask output holds, and the tracked square is dropped.
     fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
         let tracked = self.tracking(frame.width(), frame.height());
         let first = self.segment_once(frame)?;
-        if tracked || !self.tracking(frame.width(), frame.height()) {
-            return Ok(first);
+        let first_presence = self.presence;
+        let mask = if tracked || !self.tracking(frame.width(), frame.height()) {
+            first
+        } else {
+            let second = self.segment_once(frame)?;
+            // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
+            if second.data.iter().any(|&v| v >= 0.5) {
+                second
+            } else {
+                self.presence = first_presence;
+                first
+            }
+        };
+        if self.presence_index.is_some() && self.presence < MIN_PERSON_PRESENCE {
+            tracing::debug!("segmentation: frame {}: no person (presence {:.3})", frame.index, self.presence);
+            self.track = None;
+            return Ok(GrayImage::new(mask.width, mask.height, 0.0));
         }
-        let second = self.segment_once(frame)?;
-        // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
-        Ok(if second.data.iter().any(|&v| v >= 0.5) { second } else { first })
+        Ok(mask)
     }
 }
 

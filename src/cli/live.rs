@@ -1,4 +1,4 @@
-//! `view`, `xr` and `devices`: the interactive and live commands.
+//! `view`, `xr`, `devices` and `bench-live`: the interactive and live commands.
 
 use std::path::PathBuf;
 
@@ -124,9 +124,55 @@ pub struct XrArgs {
     /// Also export the person when this many frames have shown it (repeatable; scripted captures).
     #[arg(long, value_name = "N")]
     pub export_at_frame: Vec<u64>,
+    /// Engine for the eyes: the Vulkan passes, the CPU reference, or auto (the CPU reference when the runtime's
+    /// Vulkan device is a software rasteriser such as lavapipe, the Vulkan passes on a GPU).
+    #[arg(long, value_enum, default_value_t = Backend::Auto)]
+    pub backend: Backend,
     /// Which renderer draws the person.
     #[command(flatten)]
     pub neural: NeuralArgs,
+}
+
+/// Arguments of `bench-live`.
+#[derive(Args, Debug)]
+pub struct BenchLiveArgs {
+    /// A video file or a folder of frames, played at its frame rate as `view --video` plays it.
+    #[arg(long)]
+    pub video: PathBuf,
+    /// Frame rate of a folder of frames.
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f32,
+    /// How the person is found.
+    #[command(flatten)]
+    pub segment: SegmentArgs,
+    /// Stop after this many seconds (default: the whole clip).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Side of the view drawn from each completed frame, in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub view_size: usize,
+    /// Yaw of that view in degrees.
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
+    pub yaw: f32,
+    /// Which renderer draws the views (neural: the worker also runs the encoder on every frame).
+    #[command(flatten)]
+    pub neural: NeuralArgs,
+}
+
+/// `r2human bench-live`.
+pub fn run_bench_live(args: &BenchLiveArgs) -> Result<()> {
+    let report = crate::app::live_bench::bench_live(&crate::app::live_bench::LiveBenchOptions {
+        video: args.video.clone(),
+        fps: args.fps,
+        segment: args.segment.method()?,
+        neural: args.neural.setup(),
+        seconds: args.seconds,
+        view_size: args.view_size,
+        yaw: args.yaw,
+        ..Default::default()
+    })?;
+    println!("{report}");
+    Ok(())
 }
 
 /// `--export-dir`, `--export-height`, `--export-decimate`: how `view` (E key) and `xr` (the export action) write
@@ -244,6 +290,7 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         export_dir: args.export.export_dir.clone(),
         export: args.export.options()?,
         export_at_frames: args.export_at_frame.clone(),
+        backend: args.backend,
         ..Default::default()
     })?;
     println!("{report}");

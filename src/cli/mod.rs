@@ -45,6 +45,9 @@ pub enum Command {
     /// Say what this machine offers (Vulkan devices, OpenXR runtime, cameras, ONNX Runtime and which execution
     /// providers load, and why the others do not) and what `auto` chooses.
     Doctor(doctor::DoctorArgs),
+    /// Play a clip through the live pipeline without a window and report completed frames per second, dropped
+    /// frames, latency (p50, p95) and the per-stage medians.
+    BenchLive(live::BenchLiveArgs),
 }
 
 /// Entry point of the binary: parses arguments, runs the command, prints errors as sentences.
@@ -63,6 +66,7 @@ pub fn main() -> ExitCode {
         Command::Xr(args) => live::run_xr(&args),
         Command::Devices => live::run_devices(),
         Command::Doctor(args) => doctor::run_doctor(&args),
+        Command::BenchLive(args) => live::run_bench_live(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -44,7 +44,7 @@ pub struct GeometryArgs {
     /// scripts/setup.d/live.sh), body-placed (the silhouette-inflation prior with each column moved halfway toward
     /// the fitted body's depth, or as far as the model folder's placement.onnx says when it has one: the
     /// silhouette's thickness, the body's placement; same pose model) or auto (the default: the geometry that wins
-    /// the whole evaluation, README "Which geometry, where"; on --video frames the inflation prior, which stays
+    /// the whole evaluation, docs/geometry.md; on --video frames the inflation prior, which stays
     /// steady between frames).
     #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]
     pub geometry: GeometryMode,

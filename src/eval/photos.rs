@@ -309,8 +309,12 @@ fn run_method(
     let photo = SrgbImage::from_linear_premultiplied(&reference.normalised.rgb.map(|c| c.extend(1.0)));
     let front = SrgbImage::from_linear_premultiplied(&views[0]);
     let input_psnr = psnr(&photo, &front, &vec![true; photo.data.len()]);
-    let doubled = doubled_fraction_beyond(&input.fof, &reference.explained(), &input.normalised.mask, 1);
-    let guard_fallback = method.geometry != GeometryMode::Inflate && input.fof == reference.inflation.0;
+    // Photos take the still path, whose input always holds its FOF.
+    let doubled = input
+        .fof
+        .as_ref()
+        .map_or(0.0, |fof| doubled_fraction_beyond(fof, &reference.explained(), &input.normalised.mask, 1));
+    let guard_fallback = method.geometry != GeometryMode::Inflate && input.fof.as_ref() == Some(&reference.inflation.0);
     let row = PhotoRow {
         photo: name.to_string(),
         method: method.label.clone(),

@@ -114,7 +114,7 @@ impl Default for EvalOptions {
 }
 
 /// The methods compared.
-pub const METHODS: [&str; 12] = [
+pub const METHODS: [&str; 14] = [
     "billboard",
     "2.5d",
     "geometric+inflation",
@@ -127,13 +127,27 @@ pub const METHODS: [&str; 12] = [
     "neural+body",
     "geometric+body-placed",
     "neural+body-placed",
+    "geometric+frame-path",
+    "neural+frame-path",
 ];
 
 /// The renderer-based methods (indices into [`METHODS`] from 2 on): which prepared geometry they draw (0 inflation,
-/// 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 the inflation prior placed by the body) and whether with the
-/// neural renderer.
-const RENDERED: [(usize, bool); 10] =
-    [(0, false), (1, false), (0, true), (1, true), (2, false), (2, true), (3, false), (3, true), (4, false), (4, true)];
+/// 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 the inflation prior placed by the body, 5 the frame path of a
+/// live source as `view` prepares a frame, [`crate::pipeline::frame`]) and whether with the neural renderer.
+const RENDERED: [(usize, bool); 12] = [
+    (0, false),
+    (1, false),
+    (0, true),
+    (1, true),
+    (2, false),
+    (2, true),
+    (3, false),
+    (3, true),
+    (4, false),
+    (4, true),
+    (5, false),
+    (5, true),
+];
 
 /// Depth samples per column for the volumetric geometry IoU of the report.
 const IOU_DEPTH_SAMPLES: usize = 128;
@@ -360,10 +374,10 @@ pub fn fof_occupancy_iou(a: &Fof, b: &Fof, samples: usize) -> f32 {
 type MethodAcc = [[Acc; 2]; METHODS.len()];
 
 /// The per-input volumetric IoUs of the predicted geometries, in the order of [`GEOMETRIES`].
-type GeometryIou = [Vec<f32>; 4];
+type GeometryIou = [Vec<f32>; 5];
 
 /// The predicted geometries whose volumetric IoU the report gives (the oracle's is 1 by construction).
-pub const GEOMETRIES: [&str; 4] = ["inflation", "fofnet", "body", "body-placed"];
+pub const GEOMETRIES: [&str; 5] = ["inflation", "fofnet", "body", "body-placed", "frame-path"];
 
 /// `(geometry, mean IoU)` of the geometries measured at least once.
 fn geometry_means(iou: &GeometryIou) -> impl Iterator<Item = (String, f32)> + '_ {
@@ -415,7 +429,7 @@ impl SubjectSource {
     }
 
     /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 body-placed
-    /// inflation prior); `None` for the FOF net when it is not loaded or fails on this input (logged: its rows skip
+    /// inflation prior, 5 the frame path with the geometry live frames draw); `None` for the FOF net when it is not loaded or fails on this input (logged: its rows skip
     /// the subject, never replaced by the prior), and for the body geometries when the body prior is not loaded (an
     /// input where it finds no pose falls back to the inflation prior, as `--geometry body` does).
     fn geometry(
@@ -449,6 +463,20 @@ impl SubjectSource {
                 };
                 let built = self.prepared_with(&o);
                 return Ok(built.map_err(|e| tracing::warn!("{name}: the body rows skip this subject: {e}")).ok());
+            }
+            5 => {
+                // A live frame's preparation: `--geometry auto` on frames, with the models it may need.
+                let o = PrepareOptions {
+                    geometry: GeometryMode::Auto,
+                    body: nets.body.cloned(),
+                    placement: nets.placement.cloned(),
+                    ..popts.clone()
+                };
+                let built = crate::pipeline::frame::FramePath::new(o)
+                    .prepare_normalised(self.normalised(), StageTimings::default());
+                return Ok(built
+                    .map_err(|e| tracing::warn!("{name}: the frame-path rows skip this subject: {e}"))
+                    .ok());
             }
             _ => {
                 let Some(net) = fof_net else { return Ok(None) };
@@ -570,16 +598,35 @@ fn eval_subject(
     let t = Instant::now();
     let with_placed = src.geometry(4, mesh, nets, name)?;
     let ms_placed = t.elapsed().as_secs_f32() * 1e3;
-    geometry_iou[0].push(fof_occupancy_iou(&inflated.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
-    for (slot, p) in [(1, &with_net), (2, &with_body), (3, &with_placed)] {
-        if let Some(p) = p {
-            geometry_iou[slot].push(fof_occupancy_iou(&p.fof, &oracle.fof, IOU_DEPTH_SAMPLES));
+    // A live frame through the frame path (mesh and source view straight from the depth maps).
+    let t = Instant::now();
+    let with_frame = src.geometry(5, mesh, nets, name)?;
+    let ms_frame = t.elapsed().as_secs_f32() * 1e3;
+    // Every geometry here takes the still path, which keeps its FOF.
+    let Some(oracle_fof) = oracle.fof.as_ref() else { return Err(EvalError::stage("ground-truth FOF", "missing")) };
+    // The frame path keeps depth maps: their FOF ([`PreparedInput::fof_with`]) is measured the same way.
+    let with_fof = [
+        (0, Some(&inflated)),
+        (1, with_net.as_ref()),
+        (2, with_body.as_ref()),
+        (3, with_placed.as_ref()),
+        (4, with_frame.as_ref()),
+    ];
+    for (slot, p) in with_fof {
+        if let Some(fof) = p.and_then(|p| p.fof_with(oracle_fof.n)) {
+            geometry_iou[slot].push(fof_occupancy_iou(&fof, oracle_fof, IOU_DEPTH_SAMPLES));
         }
     }
-    // Methods 3..12: geometric and neural renderers on the inflation, oracle, FOF-net, body-prior and body-placed
-    // geometry.
-    let prepared: [Option<&PreparedInput>; 5] =
-        [Some(&inflated), Some(&oracle), with_net.as_ref(), with_body.as_ref(), with_placed.as_ref()];
+    // Methods 3..14: geometric and neural renderers on the inflation, oracle, FOF-net, body-prior, body-placed and
+    // frame-path geometry.
+    let prepared: [Option<&PreparedInput>; 6] = [
+        Some(&inflated),
+        Some(&oracle),
+        with_net.as_ref(),
+        with_body.as_ref(),
+        with_placed.as_ref(),
+        with_frame.as_ref(),
+    ];
     let mut renderers: Vec<Option<ViewRenderer<'_>>> = RENDERED
         .iter()
         .map(|&(k, is_neural)| prepared[k].and_then(|p| method_renderer(p, is_neural, nets.neural)))
@@ -588,6 +635,7 @@ fn eval_subject(
     let fofnet_ms = with_net.as_ref().map(|_| ms_fofnet);
     let body_ms = with_body.as_ref().map(|_| ms_body);
     let placed_ms = with_placed.as_ref().map(|_| ms_placed);
+    let frame_ms = with_frame.as_ref().map(|_| ms_frame);
     let per_input = [
         Some(0.0),
         Some(ms_25d),
@@ -601,6 +649,8 @@ fn eval_subject(
         encode_ms(7).and_then(|e| body_ms.map(|f| f + e)),
         placed_ms,
         encode_ms(9).and_then(|e| placed_ms.map(|f| f + e)),
+        frame_ms,
+        encode_ms(11).and_then(|e| frame_ms.map(|f| f + e)),
     ];
     for (a, ms) in acc.iter_mut().zip(per_input) {
         for g in a.iter_mut() {
@@ -1181,6 +1231,8 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
             RGBColor(150, 150, 0),
             RGBColor(200, 80, 120),
             RGBColor(110, 110, 110),
+            RGBColor(60, 180, 60),
+            RGBColor(40, 40, 200),
         ];
         for r in pts {
             let c = colors[METHODS.iter().position(|m| *m == r.method).unwrap_or(0) % colors.len()];

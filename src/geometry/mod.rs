@@ -10,6 +10,7 @@ pub mod marching;
 pub mod mesh;
 pub mod raster;
 pub mod shells;
+pub mod surface_mesh;
 pub mod zmap;
 
 pub use camera::{Camera, Fov, Projection, Ray, RayGrid, SOURCE_RESOLUTION};

@@ -12,6 +12,7 @@
 //! Validation: set `R2HUMAN_VULKAN_VALIDATION=1` (or [`ContextOptions::validation`]) to enable the Khronos
 //! validation layer; its errors and warnings are counted in [`Context::validation`].
 
+pub mod backend;
 pub mod commands;
 pub mod context;
 pub mod devices;

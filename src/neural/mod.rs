@@ -22,7 +22,7 @@
 //!   With the default fill ([`crate::pipeline::warp::OcclusionFill::Back`]) and an input that has a back image,
 //!   surfaces facing away from the source camera take the back image instead of the photo, exactly as the
 //!   geometric renderer does ([`crate::pipeline::neural_back_lookup`]); `models/tiny` was trained on the photo
-//!   alone (README "What the photo does not show" has what that costs).
+//!   alone (docs/rendering.md, "What the photo does not show", has what that costs).
 //!   The decoder is **residual**: its graph outputs `warped_rgb + UNet(...)`, trained from a zero-initialised last
 //!   convolution, so an untrained decoder is the geometric renderer's `MirroredFront` lookup (without the
 //!   visibility test) and training adds occlusion, back-side and shading corrections. This deviates from the paper

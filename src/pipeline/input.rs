@@ -160,7 +160,7 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
 
 /// Width of the mask's rim whose colours [`interior_colours_at_the_rim`] replaces, as a fraction of the
 /// resolution (2 px at 512²: 1 px left a blue band along Grace Hopper's coat seen from the side, 2 and 3 px none).
-/// What it costs at the views near the photo is in README "Colours at the outline".
+/// What it costs at the views near the photo is in docs/rendering.md.
 pub const RIM_FRACTION: f32 = 2.0 / 512.0;
 
 /// `input` with the colours of the mask's rim replaced by colours from further in, premultiplied by each pixel's
@@ -172,7 +172,7 @@ pub const RIM_FRACTION: f32 = 2.0 / 512.0;
 /// not an outside (a person it cuts continues there); the padding around a photo that does not fill the grid is
 /// (mask 0), so a cut at the photo's edge inside the grid is refilled like an outline. Linear in the pixels (about
 /// 6 ms at 512²); 8-neighbour rings
-/// took a wider band and cost the yaw-0 view more (README "Colours at the outline").
+/// took a wider band and cost the yaw-0 view more (docs/rendering.md).
 pub fn interior_colours_at_the_rim(mut input: NormalisedInput, rim: f32) -> NormalisedInput {
     let (w, h) = (input.mask.width, input.mask.height);
     let rings = rim.ceil().clamp(0.0, 254.0) as u8;

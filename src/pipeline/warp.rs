@@ -32,7 +32,7 @@
 //! on the back; [`OcclusionFill::Propagate`] is a blur; [`OcclusionFill::Back`] draws the back of the head in the
 //! hair's colour and the shirt without the logo, but its mode filter moves the stripes (a pattern that happens to
 //! be the same at the front and the back, which PSNR rewards the mirrored fill for, and which a viewer cannot tell
-//! from any other stripes). On the evaluation's clothed synthetic subjects with ground-truth geometry (README
+//! from any other stripes). On the evaluation's clothed synthetic subjects with ground-truth geometry (docs/rendering.md,
 //! "What the photo does not show") the back fill gains on every divergent framing for the geometric renderer
 //! (whole-frame PSNR +0.1 to +0.7 dB, SSIM up) and its SSIM gains for the neural one, and on real photos it is the
 //! only fill that shows a plausible person from behind. [`OcclusionFill::Back`] is the default.
@@ -90,7 +90,7 @@ impl<'a> From<&'a RgbImage> for SourceColours<'a> {
 
 /// How much a surface takes the side images: where the photo sees it edge-on, one photo pixel's colour is stretched
 /// along its whole depth, so the vertical run of pixels along the outline (an ear, a collar, spectacles, the hem)
-/// became horizontal stripes in every view from the side (README "Colours from the side"). A blur of the photo
+/// became horizontal stripes in every view from the side (docs/rendering.md). A blur of the photo
 /// along and across the outline turns them into the mean colour of that stretch of outline.
 /// The blur is a standard deviation of [`SIDE_BLUR`] of the source image's width; the weight is
 /// [`side_weight`].
@@ -118,6 +118,14 @@ impl SideImages {
         let sigma = SIDE_BLUR * rgb.width as f32;
         let back = back.filter(|b| (b.width, b.height) == (rgb.width, rgb.height));
         Self { rgb: blur_masked(rgb, mask, sigma), back: back.map(|b| blur_masked(b, mask, sigma)) }
+    }
+
+    /// [`SideImages::of`] with the back image's side image already made (a back image kept from an earlier frame,
+    /// [`super::frame`]): only the photo is blurred.
+    pub fn with_back_side(rgb: &RgbImage, back_side: Option<RgbImage>, mask: &GrayImage) -> Self {
+        let sigma = SIDE_BLUR * rgb.width as f32;
+        let back = back_side.filter(|b| (b.width, b.height) == (rgb.width, rgb.height));
+        Self { rgb: blur_masked(rgb, mask, sigma), back }
     }
 
     /// The blurred colours as [`SourceColours`] without side images of their own.

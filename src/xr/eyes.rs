@@ -1,4 +1,5 @@
-//! The eyes on the Vulkan renderer: one [`gpu::Renderer`] per eye (so spatial fusion follows each eye's own view
+//! The eyes on the Vulkan renderer ([`GpuEyes`]) or, on a software Vulkan device, on the CPU reference
+//! ([`CpuEyes`]). On the Vulkan renderer: one [`gpu::Renderer`] per eye (so spatial fusion follows each eye's own view
 //! sequence) on the device the OpenXR runtime chose, fed with the person's mesh and source view once per input
 //! frame ([`Scene`], from a [`SceneFeed`]), rendering each eye's perspective camera on the GPU through the person
 //! renderer of every path ([`GpuView`] under a per-eye [`NeuralPolicy`]).
@@ -26,7 +27,7 @@ use crate::compose::{Mode, RenderedFrame};
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{NeuralCounters, NeuralPolicy, Scene};
+use crate::pipeline::{CpuView, NeuralCounters, NeuralPolicy, Scene};
 
 /// Where new scenes come from: a still photo (one scene) or a live source (a new scene per completed frame).
 /// Polled by the render thread before every request; must never block.
@@ -36,6 +37,11 @@ pub trait SceneFeed: Send {
     /// Messages for the user since the last call (a source that ended, a corrupt frame).
     fn take_messages(&mut self) -> Vec<String> {
         Vec::new()
+    }
+    /// Whether the source's newest frame holds no person: the eyes then show none (the scene stays for when the
+    /// person comes back).
+    fn person_absent(&self) -> bool {
+        false
     }
 }
 
@@ -136,9 +142,7 @@ impl GpuEyes {
         environment: Option<Environment>,
         feed: Box<dyn SceneFeed>,
     ) -> Result<Self, gpu::GpuError> {
-        if mode == Mode::Vr && environment.is_none() {
-            return Err(gpu::GpuError::Invalid("VR needs a panorama to show around the person".into()));
-        }
+        needs_panorama(mode, environment.as_ref())?;
         let mut renderers = Vec::with_capacity(sizes.len());
         for &(w, h) in sizes {
             let mut r = Renderer::new(render.clone(), w, h)?;
@@ -147,15 +151,7 @@ impl GpuEyes {
             renderers.push(r);
         }
         let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
-        let staging = if Arc::ptr_eq(&session, &render) {
-            None
-        } else {
-            let mut list = Vec::with_capacity(sizes.len());
-            for &(w, h) in sizes {
-                list.push(Buffer::new(&session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC)?);
-            }
-            Some(list)
-        };
+        let staging = if Arc::ptr_eq(&session, &render) { None } else { Some(staging_buffers(&session, sizes)?) };
         Ok(Self {
             session,
             renderers,
@@ -225,7 +221,7 @@ impl EyeRenderer for GpuEyes {
         }
         // One policy per renderer (made together in `new`).
         let policy = self.policies.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
-        match &self.scene {
+        match self.scene.as_ref().filter(|_| !self.feed.person_absent()) {
             Some(scene) => {
                 let before = policy.counters();
                 let mut view = GpuView { renderer: &mut *r, mode, target: None };
@@ -239,6 +235,16 @@ impl EyeRenderer for GpuEyes {
                     self.neural_stats.decoder.record(times.decoder);
                 }
                 self.neural_stats.counters += drawn;
+            }
+            // The person has left (the scene stays for their return): the panorama or an empty layer, with fusion
+            // restarted so no trace of the last person lingers.
+            None if self.scene.is_some() => {
+                let (w, h) = r.size();
+                let nobody = crate::buffer::RgbaImage::new(w, h, Vec4::ZERO);
+                r.set_fusion(false);
+                let drawn = r.render_frame_from_person(Some(&nobody), &eye.body_camera, mode, None);
+                r.set_fusion(true);
+                drawn.map_err(gpu)?;
             }
             None => r.render_frame(&eye.body_camera, mode, None).map_err(gpu)?,
         }
@@ -258,18 +264,159 @@ impl EyeRenderer for GpuEyes {
     }
 
     fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
-        // SAFETY: the fence belongs to this device and is only reset by the display loop after it has seen a newer
-        // frame, which this thread publishes only after this wait.
-        let result = unsafe { self.session.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
-        match result {
-            Ok(()) => Ok(()),
-            Err(vk::Result::TIMEOUT) => Err(EyeError::CopyTimeout(COPY_TIMEOUT)),
-            Err(e) => Err(EyeError::CopyWait(e)),
-        }
+        wait_for_copy(&self.session, fence)
     }
 
     fn take_messages(&mut self) -> Vec<String> {
         self.feed.take_messages()
+    }
+}
+
+/// The per-eye CPU reference renderers ([`CpuView`], one per eye so spatial fusion follows each eye's own view
+/// sequence), for a session whose only Vulkan device is a software rasteriser: there the Vulkan passes share the
+/// CPU's cores with the rasteriser's own overhead and run several times slower than the reference. Each finished
+/// eye image (composited over the room-locked panorama in VR, the premultiplied layer in AR) is written into a
+/// host-visible buffer on the session's device: one upload per eye render, which the display loop copies into the
+/// swapchain image as it copies a Vulkan eye.
+pub struct CpuEyes {
+    session: Arc<gpu::Context>,
+    views: Vec<CpuView>,
+    sizes: Vec<(usize, usize)>,
+    staging: Vec<Buffer>,
+    feed: Box<dyn SceneFeed>,
+    scene: Option<Arc<Scene>>,
+    scene_count: u64,
+    /// Neural eye renders, decoder runs, fallbacks and host times.
+    pub neural_stats: NeuralEyeStats,
+    mode: Mode,
+    environment: Option<Environment>,
+    base_yaw: f32,
+}
+
+impl std::fmt::Debug for CpuEyes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CpuEyes").field("eyes", &self.views.len()).field("mode", &self.mode).finish()
+    }
+}
+
+impl CpuEyes {
+    /// One CPU view sequence per eye of the given sizes, staging into host-visible buffers of `session`. VR needs
+    /// the panorama (`environment`); AR ignores it.
+    pub fn new(
+        session: Arc<gpu::Context>,
+        sizes: &[(usize, usize)],
+        mode: Mode,
+        environment: Option<Environment>,
+        feed: Box<dyn SceneFeed>,
+    ) -> Result<Self, gpu::GpuError> {
+        needs_panorama(mode, environment.as_ref())?;
+        let staging = staging_buffers(&session, sizes)?;
+        let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
+        Ok(Self {
+            session,
+            views: sizes.iter().map(|_| CpuView::new(OcclusionFill::default(), true)).collect(),
+            sizes: sizes.to_vec(),
+            staging,
+            feed,
+            scene: None,
+            scene_count: 0,
+            neural_stats: NeuralEyeStats::default(),
+            mode,
+            environment: if mode == Mode::Vr { environment } else { None },
+            base_yaw,
+        })
+    }
+}
+
+impl EyeRenderer for CpuEyes {
+    fn refresh(&mut self, placement: &Placement) -> Result<bool, EyeError> {
+        let mut uploaded = false;
+        if let Some(scene) = self.feed.poll() {
+            self.scene = Some(scene);
+            self.scene_count += 1;
+            uploaded = true;
+        }
+        if let Some(env) = &mut self.environment {
+            // The panorama is looked up on the CPU: turning it is setting its yaw.
+            env.yaw = GpuEyes::room_locked_yaw(self.base_yaw, placement.yaw);
+        }
+        Ok(uploaded)
+    }
+
+    fn has_content(&self) -> bool {
+        self.scene.is_some()
+    }
+
+    fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError> {
+        let camera = &eye.body_camera;
+        let size = *self.sizes.get(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
+        if size != (camera.width, camera.height) {
+            return Err(EyeError::SizeMismatch { eye: eye.eye, camera: (camera.width, camera.height), renderer: size });
+        }
+        let view = self.views.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
+        let person = match self.scene.as_ref().filter(|_| !self.feed.person_absent()) {
+            Some(scene) => {
+                let before = view.neural_counters();
+                let t = std::time::Instant::now();
+                let (person, _) = view
+                    .draw(scene.source(), scene.neural(), self.scene_count, camera)
+                    .map_err(|source| EyeError::Cpu { eye: eye.eye, source })?;
+                let drawn = view.neural_counters().since(before);
+                if drawn.decoder_runs > 0 {
+                    self.neural_stats.decoder.record(t.elapsed());
+                }
+                self.neural_stats.counters += drawn;
+                person
+            }
+            None => crate::buffer::RgbaImage::new(size.0, size.1, Vec4::ZERO),
+        };
+        let data: Vec<Vec4> = match (self.mode, &self.environment) {
+            (Mode::Vr, Some(env)) => {
+                crate::compose::compose_vr(&person, env, camera).data.iter().map(|c| c.extend(1.0)).collect()
+            }
+            _ => crate::compose::compose_ar(&person).data,
+        };
+        let buffer = self.staging.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
+        // Safe to rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
+        buffer.write(&data);
+        Ok(buffer.buffer)
+    }
+
+    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
+        wait_for_copy(&self.session, fence)
+    }
+
+    fn take_messages(&mut self) -> Vec<String> {
+        self.feed.take_messages()
+    }
+}
+
+/// VR shows the person in a panorama: an error without one.
+fn needs_panorama(mode: Mode, environment: Option<&Environment>) -> Result<(), gpu::GpuError> {
+    match (mode, environment) {
+        (Mode::Vr, None) => Err(gpu::GpuError::Invalid("VR needs a panorama to show around the person".into())),
+        _ => Ok(()),
+    }
+}
+
+/// One host-visible buffer per eye on the session's device, of the eye's size in `vec4`s: where a finished eye is
+/// handed to the display loop's copy.
+fn staging_buffers(session: &Arc<gpu::Context>, sizes: &[(usize, usize)]) -> Result<Vec<Buffer>, gpu::GpuError> {
+    sizes
+        .iter()
+        .map(|&(w, h)| Buffer::new(session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC))
+        .collect()
+}
+
+/// Waits on the session device for the display loop's copy signalled by `fence` ([`COPY_TIMEOUT`] at most).
+fn wait_for_copy(session: &gpu::Context, fence: vk::Fence) -> Result<(), EyeError> {
+    // SAFETY: the fence belongs to this device and is only reset by the display loop after it has seen a newer
+    // frame, which the render thread publishes only after this wait.
+    let result = unsafe { session.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
+    match result {
+        Ok(()) => Ok(()),
+        Err(vk::Result::TIMEOUT) => Err(EyeError::CopyTimeout(COPY_TIMEOUT)),
+        Err(e) => Err(EyeError::CopyWait(e)),
     }
 }
 

@@ -72,6 +72,15 @@ pub enum EyeError {
         #[source]
         source: crate::gpu::GpuError,
     },
+    /// The CPU reference failed on an eye (a non-finite view).
+    #[error("eye {eye} on the CPU: {source}")]
+    Cpu {
+        /// Eye index.
+        eye: usize,
+        /// The pipeline's error.
+        #[source]
+        source: crate::pipeline::PipelineError,
+    },
     /// The session asked for an eye the renderer does not have.
     #[error("eye {0} has no renderer (the session has fewer eyes)")]
     NoRenderer(usize),
@@ -94,7 +103,7 @@ pub enum EyeError {
 }
 
 /// The render thread's side of the eye renderer (implemented on the Vulkan renderer by
-/// [`super::eyes::GpuEyes`]).
+/// [`super::eyes::GpuEyes`], on the CPU reference by [`super::eyes::CpuEyes`]).
 pub trait EyeRenderer: Send {
     /// Takes new content (a new input frame, a panorama turned with the placement) without blocking; called
     /// before every request. Returns whether something was uploaded.

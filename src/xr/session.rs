@@ -20,8 +20,8 @@ use xr::sys::Handle as _;
 use super::check::{blend_mode_name, extension_names};
 use super::device::{create_device, renderer_shares_queue, SESSION_QUEUE};
 use super::diag::{ValidationLog, XrMessenger};
-use super::eyes::{GpuEyes, NeuralEyeStats, SceneFeed};
-use super::pacing::{EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedEyes};
+use super::eyes::{CpuEyes, GpuEyes, NeuralEyeStats, SceneFeed};
+use super::pacing::{EyeRenderer, EyeView, PacingStats, RenderMailbox, RenderRequest, RenderedEyes};
 use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
 use super::swapchain::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat};
 use super::{load_entry, XrContext, XrError};
@@ -29,7 +29,7 @@ use crate::buffer::RgbaImage;
 use crate::capture::stats::DurationHistogram;
 use crate::compose::Mode;
 use crate::geometry::camera::{Camera, Fov};
-use crate::gpu;
+use crate::gpu::{self, backend::Backend};
 use crate::io::environment::Environment;
 use crate::window::mirror::{Mirror, MirrorEventLoop, DEVICE_EXTENSIONS};
 
@@ -93,6 +93,9 @@ pub struct SessionConfig {
     pub export: Option<ExportHook>,
     /// Also export when this many frames have shown the person (scripted captures, tests without a controller).
     pub export_at_frames: Vec<u64>,
+    /// Which engine renders the eyes ([`Backend::resolve`] on the session's device: the CPU reference on a software
+    /// rasteriser under `Auto`).
+    pub backend: Backend,
 }
 
 impl Default for SessionConfig {
@@ -106,6 +109,7 @@ impl Default for SessionConfig {
             mirror: false,
             export: None,
             export_at_frames: Vec::new(),
+            backend: Backend::Auto,
         }
     }
 }
@@ -668,9 +672,13 @@ pub fn run_session(
     }
     let eye_dims = (eyes[0].width, eyes[0].height);
     let sizes: Vec<(usize, usize)> = eyes.iter().map(|e| (e.width as usize, e.height as usize)).collect();
-    // On a one-queue device the renderer gets its own device, so the runtime's per-frame work on the session
-    // queue never waits behind an eye render (see `super::eyes`).
-    let render_ctx = if renderer_shares_queue(&vk) {
+    let engine = config.backend.resolve(vk.is_software());
+    if engine == Backend::Cpu && config.backend == Backend::Auto {
+        crate::gpu::backend::log_software_device(vk.device_name());
+    }
+    // On a one-queue device the Vulkan renderer gets its own device, so the runtime's per-frame work on the session
+    // queue never waits behind an eye render (see `super::eyes`). The CPU eyes need none.
+    let render_ctx = if engine == Backend::Vulkan && renderer_shares_queue(&vk) {
         let validation = std::env::var("VK_INSTANCE_LAYERS").is_ok_and(|l| l.contains("KHRONOS_validation"));
         match crate::gpu::Context::new(&crate::gpu::ContextOptions { validation: Some(validation), display: None }) {
             Ok(c) => Arc::new(c),
@@ -682,7 +690,9 @@ pub fn run_session(
     } else {
         vk.clone()
     };
-    let render_path = if Arc::ptr_eq(&render_ctx, &vk) {
+    let render_path = if engine == Backend::Cpu {
+        "the CPU reference (staged through host memory)".to_string()
+    } else if Arc::ptr_eq(&render_ctx, &vk) {
         if renderer_shares_queue(&vk) {
             "the session's queue (copied on the GPU)".to_string()
         } else {
@@ -691,8 +701,15 @@ pub fn run_session(
     } else {
         format!("its own device on {} (staged through host memory)", render_ctx.device_name())
     };
-    let mut renderer = GpuEyes::new(vk.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
-        .map_err(XrError::RenderSetup)?;
+    let mut renderer = match engine {
+        Backend::Cpu => {
+            Eyes::Cpu(CpuEyes::new(vk.clone(), &sizes, config.mode, environment, feed).map_err(XrError::RenderSetup)?)
+        }
+        _ => Eyes::Gpu(
+            GpuEyes::new(vk.clone(), render_ctx.clone(), &sizes, config.mode, environment, feed)
+                .map_err(XrError::RenderSetup)?,
+        ),
+    };
     let mut uploader = EyeUploader::new(&vk)?;
     let passthrough = if blend.passthrough_fb {
         let p =
@@ -729,7 +746,7 @@ pub fn run_session(
     };
     let end = std::thread::scope(|scope| {
         let m = mailbox.clone();
-        let renderer = &mut renderer;
+        let renderer = renderer.as_dyn();
         let render_thread =
             std::thread::Builder::new().name("r2human-xr-render".into()).spawn_scoped(scope, move || {
                 m.run_render_loop(renderer);
@@ -772,8 +789,11 @@ pub fn run_session(
     // The device finishes all uploads before the swapchains go away.
     let _ = vk.wait_idle();
     drop(uploader);
-    let neural = renderer.neural_stats.clone();
-    let person_renderer = neural.summary().unwrap_or_else(|| "geometric (GPU passes)".to_string());
+    let neural = renderer.neural_stats().clone();
+    let person_renderer = neural.summary().unwrap_or_else(|| match engine {
+        Backend::Cpu => "geometric (CPU reference)".to_string(),
+        _ => "geometric (GPU passes)".to_string(),
+    });
     drop(renderer);
     drop(eyes);
     drop(passthrough);
@@ -1235,6 +1255,28 @@ fn frame_loop(
         st.exports.at_frame(ctx.config, st.pacing.person_frames);
         if ctx.config.max_person_frames.is_some_and(|n| st.pacing.person_frames >= n) {
             request_exit(EndReason::FrameLimit, &mut exit_requested);
+        }
+    }
+}
+
+/// The eye renderer a session runs: the Vulkan passes or the CPU reference ([`SessionConfig::backend`]).
+enum Eyes {
+    Gpu(GpuEyes),
+    Cpu(CpuEyes),
+}
+
+impl Eyes {
+    fn as_dyn(&mut self) -> &mut dyn EyeRenderer {
+        match self {
+            Eyes::Gpu(e) => e,
+            Eyes::Cpu(e) => e,
+        }
+    }
+
+    fn neural_stats(&self) -> &NeuralEyeStats {
+        match self {
+            Eyes::Gpu(e) => &e.neural_stats,
+            Eyes::Cpu(e) => &e.neural_stats,
         }
     }
 }

@@ -1,0 +1,378 @@
+//! The frame path: what a frame of a video or camera needs, and nothing a still needs.
+//!
+//! A still photo's geometry is encoded as a Fourier occupancy field and decoded by marching cubes (the still path,
+//! [`super::still`]): the only route for geometry with more than one shell per column (the FOF net's, the body
+//! prior's). The geometries frames draw — the silhouette-inflation prior and the body-placed inflation — have one
+//! shell per column, given as a front and a back depth map; for them the FOF round trip only blurs what is known
+//! and costs most of a frame (encode, a ~300k-triangle marching-cubes mesh, a raster of the depths back). Here:
+//!
+//! - **Mesh from the maps** ([`crate::geometry::surface_mesh::mesh_from_surfaces`]): the two height fields sampled
+//!   every [`FRAME_MESH_STEP`] pixels and joined at the outline (about a tenth of the marching-cubes triangles).
+//! - **Source view from the maps** ([`crate::geometry::surface_mesh::source_gbuffer`]): the front's depth and
+//!   slopes at every pixel, no raster.
+//! - **Smoothing over time on the maps** ([`SurfaceSmoother`]): an exponential average of the depths where the
+//!   person was in both frames, restarted when the silhouette changes a lot (a cut, a person entering).
+//! - **The back image at its own rate**: it holds the colours of clothing and hair, which change slowly; one is
+//!   kept for up to [`BACK_IMAGE_EVERY`] frames while the silhouette stays as it was ([`BACK_KEEP_IOU`]), with its
+//!   side image. Its face comes from the body fit's pose read when the geometry fitted one, else from the pose
+//!   network every [`BACK_FACE_EVERY`] frames (the face sits still in the normalised frame, which follows the
+//!   person).
+//! - **The encoder's FOF on demand**: only the neural renderer reads a FOF; it is encoded from the maps when it
+//!   asks ([`PreparedInput::fof_with`]).
+//!
+//! Geometry modes with more than one shell per column (`fofnet`, `body`) are prepared by the still path, frame by
+//! frame, and said so once.
+
+use std::sync::atomic::AtomicBool;
+
+use super::back::{BackImage, FacePoints};
+use super::input::{self, NormalisedInput};
+use super::{
+    back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces, read_face, warn_once,
+    warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
+};
+use crate::body::pose::PoseLandmarks;
+use crate::buffer::{GrayImage, RgbImage};
+use crate::geometry::inflate::InflatedSurfaces;
+use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer, SurfaceMeshError};
+use crate::geometry::Camera;
+
+/// The frame mesh's sampling step in source pixels: at 512² a step of 2 keeps every facet near a pixel of a
+/// 512² view of the whole body cube (the largest view the evaluation and the XR eyes draw the person at); a step
+/// of 1 quadruples the triangles for no visible change.
+pub const FRAME_MESH_STEP: usize = 2;
+
+/// Frames between two reads of the face by the pose network for the back image, when the geometry fitted no body
+/// (whose pose read gives the face on every frame).
+pub const BACK_FACE_EVERY: u64 = 8;
+
+/// Frames a back image is kept for at most ([`FramePath`]): it holds the colours of clothing and hair, which change
+/// slowly; a silhouette that changes more ([`BACK_KEEP_IOU`]) makes a new one sooner.
+pub const BACK_IMAGE_EVERY: u64 = 6;
+
+/// Mask IoU with the frame a kept back image was made on below which a new one is made.
+pub const BACK_KEEP_IOU: f32 = 0.98;
+
+/// The new frame's weight in the average of the depth maps over time ([`SurfaceSmoother`]).
+pub const SURFACE_SMOOTHING: f32 = 0.6;
+
+/// Silhouette IoU between consecutive frames below which the average over time restarts.
+pub const SURFACE_RESET_IOU: f32 = 0.6;
+
+/// An exponential average over frames of one-shell depth maps: where a pixel is the person's in this frame and
+/// the last, its front and back move `weight` of the way to the new depths; elsewhere the new depths stand. A new
+/// size, or a silhouette whose IoU with the last is below `reset_iou`, restarts it.
+#[derive(Clone, Debug)]
+pub struct SurfaceSmoother {
+    weight: f32,
+    reset_iou: f32,
+    last: Option<InflatedSurfaces>,
+}
+
+impl SurfaceSmoother {
+    /// A smoother with the new frame's `weight` (1 = none) and the restart threshold `reset_iou`.
+    pub fn new(weight: f32, reset_iou: f32) -> Self {
+        Self { weight: weight.clamp(0.0, 1.0), reset_iou, last: None }
+    }
+
+    /// The averaged surfaces for this frame (kept for the next).
+    pub fn update(&mut self, mut surfaces: InflatedSurfaces) -> InflatedSurfaces {
+        let same_grid = |a: &InflatedSurfaces| {
+            (a.mask.width, a.mask.height) == (surfaces.mask.width, surfaces.mask.height)
+                && a.mask.data.len() == surfaces.mask.data.len()
+        };
+        if let Some(last) = self.last.as_ref().filter(|l| same_grid(l)) {
+            let (mut both, mut either) = (0usize, 0usize);
+            for (a, b) in last.mask.data.iter().zip(&surfaces.mask.data) {
+                both += usize::from(*a > 0.5 && *b > 0.5);
+                either += usize::from(*a > 0.5 || *b > 0.5);
+            }
+            let iou = if either == 0 { 1.0 } else { both as f32 / either as f32 };
+            if iou >= self.reset_iou {
+                let w = self.weight;
+                for i in 0..surfaces.mask.data.len() {
+                    if surfaces.mask.data[i] > 0.5 && last.mask.data[i] > 0.5 {
+                        let front = w * surfaces.front.data[i] + (1.0 - w) * last.front.data[i];
+                        let back = w * surfaces.back.data[i] + (1.0 - w) * last.back.data[i];
+                        // Both averages keep back <= front (each input interval is ordered).
+                        surfaces.front.data[i] = front;
+                        surfaces.back.data[i] = back.min(front);
+                    }
+                }
+            }
+        }
+        self.last = Some(surfaces.clone());
+        surfaces
+    }
+
+    /// Forgets the last frame.
+    pub fn reset(&mut self) {
+        self.last = None;
+    }
+}
+
+/// The frame path's state across the frames of one source: the options, the average of the depth maps over time,
+/// and the last face read for the back image.
+pub struct FramePath {
+    options: PrepareOptions,
+    smoother: SurfaceSmoother,
+    frames: u64,
+    face: Option<(u64, FacePoints)>,
+    back: Option<KeptBack>,
+}
+
+/// A back image kept from an earlier frame, with its side image and the mask it was made on.
+struct KeptBack {
+    frame: u64,
+    mask: GrayImage,
+    back: BackImage,
+    side: RgbImage,
+}
+
+impl KeptBack {
+    /// Whether it still serves frame `frame` with person mask `mask`.
+    fn serves(&self, frame: u64, mask: &GrayImage) -> bool {
+        frame - self.frame < BACK_IMAGE_EVERY && mask_iou(&self.mask, mask) >= BACK_KEEP_IOU
+    }
+}
+
+/// IoU of two masks' pixels above 0.5 (0 for masks of different sizes, 1 for two empty ones).
+fn mask_iou(a: &GrayImage, b: &GrayImage) -> f32 {
+    if a.data.len() != b.data.len() || (a.width, a.height) != (b.width, b.height) {
+        return 0.0;
+    }
+    let (mut both, mut either) = (0usize, 0usize);
+    for (x, y) in a.data.iter().zip(&b.data) {
+        both += usize::from(*x > 0.5 && *y > 0.5);
+        either += usize::from(*x > 0.5 || *y > 0.5);
+    }
+    if either == 0 {
+        1.0
+    } else {
+        both as f32 / either as f32
+    }
+}
+
+impl FramePath {
+    /// A frame path preparing with `options` (geometry [`GeometryMode::for_frames`]; the body fit warm-started from
+    /// the frame before).
+    pub fn new(options: PrepareOptions) -> Self {
+        let options = PrepareOptions { warm_start: true, geometry: options.geometry.for_frames(), ..options };
+        Self {
+            options,
+            smoother: SurfaceSmoother::new(SURFACE_SMOOTHING, SURFACE_RESET_IOU),
+            frames: 0,
+            face: None,
+            back: None,
+        }
+    }
+
+    /// The options frames are prepared with.
+    pub fn options(&self) -> &PrepareOptions {
+        &self.options
+    }
+
+    /// Whether this path's geometry has one shell per column, so frames skip the FOF ([`GeometryMode::Inflate`],
+    /// [`GeometryMode::BodyPlaced`], and a body-placed mode without its body prior).
+    pub fn meshes_directly(&self) -> bool {
+        one_shell(&self.options)
+    }
+
+    /// Prepares one frame (linear RGB, its person mask in `[0, 1]`).
+    pub fn prepare(&mut self, rgb: &RgbImage, mask: &GrayImage) -> Result<PreparedInput, PipelineError> {
+        let mut timings = StageTimings::default();
+        let normalised = timings.time("normalise", || input::normalise(rgb, mask, self.options.resolution))?;
+        self.prepare_normalised(normalised, timings)
+    }
+
+    /// [`FramePath::prepare`] of an input already normalised, adding to `timings`.
+    pub fn prepare_normalised(
+        &mut self,
+        normalised: NormalisedInput,
+        mut timings: StageTimings,
+    ) -> Result<PreparedInput, PipelineError> {
+        self.frames += 1;
+        let opts = &self.options;
+        if !one_shell(opts) {
+            static SAID: AtomicBool = AtomicBool::new(false);
+            warn_once(
+                &SAID,
+                &format!(
+                    "frames: --geometry {} can give a column more than one shell; its frames take the still path \
+                     (FOF and marching cubes), which is slower",
+                    opts.geometry.name()
+                ),
+            );
+            let (fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
+            return PreparedInput::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings);
+        }
+        let (surfaces, pose) = frame_surfaces(&normalised, opts, &mut timings)?;
+        let surfaces = timings.time("smooth geometry", || self.smoother.update(surfaces));
+        let frame = self.frames;
+        // A back image made on a frame like this one serves it; the face is read only for a new one.
+        let kept = self.back.take().filter(|k| k.serves(frame, &normalised.mask));
+        let face = match kept {
+            Some(_) => None,
+            None => self.face_for_back(&normalised, pose.as_ref(), &mut timings),
+        };
+        let opts = &self.options;
+        let source_camera = Camera::source(opts.resolution);
+        let rim = input::RIM_FRACTION * opts.resolution as f32;
+        let mut colour_timings = StageTimings::default();
+        let (geometry, (normalised, kept, side)) = rayon::join(
+            || -> Result<_, PipelineError> {
+                let mut t = StageTimings::default();
+                let mesh = t.time("mesh (depth maps)", || mesh_from_surfaces(&surfaces, FRAME_MESH_STEP));
+                let mesh = mesh.map_err(|e| match e {
+                    SurfaceMeshError::Empty { .. } => PipelineError::EmptyGeometry,
+                    _ => PipelineError::NonFinite("frame geometry"),
+                })?;
+                let source = t.time("source view (depth maps)", || source_gbuffer(&surfaces));
+                Ok((mesh, source, t))
+            },
+            || {
+                let normalised =
+                    colour_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
+                let kept = match kept {
+                    Some(k) => Some(k),
+                    None if opts.back_pose.is_some() => {
+                        back_image_from_face(&normalised, face.as_ref(), &mut colour_timings).map(|back| {
+                            let side = colour_timings.time("side images (back)", || {
+                                warp::SideImages::of(&back.rgb, None, &normalised.mask).rgb
+                            });
+                            KeptBack { frame, mask: normalised.mask.clone(), back, side }
+                        })
+                    }
+                    None => None,
+                };
+                let side = colour_timings.time("side images", || {
+                    let back_side = kept.as_ref().map(|k| k.side.clone());
+                    warp::SideImages::with_back_side(&normalised.rgb, back_side, &normalised.mask)
+                });
+                (normalised, kept, side)
+            },
+        );
+        let (mesh, source_gbuffer, geometry_timings) = geometry?;
+        timings.0.extend(geometry_timings.0.into_iter().chain(colour_timings.0));
+        let back = kept.as_ref().map(|k| k.back.clone());
+        self.back = kept;
+        Ok(PreparedInput {
+            source_camera,
+            normalised,
+            fof: None,
+            surfaces: Some(surfaces),
+            mesh,
+            source_gbuffer,
+            back,
+            side,
+            timings,
+        })
+    }
+
+    /// The face the back image is drawn around: the geometry's own pose read when it has one, else the last read
+    /// while it is younger than [`BACK_FACE_EVERY`] frames, else a new read by the back image's pose network.
+    fn face_for_back(
+        &mut self,
+        normalised: &NormalisedInput,
+        pose: Option<&PoseLandmarks>,
+        timings: &mut StageTimings,
+    ) -> Option<FacePoints> {
+        let net = self.options.back_pose.as_ref()?;
+        if let Some(face) = pose.and_then(FacePoints::from_pose) {
+            self.face = Some((self.frames, face));
+            return Some(face);
+        }
+        match self.face {
+            Some((at, face)) if self.frames - at < BACK_FACE_EVERY => Some(face),
+            _ => {
+                let face = read_face(normalised, net, timings);
+                // No face found is remembered as well: the next read is due in BACK_FACE_EVERY frames either way.
+                self.face = face.map(|f| (self.frames, f));
+                face
+            }
+        }
+    }
+
+    /// Forgets what earlier frames left (a new shot): the average over time, the face and the back image.
+    pub fn reset(&mut self) {
+        self.smoother.reset();
+        self.face = None;
+        self.back = None;
+    }
+}
+
+/// Whether the geometry `opts` draws has one shell per column.
+fn one_shell(opts: &PrepareOptions) -> bool {
+    match opts.geometry.resolved() {
+        GeometryMode::Body | GeometryMode::FofNet => false,
+        // `resolved` never gives Auto; the one-shell modes mesh directly.
+        GeometryMode::Inflate | GeometryMode::BodyPlaced | GeometryMode::Auto => true,
+    }
+}
+
+/// The one-shell surfaces of a frame (depth-centred) and the pose the body was fitted to, when one was: the
+/// body-placed inflation when `opts` asks for it and its body prior is loaded, else the inflation prior.
+fn frame_surfaces(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    timings: &mut StageTimings,
+) -> Result<(InflatedSurfaces, Option<PoseLandmarks>), PipelineError> {
+    match (opts.geometry.resolved(), &opts.body) {
+        (GeometryMode::BodyPlaced, Some(body)) => body_placed_surfaces(normalised, opts, body, timings),
+        _ => Ok((inflation_surfaces(normalised, opts, timings)?, None)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn surfaces(mask: &[f32], front: &[f32], back: &[f32]) -> InflatedSurfaces {
+        let n = mask.len();
+        InflatedSurfaces {
+            front: GrayImage { width: n, height: 1, data: front.to_vec() },
+            back: GrayImage { width: n, height: 1, data: back.to_vec() },
+            mask: GrayImage { width: n, height: 1, data: mask.to_vec() },
+        }
+    }
+
+    #[test]
+    fn the_smoother_averages_where_the_person_stays_and_restarts_on_a_cut() {
+        let mut s = SurfaceSmoother::new(0.6, 0.5);
+        let first = surfaces(&[1.0, 1.0, 1.0, 0.0], &[0.5, 0.5, 0.5, -1.0], &[-0.5, -0.5, -0.5, -1.0]);
+        assert_eq!(s.update(first.clone()), first);
+        // Pixel 2 leaves, pixel 3 joins: IoU 2/4 = 0.5, not below the threshold.
+        let second = surfaces(&[1.0, 1.0, 0.0, 1.0], &[0.0, 0.3, -1.0, 0.2], &[-0.2, -0.3, -1.0, -0.2]);
+        let out = s.update(second);
+        // 0.6 new + 0.4 old where both hold the person; the new depths elsewhere.
+        let want_front = [0.6 * 0.0 + 0.4 * 0.5, 0.6 * 0.3 + 0.4 * 0.5, -1.0, 0.2];
+        let want_back = [0.6 * -0.2 + 0.4 * -0.5, 0.6 * -0.3 + 0.4 * -0.5, -1.0, -0.2];
+        for i in 0..4 {
+            assert!((out.front.data[i] - want_front[i]).abs() < 1e-6, "{i}");
+            assert!((out.back.data[i] - want_back[i]).abs() < 1e-6, "{i}");
+        }
+        // A cut (IoU 0 with the last): the new frame as it is.
+        let cut = surfaces(&[0.0, 0.0, 1.0, 0.0], &[-1.0, -1.0, 0.9, -1.0], &[-1.0, -1.0, 0.1, -1.0]);
+        assert_eq!(s.update(cut.clone()), cut);
+        // Another size: as it is too.
+        let wide = surfaces(&[1.0; 6], &[0.1; 6], &[-0.1; 6]);
+        assert_eq!(s.update(wide.clone()), wide);
+    }
+
+    #[test]
+    fn multi_shell_modes_take_the_still_path() {
+        for (mode, direct) in [
+            (GeometryMode::Inflate, true),
+            (GeometryMode::BodyPlaced, true),
+            (GeometryMode::Body, false),
+            (GeometryMode::FofNet, false),
+        ] {
+            let path = FramePath::new(PrepareOptions { geometry: mode, ..Default::default() });
+            assert_eq!(path.meshes_directly(), direct, "{mode:?}");
+        }
+        // Auto on frames draws what FRAMES_AUTO_CHOICE says, which meshes directly.
+        let auto = FramePath::new(PrepareOptions { geometry: GeometryMode::Auto, ..Default::default() });
+        assert_eq!(auto.options().geometry, super::super::FRAMES_AUTO_CHOICE);
+        assert!(auto.meshes_directly());
+    }
+}

@@ -1,0 +1,150 @@
+//! The still path: a photo's geometry as a Fourier occupancy field, decoded by marching cubes into the mesh,
+//! whose source view is rasterised; the back image and the side images beside it.
+
+use std::sync::atomic::AtomicBool;
+
+use crate::body::pose::PoseLandmarks;
+use crate::buffer::{GrayImage, RgbImage};
+use crate::geometry::fof::Fof;
+use crate::geometry::marching;
+use crate::geometry::raster::{self, GBuffer};
+use crate::geometry::{Camera, TriMesh};
+
+use super::input::NormalisedInput;
+use super::{
+    back, compute_geometry_and_pose, input, warn_once, warp, PipelineError, PrepareOptions, PreparedInput, SharedPose,
+    StageTimings,
+};
+
+impl PreparedInput {
+    /// Runs the per-input stages on a photo (linear RGB, straight colour) and its person mask (`[0, 1]`).
+    pub fn prepare(rgb: &RgbImage, mask: &GrayImage, opts: &PrepareOptions) -> Result<Self, PipelineError> {
+        let mut timings = StageTimings::default();
+        let normalised = timings.time("normalise", || input::normalise(rgb, mask, opts.resolution))?;
+        let (fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
+        Self::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings)
+    }
+
+    /// Finishes preparation from an already computed FOF (e.g. a network's, or ground truth). The back image
+    /// (with `opts.back_pose`) depends on the photo alone: it is computed beside the mesh and the source raster,
+    /// and its stage times are recorded after theirs.
+    pub fn from_fof(
+        normalised: NormalisedInput,
+        fof: Fof,
+        opts: &PrepareOptions,
+        timings: StageTimings,
+    ) -> Result<Self, PipelineError> {
+        Self::from_fof_and_pose(normalised, fof, None, opts, timings)
+    }
+
+    /// [`PreparedInput::from_fof`] with the pose landmarks the geometry's body prior read
+    /// ([`compute_geometry_and_pose`]): the back image takes its face from them instead of running the pose network
+    /// again.
+    pub fn from_fof_and_pose(
+        normalised: NormalisedInput,
+        fof: Fof,
+        pose: Option<&PoseLandmarks>,
+        opts: &PrepareOptions,
+        mut timings: StageTimings,
+    ) -> Result<Self, PipelineError> {
+        let source_camera = Camera::source(opts.resolution);
+        let mut back_timings = StageTimings::default();
+        // The colours are only read by the back image and the renderers, so their rim is cleaned beside the mesh.
+        let rim = input::RIM_FRACTION * opts.resolution as f32;
+        let (geometry, (normalised, back, side)) = rayon::join(
+            || -> Result<(TriMesh, GBuffer), PipelineError> {
+                let mesh =
+                    timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
+                if mesh.is_empty() {
+                    return Err(PipelineError::EmptyGeometry);
+                }
+                if mesh.validate().is_err() {
+                    return Err(PipelineError::NonFinite("mesh"));
+                }
+                let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
+                Ok((mesh, source_gbuffer))
+            },
+            || {
+                let normalised =
+                    back_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
+                let back =
+                    opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings));
+                let side = back_timings.time("side images", || {
+                    warp::SideImages::of(&normalised.rgb, back.as_ref().map(|b| &b.rgb), &normalised.mask)
+                });
+                (normalised, back, side)
+            },
+        );
+        let (mesh, source_gbuffer) = geometry?;
+        timings.0.extend(back_timings.0);
+        Ok(Self {
+            source_camera,
+            normalised,
+            fof: Some(fof),
+            surfaces: None,
+            mesh,
+            source_gbuffer,
+            back,
+            side,
+            timings,
+        })
+    }
+}
+
+/// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning
+/// per process, then debug messages) when the pose network finds no person or no usable face, or fails.
+pub fn back_image_of(normalised: &NormalisedInput, pose: &SharedPose, timings: &mut StageTimings) -> Option<RgbImage> {
+    back_image_with(normalised, pose, None, timings).map(|back| back.rgb)
+}
+
+/// [`back_image_of`], with its head weights, from the face of `read` (pose landmarks of the same input, e.g. the
+/// body prior's, [`compute_geometry_and_pose`]) when it has a usable one: the pose network runs only without it.
+pub fn back_image_with(
+    normalised: &NormalisedInput,
+    pose: &SharedPose,
+    read: Option<&PoseLandmarks>,
+    timings: &mut StageTimings,
+) -> Option<back::BackImage> {
+    let face = read.and_then(back::FacePoints::from_pose).or_else(|| read_face(normalised, pose, timings));
+    back_image_from_face(normalised, face.as_ref(), timings)
+}
+
+/// The face of a normalised input as the pose network reads it (stage "back image (face landmarks)"); `None` when
+/// it finds no person or no usable face, or fails (said at debug level).
+pub fn read_face(
+    normalised: &NormalisedInput,
+    pose: &SharedPose,
+    timings: &mut StageTimings,
+) -> Option<back::FacePoints> {
+    let found = timings.time("back image (face landmarks)", || {
+        let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        p.estimate(&normalised.rgb, &normalised.mask, Some(normalised.frame))
+    });
+    match found {
+        Ok(Some(l)) => back::FacePoints::from_pose(&l),
+        Ok(None) => None,
+        Err(e) => {
+            tracing::debug!("back image: the pose network failed: {e}");
+            None
+        }
+    }
+}
+
+/// The back image of a normalised input around `face` (stage "back image (filter)"); `None`, with one warning
+/// per process, without a face or when the filter finds no person.
+pub fn back_image_from_face(
+    normalised: &NormalisedInput,
+    face: Option<&back::FacePoints>,
+    timings: &mut StageTimings,
+) -> Option<back::BackImage> {
+    let back = face
+        .and_then(|f| timings.time("back image (filter)", || back::back_image(&normalised.rgb, &normalised.mask, f)));
+    if back.is_none() {
+        static WARNED: AtomicBool = AtomicBool::new(false);
+        warn_once(
+            &WARNED,
+            "back image: no face found in this input; surfaces the photo does not show take the photo's colours",
+        );
+    }
+    back
+}
