@@ -582,14 +582,29 @@ fn capture_loop<T>(source: &mut dyn FrameSource, shared: &Shared<T>, pace: bool)
     shared.wake.notify_all();
 }
 
-/// The first worker thread: segments the newest frame and smooths its mask, then hands it to the processing thread
-/// (replacing a segmented frame still waiting there, counted as dropped), so frame n+1 is segmented while frame n's
-/// geometry is built.
+/// The first worker thread: segments the newest frame and smooths its mask, then hands it to the processing thread,
+/// so frame n+1 is segmented while frame n's geometry is built. It segments only once the processing thread has
+/// taken the frame before: a frame segmented ahead of that would wait and be replaced, its segmentation wasted on
+/// cores the processing needs. (Waiting further, for the processing's usual time less its own, to take a newer
+/// frame: latency p50 124 -> 121 ms, completed frames 17.4 -> 13.2 a second; not kept.)
 fn segment_loop<T>(shared: &Shared<T>, options: &LiveOptions) {
     let mut segmenter: Option<Box<dyn Segmenter>> = None;
     let mut smoother = MaskSmoother::new(options.mask_alpha, options.mask_reset_iou);
     let mut last_size = None;
     loop {
+        {
+            let mut slot = shared.segmented.lock().unwrap_or_else(|p| p.into_inner());
+            while slot.is_some() {
+                if shared.stop.load(Ordering::SeqCst) {
+                    return;
+                }
+                slot = shared
+                    .segmented_wake
+                    .wait_timeout(slot, Duration::from_millis(50))
+                    .unwrap_or_else(|p| p.into_inner())
+                    .0;
+            }
+        }
         let (frame, arrived) = {
             let mut slot = shared.mailbox.lock().unwrap_or_else(|p| p.into_inner());
             loop {
@@ -647,7 +662,7 @@ fn segment_loop<T>(shared: &Shared<T>, options: &LiveOptions) {
             shared.dropped.fetch_add(1, Ordering::Relaxed);
         }
         drop(slot);
-        shared.segmented_wake.notify_one();
+        shared.segmented_wake.notify_all();
     }
 }
 
@@ -669,6 +684,8 @@ fn process_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P)
                     return;
                 }
                 if let Some(f) = slot.take() {
+                    // The segmenter waits for the slot to empty.
+                    shared.segmented_wake.notify_all();
                     break f;
                 }
                 if shared.segmenter_done.load(Ordering::SeqCst) {

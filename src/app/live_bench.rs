@@ -1,7 +1,7 @@
 //! `r2human bench-live`: a clip played through the live pipeline exactly as `view` plays it (paced at the clip's
 //! frame rate, frames dropped when the pipeline is busy, the frame path, the encoder on the worker), without a
-//! window. Each completed frame is drawn once from a fixed view on the calling thread, as a display would. The
-//! report says what a user sees: completed person frames per second, dropped frames, frames without a person,
+//! window; with `views`, each completed frame is also drawn once from a fixed view on the calling thread, as a
+//! display would. The report says what a user sees: completed person frames per second, dropped frames, frames without a person,
 //! arrival -> completion latency (p50, p95) and the per-stage medians.
 
 use std::path::PathBuf;
@@ -35,6 +35,8 @@ pub struct LiveBenchOptions {
     pub view_size: usize,
     /// Yaw of that view in degrees.
     pub yaw: f32,
+    /// Draw one view of every completed frame (else the pipeline alone is measured).
+    pub views: bool,
     /// Source resolution (512 like the reference).
     pub resolution: usize,
 }
@@ -49,6 +51,7 @@ impl Default for LiveBenchOptions {
             seconds: None,
             view_size: 512,
             yaw: 30.0,
+            views: false,
             resolution: crate::geometry::SOURCE_RESOLUTION,
         }
     }
@@ -115,6 +118,9 @@ impl std::fmt::Display for LiveBenchReport {
 
 /// Plays `opts.video` through the live pipeline and measures it (see the module docs).
 pub fn bench_live(opts: &LiveBenchOptions) -> anyhow::Result<LiveBenchReport> {
+    if !(64..=1024).contains(&opts.resolution) {
+        anyhow::bail!("--resolution {} is out of range: use 64 to 1024 (512 is the reference's)", opts.resolution);
+    }
     if !(16..=4096).contains(&opts.view_size) {
         anyhow::bail!("--view-size {} is out of range: use 16 to 4096 pixels", opts.view_size);
     }
@@ -138,9 +144,9 @@ pub fn bench_live(opts: &LiveBenchOptions) -> anyhow::Result<LiveBenchReport> {
     let mut reader = pipeline.reader();
     let camera = Camera::orbit(opts.yaw, 0.0, opts.view_size, opts.view_size);
     let (mut last, mut view_times) = (0u64, Vec::new());
-    let mut renderer_name = "geometric";
+    let renderer_name = if neural.renderer.is_some() { "neural" } else { "geometric" };
     while !pipeline.is_finished() && limit.is_none_or(|l| start.elapsed() < l) {
-        let Some(done) = reader.get().filter(|d| d.sequence != last).cloned() else {
+        let Some(done) = reader.get().filter(|d| opts.views && d.sequence != last).cloned() else {
             std::thread::sleep(Duration::from_millis(1));
             continue;
         };
@@ -148,16 +154,13 @@ pub fn bench_live(opts: &LiveBenchOptions) -> anyhow::Result<LiveBenchReport> {
         let t = Instant::now();
         let frame = &done.output;
         let mut view = match (&neural.renderer, &frame.neural) {
-            (Some(decoder), Some(encoded)) => {
-                renderer_name = "neural";
-                ViewRenderer::with_neural(
-                    &frame.input,
-                    OcclusionFill::default(),
-                    false,
-                    std::sync::Arc::clone(decoder),
-                    encoded.clone(),
-                )
-            }
+            (Some(decoder), Some(encoded)) => ViewRenderer::with_neural(
+                &frame.input,
+                OcclusionFill::default(),
+                false,
+                std::sync::Arc::clone(decoder),
+                encoded.clone(),
+            ),
             _ => ViewRenderer::new(&frame.input, OcclusionFill::default(), false),
         };
         view.render_person(&camera).with_context(|| format!("drawing frame {}", done.frame_index))?;

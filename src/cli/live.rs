@@ -154,6 +154,13 @@ pub struct BenchLiveArgs {
     /// Yaw of that view in degrees.
     #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     pub yaw: f32,
+    /// Also draw one view (--view-size, --yaw) of every completed frame on the calling thread, as a display would,
+    /// and report its median time.
+    #[arg(long)]
+    pub views: bool,
+    /// Source resolution frames are prepared at (the person's cube, 512 like the reference).
+    #[arg(long, default_value_t = crate::geometry::SOURCE_RESOLUTION)]
+    pub resolution: usize,
     /// Which renderer draws the views (neural: the worker also runs the encoder on every frame).
     #[command(flatten)]
     pub neural: NeuralArgs,
@@ -169,7 +176,8 @@ pub fn run_bench_live(args: &BenchLiveArgs) -> Result<()> {
         seconds: args.seconds,
         view_size: args.view_size,
         yaw: args.yaw,
-        ..Default::default()
+        views: args.views,
+        resolution: args.resolution,
     })?;
     println!("{report}");
     Ok(())

@@ -310,6 +310,94 @@ pub fn inflate_resolvable(
     inflate_at_least(mask, params, 0.5 * sheet_thickness(n), frame)
 }
 
+/// [`inflate_resolvable`] solved on a grid `factor` times coarser (the mask box-averaged) and read back at the mask's
+/// own pixels (bilinear over the coarse person's pixels; a mask pixel with none of them within one coarse pixel
+/// is left out). The inflated height is smooth, so the coarse solve keeps its shape at a fraction of the cost
+/// (the triangulation and the Poisson problem shrink with the area): what a video frame can afford. The outline
+/// stays the full-resolution mask's. `factor` 1 is [`inflate_resolvable`]; the parameters given in pixels are
+/// scaled to the coarse grid, except the triangles' largest area, which stays as many coarse pixels (the
+/// triangulation is where the time goes).
+pub fn inflate_resolvable_coarse(
+    mask: &GrayImage,
+    n: usize,
+    params: &InflateParams,
+    frame: Option<(Vec2, Vec2)>,
+    factor: usize,
+) -> Result<InflatedSurfaces, InflateError> {
+    let (w, h) = (mask.width, mask.height);
+    if factor <= 1 || w < 4 * factor || h < 4 * factor || mask.data.len() != w * h {
+        return inflate_resolvable(mask, n, params, frame);
+    }
+    let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
+    let coarse = GrayImage::from_fn(cw, ch, |c, r| {
+        let (mut sum, mut count) = (0.0f32, 0u32);
+        for rr in r * factor..((r + 1) * factor).min(h) {
+            for cc in c * factor..((c + 1) * factor).min(w) {
+                sum += mask.data[rr * w + cc];
+                count += 1;
+            }
+        }
+        sum / count.max(1) as f32
+    });
+    let f = factor as f32;
+    let coarse_params = InflateParams {
+        min_component_pixels: (params.min_component_pixels / (factor * factor)).max(1),
+        simplify_tolerance: params.simplify_tolerance / f,
+        min_half_thickness: params.min_half_thickness / f,
+        ..params.clone()
+    };
+    let coarse_frame = frame.map(|(lo, hi)| (lo / f, hi / f));
+    let s = inflate_resolvable(&coarse, n, &coarse_params, coarse_frame)?;
+    let mut out = InflatedSurfaces {
+        front: GrayImage::new(w, h, -1.0),
+        back: GrayImage::new(w, h, -1.0),
+        mask: GrayImage::new(w, h, 0.0),
+    };
+    let inside = |c: i64, r: i64| {
+        (0..cw as i64).contains(&c) && (0..ch as i64).contains(&r) && s.mask.data[r as usize * cw + c as usize] > 0.5
+    };
+    for r in 0..h {
+        for c in 0..w {
+            let i = r * w + c;
+            if mask.data[i] <= 0.5 {
+                continue;
+            }
+            // Coarse pixel centres around this pixel's centre.
+            let (u, v) = ((c as f32 + 0.5) / f - 0.5, (r as f32 + 0.5) / f - 0.5);
+            let (c0, r0) = (u.floor() as i64, v.floor() as i64);
+            let (fu, fv) = (u - c0 as f32, v - r0 as f32);
+            let (mut front, mut back, mut weight) = (0.0f32, 0.0f32, 0.0f32);
+            for (dc, dr, wt) in
+                [(0, 0, (1.0 - fu) * (1.0 - fv)), (1, 0, fu * (1.0 - fv)), (0, 1, (1.0 - fu) * fv), (1, 1, fu * fv)]
+            {
+                if wt > 0.0 && inside(c0 + dc, r0 + dr) {
+                    let k = (r0 + dr) as usize * cw + (c0 + dc) as usize;
+                    front += wt * s.front.data[k];
+                    back += wt * s.back.data[k];
+                    weight += wt;
+                }
+            }
+            if weight <= 1e-6 {
+                // Beside the coarse outline: the nearest coarse person pixel within one coarse pixel.
+                let nearest = (-1..=2)
+                    .flat_map(|dr| (-1..=2).map(move |dc| (dc, dr)))
+                    .filter(|&(dc, dr)| inside(c0 + dc, r0 + dr))
+                    .min_by(|a, b| {
+                        let d = |(dc, dr): (i64, i64)| (dc as f32 - fu).powi(2) + (dr as f32 - fv).powi(2);
+                        d(*a).total_cmp(&d(*b))
+                    });
+                let Some((dc, dr)) = nearest else { continue };
+                let k = (r0 + dr) as usize * cw + (c0 + dc) as usize;
+                (front, back, weight) = (s.front.data[k], s.back.data[k], 1.0);
+            }
+            out.front.data[i] = front / weight;
+            out.back.data[i] = back / weight;
+            out.mask.data[i] = 1.0;
+        }
+    }
+    Ok(out)
+}
+
 /// The fraction of the mask's interior pixels whose FOF column reaches occupancy 0.5 at some depth (decoded at
 /// `4 n` depths), or `None` when the mask has no interior pixel. Interior: above 0.5 with every pixel within
 /// `margin` pixels (a square window) inside the image and above 0.5 too; the rim of the outline is left out

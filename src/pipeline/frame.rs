@@ -28,8 +28,8 @@ use std::sync::atomic::AtomicBool;
 use super::back::{BackImage, FacePoints};
 use super::input::{self, NormalisedInput};
 use super::{
-    back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces, read_face, warn_once,
-    warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
+    back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces_coarse, read_face,
+    warn_once, warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
 };
 use crate::body::pose::PoseLandmarks;
 use crate::buffer::{GrayImage, RgbImage};
@@ -41,6 +41,11 @@ use crate::geometry::Camera;
 /// 512² view of the whole body cube (the largest view the evaluation and the XR eyes draw the person at); a step
 /// of 1 quadruples the triangles for no visible change.
 pub const FRAME_MESH_STEP: usize = 2;
+
+/// How much coarser than the source grid a frame's silhouette is inflated
+/// ([`crate::geometry::inflate::inflate_resolvable_coarse`]): the inflated height is smooth, the outline stays the
+/// frame's own.
+pub const FRAME_INFLATION_FACTOR: usize = 2;
 
 /// Frames between two reads of the face by the pose network for the back image, when the geometry fitted no body
 /// (whose pose read gives the face on every frame).
@@ -319,7 +324,7 @@ fn frame_surfaces(
 ) -> Result<(InflatedSurfaces, Option<PoseLandmarks>), PipelineError> {
     match (opts.geometry.resolved(), &opts.body) {
         (GeometryMode::BodyPlaced, Some(body)) => body_placed_surfaces(normalised, opts, body, timings),
-        _ => Ok((inflation_surfaces(normalised, opts, timings)?, None)),
+        _ => Ok((inflation_surfaces_coarse(normalised, opts, FRAME_INFLATION_FACTOR, timings)?, None)),
     }
 }
 

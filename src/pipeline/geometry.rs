@@ -450,9 +450,19 @@ pub fn inflation_surfaces(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<inflate::InflatedSurfaces, PipelineError> {
+    inflation_surfaces_coarse(normalised, opts, 1, timings)
+}
+
+/// [`inflation_surfaces`] solved on a grid `factor` times coarser ([`inflate::inflate_resolvable_coarse`]).
+pub fn inflation_surfaces_coarse(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    factor: usize,
+    timings: &mut StageTimings,
+) -> Result<inflate::InflatedSurfaces, PipelineError> {
     let frame = crate::body::prior::effective_frame(&normalised.mask, Some(normalised.frame));
     let surfaces = timings.time("geometry (inflate)", || {
-        inflate::inflate_resolvable(&normalised.mask, opts.fof_order, &opts.inflate, Some(frame))
+        inflate::inflate_resolvable_coarse(&normalised.mask, opts.fof_order, &opts.inflate, Some(frame), factor)
     })?;
     Ok(timings.time("geometry (surface centring)", || crate::body::placed::centred(surfaces)))
 }

@@ -402,10 +402,7 @@ fn needs_panorama(mode: Mode, environment: Option<&Environment>) -> Result<(), g
 /// One host-visible buffer per eye on the session's device, of the eye's size in `vec4`s: where a finished eye is
 /// handed to the display loop's copy.
 fn staging_buffers(session: &Arc<gpu::Context>, sizes: &[(usize, usize)]) -> Result<Vec<Buffer>, gpu::GpuError> {
-    sizes
-        .iter()
-        .map(|&(w, h)| Buffer::new(session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC))
-        .collect()
+    sizes.iter().map(|&(w, h)| Buffer::new(session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC)).collect()
 }
 
 /// Waits on the session device for the display loop's copy signalled by `fence` ([`COPY_TIMEOUT`] at most).
