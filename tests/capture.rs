@@ -578,7 +578,9 @@ fn render_video_views_runs_the_core_pipeline_per_frame() {
     // The source is used up: nothing to render is an error, not an empty success.
     assert!(matches!(run(&mut src, 0.0), Err(r2human::app::live::LiveError::NothingRendered(_))));
     let side = run(&mut WalkerSource::new(p, 0, true), 90.0).unwrap();
-    for stage in ["segment", "normalise", "geometry (inflate -> FOF)", "smooth geometry", "render", "write"] {
+    for stage in
+        ["segment", "normalise", "geometry (inflate)", "smooth geometry", "mesh (depth maps)", "render", "write"]
+    {
         assert!(front.stages.iter().any(|s| s.name == stage), "missing {stage}: {:?}", front.stages);
     }
     let coverage = |path: &PathBuf| {
@@ -633,4 +635,107 @@ fn live_pipeline_with_core_pipeline_and_views_from_the_latest_frame() {
     assert!(stats.completed >= 1 && views >= 1, "{stats:?} views {views}");
     assert!(live.messages().is_empty(), "{:?}", live.messages());
     eprintln!("{} · {views} views rendered", stats.overlay_line());
+}
+
+/// A frame of `width` x `height` pixels from the bundled astronaut photo scaled to `scale` of its size with its
+/// left edge at `x` (negative: cut on the left), on a grey backdrop; `None` parts are backdrop.
+fn astronaut_frame(width: usize, height: usize, x: i64, scale: f32) -> r2human::buffer::RgbImage {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/photos/astronaut.png");
+    let (photo, _) = r2human::capture::load_image_frame(&path).unwrap();
+    let (pw, ph) = ((photo.width as f32 * scale) as i64, (photo.height as f32 * scale) as i64);
+    let top = (height as i64 - ph) / 2;
+    r2human::buffer::RgbImage::from_fn(width, height, |c, r| {
+        let (u, v) = (c as i64 - x, r as i64 - top);
+        if (0..pw).contains(&u) && (0..ph).contains(&v) {
+            let (sx, sy) = ((u as f32 / scale) as usize, (v as f32 / scale) as usize);
+            *photo.get(sx.min(photo.width - 1), sy.min(photo.height - 1))
+        } else {
+            glam::Vec3::splat(0.2)
+        }
+    })
+}
+
+/// No person is no person: the pose segmenter's presence output empties the mask of frames that hold nobody (a
+/// blank wall, a wall with camera noise, a dark frame, an empty room: the photo's flag and backdrop with the person
+/// cut away), and of a person who has walked out of the frame; while the person is in view the mask holds them.
+#[test]
+fn frames_without_a_person_give_an_empty_mask() {
+    let Some(path) = model("pose_landmark_full.onnx") else { return };
+    let mut seg = r2human::capture::onnx::OnnxSegmenter::load(Some(&path), 0).unwrap();
+    let (w, h) = (640usize, 480usize);
+    let frame = |index: u64, rgb| Frame { index, timestamp: Duration::ZERO, rgb, alpha: None };
+    let mut noise = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        noise ^= noise << 13;
+        noise ^= noise >> 7;
+        noise ^= noise << 17;
+        (noise % 1000) as f32 / 1000.0
+    };
+    let grey = r2human::buffer::RgbImage::new(w, h, glam::Vec3::splat(0.21));
+    let wall = r2human::buffer::RgbImage::from_fn(w, h, |_, _| glam::Vec3::splat(0.3 + 0.04 * next()));
+    let dark = r2human::buffer::RgbImage::from_fn(w, h, |_, _| glam::Vec3::splat(0.004 * next()));
+    // The astronaut photo's left third (flag, studio backdrop), stretched over the frame: a room without its person.
+    let photo = astronaut_frame(w * 3, h, 0, 480.0 / 512.0);
+    let room = r2human::buffer::RgbImage::from_fn(w, h, |c, r| *photo.get(c / 3 + 60, r));
+    for (name, rgb) in [("grey", grey), ("noisy wall", wall), ("dark", dark), ("empty room", room)] {
+        let mask = seg.segment(&frame(0, rgb)).unwrap();
+        let covered = mask.data.iter().filter(|&&v| v >= 0.5).count();
+        eprintln!("{name}: presence {:.3}", seg.presence());
+        assert_eq!(covered, 0, "{name}: {covered} pixels taken for a person");
+    }
+    // The person walks out to the right, 80 px a frame.
+    let mut coverage = Vec::new();
+    for (i, x) in (60..=700).step_by(80).enumerate() {
+        let mask = seg.segment(&frame(i as u64, astronaut_frame(w, h, x, 480.0 / 512.0))).unwrap();
+        coverage.push(mask.data.iter().filter(|&&v| v >= 0.5).count() as f32 / (w * h) as f32);
+    }
+    eprintln!("coverage while walking out: {coverage:?}");
+    assert!(coverage[0] > 0.2, "in view: {coverage:?}");
+    assert_eq!(*coverage.last().unwrap(), 0.0, "gone: {coverage:?}");
+}
+
+/// Frames whose mask holds no person are counted and shown as nobody: the live pipeline says the person is absent
+/// (the window and the XR eyes then draw none), and says it no more once a person is back.
+#[test]
+fn the_live_pipeline_reports_frames_without_a_person() {
+    struct ComesAndGoes {
+        walker: WalkerSource,
+        index: u64,
+    }
+    impl FrameSource for ComesAndGoes {
+        fn describe(&self) -> String {
+            "a walker who leaves".into()
+        }
+        fn next_frame(&mut self) -> Result<SourceEvent, CaptureError> {
+            self.index += 1;
+            match self.index {
+                1..=3 => self.walker.next_frame(),
+                4..=9 => {
+                    // Nobody: the frame's alpha is empty.
+                    let p = params();
+                    let rgb = r2human::buffer::RgbImage::new(p.width, p.height, glam::Vec3::splat(0.5));
+                    let alpha = Some(GrayImage::new(p.width, p.height, 0.0));
+                    let timestamp = Duration::from_millis(40 * self.index);
+                    Ok(SourceEvent::Frame(Frame { index: self.index, timestamp, rgb, alpha }))
+                }
+                _ => Ok(SourceEvent::End),
+            }
+        }
+        fn nominal_fps(&self) -> Option<f32> {
+            Some(25.0)
+        }
+    }
+    let opts = LiveOptions { segment: SegmentMethod::Alpha, ..LiveOptions::default() };
+    let live = LivePipeline::start(
+        Box::new(|| Ok(Box::new(ComesAndGoes { walker: WalkerSource::new(params(), 0, true), index: 0 }) as _)),
+        r2human::app::live::PrepareProcessor::new(small_prepare()),
+        opts,
+    )
+    .unwrap();
+    assert!(live.wait(Duration::from_secs(60)));
+    let stats = live.stats();
+    assert!(stats.completed >= 1, "{stats:?}");
+    assert!(stats.no_person >= 1, "{stats:?}");
+    assert!(live.person_absent(), "the last frames hold nobody");
+    assert!(live.messages().is_empty(), "no person is not an error: {:?}", live.messages());
 }

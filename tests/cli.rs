@@ -170,10 +170,11 @@ fn video_folder_writes_one_png_per_frame() {
     assert!(ok, "{text}");
     let written = std::fs::read_dir(&out).unwrap().count();
     assert_eq!(written, 3, "{text}");
-    // `auto` (the default) draws the inflation prior on frames (pipeline::FRAMES_AUTO_CHOICE): no body is fitted,
-    // as the per-frame stage medians show.
+    // `auto` (the default) draws the inflation prior on frames (pipeline::FRAMES_AUTO_CHOICE) through the frame
+    // path: no body is fitted, no FOF and no marching cubes, as the per-frame stage medians show.
     let medians = text.lines().find(|l| l.starts_with("per-frame stage medians")).unwrap_or_else(|| panic!("{text}"));
-    assert!(medians.contains("geometry (inflate -> FOF)") && !medians.contains("body fit"), "{medians}");
+    assert!(medians.contains("geometry (inflate)") && medians.contains("mesh (depth maps)"), "{medians}");
+    assert!(!medians.contains("body fit") && !medians.contains("FOF"), "{medians}");
     let (ok, text) =
         run(r2human().args(["render", "--segment", "nonsense", "--video"]).arg(&frames).arg("--out").arg(&out));
     assert!(!ok && text.contains("--segment"), "{text}");

@@ -276,6 +276,24 @@ pub struct LiveStats {
 }
 
 impl LiveStats {
+    /// One line for a session report: `live: 600 frames read, 352 completed (17.4 per second), 248 dropped, 0
+    /// without a person, 0 errors; latency (arrival -> completion) p50 124 ms, p95 193 ms` (the rate over the
+    /// statistics window, the latency over every completed frame).
+    pub fn report_line(&self) -> String {
+        format!(
+            "live: {} frames read, {} completed ({:.1} per second), {} dropped, {} without a person, {} errors; \
+             latency (arrival -> completion) p50 {:.0} ms, p95 {:.0} ms",
+            self.read,
+            self.completed,
+            self.throughput_fps,
+            self.dropped,
+            self.no_person,
+            self.errors,
+            self.latency_p50.as_secs_f64() * 1e3,
+            self.latency_p95.as_secs_f64() * 1e3
+        )
+    }
+
     /// A one-line overlay: `segment 210.0 ms · normalise 8.1 ms · frame 230.2 ms · 4.2/30.0 fps · 12 dropped`.
     pub fn overlay_line(&self) -> String {
         let mut parts: Vec<String> =

@@ -14,6 +14,7 @@ use anyhow::{bail, Context, Result};
 
 use crate::app::live::{
     camera_source, video_source, Completed, EncodeProcessor, LatestReader, LiveFrame, LiveOptions, LivePipeline,
+    LiveStats,
 };
 use crate::app::neural::{load_interactive, NeuralAvailability, NeuralSetup};
 use crate::buffer::GrayImage;
@@ -160,6 +161,14 @@ pub struct LiveFeed {
     pending: Vec<String>,
     /// The frame last handed to the eyes (for the export action).
     shown: ShownSlot,
+    /// Where the pipeline's counters are left when the feed is dropped (the session's end), for the report.
+    final_stats: Arc<Mutex<Option<LiveStats>>>,
+}
+
+impl Drop for LiveFeed {
+    fn drop(&mut self) {
+        *self.final_stats.lock().unwrap_or_else(|p| p.into_inner()) = Some(self.pipeline.stats());
+    }
 }
 
 impl LiveFeed {
@@ -187,6 +196,7 @@ impl LiveFeed {
             frame_size: None,
             pending: Vec::new(),
             shown: ShownSlot::default(),
+            final_stats: Arc::default(),
         })
     }
 }
@@ -195,6 +205,12 @@ impl LiveFeed {
     /// This feed, leaving the frame it hands to the eyes in `shown` (for the export action).
     fn sharing_shown(mut self, shown: &ShownSlot) -> Self {
         self.shown = Arc::clone(shown);
+        self
+    }
+
+    /// This feed, leaving the pipeline's counters in `stats` when it is dropped.
+    fn reporting_to(mut self, stats: &Arc<Mutex<Option<LiveStats>>>) -> Self {
+        self.final_stats = Arc::clone(stats);
         self
     }
 }
@@ -253,8 +269,27 @@ impl SceneFeed for LiveFeed {
     }
 }
 
-/// Prepares the input (or starts the live source) and runs one OpenXR session; returns the session report.
-pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
+/// What an `xr` run did: the session's report and, for a live source, the live pipeline's counters.
+#[derive(Debug)]
+pub struct XrRunReport {
+    /// The OpenXR session's report.
+    pub session: SessionReport,
+    /// The live pipeline's counters, latency quantiles and stage medians (`None` for a photo).
+    pub live: Option<LiveStats>,
+}
+
+impl std::fmt::Display for XrRunReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.session)?;
+        if let Some(live) = &self.live {
+            write!(f, "\n{}", live.report_line())?;
+        }
+        Ok(())
+    }
+}
+
+/// Prepares the input (or starts the live source) and runs one OpenXR session; returns what it did.
+pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
     if !(16..=4096).contains(&opts.eye_size) {
         bail!("eye size {} is out of range: use 16 to 4096 pixels", opts.eye_size);
     }
@@ -267,6 +302,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     }
     let neural = load_interactive(&opts.neural)?;
     let shown = ShownSlot::default();
+    let live_stats: Arc<Mutex<Option<LiveStats>>> = Arc::default();
     let feed: Box<dyn SceneFeed> = match &opts.input {
         XrInput::Image { path, mask, segment } => {
             let person = crate::capture::segment::segment_photo(path, mask.as_deref(), segment)?;
@@ -304,12 +340,12 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
             let frames = frame_options(opts)?;
             let feed = LiveFeed::start(video_source(path, *fps), segment.clone(), frames, &neural)
                 .with_context(|| format!("opening {}", path.display()))?;
-            Box::new(feed.sharing_shown(&shown))
+            Box::new(feed.sharing_shown(&shown).reporting_to(&live_stats))
         }
         XrInput::Camera { request, segment } => {
             let feed = LiveFeed::start(camera_source(request.clone()), segment.clone(), frame_options(opts)?, &neural)
                 .with_context(|| format!("opening camera {}", request.index))?;
-            Box::new(feed.sharing_shown(&shown))
+            Box::new(feed.sharing_shown(&shown).reporting_to(&live_stats))
         }
     };
     let environment = match (opts.mode, &opts.env) {
@@ -336,7 +372,8 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<SessionReport> {
     if let crate::xr::EndReason::RenderFailed(e) = &report.end {
         bail!("the person renderer failed during the XR session: {e}");
     }
-    Ok(report)
+    let live = live_stats.lock().unwrap_or_else(|p| p.into_inner()).take();
+    Ok(XrRunReport { session: report, live })
 }
 
 /// The options the session's live frames are prepared with ([`crate::pipeline::auto_frame_options`]).

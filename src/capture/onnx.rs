@@ -123,10 +123,11 @@ impl Region {
     }
 }
 
-/// The pose model's presence score (a probability) below which a frame holds no person: the pose network's own
-/// threshold for a pose ([`crate::capture`] cannot name `body::pose::MIN_POSE_SCORE`, a layer beside it; both are
-/// 0.5).
-pub const MIN_PERSON_PRESENCE: f32 = 0.5;
+/// The pose model's presence score (a probability) below which a frame holds no person. Frames without anybody
+/// score 0.000-0.001 (a grey or dark frame, a noisy wall, an empty room: `tests/capture.rs`); a person the network
+/// reads poorly (the synthetic walker, one frame in six) dips to 0.44, under the network's own pose threshold of
+/// 0.5, so a mask is dropped only well below it.
+pub const MIN_PERSON_PRESENCE: f32 = 0.2;
 
 /// An ONNX person segmentation model as a [`Segmenter`].
 ///

@@ -261,8 +261,10 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         println!("frame times (ms): {}", stats.frame_histogram.summary());
         if let Some(live) = &stats.live {
             println!(
-                "live: {} frames read, {} completed, {} dropped, {} errors, {} uploaded; validation messages {}",
-                live.read, live.completed, live.dropped, live.errors, stats.live_uploads, stats.validation_messages
+                "{}; {} uploaded; validation messages {}",
+                live.report_line(),
+                stats.live_uploads,
+                stats.validation_messages
             );
         }
     }
