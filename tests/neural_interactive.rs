@@ -277,12 +277,15 @@ fn live_pipeline_encodes_exactly_once_per_new_frame_and_drops_the_rest() {
     assert!(live.is_finished(), "the source did not finish in time");
     let stats = live.stats();
     eprintln!("{} · {views} views · {} encodes", stats.overlay_line(), encodes.load(Ordering::SeqCst));
-    assert_eq!(encodes.load(Ordering::SeqCst), stats.completed, "one encoder run per completed frame");
+    // One encoder run serves at most ENCODE_EVERY completed frames (the person holding still).
+    let runs = encodes.load(Ordering::SeqCst);
+    let every = r2human::app::live::ENCODE_EVERY;
+    assert!(runs <= stats.completed && runs >= stats.completed.div_ceil(every), "{runs} runs, {stats:?}");
     assert_eq!(stats.read, 24);
     assert!(stats.dropped > 0, "an unpaced source must outrun the worker: {stats:?}");
     assert_eq!(stats.completed + stats.dropped, stats.read, "every frame is either processed or dropped");
     let enc = stats.stages.iter().find(|s| s.name == "encoder").expect("the encoder stage is measured");
-    assert_eq!(enc.total, stats.completed);
+    assert_eq!(enc.total, runs);
     assert!(enc.median > Duration::ZERO);
     assert!(views >= seen.len() && !seen.is_empty());
 }

@@ -628,7 +628,8 @@ neural: {:?}",
         );
         assert!(stats.source_finished);
         assert_eq!(live.read, 4);
-        assert_eq!(stats.encodes, live.completed, "one encoder run per completed frame");
+        let every = r2human::app::live::ENCODE_EVERY;
+        assert!(stats.encodes <= live.completed && stats.encodes >= live.completed.div_ceil(every), "{live:?}");
         assert_eq!(live.completed + live.dropped, live.read);
         assert_eq!(stats.renderer, Drawn::Neural);
         assert!(stats.neural.decoder_runs >= 1 && stats.neural.fallbacks == 0);

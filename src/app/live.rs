@@ -26,7 +26,7 @@ use crate::capture::smooth::MaskSmoother;
 use crate::capture::stats::{DurationHistogram, StageStats, StageSummary};
 use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter, SourceEvent, SourceFactory};
 use crate::geometry::Camera;
-use crate::pipeline::frame::FramePath;
+use crate::pipeline::frame::{mask_iou, FramePath};
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
@@ -158,20 +158,31 @@ pub struct LiveFrame {
     pub neural: Option<NeuralInput>,
 }
 
-/// [`PrepareProcessor`] followed by the neural encoder (stage "encoder"), once per new frame on the worker thread.
-/// Without a neural renderer it only prepares. An encoder failure is a message and the frame is still shown, drawn
-/// by the geometric renderer.
+/// Frames one run of the encoder serves at most on a live source ([`EncodeProcessor`]): every other frame reuses
+/// the features of the frame before, while the person's silhouette stays within [`FEATURES_KEEP_IOU`] of the one
+/// they were made on. On the CPU the encoder costs about as much as the rest of a frame's geometry.
+pub const ENCODE_EVERY: u64 = 2;
+
+/// Mask IoU (normalised frame) with the frame the kept features were made on below which the encoder runs again.
+pub const FEATURES_KEEP_IOU: f32 = 0.97;
+
+/// [`PrepareProcessor`] followed by the neural encoder (stage "encoder") on the worker thread, at most every
+/// [`ENCODE_EVERY`] frames while the person holds still (the decoder then draws the new frame's geometry and colours
+/// with the features of the frame before). Without a neural renderer it only prepares. An encoder failure is a
+/// message and the frame is still shown, drawn by the geometric renderer.
 pub struct EncodeProcessor {
     prepare: PrepareProcessor,
     neural: Option<SharedNeural>,
     encodes: Arc<AtomicU64>,
+    /// The last features, the normalised mask they were made on and the frames they have served.
+    kept: Option<(NeuralInput, GrayImage, u64)>,
 }
 
 impl EncodeProcessor {
     /// A processor preparing with `options` and encoding with `neural` (give the worker its own instance, see
     /// [`crate::app::neural::NeuralAvailability::second_instance`], so the display's decoder never waits for it).
     pub fn new(options: PrepareOptions, neural: Option<SharedNeural>) -> Self {
-        Self { prepare: PrepareProcessor::new(options), neural, encodes: Arc::new(AtomicU64::new(0)) }
+        Self { prepare: PrepareProcessor::new(options), neural, encodes: Arc::new(AtomicU64::new(0)), kept: None }
     }
 
     /// A counter of encoder runs (shared: read it while the worker runs).
@@ -186,13 +197,23 @@ impl FrameProcessor for EncodeProcessor {
     fn process(&mut self, frame: &Frame, mask: &GrayImage, stats: &mut StageStats) -> Result<LiveFrame, PipelineError> {
         let input = self.prepare.process(frame, mask, stats)?;
         let Some(shared) = &self.neural else { return Ok(LiveFrame { input, neural: None }) };
+        if let Some((features, made_on, served)) = self.kept.as_mut() {
+            if *served < ENCODE_EVERY && mask_iou(made_on, &input.normalised.mask) >= FEATURES_KEEP_IOU {
+                *served += 1;
+                return Ok(LiveFrame { neural: Some(features.clone()), input });
+            }
+        }
         let t = Instant::now();
         let encoded = shared.lock().unwrap_or_else(|p| p.into_inner()).encode(&input);
         stats.record("encoder", t.elapsed());
         self.encodes.fetch_add(1, Ordering::Relaxed);
         match encoded {
-            Ok(n) => Ok(LiveFrame { input, neural: Some(n) }),
+            Ok(n) => {
+                self.kept = Some((n.clone(), input.normalised.mask.clone(), 1));
+                Ok(LiveFrame { input, neural: Some(n) })
+            }
             Err(e) => {
+                self.kept = None;
                 tracing::warn!("frame {}: the neural encoder failed, drawing it geometrically: {e}", frame.index);
                 Ok(LiveFrame { input, neural: None })
             }
@@ -200,6 +221,7 @@ impl FrameProcessor for EncodeProcessor {
     }
     fn reset(&mut self) {
         self.prepare.reset();
+        self.kept = None;
     }
 }
 

@@ -141,8 +141,9 @@ impl KeptBack {
     }
 }
 
-/// IoU of two masks' pixels above 0.5 (0 for masks of different sizes, 1 for two empty ones).
-fn mask_iou(a: &GrayImage, b: &GrayImage) -> f32 {
+/// IoU of two masks' pixels above 0.5 (0 for masks of different sizes, 1 for two empty ones): how much a person's
+/// silhouette changed between two frames, which decides whether what was made on the older one still serves.
+pub fn mask_iou(a: &GrayImage, b: &GrayImage) -> f32 {
     if a.data.len() != b.data.len() || (a.width, a.height) != (b.width, b.height) {
         return 0.0;
     }
