@@ -185,7 +185,7 @@ fn in_build(provider: ActiveProvider) -> bool {
 }
 
 /// Loads ONNX Runtime (as every neural command does), opens the GPU libraries of its tree, and tries a session on
-/// TensorRT, CUDA and the CPU in turn on [`PROBE_MODEL`], each provider alone. Fails only when ONNX Runtime itself
+/// TensorRT, CUDA and the CPU in turn on a tiny built-in model (`PROBE_MODEL`), each provider alone. Fails only when ONNX Runtime itself
 /// cannot be loaded.
 pub fn runtime_report(options: &RuntimeOptions) -> Result<RuntimeReport, NeuralError> {
     let env = environment(options)?;

@@ -38,7 +38,7 @@ pub enum GeometryMode {
     Body,
     /// The silhouette-inflation prior with every column moved halfway toward the fitted body's depth there
     /// ([`crate::body::placed`]), or by the shift of the model folder's `placement.onnx` when it has one
-    /// ([`load_placement_net`]): the silhouette's thickness, the body's placement in depth. An input where no pose
+    /// ([`super::load_placement_net`]): the silhouette's thickness, the body's placement in depth. An input where no pose
     /// is found gets the inflation prior with a warning.
     #[value(name = "body-placed")]
     BodyPlaced,
@@ -401,7 +401,7 @@ fn warn_no_body_fof(why: &NoBodyFof) {
 
 /// The per-input geometry of a normalised input as `opts.geometry` asks (see [`GeometryMode`]), timing its stages
 /// into `timings`: the inflation prior, then (FOF net modes) the network's correction at the prior's resolution
-/// ([`FofNet::refine`]) or (body mode) the body prior; last, whatever was chosen is placed in depth by the body
+/// ([`crate::neural::FofNet::refine`]) or (body mode) the body prior; last, whatever was chosen is placed in depth by the body
 /// cube's convention ([`crate::geometry::depth_centre::centre_fof`]: the occupied volume's centroid at z = 0, the
 /// rule the ground truth follows too), so every geometry mode turns the person about the same axis.
 pub fn compute_geometry(
@@ -417,7 +417,7 @@ pub type GeometryAndPose = (Fof, Option<PoseLandmarks>);
 
 /// [`compute_geometry`] with the pose landmarks the body was fitted to (`--geometry body`, `body-placed`, a FOF net
 /// that takes the body FOF, and `auto` when it is one of them), which the back image reuses for the face instead of running the pose network again
-/// ([`PreparedInput::from_fof_and_pose`]).
+/// ([`super::PreparedInput::from_fof_and_pose`]).
 pub fn compute_geometry_and_pose(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
@@ -443,7 +443,7 @@ fn inflation_prior(
 }
 
 /// The silhouette-inflation prior's surfaces of an input, open where the photo cuts the person (as
-/// [`inflation_prior`] encodes them) and depth-centred ([`crate::body::placed::centred`]): the frame path's
+/// `inflation_prior` encodes them) and depth-centred ([`crate::body::placed::centred`]): the frame path's
 /// geometry under [`GeometryMode::Inflate`].
 pub fn inflation_surfaces(
     normalised: &NormalisedInput,

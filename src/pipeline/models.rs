@@ -225,7 +225,7 @@ pub fn load_body(mode: GeometryMode, options: &RuntimeOptions) -> Result<Option<
 /// The body prior for `mode` and the FOF network it uses: [`load_body`] for [`GeometryMode::Body`]; for the FOF
 /// net modes, the body prior when the loaded network takes the body FOF ([`FofNet::takes_body`]) — an error under
 /// [`GeometryMode::FofNet`] when it cannot load, one warning and `None` under [`GeometryMode::Auto`] (its inputs
-/// then get the inflation prior, see [`compute_geometry`]); `None` otherwise.
+/// then get the inflation prior, see [`super::compute_geometry`]); `None` otherwise.
 pub fn load_body_for(
     mode: GeometryMode,
     fof_net: Option<&SharedFofNet>,

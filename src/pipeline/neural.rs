@@ -34,7 +34,7 @@ pub enum RendererChoice {
 /// The model tier the product ships and looks for by default (`models/tiny`).
 pub const DEFAULT_MODEL_TIER: &str = "tiny";
 
-/// A neural renderer shared by every [`ViewRenderer`] that uses it (the two eyes of an XR session, say): the
+/// A neural renderer shared by every [`super::ViewRenderer`] that uses it (the two eyes of an XR session, say): the
 /// decoder runs under the lock, one view at a time.
 pub type SharedNeural = Arc<Mutex<NeuralRenderer>>;
 
@@ -168,7 +168,7 @@ pub fn decode_person_view(
     Ok(person)
 }
 
-/// How much of the back image's colour must be the head top's ([`back::BackImage::head`]) for the neural
+/// How much of the back image's colour must be the head top's ([`super::back::BackImage::head`]) for the neural
 /// renderer to keep it on the back of the head ([`lookup_kept`]).
 pub const HEAD_KEPT: f32 = 0.5;
 

@@ -25,18 +25,18 @@ pub struct PrepareOptions {
     pub geometry: GeometryMode,
     /// Parameters of the inflation prior.
     pub inflate: InflateParams,
-    /// The FOF network for [`GeometryMode::FofNet`] (and [`GeometryMode::Auto`] when [`AUTO_CHOICE`] is the FOF
-    /// net; [`load_fof_net`]); `None` with `FofNet` is an error, with `Auto` the inflation prior.
+    /// The FOF network for [`GeometryMode::FofNet`] (and [`GeometryMode::Auto`] when [`super::AUTO_CHOICE`] is the FOF
+    /// net; [`super::load_fof_net`]); `None` with `FofNet` is an error, with `Auto` the inflation prior.
     pub fof_net: Option<SharedFofNet>,
-    /// The body prior for [`GeometryMode::Body`] ([`load_body`]) and for a FOF net that takes the body FOF
-    /// ([`load_body_for`]); `None` with `Body` is an error.
+    /// The body prior for [`GeometryMode::Body`] ([`super::load_body`]) and for a FOF net that takes the body FOF
+    /// ([`super::load_body_for`]); `None` with `Body` is an error.
     pub body: Option<SharedBody>,
-    /// The placement network of [`GeometryMode::BodyPlaced`] ([`load_placement_net`]); `None`: the fixed rule
+    /// The placement network of [`GeometryMode::BodyPlaced`] ([`super::load_placement_net`]); `None`: the fixed rule
     /// ([`crate::body::placed::PLACEMENT_WEIGHT`] of the body's depth).
     pub placement: Option<SharedPlacementNet>,
     /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
     pub warm_start: bool,
-    /// The pose network that finds the face for the back image ([`load_back_pose`]; [`back::back_image`]); `None`:
+    /// The pose network that finds the face for the back image ([`super::load_back_pose`]; [`back::back_image`]); `None`:
     /// no back image (the renderers then colour what the photo does not show from the photo itself).
     pub back_pose: Option<SharedPose>,
 }

@@ -141,7 +141,7 @@ impl<'a> ViewRenderer<'a> {
     }
 
     /// A renderer that draws with the neural decoder, given the encoder's output for `input`
-    /// ([`NeuralRenderer::encode`], once per input and shared by every view and eye). `fill` is used by the
+    /// ([`super::NeuralRenderer::encode`], once per input and shared by every view and eye). `fill` is used by the
     /// geometric fallback.
     pub fn with_neural(
         input: &'a PreparedInput,

@@ -379,7 +379,7 @@ impl fmt::Display for SessionReport {
             None => writeln!(f, "motion-to-photon latency: not measured (runtime lacks XR_KHR_convert_timespec_time)")?,
         }
         if let Some(ms) = self.eye_render_ms {
-            writeln!(f, "per-eye GPU render time (median of {}): {ms:.1} ms", self.eye_renders)?;
+            writeln!(f, "per-eye render time (median of {}): {ms:.1} ms", self.eye_renders)?;
         }
         writeln!(f, "eyes rendered on {}", self.render_path)?;
         writeln!(f, "person renderer: {}", self.person_renderer)?;
