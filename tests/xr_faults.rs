@@ -61,7 +61,8 @@ impl SceneFeed for Timed {
 #[ignore = "needs a running OpenXR runtime; run via xr_faulty_live_source_in_monado_root"]
 fn xr_session_survives_a_faulty_live_source() {
     assert_validation_layers_present();
-    let neural = load_interactive(&NeuralSetup { choice: RendererChoice::Geometric, ..Default::default() }).unwrap();
+    let neural =
+        load_interactive(&NeuralSetup { choice: RendererChoice::Geometric, ..Default::default() }, true).unwrap();
     // 3 s normal, 2 s stalled, 2 s normal, 2 s gone, 3 s at 80x60, then 160x120 again (capture::synthetic).
     let source = video_source(std::path::Path::new("synthetic:160x120@15+faults"), 15.0);
     let feed = LiveFeed::start(source, SegmentMethod::Alpha, PrepareOptions::default(), &neural).unwrap();

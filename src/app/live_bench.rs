@@ -132,7 +132,7 @@ pub fn bench_live(opts: &LiveBenchOptions) -> anyhow::Result<LiveBenchReport> {
         Some(_) => anyhow::bail!("--seconds: give a positive number of seconds"),
         None => None,
     };
-    let neural = load_interactive(&opts.neural)?;
+    let neural = load_interactive(&opts.neural, true)?;
     let prepare = auto_frame_options(opts.neural.models.as_deref(), opts.resolution, &opts.neural.options)?;
     let worker = neural.second_instance().context("loading the neural models for the live worker")?;
     let processor = EncodeProcessor::new(prepare, worker);

@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use crate::neural::{NeuralError, RuntimeOptions};
+use crate::neural::{ActiveProvider, NeuralError, RuntimeOptions};
 use crate::pipeline::{load_renderer, NeuralRenderer, PipelineError, RendererChoice, SharedNeural};
 
 /// What `--renderer`, `--models` and `--ep` ask for.
@@ -73,10 +73,22 @@ impl NeuralAvailability {
     }
 }
 
-/// Resolves `--renderer` for an interactive session: [`RendererChoice::Geometric`] loads nothing (the reason
-/// says how to start with the neural renderer); [`RendererChoice::Neural`] fails when the models cannot be
-/// loaded; [`RendererChoice::Auto`] logs one warning and keeps the reason ([`unavailable_hint`]).
-pub fn load_interactive(setup: &NeuralSetup) -> Result<NeuralAvailability, PipelineError> {
+/// Whether `--renderer auto` draws with the neural renderer, given where its decoder runs and whether the input is
+/// live (a video or a camera, whose frames must keep up with the source). On the CPU provider a live source is
+/// drawn geometrically: there the encoder and decoder cost about as much as the rest of a frame (`bench-live` on a
+/// 640×480 clip: 15.7 completed frames a second geometric against 10.2–11.4 neural; the window 12.9 against 8.2)
+/// and the evaluation's frame-path rows give the neural renderer nothing for it (divergent whole-frame PSNR
+/// −0.6 to +0.02 dB, docs/live.md). A photo, or a GPU provider, keeps the neural renderer.
+pub fn auto_draws_neural(provider: ActiveProvider, live: bool) -> bool {
+    !(live && provider == ActiveProvider::Cpu)
+}
+
+/// Resolves `--renderer` for an interactive session (`live`: the input is a video or a camera):
+/// [`RendererChoice::Geometric`] loads nothing (the reason says how to start with the neural renderer);
+/// [`RendererChoice::Neural`] fails when the models cannot be loaded; [`RendererChoice::Auto`] logs one warning and
+/// keeps the reason ([`unavailable_hint`]) when they cannot, and draws what [`auto_draws_neural`] says when they can
+/// (saying so once).
+pub fn load_interactive(setup: &NeuralSetup, live: bool) -> Result<NeuralAvailability, PipelineError> {
     if setup.choice == RendererChoice::Geometric {
         return Ok(NeuralAvailability::none(
             "NEURAL RENDERER NOT LOADED (--RENDERER GEOMETRIC): START WITH --RENDERER AUTO OR NEURAL",
@@ -84,6 +96,18 @@ pub fn load_interactive(setup: &NeuralSetup) -> Result<NeuralAvailability, Pipel
     }
     // The strict choice keeps the error, so Auto can say why in the window.
     match (load_renderer(RendererChoice::Neural, setup.models.as_deref(), &setup.options), setup.choice) {
+        (Ok(Some(shared)), RendererChoice::Auto) => {
+            let provider = shared.lock().unwrap_or_else(|p| p.into_inner()).runtime.decoder.provider();
+            if auto_draws_neural(provider, live) {
+                return Ok(NeuralAvailability::loaded(shared, setup.options.clone()));
+            }
+            tracing::info!(
+                "renderer: auto draws live input geometrically on the {provider} provider (the neural renderer costs \
+                 about a third of the frame rate there for no gain in the evaluation; docs/live.md); pass \
+                 --renderer neural to draw it"
+            );
+            Ok(NeuralAvailability::none("NEURAL RENDERER OFF FOR LIVE INPUT ON THE CPU (AUTO): --RENDERER NEURAL"))
+        }
         (Ok(Some(shared)), _) => Ok(NeuralAvailability::loaded(shared, setup.options.clone())),
         (Ok(None), _) => Ok(NeuralAvailability::none("NEURAL RENDERER OFF")),
         (Err(e), RendererChoice::Auto) => {
@@ -139,8 +163,18 @@ mod tests {
     }
 
     #[test]
+    fn auto_draws_live_input_geometrically_on_the_cpu_only() {
+        assert!(!auto_draws_neural(ActiveProvider::Cpu, true));
+        assert!(auto_draws_neural(ActiveProvider::Cpu, false));
+        for gpu in [ActiveProvider::Cuda, ActiveProvider::TensorRt] {
+            assert!(auto_draws_neural(gpu, true) && auto_draws_neural(gpu, false));
+        }
+    }
+
+    #[test]
     fn geometric_choice_loads_nothing_and_says_how_to_enable() {
-        let a = load_interactive(&NeuralSetup { choice: RendererChoice::Geometric, ..Default::default() }).unwrap();
+        let a =
+            load_interactive(&NeuralSetup { choice: RendererChoice::Geometric, ..Default::default() }, false).unwrap();
         assert!(a.renderer.is_none() && a.second_instance().unwrap().is_none());
         assert!(a.unavailable.unwrap().contains("--RENDERER AUTO"));
     }
@@ -150,12 +184,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let setup =
             NeuralSetup { choice: RendererChoice::Auto, models: Some(dir.path().to_path_buf()), ..Default::default() };
-        let a = load_interactive(&setup).unwrap();
+        let a = load_interactive(&setup, false).unwrap();
         assert!(a.renderer.is_none());
         let reason = a.unavailable.unwrap();
         // Either the library or the model file is what is missing, depending on the machine.
         assert!(reason.starts_with("NEURAL RENDERER OFF:"), "{reason}");
         let strict = NeuralSetup { choice: RendererChoice::Neural, ..setup };
-        assert!(load_interactive(&strict).is_err());
+        assert!(load_interactive(&strict, false).is_err());
     }
 }

@@ -357,7 +357,7 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
     };
     let prepare =
         PrepareOptions { resolution: opts.resolution, depth_samples: opts.resolution, ..PrepareOptions::default() };
-    let neural = load_interactive(&opts.neural)?;
+    let neural = load_interactive(&opts.neural, opts.video.is_some() || opts.camera.is_some())?;
     let factory = match (&opts.video, &opts.camera) {
         (Some(path), _) => Some(live::video_source(path, opts.fps)),
         (None, Some(request)) => Some(live::camera_source(request.clone())),

@@ -300,7 +300,8 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
     if let Some(0) = opts.export_at_frames.iter().copied().min() {
         bail!("--export-at-frame 0 is before the person is shown: give 1 or more");
     }
-    let neural = load_interactive(&opts.neural)?;
+    let live = !matches!(opts.input, XrInput::Image { .. });
+    let neural = load_interactive(&opts.neural, live)?;
     let shown = ShownSlot::default();
     let live_stats: Arc<Mutex<Option<LiveStats>>> = Arc::default();
     let feed: Box<dyn SceneFeed> = match &opts.input {

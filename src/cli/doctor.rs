@@ -192,8 +192,13 @@ fn renderer_choice() -> String {
     let options = RuntimeOptions { ep: ExecutionProvider::Cpu, intra_threads: Some(1), ..Default::default() };
     match crate::pipeline::load_renderer(crate::pipeline::RendererChoice::Neural, None, &options) {
         Ok(Some(n)) => {
-            let dir = n.lock().map(|n| n.runtime.dir.display().to_string()).unwrap_or_default();
-            format!("neural (models in {dir})")
+            let guard = n.lock().unwrap_or_else(|p| p.into_inner());
+            let (dir, provider) = (guard.runtime.dir.display().to_string(), guard.runtime.decoder.provider());
+            let live = match crate::app::neural::auto_draws_neural(provider, true) {
+                true => "neural".to_string(),
+                false => format!("geometric (the decoder runs on the {provider} provider: docs/live.md)"),
+            };
+            format!("neural for photos (models in {dir}); for video and cameras {live}")
         }
         Ok(None) => "geometric".into(),
         Err(e) => format!("geometric ({e})"),
