@@ -212,7 +212,17 @@ impl FramePath {
             let (fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
             return PreparedInput::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings);
         }
-        let (surfaces, pose) = frame_surfaces(&normalised, opts, &mut timings)?;
+        // The rim's colours are only read by the colour stages: they are cleaned beside the geometry, which reads
+        // the mask (and, fitting a body, the photo as it came).
+        let rim = input::RIM_FRACTION * opts.resolution as f32;
+        let (mut geometry_timings, mut rim_timings) = (StageTimings::default(), StageTimings::default());
+        let copy = normalised.clone();
+        let (geometry, cleaned) = rayon::join(
+            || frame_surfaces(&normalised, opts, &mut geometry_timings),
+            || rim_timings.time("rim colours", || input::interior_colours_at_the_rim(copy, rim)),
+        );
+        timings.0.extend(geometry_timings.0.into_iter().chain(rim_timings.0));
+        let (surfaces, pose) = geometry?;
         let surfaces = timings.time("smooth geometry", || self.smoother.update(surfaces));
         let frame = self.frames;
         // A back image made on a frame like this one serves it; the face is read only for a new one.
@@ -221,9 +231,10 @@ impl FramePath {
             Some(_) => None,
             None => self.face_for_back(&normalised, pose.as_ref(), &mut timings),
         };
+        drop(normalised);
+        let normalised = cleaned;
         let opts = &self.options;
         let source_camera = Camera::source(opts.resolution);
-        let rim = input::RIM_FRACTION * opts.resolution as f32;
         let mut colour_timings = StageTimings::default();
         let (geometry, (normalised, kept, side)) = rayon::join(
             || -> Result<_, PipelineError> {
@@ -237,8 +248,6 @@ impl FramePath {
                 Ok((mesh, source, t))
             },
             || {
-                let normalised =
-                    colour_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
                 let kept = match kept {
                     Some(k) => Some(k),
                     None if opts.back_pose.is_some() => {
