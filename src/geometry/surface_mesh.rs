@@ -354,6 +354,33 @@ mod tests {
     }
 
     #[test]
+    fn the_frame_mesh_draws_what_the_fof_path_draws() {
+        // An ellipsoid's depth maps at 128², meshed directly (step 2) and through the still path's FOF (N = 32) and
+        // marching cubes (128 depth samples): from the front and from the side, the two cover the same pixels and
+        // lie at the same depth to within the FOF's own blur.
+        let n = 128;
+        let s = ellipsoid(n, 0.55, 0.8, 0.35, 0.05);
+        let direct = mesh_from_surfaces(&s, 2).unwrap();
+        let fof = crate::geometry::fof::Fof::from_depth_maps(&s.front, &s.back, &s.mask, 32).unwrap();
+        let still = crate::geometry::marching::extract_mesh(&fof, n);
+        for yaw in [0.0f32, 90.0, 180.0] {
+            let camera = Camera::orbit(yaw, 0.0, n, n);
+            let (a, b) = (rasterize(&direct, &camera), rasterize(&still, &camera));
+            let both = a.mask.iter().zip(&b.mask).filter(|(x, y)| **x && **y).count();
+            let either = a.mask.iter().zip(&b.mask).filter(|(x, y)| **x || **y).count();
+            let iou = both as f32 / either as f32;
+            let mut errors: Vec<f32> =
+                (0..n * n).filter(|&i| a.mask[i] && b.mask[i]).map(|i| (a.depth[i] - b.depth[i]).abs()).collect();
+            errors.sort_by(f32::total_cmp);
+            let median = errors[errors.len() / 2];
+            // Measured: IoU 0.958 / 0.992 / 0.957 (the outline sampled every 2 px of a 128² grid), median depth
+            // difference 0.0003-0.0017 cube units.
+            assert!(iou > 0.94, "yaw {yaw}: mask IoU {iou}");
+            assert!(median < 0.005, "yaw {yaw}: median depth difference {median} cube units");
+        }
+    }
+
+    #[test]
     fn source_normals_in_closed_form() {
         // A plane z = 0.2 + 0.3 x - 0.1 y: normal (-0.3, 0.1, 1) normalised everywhere, the rim included.
         let n = 16;
