@@ -249,3 +249,41 @@ fn a_folder_of_photos_of_different_sizes_gives_one_view_each() {
     assert!(line("(a.png").contains("mask from alpha"), "{text}");
     assert!(line("(d.png)").contains("skipped") && line("(d.png)").contains("could not be read"), "{text}");
 }
+
+/// No person is no person on a still too: the segmentation model outlines whatever stands out (a blank grey photo
+/// became a ragged grey "person"), so a photo the pose model sees nobody in is refused with one sentence, and a
+/// photo of a person is not.
+#[test]
+fn a_photo_without_a_person_is_refused() {
+    if !still_model_installed() {
+        return;
+    }
+    let pose = repo(".tools/models/pose_landmark_full.onnx");
+    if !pose.is_file() {
+        eprintln!("SKIPPED: {} not installed", pose.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut noise = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state % 24) as u8
+    };
+    let grey = image::RgbImage::from_pixel(640, 480, image::Rgb([128, 128, 128]));
+    let wall = image::RgbImage::from_fn(640, 480, |_, _| {
+        let v = 70 + noise();
+        image::Rgb([v, v, v])
+    });
+    for (name, img) in [("grey.png", grey), ("wall.png", wall)] {
+        let path = dir.path().join(name);
+        img.save(&path).unwrap();
+        match segment_photo(&path, None, &SegmentMethod::Auto) {
+            Err(PhotoError::NoPerson(p)) => assert_eq!(p, path),
+            other => panic!("{name}: expected no person, got {:?}", other.map(|s| s.origin)),
+        }
+    }
+    let person = segment_photo(&repo("assets/photos/astronaut.png"), None, &SegmentMethod::Auto).unwrap();
+    assert!(matches!(person.origin, MaskOrigin::Model(_)));
+}

@@ -219,10 +219,10 @@ pub enum PhotoError {
         /// What went wrong with the model (names the install script when it is missing).
         source: CaptureError,
     },
-    /// The segmentation model ran but marked no pixel as a person.
+    /// The segmentation model marked no pixel as a person, or the pose model sees nobody in the photo.
     #[error(
-        "the segmentation model found no person in {}: give --mask FILE (white = person), or a photo in which the \
-         person stands out from the background",
+        "found no person in {}: give --mask FILE (white = person), or a photo in which a person stands out from the \
+         background",
         .0.display()
     )]
     NoPerson(PathBuf),
@@ -277,7 +277,29 @@ fn still_model(image: &Path, frame: &Frame, model: Option<&Path>) -> Result<(Gra
     if !mask.data.iter().any(|&v| v >= 0.5) {
         return Err(PhotoError::NoPerson(image.into()));
     }
+    // ISNet outlines whatever stands out, a person or not (a blank grey photo gave a ragged grey "person"): the
+    // pose model, when installed, says whether anybody is there at all.
+    if model.is_none() && seg.kind() == super::onnx::SegmentationModel::Isnet {
+        if let Some(presence) = person_presence(frame) {
+            if presence < super::onnx::MIN_PERSON_PRESENCE {
+                tracing::info!("{}: the pose model sees nobody (presence {presence:.3})", image.display());
+                return Err(PhotoError::NoPerson(image.into()));
+            }
+        }
+    }
     Ok((mask, MaskOrigin::Model(seg.path().to_path_buf())))
+}
+
+/// The pose model's presence score for the person in `frame` (read letterboxed, then on the square around what
+/// it found), or `None` when the pose model is not installed or fails (the photo is then not checked).
+fn person_presence(frame: &Frame) -> Option<f32> {
+    let path = super::onnx::model_path_from(None, &[super::onnx::MODEL_FILES[0]]).ok()?;
+    let mut pose = super::onnx::OnnxSegmenter::load(Some(&path), super::onnx::DEFAULT_INPUT_SIZE).ok()?;
+    if pose.kind() != super::onnx::SegmentationModel::MediapipePose {
+        return None;
+    }
+    pose.segment_still(frame).ok()?;
+    Some(pose.presence())
 }
 
 /// True when the frame has an alpha channel that is neither all opaque nor all transparent.
