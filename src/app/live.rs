@@ -645,20 +645,8 @@ fn segment_loop<T>(shared: &Shared<T>, options: &LiveOptions) {
                     .0;
             }
         }
-        let (frame, arrived) = {
-            let mut slot = shared.mailbox.lock().unwrap_or_else(|p| p.into_inner());
-            loop {
-                if shared.stop.load(Ordering::SeqCst) {
-                    return;
-                }
-                if let Some(f) = slot.take() {
-                    break f;
-                }
-                if shared.source_done.load(Ordering::SeqCst) {
-                    return;
-                }
-                slot = shared.wake.wait_timeout(slot, Duration::from_millis(50)).unwrap_or_else(|p| p.into_inner()).0;
-            }
+        let Some((frame, arrived)) = take_next(&shared.mailbox, &shared.wake, &shared.stop, &shared.source_done) else {
+            return;
         };
         if segmenter.is_none() {
             match options.segment.build(Some(&frame)) {
@@ -706,6 +694,24 @@ fn segment_loop<T>(shared: &Shared<T>, options: &LiveOptions) {
     }
 }
 
+/// The value waiting in the one-slot `slot`, waiting on `wake` (rechecking every 50 ms) until there is one; `None`
+/// once `stop` is set, or once the producer is `done` and the slot is empty.
+fn take_next<V>(slot: &Mutex<Option<V>>, wake: &Condvar, stop: &AtomicBool, done: &AtomicBool) -> Option<V> {
+    let mut slot = slot.lock().unwrap_or_else(|p| p.into_inner());
+    loop {
+        if stop.load(Ordering::SeqCst) {
+            return None;
+        }
+        if let Some(v) = slot.take() {
+            return Some(v);
+        }
+        if done.load(Ordering::SeqCst) {
+            return None;
+        }
+        slot = wake.wait_timeout(slot, Duration::from_millis(50)).unwrap_or_else(|p| p.into_inner()).0;
+    }
+}
+
 /// The fewest mask pixels (a fraction of the frame) a frame needs to hold a person: the normalisation's own floor
 /// ([`crate::pipeline::input::MIN_COVERAGE`]), below which a frame could not be prepared anyway.
 fn holds_a_person(mask: &GrayImage) -> bool {
@@ -717,27 +723,10 @@ fn holds_a_person(mask: &GrayImage) -> bool {
 fn process_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P) {
     let mut sequence = 0u64;
     loop {
-        let Segmented { frame, arrived, mask, new_shot, stats: mut local } = {
-            let mut slot = shared.segmented.lock().unwrap_or_else(|p| p.into_inner());
-            loop {
-                if shared.stop.load(Ordering::SeqCst) {
-                    return;
-                }
-                if let Some(f) = slot.take() {
-                    // The segmenter waits for the slot to empty.
-                    shared.segmented_wake.notify_all();
-                    break f;
-                }
-                if shared.segmenter_done.load(Ordering::SeqCst) {
-                    return;
-                }
-                slot = shared
-                    .segmented_wake
-                    .wait_timeout(slot, Duration::from_millis(50))
-                    .unwrap_or_else(|p| p.into_inner())
-                    .0;
-            }
-        };
+        let next = take_next(&shared.segmented, &shared.segmented_wake, &shared.stop, &shared.segmenter_done);
+        let Some(Segmented { frame, arrived, mask, new_shot, stats: mut local }) = next else { return };
+        // The segmenter waits for the slot to empty.
+        shared.segmented_wake.notify_all();
         if new_shot {
             processor.reset();
         }

@@ -87,13 +87,7 @@ impl SurfaceSmoother {
                 && a.mask.data.len() == surfaces.mask.data.len()
         };
         if let Some(last) = self.last.as_ref().filter(|l| same_grid(l)) {
-            let (mut both, mut either) = (0usize, 0usize);
-            for (a, b) in last.mask.data.iter().zip(&surfaces.mask.data) {
-                both += usize::from(*a > 0.5 && *b > 0.5);
-                either += usize::from(*a > 0.5 || *b > 0.5);
-            }
-            let iou = if either == 0 { 1.0 } else { both as f32 / either as f32 };
-            if iou >= self.reset_iou {
+            if mask_iou(&last.mask, &surfaces.mask) >= self.reset_iou {
                 let w = self.weight;
                 for i in 0..surfaces.mask.data.len() {
                     if surfaces.mask.data[i] > 0.5 && last.mask.data[i] > 0.5 {
@@ -147,16 +141,7 @@ pub fn mask_iou(a: &GrayImage, b: &GrayImage) -> f32 {
     if a.data.len() != b.data.len() || (a.width, a.height) != (b.width, b.height) {
         return 0.0;
     }
-    let (mut both, mut either) = (0usize, 0usize);
-    for (x, y) in a.data.iter().zip(&b.data) {
-        both += usize::from(*x > 0.5 && *y > 0.5);
-        either += usize::from(*x > 0.5 || *y > 0.5);
-    }
-    if either == 0 {
-        1.0
-    } else {
-        both as f32 / either as f32
-    }
+    crate::capture::morph::iou_soft(a, b)
 }
 
 impl FramePath {
