@@ -1,14 +1,16 @@
-"""Convert a small float TFLite CNN (MediaPipe's face landmark model) to ONNX, NCHW inside.
+"""Convert a small float TFLite CNN (MediaPipe's face landmark model and selfie segmenter) to ONNX, NCHW inside.
 
 Usage: python tflite_to_onnx.py MODEL.tflite OUT.onnx
 
 Why not `tflite2onnx`: version 0.4.1 (the converter `live.sh` uses for the pose model) fails on the face landmark
 model in its layout propagation (PReLU slopes of rank 3), and `tf2onnx` needs TensorFlow (a 1.5 GB venv). This
-script handles exactly the operators that model has (float16 weights behind DEQUANTIZE, CONV_2D,
-DEPTHWISE_CONV_2D, PRELU, ADD, MAX_POOL_2D, PAD) and refuses any other, so a changed model fails loudly instead of
-converting wrongly. The graph keeps the TFLite interface: input NHWC float, outputs NHWC as TFLite has them.
-Checked once against tf2onnx's conversion of the same file (max |difference| of the 1404 landmark outputs on
-photos: see docs/geometry.md).
+script handles exactly the operators those models have (float16 weights behind DEQUANTIZE, CONV_2D,
+DEPTHWISE_CONV_2D, PRELU, ADD, MAX_POOL_2D, PAD; the selfie segmenter's RELU, HARD_SWISH, LOGISTIC, MUL, global
+AVERAGE_POOL_2D, RESIZE_BILINEAR and MediaPipe's custom Convolution2DTransposeBias) and refuses any other, so a
+changed model fails loudly instead of converting wrongly. The graph keeps the TFLite interface: input NHWC float,
+outputs NHWC as TFLite has them. Checked once against tf2onnx's conversion of the face model (max |difference| of
+the 1404 landmark outputs on photos: see docs/geometry.md) and against LiteRT (PyPI `ai-edge-litert`) running the
+selfie segmenter on the bundled photos (max |difference| 7e-5).
 
 Needs `tflite`, `onnx` and `numpy` (the live-venv of scripts/setup.d/live.sh has them).
 """
@@ -120,12 +122,13 @@ def main(src, dst):
             slope = consts[ins[1]].reshape(-1, 1, 1)  # per channel, broadcast over H, W
             nodes.append(helper.make_node("PRelu", [nchw[ins[0]], init(slope, "slope")], [oname]))
             nchw[out] = oname
-        elif kind == "ADD":
-            opts = tflite.AddOptions()
+        elif kind in ("ADD", "MUL"):
+            opts = tflite.AddOptions() if kind == "ADD" else tflite.MulOptions()
             opts.Init(opts_table.Bytes, opts_table.Pos)
             if any(i in consts for i in ins):
-                raise SystemExit(f"{src}: ADD with a constant operand not supported")
-            nodes.append(helper.make_node("Add", [nchw[ins[0]], nchw[ins[1]]], [oname]))
+                raise SystemExit(f"{src}: {kind} with a constant operand not supported")
+            # NCHW on both sides: a [1, 1, 1, C] gate becomes [1, C, 1, 1] and broadcasts over H, W.
+            nodes.append(helper.make_node(kind.capitalize(), [nchw[ins[0]], nchw[ins[1]]], [oname]))
             nchw[out] = activation(oname, opts.FusedActivationFunction(), oname)
         elif kind == "MAX_POOL_2D":
             opts = tflite.Pool2DOptions()
@@ -139,6 +142,57 @@ def main(src, dst):
             order = [0, 3, 1, 2]
             pads = np.array([p[a, 0] for a in order] + [p[a, 1] for a in order], dtype=np.int64)
             nodes.append(helper.make_node("Pad", [nchw[ins[0]], init(pads, "pads")], [oname], mode="constant"))
+            nchw[out] = oname
+        elif kind == "RELU":
+            nodes.append(helper.make_node("Relu", [nchw[ins[0]]], [oname]))
+            nchw[out] = oname
+        elif kind == "LOGISTIC":
+            nodes.append(helper.make_node("Sigmoid", [nchw[ins[0]]], [oname]))
+            nchw[out] = oname
+        elif kind == "HARD_SWISH":
+            # x * relu6(x + 3) / 6 = x * HardSigmoid(x; alpha 1/6, beta 1/2).
+            gate = oname + "_gate"
+            nodes.append(helper.make_node("HardSigmoid", [nchw[ins[0]]], [gate], alpha=1.0 / 6.0, beta=0.5))
+            nodes.append(helper.make_node("Mul", [nchw[ins[0]], gate], [oname]))
+            nchw[out] = oname
+        elif kind == "AVERAGE_POOL_2D":
+            opts = tflite.Pool2DOptions()
+            opts.Init(opts_table.Bytes, opts_table.Pos)
+            in_shape = tensor(ins[0]).ShapeAsNumpy()
+            whole = (opts.FilterHeight(), opts.FilterWidth()) == (in_shape[1], in_shape[2])
+            if not whole or tuple(tensor(out).ShapeAsNumpy()[1:3]) != (1, 1):
+                raise SystemExit(f"{src}: only a global AVERAGE_POOL_2D (filter = input size) is supported")
+            nodes.append(helper.make_node("GlobalAveragePool", [nchw[ins[0]]], [oname]))
+            nchw[out] = activation(oname, opts.FusedActivationFunction(), oname)
+        elif kind == "RESIZE_BILINEAR":
+            opts = tflite.ResizeBilinearOptions()
+            opts.Init(opts_table.Bytes, opts_table.Pos)
+            if opts.AlignCorners():
+                mode = "align_corners"
+            elif opts.HalfPixelCenters():
+                mode = "half_pixel"
+            else:
+                mode = "asymmetric"
+            hw = consts[ins[1]].astype(np.int64)
+            channels = int(tensor(ins[0]).ShapeAsNumpy()[3])
+            sizes = np.array([1, channels, hw[0], hw[1]], dtype=np.int64)
+            nodes.append(helper.make_node("Resize", [nchw[ins[0]], "", "", init(sizes, "sizes")], [oname],
+                                          mode="linear", coordinate_transformation_mode=mode))
+            nchw[out] = oname
+        elif kind == "CUSTOM" and code.CustomCode().decode() == "Convolution2DTransposeBias":
+            # MediaPipe's transposed convolution with bias; its custom options are TfLiteTransposeConvParams
+            # (padding as the C enum TfLitePadding, where 1 is SAME; stride_width, stride_height; int32 each). Only
+            # the non-overlapping case (kernel = stride, SAME padding: output = input x stride, no crop) is
+            # supported.
+            padding, stride_w, stride_h = np.frombuffer(op.CustomOptionsAsNumpy().tobytes(), dtype=np.int32)[:3]
+            w = consts[ins[1]]  # OHWI
+            b = consts[ins[2]]
+            if padding != 1 or (w.shape[1], w.shape[2]) != (stride_h, stride_w):
+                raise SystemExit(f"{src}: Convolution2DTransposeBias only with kernel = stride and SAME padding")
+            weight = w.transpose(3, 0, 1, 2)  # OHWI -> (in, out, kH, kW)
+            nodes.append(helper.make_node("ConvTranspose", [nchw[ins[0]], init(weight, "w"), init(b, "b")], [oname],
+                                          strides=[int(stride_h), int(stride_w)],
+                                          kernel_shape=[int(w.shape[1]), int(w.shape[2])]))
             nchw[out] = oname
         else:
             raise SystemExit(f"{src}: operator {kind} not supported by this converter")

@@ -739,3 +739,34 @@ fn the_live_pipeline_reports_frames_without_a_person() {
     assert!(live.person_absent(), "the last frames hold nobody");
     assert!(live.messages().is_empty(), "no person is not an error: {:?}", live.messages());
 }
+
+/// The live segmenter (the pose model, with the selfie segmenter beside it when installed) on each bundled photo as
+/// a frame, against the still path's mask of that photo (ISNet, `tests/data/photo_masks`): a head-and-shoulders
+/// portrait keeps its dark clothes and hair (the pose model alone: IoU 0.63-0.73), the whole body keeps its legs.
+#[test]
+fn the_live_mask_of_a_bundled_photo_is_the_still_mask() {
+    let (Some(pose), Some(_)) = (model("pose_landmark_full.onnx"), model("selfie_segmentation.onnx")) else { return };
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for (photo, at_least) in [("astronaut.png", 0.85), ("grace_hopper.jpg", 0.9), ("basketball_full_body.png", 0.85)] {
+        let mut seg = r2human::capture::onnx::OnnxSegmenter::load(Some(&pose), 0).unwrap();
+        assert!(seg.has_selfie());
+        let (rgb, _) = r2human::capture::load_image_frame(&repo.join("assets/photos").join(photo)).unwrap();
+        let stem = photo.split('.').next().unwrap();
+        let still = image::open(repo.join(format!("tests/data/photo_masks/{stem}.png"))).unwrap().to_luma8();
+        assert_eq!((still.width() as usize, still.height() as usize), (rgb.width, rgb.height), "{photo}");
+        let frame = Frame { index: 0, timestamp: Duration::ZERO, rgb, alpha: None };
+        // The first frame (untracked), then a tracked one.
+        for pass in 0..2 {
+            let mask = seg.segment(&frame).unwrap();
+            let (mut both, mut either) = (0usize, 0usize);
+            for (m, s) in mask.data.iter().zip(still.pixels()) {
+                let (a, b) = (*m >= 0.5, s.0[0] >= 128);
+                both += (a && b) as usize;
+                either += (a || b) as usize;
+            }
+            let iou = both as f32 / either.max(1) as f32;
+            eprintln!("{photo} pass {pass}: IoU {iou:.3} with the still mask");
+            assert!(iou >= at_least, "{photo} pass {pass}: IoU {iou:.3} < {at_least}");
+        }
+    }
+}

