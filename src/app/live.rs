@@ -26,7 +26,7 @@ use crate::capture::smooth::MaskSmoother;
 use crate::capture::stats::{DurationHistogram, StageStats, StageSummary};
 use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter, SourceEvent, SourceFactory};
 use crate::geometry::Camera;
-use crate::pipeline::frame::{mask_iou, FramePath};
+use crate::pipeline::frame::{mask_iou, FramePath, PlacementRefresh};
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
@@ -183,6 +183,14 @@ impl EncodeProcessor {
     /// [`crate::app::neural::NeuralAvailability::second_instance`], so the display's decoder never waits for it).
     pub fn new(options: PrepareOptions, neural: Option<SharedNeural>) -> Self {
         Self { prepare: PrepareProcessor::new(options), neural, encodes: Arc::new(AtomicU64::new(0)), kept: None }
+    }
+
+    /// This processor making every body placement on the frame it is due on
+    /// ([`PlacementRefresh::Inline`]): for sources drawn frame by frame, where the same frames give the same
+    /// output.
+    pub fn refreshing_inline(mut self) -> Self {
+        self.prepare.path.set_refresh(PlacementRefresh::Inline);
+        self
     }
 
     /// A counter of encoder runs (shared: read it while the worker runs).
@@ -961,7 +969,7 @@ pub fn render_video_views(
     out_dir: &Path,
     on_message: impl FnMut(&str),
 ) -> Result<(RenderReport, usize), LiveError> {
-    let mut processor = EncodeProcessor::new(prepare.clone(), neural.cloned());
+    let mut processor = EncodeProcessor::new(prepare.clone(), neural.cloned()).refreshing_inline();
     let mut fallbacks = 0;
     let render = |done: &Completed<LiveFrame>| {
         let frame = &done.output;

@@ -58,6 +58,15 @@ pub const BACK_IMAGE_EVERY: u64 = 6;
 /// Mask IoU with the frame a kept back image was made on below which a new one is made.
 pub const BACK_KEEP_IOU: f32 = 0.98;
 
+/// Frames a body placement ([`GeometryMode::BodyPlaced`]: the fitted body's depths and the face relief, as offsets
+/// from the inflation prior) serves at most before a new one is made: the pose network, the body fit and the face
+/// mesh cost about as much as the rest of a frame, and the body moves less between frames than the silhouette.
+pub const PLACEMENT_EVERY: u64 = 8;
+
+/// Mask IoU with the frame a body placement was made on below which it is not carried (the person moved too much
+/// for its offsets to land where they belong) and a new one is due at once.
+pub const PLACEMENT_KEEP_IOU: f32 = 0.85;
+
 /// The new frame's weight in the average of the depth maps over time ([`SurfaceSmoother`]).
 pub const SURFACE_SMOOTHING: f32 = 0.6;
 
@@ -111,13 +120,118 @@ impl SurfaceSmoother {
 }
 
 /// The frame path's state across the frames of one source: the options, the average of the depth maps over time,
-/// and the last face read for the back image.
+/// the last face read for the back image, and the body placement carried between its refreshes.
 pub struct FramePath {
     options: PrepareOptions,
     smoother: SurfaceSmoother,
     frames: u64,
     face: Option<(u64, FacePoints)>,
     back: Option<KeptBack>,
+    placement: Option<Placement>,
+    pending: Option<std::thread::JoinHandle<PlacementResult>>,
+    refresh: PlacementRefresh,
+}
+
+/// Where a frame path makes a new body placement once the first frame has one ([`FramePath::set_refresh`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlacementRefresh {
+    /// On a thread of its own; frames carry the last placement until the new one is ready (live sources: no frame
+    /// waits for the fit).
+    Background,
+    /// On the frame it is due on (`render --video`, which draws every frame: the same frames give the same output).
+    Inline,
+}
+
+/// A body placement made in the background, with how long it took; or why none was made.
+type PlacementResult = Result<(Placement, std::time::Duration), PipelineError>;
+
+/// What the body placement changed on one frame's inflation prior, carried to the frames after it: per pixel of the
+/// normalised frame, the placed front and back depths ([`body_placed_surfaces`]: the fitted body's depths and the
+/// face relief) minus that frame's own inflation prior, filled outside its silhouette from the nearest pixel inside
+/// (a pixel the person gains is placed like its neighbour), and the pose the body was fitted to.
+#[derive(Clone, Debug)]
+struct Placement {
+    frame: u64,
+    mask: GrayImage,
+    front: GrayImage,
+    back: GrayImage,
+    pose: Option<PoseLandmarks>,
+}
+
+impl Placement {
+    /// The offsets of `placed` from `inflated` (both one frame's depth-centred surfaces on the same grid).
+    fn of(frame: u64, inflated: &InflatedSurfaces, placed: &InflatedSurfaces, pose: Option<PoseLandmarks>) -> Self {
+        let n = inflated.mask.data.len();
+        let inside = |i: usize| {
+            inflated.mask.data[i] > 0.5
+                && placed.mask.data.get(i).is_some_and(|&m| m > 0.5)
+                && placed.front.data[i].is_finite()
+                && placed.back.data[i].is_finite()
+        };
+        let (w, h) = (inflated.mask.width, inflated.mask.height);
+        let same_grid = (placed.mask.width, placed.mask.height) == (w, h) && placed.front.data.len() == n;
+        let seeds: Vec<usize> = if same_grid { (0..n).filter(|&i| inside(i)).collect() } else { Vec::new() };
+        let source = nearest_seed(w, h, &seeds);
+        let offset = |placed: &GrayImage, inflated: &GrayImage| GrayImage {
+            width: w,
+            height: h,
+            data: source.iter().map(|s| s.map_or(0.0, |k| placed.data[k] - inflated.data[k])).collect(),
+        };
+        Self {
+            frame,
+            mask: inflated.mask.clone(),
+            front: offset(&placed.front, &inflated.front),
+            back: offset(&placed.back, &inflated.back),
+            pose,
+        }
+    }
+
+    /// Whether it may be carried to frame `frame` with person mask `mask`, and whether a new one is due.
+    fn serves(&self, frame: u64, mask: &GrayImage) -> (bool, bool) {
+        let iou = mask_iou(&self.mask, mask);
+        let carried = iou >= PLACEMENT_KEEP_IOU;
+        (carried, !carried || frame - self.frame >= PLACEMENT_EVERY)
+    }
+
+    /// `surfaces` (a frame's inflation prior on the same grid) moved by the offsets; the back never in front of the
+    /// front.
+    fn apply(&self, mut surfaces: InflatedSurfaces) -> InflatedSurfaces {
+        if surfaces.front.data.len() != self.front.data.len() {
+            return surfaces;
+        }
+        for i in 0..surfaces.mask.data.len() {
+            if surfaces.mask.data[i] > 0.5 {
+                let front = surfaces.front.data[i] + self.front.data[i];
+                let back = surfaces.back.data[i] + self.back.data[i];
+                surfaces.front.data[i] = front;
+                surfaces.back.data[i] = back.min(front);
+            }
+        }
+        surfaces
+    }
+}
+
+/// For every pixel of a `w` x `h` grid, the seed pixel (an index into the grid) nearest to it in steps along rows
+/// and columns (a breadth-first search from all seeds at once); `None` everywhere when there are no seeds.
+fn nearest_seed(w: usize, h: usize, seeds: &[usize]) -> Vec<Option<usize>> {
+    let mut source: Vec<Option<usize>> = vec![None; w * h];
+    let mut queue = std::collections::VecDeque::with_capacity(w * h);
+    for &k in seeds {
+        source[k] = Some(k);
+        queue.push_back(k);
+    }
+    while let Some(k) = queue.pop_front() {
+        let (c, r) = (k % w, k / w);
+        let neighbours =
+            [(c > 0).then(|| k - 1), (c + 1 < w).then(|| k + 1), (r > 0).then(|| k - w), (r + 1 < h).then(|| k + w)];
+        for n in neighbours.into_iter().flatten() {
+            if source[n].is_none() {
+                source[n] = source[k];
+                queue.push_back(n);
+            }
+        }
+    }
+    source
 }
 
 /// A back image kept from an earlier frame, with its side image and the mask it was made on.
@@ -155,7 +269,16 @@ impl FramePath {
             frames: 0,
             face: None,
             back: None,
+            placement: None,
+            pending: None,
+            refresh: PlacementRefresh::Background,
         }
+    }
+
+    /// Where this path makes a new body placement once the first frame has one (default
+    /// [`PlacementRefresh::Background`]).
+    pub fn set_refresh(&mut self, refresh: PlacementRefresh) {
+        self.refresh = refresh;
     }
 
     /// The options frames are prepared with.
@@ -203,11 +326,11 @@ impl FramePath {
         let (mut geometry_timings, mut rim_timings) = (StageTimings::default(), StageTimings::default());
         let copy = normalised.clone();
         let (geometry, cleaned) = rayon::join(
-            || frame_surfaces(&normalised, opts, &mut geometry_timings),
+            || inflation_surfaces_coarse(&normalised, opts, FRAME_INFLATION_FACTOR, &mut geometry_timings),
             || rim_timings.time("rim colours", || input::interior_colours_at_the_rim(copy, rim)),
         );
         timings.0.extend(geometry_timings.0.into_iter().chain(rim_timings.0));
-        let (surfaces, pose) = geometry?;
+        let (surfaces, pose) = self.placed(&normalised, geometry?, &mut timings)?;
         let surfaces = timings.time("smooth geometry", || self.smoother.update(surfaces));
         let frame = self.frames;
         // A back image made on a frame like this one serves it; the face is read only for a new one.
@@ -269,6 +392,83 @@ impl FramePath {
         })
     }
 
+    /// A frame's one-shell surfaces from its inflation prior `inflated`: under [`GeometryMode::BodyPlaced`] with its
+    /// body prior loaded, moved by the body placement — made on this frame when there is none to carry (the first
+    /// frame, or the person moved too much: [`PLACEMENT_KEEP_IOU`]), else the last one carried while a new one is
+    /// made every [`PLACEMENT_EVERY`] frames (in the background unless [`FramePath::set_refresh`] says inline). The pose
+    /// comes with it when the body was fitted to this frame.
+    fn placed(
+        &mut self,
+        normalised: &NormalisedInput,
+        inflated: InflatedSurfaces,
+        timings: &mut StageTimings,
+    ) -> Result<(InflatedSurfaces, Option<PoseLandmarks>), PipelineError> {
+        let Some(body) =
+            self.options.body.clone().filter(|_| self.options.geometry.resolved() == GeometryMode::BodyPlaced)
+        else {
+            return Ok((inflated, None));
+        };
+        let frame = self.frames;
+        if self.pending.as_ref().is_some_and(|p| p.is_finished()) {
+            self.take_pending(timings);
+        }
+        let (carried, due) = match &self.placement {
+            Some(p) => p.serves(frame, &normalised.mask),
+            None => (false, true),
+        };
+        let inline = !carried || self.refresh == PlacementRefresh::Inline;
+        if due && inline {
+            if let Some(pending) = self.pending.take() {
+                // Made on an older frame: this frame makes its own.
+                drop(pending);
+            }
+            let (placed, pose) = body_placed_surfaces(normalised, &self.options, &body, timings)?;
+            let placement =
+                timings.time("body placement (offsets)", || Placement::of(frame, &inflated, &placed, pose.clone()));
+            self.placement = Some(placement);
+            return Ok((placed, pose));
+        }
+        if due && self.pending.is_none() {
+            let (normalised, options, inflated) = (normalised.clone(), self.options.clone(), inflated.clone());
+            self.pending = Some(std::thread::spawn(move || {
+                let started = std::time::Instant::now();
+                let mut ignored = StageTimings::default();
+                let (placed, pose) = body_placed_surfaces(&normalised, &options, &body, &mut ignored)?;
+                Ok((Placement::of(frame, &inflated, &placed, pose), started.elapsed()))
+            }));
+        }
+        let placement = self.placement.as_ref().filter(|_| carried);
+        let surfaces = match placement {
+            Some(p) => timings.time("body placement (carried)", || p.apply(inflated)),
+            None => inflated,
+        };
+        // The pose of a placement carried for fewer frames than a face read serves (BACK_FACE_EVERY).
+        let pose = placement.filter(|p| frame - p.frame < BACK_FACE_EVERY).and_then(|p| p.pose.clone());
+        Ok((surfaces, pose))
+    }
+
+    /// Takes the body placement made in the background, said as the stage "body placement (background)"; one made
+    /// on a frame older than the one carried is dropped, a failed one said once.
+    fn take_pending(&mut self, timings: &mut StageTimings) {
+        let Some(pending) = self.pending.take() else { return };
+        match pending.join() {
+            Ok(Ok((placement, took))) => {
+                timings.0.push(("body placement (background)", took));
+                if self.placement.as_ref().is_none_or(|p| p.frame < placement.frame) {
+                    self.placement = Some(placement);
+                }
+            }
+            Ok(Err(e)) => {
+                static SAID: AtomicBool = AtomicBool::new(false);
+                warn_once(&SAID, &format!("frames: a body placement failed ({e}); the last one is carried"));
+            }
+            Err(_) => {
+                static SAID: AtomicBool = AtomicBool::new(false);
+                warn_once(&SAID, "frames: a body placement stopped unexpectedly; the last one is carried");
+            }
+        }
+    }
+
     /// The face the back image is drawn around: the geometry's own pose read when it has one, else the last read
     /// while it is younger than [`BACK_FACE_EVERY`] frames, else a new read by the back image's pose network.
     fn face_for_back(
@@ -298,6 +498,8 @@ impl FramePath {
         self.smoother.reset();
         self.face = None;
         self.back = None;
+        self.placement = None;
+        self.pending = None;
     }
 }
 
@@ -307,19 +509,6 @@ fn one_shell(opts: &PrepareOptions) -> bool {
         GeometryMode::Body | GeometryMode::FofNet => false,
         // `resolved` never gives Auto; the one-shell modes mesh directly.
         GeometryMode::Inflate | GeometryMode::BodyPlaced | GeometryMode::Auto => true,
-    }
-}
-
-/// The one-shell surfaces of a frame (depth-centred) and the pose the body was fitted to, when one was: the
-/// body-placed inflation when `opts` asks for it and its body prior is loaded, else the inflation prior.
-fn frame_surfaces(
-    normalised: &NormalisedInput,
-    opts: &PrepareOptions,
-    timings: &mut StageTimings,
-) -> Result<(InflatedSurfaces, Option<PoseLandmarks>), PipelineError> {
-    match (opts.geometry.resolved(), &opts.body) {
-        (GeometryMode::BodyPlaced, Some(body)) => body_placed_surfaces(normalised, opts, body, timings),
-        _ => Ok((inflation_surfaces_coarse(normalised, opts, FRAME_INFLATION_FACTOR, timings)?, None)),
     }
 }
 
@@ -357,6 +546,60 @@ mod tests {
         // Another size: as it is too.
         let wide = surfaces(&[1.0; 6], &[0.1; 6], &[-0.1; 6]);
         assert_eq!(s.update(wide.clone()), wide);
+    }
+
+    #[test]
+    fn nearest_seed_fills_from_the_closest_seed() {
+        // 5 x 1 with seeds at 0 and 4: 1 takes 0, 3 takes 4, 2 is as far from both and takes the first reached.
+        let s = nearest_seed(5, 1, &[0, 4]);
+        assert_eq!(&s[..2], &[Some(0), Some(0)]);
+        assert_eq!(&s[3..], &[Some(4), Some(4)]);
+        assert!(s[2] == Some(0) || s[2] == Some(4));
+        // 3 x 3 with one seed in the middle: every pixel takes it.
+        assert!(nearest_seed(3, 3, &[4]).iter().all(|&k| k == Some(4)));
+        // No seeds: none anywhere; an empty grid: nothing.
+        assert!(nearest_seed(4, 2, &[]).iter().all(Option::is_none));
+        assert!(nearest_seed(0, 0, &[]).is_empty());
+    }
+
+    #[test]
+    fn a_placement_carries_its_offsets_to_a_frame_that_grew() {
+        // Made on pixels 0..3 (pixel 3 outside): the placed surfaces are the inflated ones moved by +0.1 / -0.2 at
+        // the front, +0.1 / 0.0 at the back.
+        let inflated = surfaces(&[1.0, 1.0, 1.0, 0.0], &[0.3, 0.4, 0.3, -1.0], &[-0.3, -0.4, -0.3, -1.0]);
+        let placed = surfaces(&[1.0, 1.0, 1.0, 0.0], &[0.4, 0.2, 0.4, -1.0], &[-0.2, -0.4, -0.2, -1.0]);
+        let p = Placement::of(7, &inflated, &placed, None);
+        // Pixel 3 takes pixel 2's offsets.
+        let want_front = [0.1, -0.2, 0.1, 0.1];
+        let want_back = [0.1, 0.0, 0.1, 0.1];
+        for i in 0..4 {
+            assert!((p.front.data[i] - want_front[i]).abs() < 1e-6, "front {i}");
+            assert!((p.back.data[i] - want_back[i]).abs() < 1e-6, "back {i}");
+        }
+        // The next frame: the person grew into pixel 3 and left pixel 0.
+        let next = surfaces(&[0.0, 1.0, 1.0, 1.0], &[-1.0, 0.5, 0.5, 0.05], &[-1.0, -0.5, -0.5, 0.0]);
+        let out = p.apply(next);
+        let want_front = [-1.0, 0.3, 0.6, 0.15];
+        // Pixel 3: front 0.05 + 0.1, back 0.0 + 0.1 (still behind it).
+        let want_back = [-1.0, -0.5, -0.4, 0.1];
+        for i in 0..4 {
+            assert!((out.front.data[i] - want_front[i]).abs() < 1e-6, "front {i}: {}", out.front.data[i]);
+            assert!((out.back.data[i] - want_back[i]).abs() < 1e-6, "back {i}: {}", out.back.data[i]);
+        }
+        // A back pushed in front of the front is held at the front.
+        let thin = surfaces(&[1.0, 1.0, 1.0, 1.0], &[0.0; 4], &[-0.05; 4]);
+        let pushed = Placement { back: GrayImage { width: 4, height: 1, data: vec![0.3; 4] }, ..p.clone() };
+        let out = pushed.apply(thin);
+        assert!(out.back.data.iter().zip(&out.front.data).all(|(b, f)| b <= f));
+        // Whether it is carried, and whether a new one is due.
+        let mask = |m: &[f32]| GrayImage { width: m.len(), height: 1, data: m.to_vec() };
+        assert_eq!(p.serves(8, &mask(&[1.0, 1.0, 1.0, 0.0])), (true, false));
+        assert_eq!(p.serves(7 + PLACEMENT_EVERY, &mask(&[1.0, 1.0, 1.0, 0.0])), (true, true));
+        // IoU 2/4 = 0.5 < PLACEMENT_KEEP_IOU: not carried, due at once.
+        assert_eq!(p.serves(8, &mask(&[0.0, 1.0, 1.0, 1.0])), (false, true));
+        // Another grid: offsets of nothing, and a frame of another size passes unchanged.
+        let other = surfaces(&[1.0; 6], &[0.1; 6], &[-0.1; 6]);
+        assert_eq!(p.apply(other.clone()), other);
     }
 
     #[test]

@@ -56,12 +56,14 @@ pub enum GeometryMode {
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::BodyPlaced;
 
 /// What [`GeometryMode::Auto`] draws on the frames of a video or camera (`render --video`, and the live frames of
-/// `view` and `xr`): the silhouette-inflation prior. A body geometry follows the pose network's jitter between
-/// frames of a person who barely moves. Rendered at yaw 90 (`examples/video_stability`), consecutive-frame mask
-/// IoU: one photo copied 20 times, 0.998 with the inflation prior and 0.992 with body-placed; the same photo
-/// shifted by up to 1 px, 0.994 against 0.975 (the network's landmarks move 2-17 px for a 1-px shift). It also
-/// costs about 70 ms more per frame (docs/live.md).
-pub const FRAMES_AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
+/// `view` and `xr`): what it draws on a still ([`AUTO_CHOICE`]) when that has one shell per column, which the frame
+/// path meshes straight from its depth maps; the inflation prior otherwise. Frames get the body placement at its own
+/// rate: the fit and the face relief are made every few frames and carried between, as offsets from each frame's
+/// inflation prior ([`super::frame::PLACEMENT_EVERY`]; docs/live.md "Frame path").
+pub const FRAMES_AUTO_CHOICE: GeometryMode = match AUTO_CHOICE {
+    GeometryMode::Body | GeometryMode::FofNet | GeometryMode::Auto => GeometryMode::Inflate,
+    one_shell => one_shell,
+};
 
 impl GeometryMode {
     /// The mode frames of a video or camera are prepared with: [`FRAMES_AUTO_CHOICE`] for auto, the mode itself
