@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # A second independent set for `r2human eval --scan` (issue 33), from a source and a format the project had not
-# used: the characters of UFO: Alien Invasion (Debian's `ufoai-data`; its copyright file gives these models GPL-2 / GPL-2+), MD2 bodies with
-# their heads joined by the body's `tag_head`, posed at the `stand_menu` frame the game's menus show, written Y up
-# and facing +z by `examples/md2_to_obj.rs` (textures as shipped, JPEG or PNG).
+# used: the characters of UFO: Alien Invasion (Debian's `ufoai-data`; its copyright file gives these models GPL-2
+# or GPL-2+), MD2 bodies with their heads joined by the body's `tag_head`, posed at the `stand_menu` frame the
+# game's menus show, written Y up and facing +z by `examples/md2_to_obj.rs` (textures as shipped, JPEG or PNG).
 #
 # Which characters (fixed before any number was looked at):
 #   every body of models/civilians/{female,male} and models/soldiers/* that has an .anm and a .tag, with its own
