@@ -27,7 +27,12 @@
 #    spider below the waist) and sorceress (no default skin). Evaluated in an eval of their own, OUT/fresh/report.md,
 #    so the ten's dev / held-out split stays as it was fixed.
 #
-#   bash scripts/scan-check.sh [OUT]          (default out/scan-check; about 4 minutes in a release build, 512 px)
+# 4. The characters of UFO: Alien Invasion (19 civilians and soldiers, MD2 bodies and heads joined by their tags),
+#    with a dev / held-out split of their own fixed before any number was looked at: `scripts/scan-ufoai.sh`, run
+#    last into OUT/ufoai (OUT/ufoai/characters/report.md). It is the set `--geometry auto` is decided on
+#    (docs/geometry.md, "Which geometry wins where").
+#
+#   bash scripts/scan-check.sh [OUT]          (default out/scan-check; about 15 minutes in a release build, 512 px)
 # Extra arguments for every eval go in R2HUMAN_SCAN_ARGS (e.g. "--save-views", or "--size 256"). Note that
 # "--no-neural" also leaves out the FOF net and the body prior (both run networks): only billboard, 2.5d,
 # inflation and ground-truth rows remain.
@@ -130,3 +135,6 @@ for player in angelyss ayumi; do
   "$REPO/target/release/examples/md3_to_obj" "$OA_MATURE_PK3" "$player" "$FRESH/$player"
 done
 evaluate_set fresh "### all" "$FRESH/angelyss/angelyss.obj" "$FRESH/ayumi/ayumi.obj" "$FRESH/neko/neko.obj"
+
+# The UFO: Alien Invasion characters (their own split, their own eval).
+bash "$REPO/scripts/scan-ufoai.sh" "$OUT/ufoai"

@@ -694,23 +694,23 @@ fn placement_net_upsamples_its_shift_inside_the_mask_and_rejects_broken_files() 
     assert!(matches!(net.shifts(&small, &prior, &prior), Err(NeuralError::BadInput { .. })));
 }
 
-/// `load_placement_net` takes the model folder's `placement.onnx` for `body-placed` (and auto, which draws it), none
-/// for the other geometries or when the folder has none (the fixed rule); a file of another order is an error under
-/// `body-placed` and the fixed rule under auto. In the pipeline the net's shifts place the inflation prior (a
-/// different geometry from the fixed rule's), and a net that fails on the input falls back to the fixed rule.
-/// Needs the pose model.
+/// `load_placement_net` takes the model folder's `placement.onnx` for `body-placed` (and auto when it draws it),
+/// none for the other geometries or when the folder has none (no placement: every column at the prior's depth); a
+/// file of another order is an error under `body-placed`. In the pipeline the net's shifts place the inflation
+/// prior (a different geometry from the one without a net), and a net that fails on the input leaves the columns
+/// at the prior's depth. Needs the pose model.
 #[test]
-fn body_placed_uses_the_folders_placement_net_and_falls_back_to_the_fixed_rule() {
+fn body_placed_uses_the_folders_placement_net_and_falls_back_to_no_placement() {
     let dir = tempfile::tempdir().unwrap();
     let load = |mode, n| r2human::pipeline::load_placement_net(mode, Some(dir.path()), n, &cpu());
-    assert!(load(GeometryMode::BodyPlaced, 32).unwrap().is_none(), "no file: the fixed rule");
+    assert!(load(GeometryMode::BodyPlaced, 32).unwrap().is_none(), "no file: no placement");
     std::fs::copy(fixture("placement_split.onnx"), dir.path().join("placement.onnx")).unwrap();
     let e = load(GeometryMode::BodyPlaced, 32).expect_err("N = 4 file for N = 32");
     assert!(matches!(e, PipelineError::PlacementOrder(_)) && e.to_string().contains("--fof-order"), "{e}");
     std::fs::write(dir.path().join("placement.onnx"), b"not an onnx file").unwrap();
     let e = load(GeometryMode::BodyPlaced, 32).expect_err("a corrupt file");
     assert!(matches!(e, PipelineError::PlacementLoad(NeuralError::ModelLoad { .. })), "{e:?}");
-    assert!(load(GeometryMode::Auto, 32).unwrap().is_none(), "auto: the fixed rule");
+    assert!(load(GeometryMode::Auto, 32).unwrap().is_none(), "auto: no placement");
     assert!(load(GeometryMode::Auto, 32).unwrap().is_none());
     std::fs::copy(fixture("placement_split32.onnx"), dir.path().join("placement.onnx")).unwrap();
     assert!(load(GeometryMode::Inflate, 32).unwrap().is_none());
@@ -738,5 +738,5 @@ fn body_placed_uses_the_folders_placement_net_and_falls_back_to_the_fixed_rule()
     assert!(timings.0.iter().any(|(name, _)| *name == "body placement (network)"), "{:?}", timings.0);
     assert_ne!(learned, fixed);
     let broken = Arc::new(Mutex::new(PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu()).unwrap()));
-    assert_eq!(geometry(Some(broken)).0, fixed, "a failing net: the fixed rule");
+    assert_eq!(geometry(Some(broken)).0, fixed, "a failing net: no placement");
 }

@@ -1,27 +1,39 @@
-//! The silhouette-inflation prior placed in depth by the fitted body (`--geometry body-placed`): every column keeps
-//! the inflation prior's thickness and moves toward the depth the body prior gives that column.
+//! The silhouette-inflation prior placed in depth by the fitted body (`--geometry body-placed`): what the
+//! pipeline draws is the inflation prior with the face relief ([`super::face`]) and, when the model folder has a
+//! placement network (`placement.onnx`), every column moved by that network's shift ([`place`]). Without one, no
+//! column moves: the fixed rule this module measured does not hold on people the fit was not made on.
 //!
-//! Why: reduce every column of a person to one interval (its occupied length about its occupied centroid) and the
-//! ground truth loses little (volumetric IoU 0.91 on clothed synthetic people, 0.96 on the independent
-//! characters), so a geometry is mostly a thickness and a depth per column. Swapping the two between the ground
-//! truth and the inflation prior (`cargo run --release --example geometry_oracle`) shows which is missing: the
-//! inflation prior's thickness at the true depths scores 0.70 (synthetic) / 0.71 (dev characters), the true
-//! thickness at the inflation prior's depth (its centre plane) 0.63 / 0.56, the inflation prior itself 0.56 / 0.51.
-//! Depth placement (strides, arms held forward, a leaning torso, the head ahead of the back) is most of the gap, and
-//! depth is what the fitted body knows and the silhouette cannot. The body's depths are noisy (the pose network's
-//! relative depths, a fit between local minima), so a column moves only [`PLACEMENT_WEIGHT`] of the way: at the
-//! full body depth the dev characters lose (0.505 against 0.521 halfway, inflation 0.508), at a quarter they gain
-//! less (0.518).
+//! Why columns are no longer moved toward the fitted body's depth. Reduce every column of a person to one interval
+//! (its occupied length about its occupied centroid) and the ground truth loses little, so a geometry is mostly a
+//! thickness and a depth per column, and the inflation prior's thickness at the true depths would gain a lot
+//! (`cargo run --release --example geometry_oracle`). The fitted body's depths carry that on the synthetic
+//! (MakeHuman) people the fit is made of: the least-squares scale of the body's per-column depths that best fits the
+//! truth is 0.32–1.00 on `geometry_oracle 9 0 256`. On the dev half of the UFO: Alien Invasion characters
+//! (`scripts/scan-ufoai.sh`) it is −0.60 to −0.22 on all six civilians and 0.01–0.22 on the four soldiers: the
+//! body's depths point the wrong way as often as not, although the pose network sees every one of them facing the
+//! camera (facing 0.88–0.98), its key landmarks' mean visibility is 0.79–0.99 and the posed body covers as much of
+//! the silhouette as on the synthetic people (IoU 0.63–0.81 against 0.43–0.82). None of these signals tells a fit
+//! whose depths can be trusted from one whose cannot. A confidence map per column (the weight of the nearest
+//! landmark segment's body part times its visibility, zero where the posed body does not cover the column,
+//! averaged over 1/64 of the grid) lost on that dev half with every part weight tried (whole-frame PSNR at close /
+//! divergent views against the inflation prior, mean over the ten): head, torso and arms 0.5, legs 0: −0.17 /
+//! −0.26 dB; head and torso 0.5: −0.19 / −0.26; head 0.5: −0.15 / −0.13; torso 0.5: +0.03 / −0.14; arms 0.5: +0.07
+//! / +0.01 (worst character −0.15 dB); arms 1: +0.02 / −0.01; nothing moved, the face relief alone: +0.07 / +0.01
+//! (worst −0.08). The earlier rule, every column moved halfway ([`PLACEMENT_WEIGHT`]): −0.57 / −0.36 dB. So where
+//! the fit is unsure, which on people it was not made on is everywhere, each column stays at the prior's depth.
 //!
-//! Depths are measured about the body's own volume centroid, so the placement moves columns against each other and
-//! not the person as a whole (the pipeline centres the result by the depth convention afterwards).
+//! [`depth_shifts`] and [`PLACEMENT_WEIGHT`] remain for the diagnostics that compare against that rule
+//! (`examples/fit_ambiguity.rs`). Depths are measured about the body's own volume centroid, so a placement moves
+//! columns against each other and not the person as a whole (the pipeline centres the result by the depth
+//! convention afterwards, [`centred`]).
 
 use crate::buffer::{GrayImage, Image};
 use crate::geometry::depth_centre::{centring_shift, intervals_centroid_z, MIN_SHIFT};
 use crate::geometry::inflate::InflatedSurfaces;
 
-/// The fraction of the way from the inflation prior's centre plane to the body's depth that each column moves
-/// (chosen on the synthetic people of seeds 0 and 1 and the five dev characters, module docs).
+/// The fraction of the way from the inflation prior's centre plane to the body's depth that the earlier fixed rule
+/// moved each column (chosen on the synthetic people and the five dev characters of `scripts/scan-check.sh`; the
+/// pipeline no longer applies it, module docs).
 pub const PLACEMENT_WEIGHT: f32 = 0.5;
 
 /// The depth (body-cube z) each column moves by: `weight` times its centroid in `body` (the reconciled body

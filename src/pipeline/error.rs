@@ -53,13 +53,14 @@ pub enum PipelineError {
     /// is missing, or the file is corrupt or not a placement network. The cause is the source.
     #[error(
         "placement network: it does not load. Remove or re-export it (`python -m train export --placement`, see \
-         train/README.md), pass --models DIR without it (the fixed placement rule), or use --geometry inflate"
+         train/README.md), pass --models DIR without it (no placement: the face relief alone), or use --geometry \
+         inflate"
     )]
     PlacementLoad(#[source] NeuralError),
     /// The model folder's `placement.onnx` reads another number of FOF coefficients than `--fof-order`.
     #[error(
-        "placement network: {0}. Re-export it for this order, pass --models DIR without it (the fixed placement \
-         rule), or use --geometry inflate"
+        "placement network: {0}. Re-export it for this order, pass --models DIR without it (no placement: the face \
+         relief alone), or use --geometry inflate"
     )]
     PlacementOrder(String),
     /// The body prior's pose model or body data cannot be loaded (`--geometry body`). Worded as

@@ -36,24 +36,24 @@ pub enum GeometryMode {
     /// silhouette (no FOF network; [`crate::body::prior`]). An input where no pose is found falls back to the
     /// inflation prior with a warning.
     Body,
-    /// The silhouette-inflation prior with every column moved halfway toward the fitted body's depth there
-    /// ([`crate::body::placed`]), or by the shift of the model folder's `placement.onnx` when it has one
-    /// ([`super::load_placement_net`]): the silhouette's thickness, the body's placement in depth. An input where no pose
-    /// is found gets the inflation prior with a warning.
+    /// The silhouette-inflation prior with the face relief from the face mesh the pose landmarks locate
+    /// ([`crate::body::face`]), every column moved by the shift of the model folder's `placement.onnx` when it has
+    /// one ([`super::load_placement_net`]), else left at the prior's depth ([`crate::body::placed`]: the fitted body's
+    /// depths do not hold on people the fit was not made on). An input where no pose is found gets the inflation
+    /// prior with a warning.
     #[value(name = "body-placed")]
     BodyPlaced,
 }
 
-/// What [`GeometryMode::Auto`] draws: the body-placed inflation prior (docs/geometry.md, "Which geometry wins where").
-/// Release evaluation, volumetric IoU / divergent mask IoU against the silhouette-inflation prior: 8 clothed synthetic
-/// subjects at 512² 0.594 / .766 .763 .788 (full, three-quarter, upper) against 0.560 / .721 .725 .757, better in
-/// every framing (the FOF net has more synthetic volume, 0.608, and loses the characters); the ten independent
-/// characters of `scripts/scan-check.sh` 0.508 / 0.717 against 0.503 / 0.708 (best of the four predicted geometries
-/// in every column; the dev half 0.528 / 0.760 against 0.509 / 0.740) but the held-out half 0.488 / 0.675 against
-/// 0.497 / 0.676 (loses beret and tony by 0.03); three characters new to the project (angelyss, ayumi, neko, read
-/// once after the decision) 0.455 / 0.591 against 0.446 / 0.575; every photo check passes. It costs the pose network
-/// and the fit on every input. Without the body prior's data it draws the inflation prior, with one warning.
-pub const AUTO_CHOICE: GeometryMode = GeometryMode::BodyPlaced;
+/// What [`GeometryMode::Auto`] draws: the silhouette-inflation prior (docs/geometry.md, "Which geometry wins where"),
+/// decided on the held-out half of the UFO: Alien Invasion characters (`scripts/scan-ufoai.sh`, nine people the
+/// project had not used, split by name before any number was read). There, against the inflation prior, whole-frame
+/// PSNR at close / divergent views: body-placed (the face relief, no column moved) +0.02 / +0.00 dB on the mean
+/// but civ_female_body02 −0.10 / −0.16 dB (its face relief off), more than the 0.1 dB of noise it may lose by; the
+/// FOF net −0.33 / −0.13 dB; the body prior −2.19 / −1.49 dB. Volumetric IoU: the inflation prior 0.567, the FOF
+/// net 0.543, the body prior 0.395. The rule that moved every column halfway toward the fitted body's depth (what
+/// auto drew before) lost the dev half by 0.57 / 0.36 dB (docs/geometry.md). Needs no network.
+pub const AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
 
 /// What [`GeometryMode::Auto`] draws on the frames of a video or camera (`render --video`, and the live frames of
 /// `view` and `xr`): what it draws on a still ([`AUTO_CHOICE`]) when that has one shell per column, which the frame
@@ -248,25 +248,24 @@ pub fn body_placed_surfaces(
                 // the frame the body was fitted in.
                 surfaces = timings.time("geometry (inflate, body's frame)", || inflated(prior.frame()))?;
             }
-            // The face mesh needs only the pose landmarks: it runs beside the body's intervals.
+            // The face mesh needs only the pose landmarks: it runs beside the body's intervals (which only a
+            // placement network uses: without one every column stays at the prior's depth, module docs of
+            // `body::placed`).
             let (mut interval_times, mut face_times) = (StageTimings::default(), StageTimings::default());
-            let (intervals, face) = rayon::join(
-                || interval_times.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette)),
+            let (shifts, face) = rayon::join(
+                || {
+                    let net = opts.placement.as_ref()?;
+                    let intervals =
+                        interval_times.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
+                    interval_times
+                        .time("body placement (network)", || placement_net_shifts(net, &surfaces, &intervals, opts))
+                },
                 || face_times.time("face mesh", || face_mesh(normalised, body, landmarks)),
             );
             timings.0.extend(interval_times.0.into_iter().chain(face_times.0));
-            let learned = opts.placement.as_ref().and_then(|net| {
-                timings.time("body placement (network)", || placement_net_shifts(net, &surfaces, &intervals, opts))
-            });
-            let shifts = learned.or_else(|| {
-                crate::body::placed::depth_shifts(&intervals, &surfaces.mask, crate::body::placed::PLACEMENT_WEIGHT)
-            });
             let surfaces = match shifts {
                 Some(shifts) => crate::body::placed::place(surfaces, &shifts),
-                None => {
-                    warn_no_body_fof(&NoBodyFof::NoVolume);
-                    surfaces
-                }
+                None => surfaces,
             };
             match face {
                 Some(face) => timings.time("face relief", || with_face_relief(surfaces, &face)),
@@ -317,7 +316,7 @@ fn with_face_relief(
 
 /// The placement network's shifts for the inflation prior `surfaces` and the fitted body's reconciled `intervals`
 /// (both encoded as FOFs, as the network's training data holds them); `None`, with one warning per process, when
-/// the network fails on this input (the caller then places by the fixed rule).
+/// the network fails on this input (the columns then stay at the prior's depth).
 fn placement_net_shifts(
     net: &SharedPlacementNet,
     surfaces: &inflate::InflatedSurfaces,
@@ -339,7 +338,8 @@ fn placement_net_shifts(
         Ok(s) => Some(s),
         Err(e) => {
             static WARNED: std::sync::Once = std::sync::Once::new();
-            WARNED.call_once(|| tracing::warn!("placement network failed ({e}); placing the body by the fixed rule"));
+            WARNED
+                .call_once(|| tracing::warn!("placement network failed ({e}); the columns stay at the prior's depth"));
             None
         }
     }

@@ -126,9 +126,9 @@ pub fn load_fof_net(
 
 /// Resolves `--geometry` and `--models` into the placement network of [`GeometryMode::BodyPlaced`] (also under
 /// [`GeometryMode::Auto`] when [`AUTO_CHOICE`] is it): the model folder's `placement.onnx` when it has one,
-/// `Ok(None)` (the fixed placement rule) when it has none or for the other modes. A file that does not load (or
-/// predicts for another `N` than `fof_order`) is an error under `body-placed` and one warning and the fixed rule
-/// under auto.
+/// `Ok(None)` (every column stays at the prior's depth) when it has none or for the other modes. A file that does
+/// not load (or predicts for another `N` than `fof_order`) is an error under `body-placed` and one warning (no
+/// placement) under auto.
 pub fn load_placement_net(
     mode: GeometryMode,
     models: Option<&Path>,
@@ -140,7 +140,10 @@ pub fn load_placement_net(
     }
     let Some(path) = model_folder(models).map(|dir| dir.join(crate::neural::PLACEMENT_FILE)).filter(|p| p.is_file())
     else {
-        tracing::info!("geometry: body placement by the fixed rule (no {})", crate::neural::PLACEMENT_FILE);
+        tracing::info!(
+            "geometry: no body placement (no {}): the columns stay at the prior's depth",
+            crate::neural::PLACEMENT_FILE
+        );
         return Ok(None);
     };
     let loaded = match PlacementNet::load(&path, options) {
@@ -164,7 +167,7 @@ pub fn load_placement_net(
         }
         Err(e) if mode == GeometryMode::Auto => {
             let cause = std::error::Error::source(&e).map(|c| format!(" ({c})")).unwrap_or_default();
-            tracing::warn!("geometry: {e}{cause}; placing the body by the fixed rule");
+            tracing::warn!("geometry: {e}{cause}; the columns stay at the prior's depth");
             Ok(None)
         }
         Err(e) => Err(e),
