@@ -57,9 +57,10 @@ pub const AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
 
 /// What [`GeometryMode::Auto`] draws on the frames of a video or camera (`render --video`, and the live frames of
 /// `view` and `xr`): what it draws on a still ([`AUTO_CHOICE`]) when that has one shell per column, which the frame
-/// path meshes straight from its depth maps; the inflation prior otherwise. Frames get the body placement at its own
-/// rate: the fit and the face relief are made every few frames and carried between, as offsets from each frame's
-/// inflation prior ([`super::frame::PLACEMENT_EVERY`]; docs/live.md "Frame path").
+/// path meshes straight from its depth maps; the inflation prior otherwise. Under [`GeometryMode::BodyPlaced`]
+/// frames get the body placement at its own rate: the fit and the face relief are made every few frames and carried
+/// between, as offsets from each frame's inflation prior ([`super::frame::PLACEMENT_EVERY`]; docs/live.md "Frame
+/// path").
 pub const FRAMES_AUTO_CHOICE: GeometryMode = match AUTO_CHOICE {
     GeometryMode::Body | GeometryMode::FofNet | GeometryMode::Auto => GeometryMode::Inflate,
     one_shell => one_shell,
