@@ -45,6 +45,10 @@ pub struct DatasetArgs {
 /// The turning clips' flags of `dataset --turn` and `eval --turn`.
 #[derive(Args, Debug)]
 pub struct TurnArgs {
+    /// With --turn: what happens halfway through the turn: none, cut (another synthetic subject takes the
+    /// person's place) or take-off (the person's top is off).
+    #[arg(long, value_enum, default_value_t = crate::eval::turn::EventChoice::None)]
+    pub event: crate::eval::turn::EventChoice,
     /// With --turn: frames over which the person turns once.
     #[arg(long, default_value_t = 48)]
     pub turn_frames: usize,
@@ -113,6 +117,7 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
             out: args.out.clone(),
             size: args.size,
             turn: args.turn_clip.options(),
+            event: args.turn_clip.event,
             ..Default::default()
         };
         let crate::eval::turn::TurnClipsWritten { written, failed } = crate::eval::turn::write_turn_clips(&opts)?;
@@ -303,6 +308,7 @@ fn run_turn_eval(args: &EvalArgs) -> Result<()> {
         out: args.out.clone(),
         size: args.size,
         turn: args.turn_clip.options(),
+        event: args.turn_clip.event,
         ..Default::default()
     };
     let options = crate::neural::RuntimeOptions { ep: args.ep, ..Default::default() };

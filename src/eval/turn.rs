@@ -59,6 +59,31 @@ pub struct TurnEvalOptions {
     pub yaws: Vec<f32>,
     /// Texture side of the synthetic subjects.
     pub texture_size: usize,
+    /// What happens halfway through the turn (`--event`): nothing, a cut to another subject, or the top taken off.
+    pub event: EventChoice,
+}
+
+/// The event of the clips ([`crate::synth::turn::TurnEvent`]), at frame `turn_frames / 2`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum EventChoice {
+    /// The person turns once.
+    #[default]
+    None,
+    /// Halfway through the turn another synthetic subject (one outside the evaluated set) takes their place.
+    Cut,
+    /// Halfway through the turn the person's top (top or dress, and sleeves) is off.
+    TakeOff,
+}
+
+impl EventChoice {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            EventChoice::None => "none",
+            EventChoice::Cut => "cut",
+            EventChoice::TakeOff => "take-off",
+        }
+    }
 }
 
 impl Default for TurnEvalOptions {
@@ -73,6 +98,7 @@ impl Default for TurnEvalOptions {
             turn: TurnOptions::default(),
             yaws: vec![20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
             texture_size: 1024,
+            event: EventChoice::None,
         }
     }
 }
@@ -310,22 +336,34 @@ fn clips_of(opts: &TurnEvalOptions, assets: Option<&SynthAssets>) -> Vec<(String
     let mut clips: Vec<(String, ClipToPlay)> = Vec::new();
     for i in 0..opts.subjects {
         let seed = super::dataset::subject_seed(opts.seed, i);
+        let at = opts.turn.turn_frames / 2;
         let clip = assets.map_or_else(
             || Err(EvalError::InvalidOptions("no synthetic-subject data".into())),
             |a| {
-                TurningClip::synthetic(a, &SubjectParams::sample(seed), opts.texture_size, opts.turn)
-                    .map(|c| (c, true))
-                    .map_err(EvalError::from)
+                let make = |seed| TurningClip::synthetic(a, &SubjectParams::sample(seed), opts.texture_size, opts.turn);
+                let clip = make(seed).and_then(|c| match opts.event {
+                    EventChoice::None => Ok(c),
+                    // The other person is a subject outside the evaluated set.
+                    EventChoice::Cut => c.cut_to(make(super::dataset::subject_seed(opts.seed, opts.subjects + i))?, at),
+                    EventChoice::TakeOff => c.take_off_top(at),
+                });
+                clip.map(|c| (c, true)).map_err(EvalError::from)
             },
         );
         clips.push((format!("subject_{i:04}"), clip));
     }
     for scan in &opts.scans {
         let stem = scan.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scan".into());
-        let clip = synth::scan::load_scan_with(scan, &opts.scan_orientation)
-            .and_then(|s| TurningClip::scan(s.mesh, opts.turn))
-            .map(|c| (c, false))
-            .map_err(EvalError::from);
+        let clip = match opts.event {
+            EventChoice::None => synth::scan::load_scan_with(scan, &opts.scan_orientation)
+                .and_then(|s| TurningClip::scan(s.mesh, opts.turn))
+                .map(|c| (c, false))
+                .map_err(EvalError::from),
+            event => Err(EvalError::InvalidOptions(format!(
+                "--event {} needs synthetic subjects (a scan has no rig and no second person)",
+                event.name()
+            ))),
+        };
         clips.push((stem, clip));
     }
     clips
@@ -363,7 +401,8 @@ pub fn write_turn_clips(opts: &TurnEvalOptions) -> Result<TurnClipsWritten, Eval
             let meta = serde_json::json!({
                 "format": "r2human-turn-clip", "version": 1, "size": opts.size, "seed": seed,
                 "turn_frames": opts.turn.turn_frames, "hold_frames": opts.turn.hold_frames,
-                "arm_swing_deg": opts.turn.arm_swing, "frames": frames,
+                "arm_swing_deg": opts.turn.arm_swing, "event": opts.event.name(),
+                "event_frame": clip.event.as_ref().map(|e| e.at()), "frames": frames,
             });
             let path = dir.join("clip.json");
             let text =
@@ -462,6 +501,9 @@ fn summary_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
             }
         }
     }
+    if opts.event != EventChoice::None {
+        md.push_str(&event_markdown(opts, rep));
+    }
     md.push_str(
         "\n![Divergent whole-frame PSNR over the turn](turn_divergent_psnr.png)\n\nContact sheets (`sheets/`): six \
          moments of each clip; rows: the camera's frame, then at yaw 180 the ground truth, the frame path and the \
@@ -471,6 +513,46 @@ fn summary_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
         md.push_str("\n## Failed\n\n");
         for (n, e) in &rep.failed {
             md.push_str(&format!("- {n}: {e}\n"));
+        }
+    }
+    md
+}
+
+/// Frames a second holds in the clips' time line (the clips are made to be played at 16 frames a second).
+pub const CLIP_FPS: usize = 16;
+
+/// The table around the event (`--event`): over every clip, per method and group, the frame before it, the frame
+/// of it and one second after it ([`CLIP_FPS`] frames).
+fn event_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
+    let at = opts.turn.turn_frames / 2;
+    let frames = [at.saturating_sub(1), at, at + CLIP_FPS];
+    let mut md = format!(
+        "\nAround the event (`--event {}` at frame {at}), over every clip: the frame before it, the frame of it and \
+         one second later ({CLIP_FPS} frames at {CLIP_FPS} frames a second; `-` past the clip's end), each scored \
+         against that moment's ground truth.\n\n| method | group | PSNR frame: frame {} | {} | {} | mask IoU: frame {} | {} | {} |\n\
+         |---|---|---|---|---|---|---|---|\n",
+        opts.event.name(),
+        frames[0],
+        frames[1],
+        frames[2],
+        frames[0],
+        frames[1],
+        frames[2],
+    );
+    for method in TURN_METHODS {
+        for group in GROUPS {
+            md.push_str(&format!("| {method} | {group} |"));
+            for value in [(|r: &TurnRow| r.scores.psnr_frame) as fn(&TurnRow) -> f32, |r| r.scores.mask_iou] {
+                for f in frames {
+                    let v = rep.mean_of(method, group, |r| r.frame == f, value);
+                    md.push_str(&match v {
+                        v if v.is_nan() => " - |".to_string(),
+                        v if v > 1.0 => format!(" {v:.2} |"),
+                        v => format!(" {v:.3} |"),
+                    });
+                }
+            }
+            md.push('\n');
         }
     }
     md

@@ -94,6 +94,40 @@ impl TurnOptions {
     }
 }
 
+/// Something that happens during a clip, from frame `at` on (the ground truth of forgetting: what the camera saw
+/// before no longer holds).
+#[derive(Clone, Debug)]
+pub enum TurnEvent {
+    /// Another person stands in the first one's place and goes on turning at the same angle (a cut).
+    Cut {
+        /// The first frame of the other person.
+        at: usize,
+        /// The other person's clip (same options).
+        other: Box<TurningClip>,
+    },
+    /// The person's top (top, dress, sleeves) is off: the body (and what else they wear) shows where it was.
+    TakeOff {
+        /// The first frame without it.
+        at: usize,
+        /// The mesh's triangles without the top's.
+        triangles: Vec<[u32; 3]>,
+    },
+}
+
+impl TurnEvent {
+    /// The first frame the event holds for.
+    pub fn at(&self) -> usize {
+        match self {
+            TurnEvent::Cut { at, .. } | TurnEvent::TakeOff { at, .. } => *at,
+        }
+    }
+}
+
+/// The labels of the garment pieces [`TurnEvent::TakeOff`] takes off.
+pub fn is_top(label: &str) -> bool {
+    ["top", "dress", "sleeve."].iter().any(|t| label == *t || (t.ends_with('.') && label.starts_with(t)))
+}
+
 /// Where a clip's meshes come from.
 #[derive(Clone, Debug)]
 enum Source {
@@ -116,6 +150,8 @@ pub struct TurningClip {
     source: Source,
     /// The clip's timing and arm swing.
     pub options: TurnOptions,
+    /// What happens during the clip, if anything.
+    pub event: Option<TurnEvent>,
 }
 
 impl TurningClip {
@@ -151,13 +187,13 @@ impl TurningClip {
                 scale *= 0.98 / reach;
             }
         }
-        Ok(Self { source: Source::Synthetic { dressed: Box::new(dressed), scale, centre }, options })
+        Ok(Self { source: Source::Synthetic { dressed: Box::new(dressed), scale, centre }, options, event: None })
     }
 
     /// A normalised scan ([`super::scan::load_scan_with`]) turning rigidly about the cube's vertical axis.
     pub fn scan(mesh: TexturedMesh, options: TurnOptions) -> Result<Self, SynthError> {
         options.validate()?;
-        Ok(Self { source: Source::Scan(mesh), options })
+        Ok(Self { source: Source::Scan(mesh), options, event: None })
     }
 
     /// Frames in the clip.
@@ -165,8 +201,46 @@ impl TurningClip {
         self.options.frames()
     }
 
+    /// This clip cut at frame `at` to `other` (which must have the same options).
+    pub fn cut_to(self, other: TurningClip, at: usize) -> Result<Self, SynthError> {
+        if other.options != self.options || at == 0 || at >= self.frames() {
+            return Err(SynthError::InvalidTurn(format!(
+                "a cut at frame {at} of {} to a clip of other options",
+                self.frames()
+            )));
+        }
+        Ok(Self { event: Some(TurnEvent::Cut { at, other: Box::new(other) }), ..self })
+    }
+
+    /// This synthetic clip with the top ([`is_top`]) taken off from frame `at` on; an error for a scan or a
+    /// person without one.
+    pub fn take_off_top(self, at: usize) -> Result<Self, SynthError> {
+        let Source::Synthetic { dressed, .. } = &self.source else {
+            return Err(SynthError::InvalidTurn("a scan has no garment to take off".into()));
+        };
+        if at == 0 || at >= self.frames() {
+            return Err(SynthError::InvalidTurn(format!("a garment taken off at frame {at} of {}", self.frames())));
+        }
+        let off: Vec<std::ops::Range<usize>> =
+            dressed.pieces.iter().filter(|p| is_top(&p.label)).map(|p| p.vertices.clone()).collect();
+        if off.is_empty() {
+            return Err(SynthError::InvalidTurn("the person wears no top to take off".into()));
+        }
+        let triangles = dressed
+            .triangles
+            .iter()
+            .copied()
+            .filter(|t| !t.iter().any(|&v| off.iter().any(|r| r.contains(&(v as usize)))))
+            .collect();
+        Ok(Self { event: Some(TurnEvent::TakeOff { at, triangles }), ..self })
+    }
+
     /// The person at frame `i` in the camera's body cube (depth-centred).
     pub fn frame(&self, assets: Option<&SynthAssets>, i: usize) -> Result<TexturedMesh, SynthError> {
+        let event = self.event.as_ref().filter(|e| i >= e.at());
+        if let Some(TurnEvent::Cut { other, .. }) = event {
+            return other.frame(assets, i);
+        }
         let turn = Quat::from_rotation_y(self.options.yaw(i).to_radians());
         let mut mesh = match &self.source {
             Source::Synthetic { dressed, scale, centre } => {
@@ -175,7 +249,12 @@ impl TurningClip {
                     None => SynthAssets::shared()?,
                 };
                 let (p, _) = dressed.posed_positions(assets, &self.options.pose(&dressed.params.pose, i))?;
-                dressed.mesh(p.iter().map(|&q| turn * ((q - *centre) * *scale)).collect())?
+                let mut m = dressed.mesh(p.iter().map(|&q| turn * ((q - *centre) * *scale)).collect())?;
+                if let Some(TurnEvent::TakeOff { triangles, .. }) = event {
+                    m.mesh.triangles = triangles.clone();
+                    m.mesh.compute_normals();
+                }
+                m
             }
             Source::Scan(m) => {
                 let mut m = m.clone();
@@ -211,22 +290,68 @@ mod tests {
         assert!(o.validate().is_ok());
     }
 
+    /// A wedge pointing at the camera, `size` wide.
+    fn wedge(size: f32) -> TexturedMesh {
+        let positions = vec![
+            Vec3::new(-0.2, -0.5, -0.1) * size,
+            Vec3::new(0.2, -0.5, -0.1) * size,
+            Vec3::new(0.0, -0.5, 0.4) * size,
+            Vec3::new(0.0, 0.5, 0.0) * size,
+        ];
+        TexturedMesh::untextured(crate::geometry::TriMesh::new(
+            positions,
+            vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]],
+        ))
+    }
+
+    #[test]
+    fn a_cut_shows_the_other_person_from_its_frame_on() {
+        let o = TurnOptions { turn_frames: 4, hold_frames: 2, arm_swing: 0.0 };
+        let clip =
+            TurningClip::scan(wedge(1.0), o).unwrap().cut_to(TurningClip::scan(wedge(0.5), o).unwrap(), 3).unwrap();
+        let width = |i: usize| {
+            let m = clip.frame(None, i).unwrap();
+            let ys: Vec<f32> = m.mesh.positions.iter().map(|p| p.y).collect();
+            ys.iter().fold(f32::MIN, |a, &b| a.max(b)) - ys.iter().fold(f32::MAX, |a, &b| a.min(b))
+        };
+        assert!((width(2) - 1.0).abs() < 1e-5 && (width(3) - 0.5).abs() < 1e-5 && (width(5) - 0.5).abs() < 1e-5);
+        // A cut needs the same options and a frame inside the clip; a scan has nothing to take off.
+        let other = TurningClip::scan(wedge(0.5), TurnOptions { turn_frames: 5, ..o }).unwrap();
+        assert!(TurningClip::scan(wedge(1.0), o).unwrap().cut_to(other, 3).is_err());
+        assert!(TurningClip::scan(wedge(1.0), o)
+            .unwrap()
+            .cut_to(TurningClip::scan(wedge(0.5), o).unwrap(), 6)
+            .is_err());
+        assert!(TurningClip::scan(wedge(1.0), o).unwrap().take_off_top(2).is_err());
+        assert!(is_top("top") && is_top("sleeve.L") && is_top("dress") && !is_top("hair") && !is_top("topknot"));
+    }
+
+    #[test]
+    fn taking_the_top_off_removes_its_triangles_and_nothing_else() {
+        let assets = SynthAssets::shared().expect("synthetic-subject data (bash scripts/setup.d/synth.sh)");
+        let o = TurnOptions { turn_frames: 4, hold_frames: 1, arm_swing: 0.0 };
+        let clip = (0..40)
+            .find_map(|seed| {
+                TurningClip::synthetic(assets, &SubjectParams::sample(seed), 16, o).ok()?.take_off_top(2).ok()
+            })
+            .expect("a subject with a top among 40 seeds");
+        let Source::Synthetic { dressed, .. } = &clip.source else { unreachable!("a synthetic clip") };
+        let top: Vec<std::ops::Range<usize>> =
+            dressed.pieces.iter().filter(|p| is_top(&p.label)).map(|p| p.vertices.clone()).collect();
+        let on_top = |t: &[u32; 3]| t.iter().any(|&v| top.iter().any(|r| r.contains(&(v as usize))));
+        let (before, after) = (clip.frame(Some(assets), 1).unwrap(), clip.frame(Some(assets), 2).unwrap());
+        assert_eq!(before.mesh.triangles, dressed.triangles);
+        let kept: Vec<[u32; 3]> = dressed.triangles.iter().copied().filter(|t| !on_top(t)).collect();
+        assert_eq!(after.mesh.triangles, kept);
+        assert!(kept.len() < dressed.triangles.len() && after.mesh.positions.len() == before.mesh.positions.len());
+    }
+
     #[test]
     fn a_turning_scan_shows_its_back_at_half_a_turn() {
         // A wedge pointing at the camera (+z): at half a turn it points away, at a quarter turn to +x (yaw turns
         // +z toward +x).
-        let positions = vec![
-            Vec3::new(-0.2, -0.5, -0.1),
-            Vec3::new(0.2, -0.5, -0.1),
-            Vec3::new(0.0, -0.5, 0.4),
-            Vec3::new(0.0, 0.5, 0.0),
-        ];
-        let mesh = crate::geometry::TriMesh::new(positions, vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]]);
-        let clip = TurningClip::scan(
-            TexturedMesh::untextured(mesh),
-            TurnOptions { turn_frames: 4, hold_frames: 1, arm_swing: 0.0 },
-        )
-        .unwrap();
+        let clip =
+            TurningClip::scan(wedge(1.0), TurnOptions { turn_frames: 4, hold_frames: 1, arm_swing: 0.0 }).unwrap();
         let tip = |i: usize| {
             let m = clip.frame(None, i).unwrap();
             let c = m.mesh.positions.iter().take(4).copied().sum::<Vec3>() / 4.0;
