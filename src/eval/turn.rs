@@ -672,6 +672,37 @@ mod tests {
     use glam::Vec2;
 
     #[test]
+    fn a_small_turn_is_played_scored_and_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let opts = TurnEvalOptions {
+            subjects: 1,
+            out: dir.path().to_path_buf(),
+            size: 64,
+            turn: TurnOptions { turn_frames: 4, hold_frames: 1, arm_swing: 10.0 },
+            yaws: vec![20.0, 90.0, 180.0],
+            texture_size: 32,
+            ..Default::default()
+        };
+        let rep = run_turn_eval(&opts, None).unwrap();
+        assert!(rep.failed.is_empty(), "{:?}", rep.failed);
+        // Every frame, both methods, both groups; every score finite.
+        assert_eq!(rep.rows.len(), 5 * 2 * 2);
+        assert!(rep.rows.iter().all(|r| r.scores.psnr_frame.is_finite() && (0.0..=1.0).contains(&r.scores.mask_iou)));
+        // True geometry draws the unseen side's silhouette better than the frame path's guess.
+        let iou = |m: &str| rep.mean_of(m, "divergent", |_| true, |r| r.scores.mask_iou);
+        assert!(iou("oracle") > iou("frame-path") + 0.05, "{} vs {}", iou("oracle"), iou("frame-path"));
+        for f in ["turn.csv", "turn.md", "turn_divergent_psnr.png", "sheets/subject_0000.png"] {
+            assert!(dir.path().join(f).is_file(), "{f}");
+        }
+        let csv = std::fs::read_to_string(dir.path().join("turn.csv")).unwrap();
+        assert_eq!(csv.lines().count(), 1 + 20);
+        // Nothing to turn, or a turn out of range, is a sentence, not a panic.
+        assert!(run_turn_eval(&TurnEvalOptions { subjects: 0, ..opts.clone() }, None).is_err());
+        let bad = TurnEvalOptions { turn: TurnOptions { turn_frames: 2, ..opts.turn }, ..opts.clone() };
+        assert!(run_turn_eval(&bad, None).is_err());
+    }
+
+    #[test]
     fn the_normalised_frame_is_the_pixel_similarity_in_cube_units() {
         // Pixel q = s p + o in a 200-pixel frame; cube x = 2 p / 200 - 1, y = 1 - 2 p / 200.
         let t = NormaliseTransform { scale: 1.5, offset: Vec2::new(-20.0, 10.0) };
