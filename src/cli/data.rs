@@ -32,6 +32,43 @@ pub struct DatasetArgs {
     /// net's `body` input). Without this flag the pose model must be installed (`bash scripts/setup.sh`).
     #[arg(long)]
     pub no_body_fof: bool,
+    /// Turning clips instead: each subject (full body) turns once in front of a fixed camera, then faces it again;
+    /// one folder of frames per subject (frame_NNNN.png with the true mask as alpha, clip.json), playable with
+    /// `view --video DIR/subject_0000 --fps 16`. Uses --subjects, --seed, --size and the turn's flags.
+    #[arg(long)]
+    pub turn: bool,
+    /// The turn's timing and arm swing (with --turn).
+    #[command(flatten)]
+    pub turn_clip: TurnArgs,
+}
+
+/// The turning clips' flags of `dataset --turn` and `eval --turn`.
+#[derive(Args, Debug)]
+pub struct TurnArgs {
+    /// With --turn: what happens halfway through the turn: none, cut (another synthetic subject takes the
+    /// person's place) or take-off (the person's top is off).
+    #[arg(long, value_enum, default_value_t = crate::eval::turn::EventChoice::None)]
+    pub event: crate::eval::turn::EventChoice,
+    /// With --turn: frames over which the person turns once.
+    #[arg(long, default_value_t = 48)]
+    pub turn_frames: usize,
+    /// With --turn: frames facing the camera after the turn.
+    #[arg(long, default_value_t = 8)]
+    pub hold_frames: usize,
+    /// With --turn: how far each arm's elevation swings during the turn (degrees, 0 to 45).
+    #[arg(long, default_value_t = 15.0)]
+    pub arm_swing: f32,
+}
+
+impl TurnArgs {
+    /// The clip these flags describe.
+    pub fn options(&self) -> crate::synth::turn::TurnOptions {
+        crate::synth::turn::TurnOptions {
+            turn_frames: self.turn_frames,
+            hold_frames: self.hold_frames,
+            arm_swing: self.arm_swing,
+        }
+    }
 }
 
 /// Arguments of `synth`.
@@ -72,6 +109,26 @@ pub fn run_dataset(args: &DatasetArgs) -> Result<()> {
     }
     if args.views > 360 {
         bail!("--views {} is out of range: use 0 to 360", args.views);
+    }
+    if args.turn {
+        let opts = crate::eval::turn::TurnEvalOptions {
+            subjects: args.subjects,
+            seed: args.seed,
+            out: args.out.clone(),
+            size: args.size,
+            turn: args.turn_clip.options(),
+            event: args.turn_clip.event,
+            ..Default::default()
+        };
+        let crate::eval::turn::TurnClipsWritten { written, failed } = crate::eval::turn::write_turn_clips(&opts)?;
+        for (name, why) in &failed {
+            tracing::warn!("{name} failed and was skipped: {why}");
+        }
+        println!("wrote {} turning clip(s) of {} frames to {}", written.len(), opts.turn.frames(), args.out.display());
+        if written.is_empty() {
+            bail!("no clip could be written");
+        }
+        return Ok(());
     }
     let opts = DatasetOptions {
         subjects: args.subjects,
@@ -176,6 +233,14 @@ pub struct EvalArgs {
     /// Execution provider of the neural methods: auto tries TensorRT, then CUDA, then the CPU.
     #[arg(long, value_enum, default_value_t = crate::neural::ExecutionProvider::Auto)]
     pub ep: crate::neural::ExecutionProvider,
+    /// Turning clips instead: each synthetic subject (3 by default, full body) and each --scan turns once in
+    /// front of a fixed camera, then faces it again; every frame goes through the live frame path and is scored
+    /// at close and divergent views (DIR/turn.md, turn.csv, turn_divergent_psnr.png, sheets/).
+    #[arg(long)]
+    pub turn: bool,
+    /// The turn's timing and arm swing (with --turn).
+    #[command(flatten)]
+    pub turn_clip: TurnArgs,
 }
 
 /// `r2human eval`: the synthetic subjects and scans against ground truth, then (with --photos) the checks on real
@@ -183,6 +248,9 @@ pub struct EvalArgs {
 pub fn run_eval(args: &EvalArgs) -> Result<()> {
     if !(16..=4096).contains(&args.size) {
         bail!("--size {} is out of range: use 16 to 4096 pixels", args.size);
+    }
+    if args.turn {
+        return run_turn_eval(args);
     }
     let subjects = args.subjects.unwrap_or(if args.scan.is_empty() && args.photos.is_none() { 8 } else { 0 });
     let neural =
@@ -223,5 +291,36 @@ pub fn run_eval(args: &EvalArgs) -> Result<()> {
             report.rows.len()
         );
     }
+    Ok(())
+}
+
+/// `r2human eval --turn`: turning clips through the live frame path.
+fn run_turn_eval(args: &EvalArgs) -> Result<()> {
+    if args.photos.is_some() {
+        bail!("--turn plays turning clips of synthetic subjects and scans; --photos has no turn to play: run it alone");
+    }
+    let subjects = args.subjects.unwrap_or(if args.scan.is_empty() { 3 } else { 0 });
+    let opts = crate::eval::turn::TurnEvalOptions {
+        subjects,
+        seed: args.seed,
+        scans: args.scan.clone(),
+        scan_orientation: crate::synth::scan::ScanOrientation { up: args.up, facing: args.facing },
+        out: args.out.clone(),
+        size: args.size,
+        turn: args.turn_clip.options(),
+        event: args.turn_clip.event,
+        ..Default::default()
+    };
+    let options = crate::neural::RuntimeOptions { ep: args.ep, ..Default::default() };
+    let back_pose = if args.no_neural {
+        None
+    } else {
+        crate::pipeline::load_back_pose(crate::pipeline::warp::OcclusionFill::default(), &options)
+    };
+    let report = crate::eval::turn::run_turn_eval(&opts, back_pose)?;
+    for (name, why) in &report.failed {
+        tracing::warn!("{name} was skipped: {why}");
+    }
+    println!("wrote {}/turn.md, turn.csv, turn_divergent_psnr.png and sheets/", args.out.display());
     Ok(())
 }

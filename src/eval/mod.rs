@@ -1,7 +1,7 @@
 //! Ground truth and evaluation: rendering known views of synthetic subjects and scans ([`ground_truth`]) and
 //! writing them as a dataset ([`dataset`]), the error metrics ([`metrics`]), the method comparison ([`runner`]), its
-//! summary over several scans with a dev / held-out split ([`scans`]) and the ground-truth-free checks on real photos
-//! ([`photos`]).
+//! summary over several scans with a dev / held-out split ([`scans`]), the ground-truth-free checks on real photos
+//! ([`photos`]) and the turning clips played through the live frame path ([`turn`]).
 
 pub mod dataset;
 pub mod ground_truth;
@@ -10,6 +10,7 @@ pub mod metrics;
 pub mod photos;
 pub mod runner;
 pub mod scans;
+pub mod turn;
 
 use std::path::{Path, PathBuf};
 

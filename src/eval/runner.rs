@@ -164,21 +164,12 @@ pub struct ReportRow {
     pub method: String,
     /// `close` (<= 45 deg) or `divergent` (>= 90 deg).
     pub group: String,
-    /// Mean PSNR (dB) over the group's views (infinite values, i.e. identical views, are skipped).
-    pub psnr: f32,
-    /// Mean PSNR (dB) over the pixels both the method and the ground truth cover: the appearance error alone,
-    /// without the silhouette misses that dominate `psnr`.
-    pub psnr_overlap: f32,
-    /// Mean SSIM.
-    pub ssim: f32,
-    /// Mean PSNR (dB) over the whole frame on black, the paper's Table 2 convention ([`psnr_frame`]).
-    pub psnr_frame: f32,
-    /// Mean SSIM over the whole frame on black, the paper's Table 2 convention ([`ssim_frame`]).
-    pub ssim_frame: f32,
-    /// Mean mask IoU.
-    pub mask_iou: f32,
-    /// Mean depth L1 (body-cube units) on the union mask.
-    pub depth_l1: f32,
+    /// Mean scores over the group's views: PSNR (dB, infinite values, i.e. identical views, skipped), PSNR over the
+    /// pixels both the method and the ground truth cover (the appearance error alone, without the silhouette misses
+    /// that dominate PSNR), SSIM, PSNR and SSIM over the whole frame on black (the paper's Table 2 convention,
+    /// [`psnr_frame`], [`ssim_frame`]), mask IoU, depth L1 (body-cube units) on the union mask.
+    #[serde(flatten)]
+    pub scores: MeanScores,
     /// Median milliseconds per view.
     pub ms_per_view: f32,
     /// Median milliseconds per input (once per subject).
@@ -211,20 +202,57 @@ pub struct EvalReport {
     pub notes: Vec<String>,
 }
 
+/// The scores of one method on one view group, view by view (means and medians are taken at the end).
 #[derive(Default)]
-struct Acc {
-    psnr: Vec<f32>,
-    psnr_overlap: Vec<f32>,
-    ssim: Vec<f32>,
-    psnr_frame: Vec<f32>,
-    ssim_frame: Vec<f32>,
-    iou: Vec<f32>,
-    depth: Vec<f32>,
-    ms_view: Vec<f32>,
-    ms_input: Vec<f32>,
+pub(super) struct Acc {
+    pub(super) psnr: Vec<f32>,
+    pub(super) psnr_overlap: Vec<f32>,
+    pub(super) ssim: Vec<f32>,
+    pub(super) psnr_frame: Vec<f32>,
+    pub(super) ssim_frame: Vec<f32>,
+    pub(super) iou: Vec<f32>,
+    pub(super) depth: Vec<f32>,
+    pub(super) ms_view: Vec<f32>,
+    pub(super) ms_input: Vec<f32>,
 }
 
-fn median(v: &[f32]) -> f32 {
+/// The means of an [`Acc`] over its views (a [`ReportRow`]'s scores).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct MeanScores {
+    /// Mean PSNR (dB) over the union of the masks.
+    pub psnr: f32,
+    /// Mean PSNR (dB) over the pixels both masks cover.
+    pub psnr_overlap: f32,
+    /// Mean SSIM over the union of the masks.
+    pub ssim: f32,
+    /// Mean PSNR (dB) over the whole frame on black.
+    pub psnr_frame: f32,
+    /// Mean SSIM over the whole frame on black.
+    pub ssim_frame: f32,
+    /// Mean mask IoU.
+    pub mask_iou: f32,
+    /// Mean depth L1 (body-cube units) on the union mask.
+    pub depth_l1: f32,
+}
+
+impl Acc {
+    /// The mean of every score (NaN where no view has a finite one).
+    pub(super) fn means(&self) -> MeanScores {
+        let m = mean;
+        MeanScores {
+            psnr: m(&self.psnr),
+            psnr_overlap: m(&self.psnr_overlap),
+            ssim: m(&self.ssim),
+            psnr_frame: m(&self.psnr_frame),
+            ssim_frame: m(&self.ssim_frame),
+            mask_iou: m(&self.iou),
+            depth_l1: m(&self.depth),
+        }
+    }
+}
+
+/// The median (the upper one of an even count; 0 when empty).
+pub(super) fn median(v: &[f32]) -> f32 {
     if v.is_empty() {
         return 0.0;
     }
@@ -233,7 +261,8 @@ fn median(v: &[f32]) -> f32 {
     s[s.len() / 2]
 }
 
-fn mean(v: &[f32]) -> f32 {
+/// The mean of the finite values (NaN when there is none).
+pub(super) fn mean(v: &[f32]) -> f32 {
     let f: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
     if f.is_empty() {
         f32::NAN
@@ -243,10 +272,26 @@ fn mean(v: &[f32]) -> f32 {
 }
 
 /// A method's rendering of one view.
-struct Prediction {
+pub(super) struct Prediction {
     rgba: RgbaImage,
     mask: Vec<bool>,
     depth: Vec<f32>,
+}
+
+impl Prediction {
+    /// A renderer's person layer seen by `cam`, with the depth of the geometry it drew (`mesh`, rasterised again:
+    /// not part of a timed rendering).
+    pub(super) fn of_person(person: RgbaImage, mesh: &TriMesh, cam: &Camera) -> Self {
+        let gb = rasterize(mesh, cam);
+        let mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
+        let depth = gb.depth.iter().zip(&gb.mask).map(|(&d, &c)| if c { d } else { -1.0 }).collect();
+        Self { rgba: person, mask, depth }
+    }
+
+    /// The rendering (premultiplied linear RGBA).
+    pub(super) fn rgba(&self) -> &RgbaImage {
+        &self.rgba
+    }
 }
 
 /// The cut-out on the plane z = 0 seen by `cam`.
@@ -700,11 +745,9 @@ fn eval_subject(
                     let ms = t.elapsed().as_secs_f32() * 1e3;
                     *fallbacks += renderer.neural_fallbacks() - before;
                     // Depth of the method's own geometry (not part of the timed rendering).
-                    let gb = rasterize(&geometry.mesh, &cam);
-                    let m_mask: Vec<bool> = person.data.iter().map(|p| p.w > 0.5).collect();
-                    let depth = gb.depth.iter().zip(&gb.mask).map(|(&d, &c)| if c { d } else { -1.0 }).collect();
-                    save(METHODS[m], &person)?;
-                    score(&gt, &Prediction { rgba: person, mask: m_mask, depth }, &mut acc_m[group], ms);
+                    let pred = Prediction::of_person(person, &geometry.mesh, &cam);
+                    save(METHODS[m], &pred.rgba)?;
+                    score(&gt, &pred, &mut acc_m[group], ms);
                     continue;
                 }
             };
@@ -716,7 +759,8 @@ fn eval_subject(
     Ok(())
 }
 
-fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
+/// Scores `pred` against `gt` into `acc` (every metric of the report), with `ms` as its time.
+pub(super) fn score(gt: &GroundTruthView, pred: &Prediction, acc: &mut Acc, ms: f32) {
     let a = SrgbImage::from_linear_premultiplied(&gt.to_linear_rgba());
     let b = SrgbImage::from_linear_premultiplied(&pred.rgba);
     let region = union_mask(&gt.mask, &pred.mask);
@@ -923,13 +967,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
                 framing: set.strip_prefix("synthetic/").unwrap_or(Framing::Full.label()).to_string(),
                 method: name.to_string(),
                 group: group.to_string(),
-                psnr: mean(&a.psnr),
-                psnr_overlap: mean(&a.psnr_overlap),
-                ssim: mean(&a.ssim),
-                psnr_frame: mean(&a.psnr_frame),
-                ssim_frame: mean(&a.ssim_frame),
-                mask_iou: mean(&a.iou),
-                depth_l1: mean(&a.depth),
+                scores: a.means(),
                 ms_per_view: median(&a.ms_view),
                 ms_per_input: median(&a.ms_input),
                 views: a.psnr.len(),
@@ -970,17 +1008,17 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
             "{},{},{:.3},{:.4},,{:.4},{:.4},{:.2},{:.2},{},{:.3},{},{:.3},{:.4},\"{}\",{}\n",
             r.method,
             r.group,
-            r.psnr,
-            r.ssim,
-            r.mask_iou,
-            r.depth_l1,
+            r.scores.psnr,
+            r.scores.ssim,
+            r.scores.mask_iou,
+            r.scores.depth_l1,
             r.ms_per_view,
             r.ms_per_input,
             r.views,
-            r.psnr_overlap,
+            r.scores.psnr_overlap,
             mib(r),
-            r.psnr_frame,
-            r.ssim_frame,
+            r.scores.psnr_frame,
+            r.scores.ssim_frame,
             r.inputs.replace('"', "\"\""),
             r.framing
         ));
@@ -1033,13 +1071,13 @@ fn write_reports(out: &Path, opts: &EvalOptions, rep: &EvalReport) -> Result<(),
                 "| {} | {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.4} | {:.4} | {:.4} | {:.1} | {:.1} | {} | {} |\n",
                 r.method,
                 r.group,
-                r.psnr,
-                r.psnr_overlap,
-                r.ssim,
-                r.psnr_frame,
-                r.ssim_frame,
-                r.mask_iou,
-                r.depth_l1,
+                r.scores.psnr,
+                r.scores.psnr_overlap,
+                r.scores.ssim,
+                r.scores.psnr_frame,
+                r.scores.ssim_frame,
+                r.scores.mask_iou,
+                r.scores.depth_l1,
                 r.ms_per_view,
                 r.ms_per_input,
                 mib(r),
@@ -1134,9 +1172,9 @@ fn at_a_glance(rep: &EvalReport, sets: &[&str]) -> String {
         .iter()
         .flat_map(|&set| {
             [
-                (set, "close", (|r: &ReportRow| r.psnr_frame) as RowValue),
-                (set, "divergent", |r: &ReportRow| r.psnr_frame),
-                (set, "divergent", |r: &ReportRow| r.mask_iou),
+                (set, "close", (|r: &ReportRow| r.scores.psnr_frame) as RowValue),
+                (set, "divergent", |r: &ReportRow| r.scores.psnr_frame),
+                (set, "divergent", |r: &ReportRow| r.scores.mask_iou),
             ]
         })
         .collect();
@@ -1183,22 +1221,45 @@ pub(super) fn fmt_cell(v: f32) -> String {
     }
 }
 
-fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
+/// Draws a `w` x `h` chart with `draw` on a white bitmap and writes it to `path` as a PNG (atomically); `draw`
+/// reports plotters' errors as I/O errors on `path`.
+pub(super) fn write_chart(
+    path: &Path,
+    (w, h): (u32, u32),
+    draw: impl FnOnce(
+        &plotters::drawing::DrawingArea<plotters::prelude::BitMapBackend<'_>, plotters::coord::Shift>,
+    ) -> Result<(), EvalError>,
+) -> Result<(), EvalError> {
     use plotters::prelude::*;
-    let (w, h) = (800u32, 500u32);
+    let perr = |e: String| EvalError::io(path, std::io::Error::other(e));
     let mut buf = vec![0u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        let perr = |e: String| EvalError::io(path, std::io::Error::other(e));
         root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
+        draw(&root)?;
+        root.present().map_err(|e| perr(e.to_string()))?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf)
+        .ok_or_else(|| EvalError::io(path, std::io::Error::other("plot buffer")))?;
+    let mut bytes = Vec::new();
+    image::DynamicImage::ImageRgb8(img)
+        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
+    write_atomic(path, &bytes).map_err(|e| EvalError::io(path, e))
+}
+
+fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
+    use plotters::prelude::*;
+    write_chart(path, (800, 500), |root| {
+        let perr = |e: String| EvalError::io(path, std::io::Error::other(e));
         // The synthetic framings are merged into one point per method and view group (view-weighted means).
         let mut merged: Vec<ReportRow> = Vec::new();
-        for r in rep.rows.iter().filter(|r| r.psnr.is_finite()) {
+        for r in rep.rows.iter().filter(|r| r.scores.psnr.is_finite()) {
             let inputs = if r.inputs.starts_with("synthetic/") { "synthetic" } else { r.inputs.as_str() };
             match merged.iter_mut().find(|m| m.inputs == inputs && m.method == r.method && m.group == r.group) {
                 Some(m) => {
                     let (a, b) = (m.views as f32, r.views as f32);
-                    m.psnr = (m.psnr * a + r.psnr * b) / (a + b);
+                    m.scores.psnr = (m.scores.psnr * a + r.scores.psnr * b) / (a + b);
                     m.ms_per_view = (m.ms_per_view * a + r.ms_per_view * b) / (a + b);
                     m.views += r.views;
                 }
@@ -1207,9 +1268,10 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
         }
         let pts: Vec<&ReportRow> = merged.iter().collect();
         let xmax = pts.iter().map(|r| r.ms_per_view).fold(1.0f32, f32::max) * 1.2;
-        let (ymin, ymax) = pts.iter().fold((f32::MAX, f32::MIN), |(a, b), r| (a.min(r.psnr), b.max(r.psnr)));
+        let (ymin, ymax) =
+            pts.iter().fold((f32::MAX, f32::MIN), |(a, b), r| (a.min(r.scores.psnr), b.max(r.scores.psnr)));
         let (ymin, ymax) = if ymin <= ymax { (ymin - 1.0, ymax + 1.0) } else { (0.0, 40.0) };
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(root)
             .caption("PSNR against time per view", ("sans-serif", 22))
             .margin(15)
             .x_label_area_size(40)
@@ -1241,7 +1303,7 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
                 "synthetic" => format!("{} ({})", r.method, r.group),
                 scan => format!("{} ({}, {scan})", r.method, r.group),
             };
-            let p = (r.ms_per_view, r.psnr);
+            let p = (r.ms_per_view, r.scores.psnr);
             if marker == 0 {
                 chart.draw_series(std::iter::once(Circle::new(p, 6, c.filled()))).map_err(|e| perr(e.to_string()))?;
             } else {
@@ -1253,15 +1315,8 @@ fn plot(path: &Path, rep: &EvalReport) -> Result<(), EvalError> {
                 .draw_series(std::iter::once(Text::new(label, (p.0 + xmax * 0.01, p.1), ("sans-serif", 13))))
                 .map_err(|e| perr(e.to_string()))?;
         }
-        root.present().map_err(|e| perr(e.to_string()))?;
-    }
-    let img = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| EvalError::io(path, std::io::Error::other("plot buffer")))?;
-    let mut bytes = Vec::new();
-    image::DynamicImage::ImageRgb8(img)
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| EvalError::io(path, std::io::Error::other(e)))?;
-    write_atomic(path, &bytes).map_err(|e| EvalError::io(path, e))
+        Ok(())
+    })
 }
 
 /// A report row with only the fields the table tests read (for the tests of this module and [`super::scans`]).
@@ -1272,13 +1327,7 @@ pub(super) fn test_row(inputs: &str, method: &str, group: &str, psnr_frame: f32,
         framing: "full".into(),
         method: method.into(),
         group: group.into(),
-        psnr: 0.0,
-        psnr_overlap: 0.0,
-        ssim: 0.0,
-        psnr_frame,
-        ssim_frame: 0.0,
-        mask_iou,
-        depth_l1: 0.0,
+        scores: MeanScores { psnr_frame, mask_iou, ..Acc::default().means() },
         ms_per_view: 0.0,
         ms_per_input: 0.0,
         views: 1,

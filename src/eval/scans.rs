@@ -158,9 +158,9 @@ impl ScanSummary {
                     method: method.to_string(),
                     metrics: ScanMetrics {
                         volumetric_iou,
-                        mask_iou_divergent: divergent.map(|r| r.mask_iou),
-                        psnr_frame_close: close.map(|r| r.psnr_frame),
-                        psnr_frame_divergent: divergent.map(|r| r.psnr_frame),
+                        mask_iou_divergent: divergent.map(|r| r.scores.mask_iou),
+                        psnr_frame_close: close.map(|r| r.scores.psnr_frame),
+                        psnr_frame_divergent: divergent.map(|r| r.scores.psnr_frame),
                     },
                 });
             }

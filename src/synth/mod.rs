@@ -17,6 +17,7 @@ pub mod normalize;
 pub mod pose;
 pub mod scan;
 pub mod texture;
+pub mod turn;
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -74,6 +75,9 @@ pub enum SynthError {
         /// What is wrong with the mesh.
         source: crate::geometry::mesh::MeshError,
     },
+    /// A turning clip's options are out of range ([`turn::TurnOptions::validate`]).
+    #[error("turning clip: {0}")]
+    InvalidTurn(String),
     /// A generated subject failed a sanity check (a bug, reported rather than written).
     #[error("subject {seed}: {message}")]
     Generation {
@@ -267,80 +271,120 @@ pub fn pose_body(assets: &SynthAssets, shape: &MacroParams, pose: &PoseParams) -
     Ok(PosedBody { rest, heads, transforms, body })
 }
 
+/// A subject's clothes and texture, which do not depend on the pose: the garments in the shaped rest pose, the
+/// mesh's triangles and UVs (body first, then the garments) and the baked atlas. [`Dressed::posed_positions`] puts
+/// them on any pose of the same shape (the turning clips of [`turn`] re-pose one dressed subject per frame).
+#[derive(Clone, Debug)]
+pub struct Dressed {
+    /// The parameters it was dressed for (the shape and outfit; the pose is given per call).
+    pub params: SubjectParams,
+    /// Garments, hair, hats, shoes and bags in the shaped rest pose.
+    pub garments: Vec<garment::Garment>,
+    /// Triangles of the whole mesh (body, then each garment).
+    pub triangles: Vec<[u32; 3]>,
+    /// Per-vertex UVs of the whole mesh.
+    pub uvs: Vec<Vec2>,
+    /// The baked texture atlas (one material), shared by every pose.
+    pub materials: Vec<crate::io::mesh_io::Material>,
+    /// Where each garment piece sits in the mesh.
+    pub pieces: Vec<GarmentPiece>,
+}
+
+impl Dressed {
+    /// Dresses the subject of `params` and bakes its texture (`texture_size` high; twice as wide when there are
+    /// garments).
+    pub fn new(assets: &SynthAssets, params: &SubjectParams, texture_size: usize) -> Result<Self, SynthError> {
+        let posed = pose_body(assets, &params.shape, &PoseParams::rest())?;
+        let rest_body = &posed.rest[..base::BODY_VERTEX_COUNT];
+        let body =
+            garment::BodyRest { positions: rest_body, parts: &assets.parts, rig: &assets.rig, heads: &posed.heads };
+        let a = &params.appearance;
+        let garments = garment::build(&body, &params.outfit, a.hair, a.shoes, a.soles);
+        let mut triangles = assets.base.triangles.clone();
+        let dressed = !garments.is_empty();
+        let body_uvs: Vec<Vec2> =
+            assets.base.uvs.iter().map(|uv| if dressed { Vec2::new(0.5 * uv.x, uv.y) } else { *uv }).collect();
+        let mut uvs = body_uvs.clone();
+        let size = texture_size.max(16);
+        let gutter = 3.0 / size as f32;
+        let rects = garment::pack_atlas(&garments.iter().map(|g| g.extent).collect::<Vec<_>>(), gutter);
+        let mut garment_uvs = Vec::with_capacity(garments.len());
+        let mut pieces = Vec::with_capacity(garments.len());
+        let mut next = assets.base.body_positions(&posed.body).len();
+        for (g, &(origin, extent)) in garments.iter().zip(&rects) {
+            let offset = next as u32;
+            pieces.push(GarmentPiece { label: g.label.clone(), vertices: next..next + g.rest.len(), closed: g.closed });
+            next += g.rest.len();
+            triangles.extend(g.triangles.iter().map(|t| t.map(|i| i + offset)));
+            // The right half of the atlas, inset half a texel so bilinear lookups stay inside the piece.
+            let inset = Vec2::splat(0.5 / size as f32);
+            let g_uv: Vec<Vec2> =
+                g.uv.iter()
+                    .map(|uv| {
+                        let q = origin + inset + *uv * (extent - 2.0 * inset).max(Vec2::ZERO);
+                        Vec2::new(0.5 + 0.5 * q.x, q.y)
+                    })
+                    .collect();
+            uvs.extend_from_slice(&g_uv);
+            garment_uvs.push(g_uv);
+        }
+        let mut canvas = texture::Canvas::new(if dressed { 2 * size } else { size }, size);
+        texture::paint_body(&mut canvas, &assets.base, &body_uvs, &assets.parts, &assets.landmarks, a);
+        for (g, g_uv) in garments.iter().zip(&garment_uvs) {
+            canvas.paint(&g.triangles, g_uv, |t, w| {
+                let tri = g.triangles[t].map(|i| i as usize);
+                let p = w[0] * g.rest[tri[0]] + w[1] * g.rest[tri[1]] + w[2] * g.rest[tri[2]];
+                let tint = w[0] * g.tint[tri[0]] + w[1] * g.tint[tri[1]] + w[2] * g.tint[tri[2]];
+                garment::look_color(&g.look, p, tint)
+            });
+        }
+        let texture = std::sync::Arc::new(canvas.finish(Vec3::from(a.skin)));
+        let materials = vec![crate::io::mesh_io::Material::textured("albedo", texture)];
+        Ok(Self { params: params.clone(), garments, triangles, uvs, materials, pieces })
+    }
+
+    /// The dressed subject in `pose` (MakeHuman units, decimetres): the mesh's positions (body, then the garments
+    /// skinned with it) and the posed body.
+    pub fn posed_positions(
+        &self,
+        assets: &SynthAssets,
+        pose: &PoseParams,
+    ) -> Result<(Vec<Vec3>, PosedBody), SynthError> {
+        let posed = pose_body(assets, &self.params.shape, pose)?;
+        let posed_garments = garment::pose_garments(&self.garments, &posed.transforms, &posed.body, &assets.parts);
+        let mut positions = assets.base.body_positions(&posed.body);
+        for p in &posed_garments {
+            positions.extend_from_slice(p);
+        }
+        Ok((positions, posed))
+    }
+
+    /// A textured mesh of this subject with `positions` (as [`Dressed::posed_positions`] gives them, moved as
+    /// the caller needs), checked.
+    pub fn mesh(&self, positions: Vec<Vec3>) -> Result<TexturedMesh, SynthError> {
+        let mut mesh = TriMesh::new(positions, self.triangles.clone());
+        mesh.uvs = self.uvs.clone();
+        mesh.validate().map_err(|source| SynthError::InvalidMesh { seed: self.params.seed, source })?;
+        Ok(TexturedMesh { mesh, materials: self.materials.clone(), triangle_materials: Vec::new() })
+    }
+}
+
 /// Builds a full-body subject from parameters: morph, pose, dress (garments skinned with the body), bake the
 /// texture atlas (`texture_size` high; twice as wide when there are garments), normalise.
 pub fn generate(assets: &SynthAssets, params: &SubjectParams, texture_size: usize) -> Result<Subject, SynthError> {
     let fail = |message: String| SynthError::Generation { seed: params.seed, message };
-    let posed = pose_body(assets, &params.shape, &params.pose)?;
-    let rest_body = &posed.rest[..base::BODY_VERTEX_COUNT];
-    let body = garment::BodyRest { positions: rest_body, parts: &assets.parts, rig: &assets.rig, heads: &posed.heads };
-    let a = &params.appearance;
-    let garments = garment::build(&body, &params.outfit, a.hair, a.shoes, a.soles);
-    let posed_garments = garment::pose_garments(&garments, &posed.transforms, &posed.body, &assets.parts);
-
-    let mut positions = assets.base.body_positions(&posed.body);
-    let mut triangles = assets.base.triangles.clone();
-    let dressed = !garments.is_empty();
-    let body_uvs: Vec<Vec2> =
-        assets.base.uvs.iter().map(|uv| if dressed { Vec2::new(0.5 * uv.x, uv.y) } else { *uv }).collect();
-    let mut uvs = body_uvs.clone();
-    let size = texture_size.max(16);
-    let gutter = 3.0 / size as f32;
-    let rects = garment::pack_atlas(&garments.iter().map(|g| g.extent).collect::<Vec<_>>(), gutter);
-    let mut garment_uvs = Vec::with_capacity(garments.len());
-    let mut pieces = Vec::with_capacity(garments.len());
-    for ((g, p), &(origin, extent)) in garments.iter().zip(&posed_garments).zip(&rects) {
-        let offset = positions.len() as u32;
-        pieces.push(GarmentPiece {
-            label: g.label.clone(),
-            vertices: positions.len()..positions.len() + p.len(),
-            closed: g.closed,
-        });
-        positions.extend_from_slice(p);
-        triangles.extend(g.triangles.iter().map(|t| t.map(|i| i + offset)));
-        // The right half of the atlas, inset half a texel so bilinear lookups stay inside the piece.
-        let inset = Vec2::splat(0.5 / size as f32);
-        let g_uv: Vec<Vec2> =
-            g.uv.iter()
-                .map(|uv| {
-                    let q = origin + inset + *uv * (extent - 2.0 * inset).max(Vec2::ZERO);
-                    Vec2::new(0.5 + 0.5 * q.x, q.y)
-                })
-                .collect();
-        uvs.extend_from_slice(&g_uv);
-        garment_uvs.push(g_uv);
-    }
+    let dressed = Dressed::new(assets, params, texture_size)?;
+    let (positions, posed) = dressed.posed_positions(assets, &params.pose)?;
     let normalization = normalize::compute(&positions).ok_or_else(|| fail("degenerate posed mesh".into()))?;
     if normalization.xz_radius > 1.0 {
         return Err(fail(format!("pose leaves the body cube (xz radius {:.3})", normalization.xz_radius)));
     }
     let positions: Vec<Vec3> = positions.iter().map(|&p| normalization.apply(p)).collect();
-    let mut mesh = TriMesh::new(positions, triangles);
-    let normalization = normalization.shifted_in_depth(normalize::centre_depth(&mut mesh));
-    mesh.uvs = uvs;
-    mesh.validate().map_err(|source| SynthError::InvalidMesh { seed: params.seed, source })?;
-
-    let mut canvas = texture::Canvas::new(if dressed { 2 * size } else { size }, size);
-    texture::paint_body(&mut canvas, &assets.base, &body_uvs, &assets.parts, &assets.landmarks, a);
-    for (g, g_uv) in garments.iter().zip(&garment_uvs) {
-        canvas.paint(&g.triangles, g_uv, |t, w| {
-            let tri = g.triangles[t].map(|i| i as usize);
-            let p = w[0] * g.rest[tri[0]] + w[1] * g.rest[tri[1]] + w[2] * g.rest[tri[2]];
-            let tint = w[0] * g.tint[tri[0]] + w[1] * g.tint[tri[1]] + w[2] * g.tint[tri[2]];
-            garment::look_color(&g.look, p, tint)
-        });
-    }
-    let texture = canvas.finish(Vec3::from(a.skin));
+    let mut mesh = dressed.mesh(positions)?;
+    let normalization = normalization.shifted_in_depth(normalize::centre_depth(&mut mesh.mesh));
     let joints =
         posed.heads.iter().zip(&posed.transforms).map(|(&h, t)| normalization.apply(t.transform_point3(h))).collect();
-    Ok(Subject {
-        params: params.clone(),
-        mesh: TexturedMesh::textured(mesh, texture),
-        normalization,
-        joints,
-        garments: pieces,
-        crop: Crop::full(),
-    })
+    Ok(Subject { params: params.clone(), mesh, normalization, joints, garments: dressed.pieces, crop: Crop::full() })
 }
 
 /// The subject of a seed with the shared assets and the default texture size, in `framing`.
