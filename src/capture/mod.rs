@@ -198,6 +198,14 @@ pub enum CaptureError {
         /// Why it cannot be loaded.
         source: Box<crate::neural::NeuralError>,
     },
+    /// ONNX Runtime failed running a segmentation model on a frame.
+    #[error("segmentation model: running `{}` failed: {source}", path.display())]
+    ModelRun {
+        /// The model file.
+        path: PathBuf,
+        /// ONNX Runtime's error.
+        source: ort::Error,
+    },
 }
 
 impl CaptureError {

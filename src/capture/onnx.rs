@@ -345,7 +345,10 @@ impl OnnxSegmenter {
             // A person whose feet the pose model does not see (a webcam's or a portrait's framing): the selfie model
             // reads the same square at the same 256x256 grid.
             Some(session) if !feet_seen => {
-                let selfie = run_selfie(session, &input).map_err(|e| fail(format!("selfie segmenter: {e}")))?;
+                let selfie = run_selfie(session, &input).map_err(|source| CaptureError::ModelRun {
+                    path: self.path.with_file_name(SELFIE_MODEL_FILE),
+                    source,
+                })?;
                 (selfie.len() == data.len()).then_some(GrayImage { width: ow, height: oh, data: selfie })
             }
             _ => None,
@@ -524,11 +527,11 @@ fn load_selfie(pose_path: &Path, options: &RuntimeOptions) -> Option<Session> {
 
 /// The selfie segmenter's person probability (256x256, row-major, in `[0, 1]`) for the pose model's input `nchw`
 /// (`[1, 3, 256, 256]`, RGB in `[0, 1]`: the selfie model takes the same values in NHWC order).
-fn run_selfie(session: &mut Session, nchw: &ndarray::Array4<f32>) -> Result<Vec<f32>, String> {
+fn run_selfie(session: &mut Session, nchw: &ndarray::Array4<f32>) -> Result<Vec<f32>, ort::Error> {
     let nhwc = nchw.view().permuted_axes([0, 2, 3, 1]).as_standard_layout().into_owned();
-    let tensor = TensorRef::from_array_view(&nhwc).map_err(|e| e.to_string())?;
-    let outputs = session.run(ort::inputs![tensor]).map_err(|e| e.to_string())?;
-    let out = outputs[0].try_extract_array::<f32>().map_err(|e| e.to_string())?;
+    let tensor = TensorRef::from_array_view(&nhwc)?;
+    let outputs = session.run(ort::inputs![tensor])?;
+    let out = outputs[0].try_extract_array::<f32>()?;
     Ok(out.iter().map(|&v| if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 }).collect())
 }
 
