@@ -328,8 +328,8 @@ impl OnnxSegmenter {
             .map(|&v| {
                 let p = match kind {
                     SegmentationModel::Isnet => v,
-                    // Logits; clamped so exp never overflows.
-                    SegmentationModel::MediapipePose => 1.0 / (1.0 + (-v.clamp(-30.0, 30.0)).exp()),
+                    // Logits.
+                    SegmentationModel::MediapipePose => logistic(v),
                 };
                 if p.is_finite() {
                     p.clamp(0.0, 1.0)
@@ -384,9 +384,7 @@ impl OnnxSegmenter {
         let mut mask = in_frame(&raw);
         let bbox = bounding_box(&largest_component(&threshold(&mask, 0.5)));
         if let Some(selfie) = selfie {
-            for (m, q) in mask.data.iter_mut().zip(in_frame(&selfie).data) {
-                *m = m.max(q);
-            }
+            keep_larger(&mut mask, &in_frame(&selfie));
         }
         // Keep the soft edge, but only around the main (largest) object: stray blobs are not the person.
         let keep = fill_holes(&largest_component(&threshold(&mask, 0.5)));
@@ -413,9 +411,7 @@ impl OnnxSegmenter {
     pub fn infer(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError> {
         let (mut mask, selfie, _) = self.infer_region(frame)?;
         if let Some(selfie) = selfie {
-            for (m, q) in mask.data.iter_mut().zip(selfie.data) {
-                *m = m.max(q);
-            }
+            keep_larger(&mut mask, &selfie);
         }
         Ok(mask)
     }
@@ -482,6 +478,18 @@ impl OnnxSegmenter {
     }
 }
 
+/// The logistic function of a logit, clamped so `exp` never overflows (NaN stays NaN).
+fn logistic(logit: f32) -> f32 {
+    1.0 / (1.0 + (-logit.clamp(-30.0, 30.0)).exp())
+}
+
+/// `mask` with each pixel the larger of its own and `other`'s probability (the same grid).
+fn keep_larger(mask: &mut GrayImage, other: &GrayImage) {
+    for (m, &q) in mask.data.iter_mut().zip(&other.data) {
+        *m = m.max(q);
+    }
+}
+
 /// The pose model's landmarks of the ankles (MediaPipe's numbering, as `crate::body::pose` names them: 27 left,
 /// 28 right), 5 values each (x, y, z, visibility logit, presence logit).
 const ANKLES: [usize; 2] = [27, 28];
@@ -495,9 +503,7 @@ const FEET_VISIBILITY: f32 = 0.8;
 /// feet (the model then still places them, inside the crop, at visibility 0.2-0.67 on the bundled portraits and the
 /// profile, against 0.91-0.96 for the basketball player's). Landmarks too short to hold the ankles count as seen.
 fn feet_seen(landmarks: &[f32]) -> bool {
-    ANKLES.iter().all(|&k| {
-        landmarks.get(5 * k + 3).is_none_or(|&logit| 1.0 / (1.0 + (-logit.clamp(-30.0, 30.0)).exp()) >= FEET_VISIBILITY)
-    })
+    ANKLES.iter().all(|&k| landmarks.get(5 * k + 3).is_none_or(|&logit| logistic(logit) >= FEET_VISIBILITY))
 }
 
 /// The selfie segmenter beside the pose model at `pose_path` (the same folder, [`SELFIE_MODEL_FILE`]); `None` when
