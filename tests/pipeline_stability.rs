@@ -8,6 +8,7 @@ use glam::{Quat, Vec3};
 use r2human::buffer::Image;
 use r2human::compose::Mode;
 use r2human::compose::RenderedFrame;
+use r2human::geometry::raster::rasterize;
 use r2human::geometry::{Camera, Fov};
 use r2human::io::environment::Environment;
 use r2human::io::image_io;
@@ -210,4 +211,37 @@ fn the_pose_network_finds_the_face_of_a_rendered_subject_and_nothing_in_a_blank(
         Image::from_fn(res, res, |c, r| if (64..192).contains(&c) && (32..224).contains(&r) { 1.0 } else { 0.0 });
     let blank = NormalisedInput::in_source_view(board.map(|&m| glam::Vec3::splat(0.4) * m), board);
     assert!(back_image_of(&blank, &pose, &mut StageTimings::default()).is_none());
+}
+
+/// The coarse mesh interactive views draw when their pixels are large: made only when asked, on the still path
+/// (halved FOF) and the frame path (twice the step), a fraction of the triangles, the same person at two source
+/// pixels' resolution, and drawing a finite far view that matches the full mesh's.
+#[test]
+fn the_coarse_view_mesh_is_made_when_asked_and_draws_the_same_person() {
+    let (rgb, mask) = figure();
+    let opts = PrepareOptions { resolution: 256, depth_samples: 256, ..Default::default() };
+    let plain = PreparedInput::prepare(&rgb, &mask, &opts).unwrap();
+    assert!(plain.coarse.is_none(), "a coarse mesh nobody asked for");
+    let asked = PrepareOptions { coarse_views: true, ..opts.clone() };
+    let still = PreparedInput::prepare(&rgb, &mask, &asked).unwrap();
+    let mut frames = r2human::pipeline::frame::FramePath::new(asked);
+    let frame = frames.prepare(&rgb, &mask).unwrap();
+    for (what, input, spacing) in [("still", &still, 4.0 / 256.0), ("frame", &frame, 8.0 / 256.0)] {
+        let coarse = input.coarse.as_ref().unwrap_or_else(|| panic!("{what}: no coarse mesh"));
+        assert!((coarse.spacing - spacing).abs() < 1e-6, "{what}: spacing {}", coarse.spacing);
+        let ratio = coarse.mesh.triangle_count() as f32 / input.mesh.triangle_count() as f32;
+        assert!((0.1..0.45).contains(&ratio), "{what}: {ratio} of the triangles");
+        // Silhouettes at an oblique view with pixels of the coarse spacing: nearly the same.
+        let camera = Camera::orthographic(Camera::orbit_rotation(40.0, 15.0), 1.0, 64, 64);
+        let (a, b) = (rasterize(&input.mesh, &camera), rasterize(&coarse.mesh, &camera));
+        let inter = a.mask.iter().zip(&b.mask).filter(|(x, y)| **x && **y).count() as f32;
+        let union = a.mask.iter().zip(&b.mask).filter(|(x, y)| **x || **y).count() as f32;
+        assert!(inter / union > 0.9, "{what}: silhouette IoU {}", inter / union);
+        // A far view draws finite pixels from it.
+        let mut renderer = ViewRenderer::new(input, OcclusionFill::MirroredFront, false);
+        let far = Camera::perspective(Vec3::new(0.3, 0.1, 6.0), Quat::IDENTITY, Fov::symmetric(1.2, 1.0), 0.05, 96, 96);
+        assert!(far.pixel_footprint(Vec3::ZERO) >= coarse.spacing);
+        let frame = renderer.render_frame(&far, Mode::Ar, &Environment::default_embedded()).unwrap();
+        assert_frame_ok(&frame, what);
+    }
 }

@@ -355,8 +355,13 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         Some(p) => Environment::load(p).with_context(|| format!("cannot use the panorama {}", p.display()))?,
         None => Environment::default_embedded(),
     };
-    let prepare =
-        PrepareOptions { resolution: opts.resolution, depth_samples: opts.resolution, ..PrepareOptions::default() };
+    // Zoomed out, the window's pixels are larger than the source's: it draws the coarse mesh then.
+    let prepare = PrepareOptions {
+        resolution: opts.resolution,
+        depth_samples: opts.resolution,
+        coarse_views: true,
+        ..PrepareOptions::default()
+    };
     let neural = load_interactive(&opts.neural, opts.video.is_some() || opts.camera.is_some())?;
     let factory = match (&opts.video, &opts.camera) {
         (Some(path), _) => Some(live::video_source(path, opts.fps)),
@@ -371,6 +376,7 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         let worker_neural = neural.second_instance().context("loading the neural models for the live worker")?;
         let frames =
             crate::pipeline::auto_frame_options(opts.neural.models.as_deref(), opts.resolution, &opts.neural.options)?;
+        let frames = PrepareOptions { coarse_views: true, ..frames };
         let processor = EncodeProcessor::new(frames, worker_neural);
         let encodes = processor.encode_counter();
         let pipeline = LivePipeline::start(factory, processor, live_opts)?;

@@ -312,9 +312,12 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
                 crate::pipeline::load_back_pose(crate::pipeline::warp::OcclusionFill::default(), &opts.neural.options);
             // The geometry `render` draws (`--geometry auto`), prepared once.
             let auto = crate::pipeline::auto_still_options(opts.neural.models.as_deref(), &opts.neural.options)?;
-            let prepared =
-                PreparedInput::prepare(&person.photo.rgb, &person.mask, &PrepareOptions { back_pose, ..auto })
-                    .with_context(|| format!("preparing {}", path.display()))?;
+            let prepared = PreparedInput::prepare(
+                &person.photo.rgb,
+                &person.mask,
+                &PrepareOptions { back_pose, coarse_views: true, ..auto },
+            )
+            .with_context(|| format!("preparing {}", path.display()))?;
             // The encoder runs once for a photo; the eyes run only the decoder.
             let eye_neural = match &neural.renderer {
                 Some(shared) => {
@@ -377,13 +380,15 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
     Ok(XrRunReport { session: report, live })
 }
 
-/// The options the session's live frames are prepared with ([`crate::pipeline::auto_frame_options`]).
+/// The options the session's live frames are prepared with ([`crate::pipeline::auto_frame_options`]), with the
+/// coarse mesh the eyes draw when their pixels are that large.
 fn frame_options(opts: &XrOptions) -> Result<PrepareOptions> {
-    Ok(crate::pipeline::auto_frame_options(
+    let frames = crate::pipeline::auto_frame_options(
         opts.neural.models.as_deref(),
         crate::geometry::SOURCE_RESOLUTION,
         &opts.neural.options,
-    )?)
+    )?;
+    Ok(PrepareOptions { coarse_views: true, ..frames })
 }
 
 #[cfg(test)]

@@ -168,6 +168,29 @@ impl Camera {
         self.view_from_world.inverse().translation.into()
     }
 
+    /// The world distance one pixel spans at `world` (the smaller of its width and height there): constant for an
+    /// orthographic camera, growing with view depth for a perspective one. `0` for a point at or before the near
+    /// plane or behind a perspective eye, or an image without pixels.
+    pub fn pixel_footprint(&self, world: Vec3) -> f32 {
+        if self.width == 0 || self.height == 0 {
+            return 0.0;
+        }
+        let (w, h) = (self.width as f32, self.height as f32);
+        match self.projection {
+            Projection::Orthographic { half_width, half_height } => {
+                (2.0 * half_width / w).min(2.0 * half_height / h).max(0.0)
+            }
+            Projection::Perspective { fov, near } => {
+                let depth = -self.view_from_world.transform_point3(world).z;
+                if depth.is_nan() || depth < near {
+                    return 0.0;
+                }
+                let (tl, tr, tu, td) = tangents(&fov);
+                (depth * (tr - tl) / w).min(depth * (tu - td) / h).max(0.0)
+            }
+        }
+    }
+
     /// Rotation of this view relative to the source view, in radians in `[0, pi]` (the paper's phi in Eq. 8).
     pub fn angle_from_source(&self) -> f32 {
         let rot = Quat::from_mat3(&Mat3::from(self.view_from_world.matrix3)).normalize();
@@ -397,5 +420,23 @@ mod tests {
         let f = Fov::symmetric(1.0, 2.0);
         assert!((f.angle_left + f.angle_right).abs() < 1e-7);
         assert!(((f.angle_right.tan()) - 2.0 * (0.5f32).tan()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_pixel_spans_the_frustum_width_over_the_image_at_its_depth() {
+        // Orthographic: the visible extent over the pixels, the finer of the two directions.
+        let ortho = Camera::orthographic(Affine3A::IDENTITY, 1.0, 400, 200);
+        assert!((ortho.pixel_footprint(Vec3::new(0.3, -0.2, 0.9)) - 0.01).abs() < 1e-7);
+        // Perspective, 90 degrees by 90 degrees over 100 x 50 pixels, a point 3 units ahead: the width spans 6
+        // units over 100 pixels (0.06), the height 6 over 50 (0.12).
+        let q = std::f32::consts::FRAC_PI_4;
+        let fov = Fov { angle_left: -q, angle_right: q, angle_up: q, angle_down: -q };
+        let eye = Camera::perspective(Vec3::new(0.0, 0.0, 5.0), Quat::IDENTITY, fov, 0.1, 100, 50);
+        assert!((eye.pixel_footprint(Vec3::new(0.5, 0.0, 2.0)) - 0.06).abs() < 1e-5);
+        // Behind the eye, before the near plane, no pixels: 0.
+        assert_eq!(eye.pixel_footprint(Vec3::new(0.0, 0.0, 6.0)), 0.0);
+        assert_eq!(eye.pixel_footprint(Vec3::new(0.0, 0.0, 4.95)), 0.0);
+        let empty = Camera::orthographic(Affine3A::IDENTITY, 1.0, 0, 10);
+        assert_eq!(empty.pixel_footprint(Vec3::ZERO), 0.0);
     }
 }

@@ -355,6 +355,33 @@ impl Fof {
         Ok(Self { n, width: w, height: h, coeffs })
     }
 
+    /// The field on a grid of half the resolution (`ceil(w / 2) x ceil(h / 2)`): each column the mean of the
+    /// coefficients of the 2x2 block it covers (fewer at an odd border). Decoding is linear in the coefficients,
+    /// so the coarse column's occupancy is the block's mean occupancy at every depth: a surface half as finely
+    /// sampled across, for views whose pixels are larger than two of this grid's.
+    pub fn halved(&self) -> Fof {
+        let (w, h, n) = (self.width.div_ceil(2), self.height.div_ceil(2), self.n);
+        let mut coeffs = vec![0.0f32; n * w * h];
+        coeffs.par_chunks_mut(n * w).enumerate().for_each(|(r, row)| {
+            for (c, out) in row.chunks_mut(n).enumerate() {
+                let rows = 2 * r..(2 * r + 2).min(self.height);
+                let cols = 2 * c..(2 * c + 2).min(self.width);
+                let count = (rows.len() * cols.len()) as f32;
+                for rr in rows {
+                    for cc in cols.clone() {
+                        for (o, &v) in out.iter_mut().zip(self.column(cc, rr)) {
+                            *o += v;
+                        }
+                    }
+                }
+                for o in out.iter_mut() {
+                    *o /= count;
+                }
+            }
+        });
+        Fof { n, width: w, height: h, coeffs }
+    }
+
     /// The `n` coefficients of pixel `(col, row)`.
     #[inline]
     pub fn column(&self, col: usize, row: usize) -> &[f32] {
@@ -994,5 +1021,31 @@ mod tests {
         // Whole ray occupied: c_0 = 2, every c_k = 0 (sin(k pi) - sin 0).
         let c = fof.column(1, 0);
         assert!((c[0] - 2.0).abs() < 1e-6 && c[1..].iter().all(|v| v.abs() < 1e-5));
+    }
+
+    #[test]
+    fn a_halved_field_holds_each_blocks_mean_occupancy() {
+        // A 3 x 3 grid: one interval per column, different per column, so every block mixes columns.
+        let mut intervals = Image::new(3, 3, Vec::new());
+        for (i, v) in intervals.data.iter_mut().enumerate() {
+            if i != 4 {
+                v.push((-0.6 + 0.05 * i as f32, 0.2 + 0.03 * i as f32));
+            }
+        }
+        let fof = Fof::from_intervals(&intervals, 16).unwrap();
+        let half = fof.halved();
+        assert_eq!((half.width, half.height, half.n), (2, 2, 16));
+        for (col, row, block) in
+            [(0, 0, vec![(0, 0), (1, 0), (0, 1), (1, 1)]), (1, 0, vec![(2, 0), (2, 1)]), (1, 1, vec![(2, 2)])]
+        {
+            for s in [0.1f32, 0.35, 0.5, 0.8] {
+                let mean = block.iter().map(|&(c, r)| fof.occupancy(c, r, s)).sum::<f32>() / block.len() as f32;
+                assert!((half.occupancy(col, row, s) - mean).abs() < 1e-5, "({col}, {row}) at {s}");
+            }
+        }
+        // An empty field stays empty.
+        let empty = Fof::zeros(8, 5, 4).unwrap().halved();
+        assert_eq!((empty.width, empty.height), (3, 2));
+        assert!(empty.coeffs.iter().all(|&c| c == 0.0));
     }
 }

@@ -27,6 +27,7 @@ use std::sync::atomic::AtomicBool;
 
 use super::back::{BackImage, FacePoints};
 use super::input::{self, NormalisedInput};
+use super::prepared::CoarseMesh;
 use super::{
     back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces_coarse, read_face,
     warn_once, warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
@@ -41,6 +42,14 @@ use crate::geometry::Camera;
 /// 512² view of the whole body cube (the largest view the evaluation and the XR eyes draw the person at); a step
 /// of 1 quadruples the triangles for no visible change.
 pub const FRAME_MESH_STEP: usize = 2;
+
+/// The frame mesh at twice [`FRAME_MESH_STEP`] ([`PreparedInput::coarse`]); `None` when the mask holds no triangle
+/// at that step (small people: views then draw the full mesh).
+fn coarse_frame_mesh(surfaces: &InflatedSurfaces, resolution: usize) -> Option<CoarseMesh> {
+    let step = 2 * FRAME_MESH_STEP;
+    let mesh = mesh_from_surfaces(surfaces, step).ok()?;
+    Some(CoarseMesh { mesh, spacing: step as f32 * 2.0 / resolution.max(1) as f32 })
+}
 
 /// How much coarser than the source grid a frame's silhouette is inflated
 /// ([`crate::geometry::inflate::inflate_resolvable_coarse`]): the inflated height is smooth, the outline stays the
@@ -353,7 +362,10 @@ impl FramePath {
                     _ => PipelineError::NonFinite("frame geometry"),
                 })?;
                 let source = t.time("source view (depth maps)", || source_gbuffer(&surfaces));
-                Ok((mesh, source, t))
+                let coarse = opts
+                    .coarse_views
+                    .then(|| t.time("coarse mesh (depth maps)", || coarse_frame_mesh(&surfaces, opts.resolution)));
+                Ok((mesh, source, coarse.flatten(), t))
             },
             || {
                 let kept = match kept {
@@ -375,7 +387,7 @@ impl FramePath {
                 (normalised, kept, side)
             },
         );
-        let (mesh, source_gbuffer, geometry_timings) = geometry?;
+        let (mesh, source_gbuffer, coarse, geometry_timings) = geometry?;
         timings.0.extend(geometry_timings.0.into_iter().chain(colour_timings.0));
         let back = kept.as_ref().map(|k| k.back.clone());
         self.back = kept;
@@ -385,6 +397,7 @@ impl FramePath {
             fof: None,
             surfaces: Some(surfaces),
             mesh,
+            coarse,
             source_gbuffer,
             back,
             side,

@@ -16,7 +16,7 @@ use crate::geometry::{Camera, TriMesh};
 
 use super::back::BackImage;
 use super::warp::SideImages;
-use super::{NeuralInput, PreparedInput, SharedNeural};
+use super::{CoarseMesh, NeuralInput, PreparedInput, SharedNeural};
 
 /// The person as every renderer receives it: the mesh in body-cube coordinates and the source view it warps
 /// (premultiplied linear RGB, its mask in `[0, 1]`, the source G-buffer and the orthographic source camera).
@@ -24,6 +24,9 @@ use super::{NeuralInput, PreparedInput, SharedNeural};
 pub struct SourceView<'a> {
     /// The person's mesh.
     pub mesh: &'a TriMesh,
+    /// The same person sampled half as finely across, for views whose pixels are that large
+    /// ([`super::mesh_for_view`]); `None`: every view draws `mesh`.
+    pub coarse: Option<&'a CoarseMesh>,
     /// Source colour, premultiplied linear RGB.
     pub rgb: &'a RgbImage,
     /// Source mask in `[0, 1]`.
@@ -43,6 +46,7 @@ impl<'a> SourceView<'a> {
     pub fn of(input: &'a PreparedInput) -> Self {
         Self {
             mesh: &input.mesh,
+            coarse: input.coarse.as_ref(),
             rgb: &input.normalised.rgb,
             mask: &input.normalised.mask,
             gbuffer: &input.source_gbuffer,
@@ -80,6 +84,8 @@ impl std::fmt::Debug for SceneNeural {
 pub struct Scene {
     /// The person's mesh.
     pub mesh: TriMesh,
+    /// Its coarse copy for views with large pixels, when the input was prepared with one.
+    pub coarse: Option<CoarseMesh>,
     /// Source colour, premultiplied linear RGB.
     pub rgb: RgbImage,
     /// Source mask in `[0, 1]`.
@@ -101,6 +107,7 @@ impl Scene {
     pub fn from_prepared(input: &PreparedInput, neural: Option<SceneNeural>) -> Self {
         Self {
             mesh: input.mesh.clone(),
+            coarse: input.coarse.clone(),
             rgb: input.normalised.rgb.clone(),
             mask: input.normalised.mask.clone(),
             gbuffer: input.source_gbuffer.clone(),
@@ -115,6 +122,7 @@ impl Scene {
     pub fn source(&self) -> SourceView<'_> {
         SourceView {
             mesh: &self.mesh,
+            coarse: self.coarse.as_ref(),
             rgb: &self.rgb,
             mask: &self.mask,
             gbuffer: &self.gbuffer,
@@ -385,6 +393,7 @@ mod tests {
     fn scene() -> Scene {
         Scene {
             mesh: TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
+            coarse: None,
             rgb: Image::new(4, 4, Vec3::ONE),
             mask: Image::new(4, 4, 1.0),
             gbuffer: GBuffer::new(4, 4),

@@ -39,6 +39,10 @@ pub struct PrepareOptions {
     /// The pose network that finds the face for the back image ([`super::load_back_pose`]; [`back::back_image`]); `None`:
     /// no back image (the renderers then colour what the photo does not show from the photo itself).
     pub back_pose: Option<SharedPose>,
+    /// Also build [`PreparedInput::coarse`], a mesh with half the samples across for views whose pixels are larger
+    /// than two source pixels (the XR eyes, the window): interactive views ask for it, offline renders and the
+    /// evaluation (512 px over the body cube, one source pixel a pixel) never use it and leave it out.
+    pub coarse_views: bool,
 }
 
 impl Default for PrepareOptions {
@@ -54,6 +58,7 @@ impl Default for PrepareOptions {
             placement: None,
             warm_start: false,
             back_pose: None,
+            coarse_views: false,
         }
     }
 }
@@ -99,6 +104,10 @@ pub struct PreparedInput {
     pub surfaces: Option<inflate::InflatedSurfaces>,
     /// The mesh: extracted from the FOF (still path) or joined from the two depth maps (frame path).
     pub mesh: TriMesh,
+    /// The same geometry sampled half as finely across, when [`PrepareOptions::coarse_views`] asked for it: the
+    /// CPU renderers draw a view with it when one of the view's pixels spans at least its sample spacing there
+    /// ([`mesh_for_view`]).
+    pub coarse: Option<CoarseMesh>,
     /// Source-view depth and normals of the geometry (the mesh's raster on the still path, the front map on the
     /// frame path).
     pub source_gbuffer: GBuffer,
@@ -120,5 +129,60 @@ impl PreparedInput {
             (_, Some(s)) => Fof::from_depth_maps(&s.front, &s.back, &s.mask, n).ok().map(std::borrow::Cow::Owned),
             _ => None,
         }
+    }
+}
+
+/// A coarser copy of a person's mesh for views that cannot show its finest triangles.
+#[derive(Clone, Debug)]
+pub struct CoarseMesh {
+    /// The mesh (body-cube coordinates, like the full one).
+    pub mesh: TriMesh,
+    /// Distance between its samples across the source view (body-cube units).
+    pub spacing: f32,
+}
+
+/// The mesh a view is drawn with: `full`, or `coarse` when a pixel of `camera` spans at least the coarse mesh's
+/// sample spacing at the centre of the person's bounds, so the full mesh's extra triangles would fall inside
+/// pixels. (For a person a few body heights away the footprint varies by the person's depth over the distance,
+/// a few tens of per cent at most.)
+pub fn mesh_for_view<'m>(full: &'m TriMesh, coarse: Option<&'m CoarseMesh>, camera: &Camera) -> &'m TriMesh {
+    let (Some(coarse), Some((lo, hi))) = (coarse, full.bounds()) else { return full };
+    // The footprint is never NaN (0 for points it cannot see), so `<` refuses every unsure case.
+    if coarse.mesh.is_empty() || camera.pixel_footprint((lo + hi) * 0.5) < coarse.spacing {
+        full
+    } else {
+        &coarse.mesh
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Affine3A, Quat, Vec3};
+
+    use super::*;
+    use crate::geometry::Fov;
+
+    #[test]
+    fn a_view_draws_the_coarse_mesh_only_when_its_pixels_are_as_large_as_the_coarse_samples() {
+        let full = TriMesh::uv_sphere(Vec3::ZERO, 0.5, 64, 64);
+        let coarse = CoarseMesh { mesh: TriMesh::uv_sphere(Vec3::ZERO, 0.5, 16, 16), spacing: 0.01 };
+        let is_coarse = |camera: &Camera| std::ptr::eq(mesh_for_view(&full, Some(&coarse), camera), &coarse.mesh);
+        // Orthographic over the body cube: 2 / 512 = 0.0039 per pixel (full), 2 / 128 = 0.0156 (coarse), and
+        // exactly the spacing at 200 pixels.
+        assert!(!is_coarse(&Camera::orthographic(Affine3A::IDENTITY, 1.0, 512, 512)));
+        assert!(is_coarse(&Camera::orthographic(Affine3A::IDENTITY, 1.0, 128, 128)));
+        assert!(is_coarse(&Camera::orthographic(Affine3A::IDENTITY, 1.0, 200, 200)));
+        // Perspective, 90 degrees over 200 pixels: 0.01 per pixel one unit away. From 3 units: 0.03 (coarse);
+        // from 0.8 units: 0.008 (full).
+        let q = std::f32::consts::FRAC_PI_4;
+        let fov = Fov { angle_left: -q, angle_right: q, angle_up: q, angle_down: -q };
+        let at = |z: f32| Camera::perspective(Vec3::new(0.0, 0.0, z), Quat::IDENTITY, fov, 0.01, 200, 200);
+        assert!(is_coarse(&at(3.0)));
+        assert!(!is_coarse(&at(0.8)));
+        // Inside the person, no coarse mesh, or an empty one: the full mesh.
+        assert!(!is_coarse(&at(0.0)));
+        assert!(std::ptr::eq(mesh_for_view(&full, None, &at(3.0)), &full));
+        let empty = CoarseMesh { mesh: TriMesh::default(), spacing: 0.01 };
+        assert!(std::ptr::eq(mesh_for_view(&full, Some(&empty), &at(3.0)), &full));
     }
 }

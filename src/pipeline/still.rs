@@ -11,6 +11,7 @@ use crate::geometry::raster::{self, GBuffer};
 use crate::geometry::{Camera, TriMesh};
 
 use super::input::NormalisedInput;
+use super::prepared::CoarseMesh;
 use super::{
     back, compute_geometry_and_pose, input, warn_once, warp, PipelineError, PrepareOptions, PreparedInput, SharedPose,
     StageTimings,
@@ -52,7 +53,7 @@ impl PreparedInput {
         // The colours are only read by the back image and the renderers, so their rim is cleaned beside the mesh.
         let rim = input::RIM_FRACTION * opts.resolution as f32;
         let (geometry, (normalised, back, side)) = rayon::join(
-            || -> Result<(TriMesh, GBuffer), PipelineError> {
+            || -> Result<(TriMesh, GBuffer, Option<CoarseMesh>), PipelineError> {
                 let mesh =
                     timings.time("mesh (FOF -> marching cubes)", || marching::extract_mesh(&fof, opts.depth_samples));
                 if mesh.is_empty() {
@@ -62,7 +63,10 @@ impl PreparedInput {
                     return Err(PipelineError::NonFinite("mesh"));
                 }
                 let source_gbuffer = timings.time("source raster", || raster::rasterize(&mesh, &source_camera));
-                Ok((mesh, source_gbuffer))
+                let coarse = opts.coarse_views.then(|| {
+                    timings.time("coarse mesh (halved FOF -> marching cubes)", || coarse_still_mesh(&fof, opts))
+                });
+                Ok((mesh, source_gbuffer, coarse))
             },
             || {
                 let normalised =
@@ -75,7 +79,7 @@ impl PreparedInput {
                 (normalised, back, side)
             },
         );
-        let (mesh, source_gbuffer) = geometry?;
+        let (mesh, source_gbuffer, coarse) = geometry?;
         timings.0.extend(back_timings.0);
         Ok(Self {
             source_camera,
@@ -83,12 +87,20 @@ impl PreparedInput {
             fof: Some(fof),
             surfaces: None,
             mesh,
+            coarse,
             source_gbuffer,
             back,
             side,
             timings,
         })
     }
+}
+
+/// The mesh of the FOF on a grid of half the resolution ([`Fof::halved`], half the depth samples): a quarter of
+/// the triangles, sample spacing two source pixels ([`PreparedInput::coarse`]).
+fn coarse_still_mesh(fof: &Fof, opts: &PrepareOptions) -> CoarseMesh {
+    let mesh = marching::extract_mesh(&fof.halved(), opts.depth_samples.div_ceil(2));
+    CoarseMesh { mesh, spacing: 2.0 * 2.0 / opts.resolution.max(1) as f32 }
 }
 
 /// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning

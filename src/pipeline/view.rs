@@ -70,7 +70,8 @@ impl CpuView {
         camera: &Camera,
     ) -> Result<(RgbaImage, Drawn), PipelineError> {
         let mut timings = StageTimings::default();
-        timings.time("target raster", || raster::rasterize_into(&mut self.target, source.mesh, camera));
+        let mesh = super::mesh_for_view(source.mesh, source.coarse, camera);
+        timings.time("target raster", || raster::rasterize_into(&mut self.target, mesh, camera));
         let mut backend =
             CpuBackend { target: &self.target, fill: self.fill, flowz: &mut self.flowz, timings: &mut timings };
         let (person, drawn) = match self.policy.draw(&mut backend, source, neural, scene, camera) {

@@ -1,0 +1,90 @@
+//! Error against run time of the coarse view mesh ([`r2human::pipeline::CoarseMesh`]) on photos, for an XR eye:
+//! 342x384 pixels, 90 degrees vertical field of view, the person 1.75 m ahead (the XR default), looked at from
+//! several yaws around them. Per photo: the full and the coarse mesh's triangles, the target raster's median time
+//! with each (the two alternated, so both see the same machine load), and how far the coarse mesh's render is
+//! from the full mesh's (whole-frame PSNR, mask IoU of alpha > 0.5).
+//!
+//! Run: `cargo run --release --example view_mesh_levels -- [PHOTO...]` (default: every photo in assets/photos).
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use glam::{Quat, Vec3};
+use r2human::capture::segment::{segment_photo, SegmentMethod};
+use r2human::eval::metrics::{mask_iou, psnr_frame, SrgbImage};
+use r2human::geometry::raster::{rasterize_into, GBuffer};
+use r2human::geometry::Fov;
+use r2human::pipeline::view::CpuView;
+use r2human::pipeline::warp::OcclusionFill;
+use r2human::pipeline::{Neural, PrepareOptions, PreparedInput, SourceView};
+use r2human::xr::placement::Placement;
+
+fn median_ms(mut v: Vec<Duration>) -> f64 {
+    v.sort();
+    v[v.len() / 2].as_secs_f64() * 1e3
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut photos: Vec<PathBuf> = std::env::args_os().skip(1).map(PathBuf::from).collect();
+    if photos.is_empty() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/photos");
+        photos = std::fs::read_dir(&dir)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "png" || x == "jpg"))
+            .collect();
+        photos.sort();
+    }
+    let (w, h) = (342, 384);
+    let head = Vec3::new(0.0, 1.6, 0.0);
+    let placement = Placement::in_front_of(head, Quat::IDENTITY, 0.0, 1.75);
+    println!("| photo | triangles full / coarse | raster full / coarse (ms) | PSNR coarse vs full, yaw 0 / 30 / 90 / 180 (dB) | mask IoU, same yaws |");
+    println!("|---|---|---|---|---|");
+    for photo in &photos {
+        let person = segment_photo(photo, None, &SegmentMethod::Auto)?;
+        let opts = PrepareOptions { coarse_views: true, ..PrepareOptions::default() };
+        let input = PreparedInput::prepare(&person.photo.rgb, &person.mask, &opts)?;
+        let Some(coarse) = input.coarse.as_ref() else { anyhow::bail!("{}: no coarse mesh", photo.display()) };
+        let (mut psnrs, mut ious, mut full_t, mut coarse_t) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut ga, mut gb) = (GBuffer::new(0, 0), GBuffer::new(0, 0));
+        for yaw in [0.0f32, 30.0, 90.0, 180.0] {
+            // The viewer walks around the person: the eye turns about the person's vertical axis.
+            let turn = Quat::from_rotation_y(yaw.to_radians());
+            let eye = placement.position + turn * (head - placement.position);
+            let look = Quat::from_rotation_arc(Vec3::NEG_Z, (placement.position + Vec3::Y * 0.9 - eye).normalize());
+            let camera =
+                placement.eye_camera(eye, look, Fov::symmetric(std::f32::consts::FRAC_PI_2, w as f32 / h as f32), w, h);
+            for _ in 0..9 {
+                let t = Instant::now();
+                rasterize_into(&mut ga, &input.mesh, &camera);
+                full_t.push(t.elapsed());
+                let t = Instant::now();
+                rasterize_into(&mut gb, &coarse.mesh, &camera);
+                coarse_t.push(t.elapsed());
+            }
+            let draw = |coarse: bool| -> anyhow::Result<r2human::buffer::RgbaImage> {
+                let mut source = SourceView::of(&input);
+                if !coarse {
+                    source.coarse = None;
+                }
+                Ok(CpuView::new(OcclusionFill::default(), false).draw(source, Neural::Off, 0, &camera)?.0)
+            };
+            let (a, b) = (draw(false)?, draw(true)?);
+            let alpha = |img: &r2human::buffer::RgbaImage| img.data.iter().map(|p| p.w > 0.5).collect::<Vec<bool>>();
+            psnrs
+                .push(psnr_frame(&SrgbImage::from_linear_premultiplied(&a), &SrgbImage::from_linear_premultiplied(&b)));
+            ious.push(mask_iou(&alpha(&a), &alpha(&b)));
+        }
+        let list = |v: &[f32], digits: usize| v.iter().map(|x| format!("{x:.digits$}")).collect::<Vec<_>>().join(" / ");
+        println!(
+            "| {} | {} / {} | {:.1} / {:.1} | {} | {} |",
+            photo.file_name().map_or_else(|| photo.display().to_string(), |n| n.to_string_lossy().into_owned()),
+            input.mesh.triangle_count(),
+            coarse.mesh.triangle_count(),
+            median_ms(full_t),
+            median_ms(coarse_t),
+            list(&psnrs, 1),
+            list(&ious, 3)
+        );
+    }
+    Ok(())
+}
