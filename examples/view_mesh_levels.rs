@@ -1,7 +1,8 @@
 //! Error against run time of the coarse view mesh ([`r2human::pipeline::CoarseMesh`]) on photos, for an XR eye:
 //! 342x384 pixels, 90 degrees vertical field of view, the person 1.75 m ahead (the XR default), looked at from
 //! several yaws around them. Per photo: the full and the coarse mesh's triangles, the target raster's median time
-//! with each (the two alternated, so both see the same machine load), and how far the coarse mesh's render is
+//! with the full mesh, the coarse one, and the coarse one without its back faces when it is closed (the three
+//! alternated, so all see the same machine load), and how far the coarse mesh's render (as the eyes draw it) is
 //! from the full mesh's (whole-frame PSNR, mask IoU of alpha > 0.5).
 //!
 //! Run: `cargo run --release --example view_mesh_levels -- [PHOTO...]` (default: every photo in assets/photos).
@@ -12,7 +13,7 @@ use std::time::{Duration, Instant};
 use glam::{Quat, Vec3};
 use r2human::capture::segment::{segment_photo, SegmentMethod};
 use r2human::eval::metrics::{mask_iou, psnr_frame, SrgbImage};
-use r2human::geometry::raster::{rasterize_into, GBuffer};
+use r2human::geometry::raster::{rasterize_front_into, rasterize_into, GBuffer};
 use r2human::geometry::Fov;
 use r2human::pipeline::view::CpuView;
 use r2human::pipeline::warp::OcclusionFill;
@@ -20,6 +21,9 @@ use r2human::pipeline::{Neural, PrepareOptions, PreparedInput, SourceView};
 use r2human::xr::placement::Placement;
 
 fn median_ms(mut v: Vec<Duration>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
     v.sort();
     v[v.len() / 2].as_secs_f64() * 1e3
 }
@@ -37,14 +41,15 @@ fn main() -> anyhow::Result<()> {
     let (w, h) = (342, 384);
     let head = Vec3::new(0.0, 1.6, 0.0);
     let placement = Placement::in_front_of(head, Quat::IDENTITY, 0.0, 1.75);
-    println!("| photo | triangles full / coarse | raster full / coarse (ms) | PSNR coarse vs full, yaw 0 / 30 / 90 / 180 (dB) | mask IoU, same yaws |");
-    println!("|---|---|---|---|---|");
+    println!("| photo | triangles full / coarse | coarse closed | raster full / coarse / coarse front faces (ms) | PSNR coarse vs full, yaw 0 / 30 / 90 / 180 (dB) | mask IoU, same yaws |");
+    println!("|---|---|---|---|---|---|");
     for photo in &photos {
         let person = segment_photo(photo, None, &SegmentMethod::Auto)?;
         let opts = PrepareOptions { coarse_views: true, ..PrepareOptions::default() };
         let input = PreparedInput::prepare(&person.photo.rgb, &person.mask, &opts)?;
         let Some(coarse) = input.coarse.as_ref() else { anyhow::bail!("{}: no coarse mesh", photo.display()) };
-        let (mut psnrs, mut ious, mut full_t, mut coarse_t) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut psnrs, mut ious) = (Vec::new(), Vec::new());
+        let (mut full_t, mut coarse_t, mut front_t) = (Vec::new(), Vec::new(), Vec::new());
         let (mut ga, mut gb) = (GBuffer::new(0, 0), GBuffer::new(0, 0));
         for yaw in [0.0f32, 30.0, 90.0, 180.0] {
             // The viewer walks around the person: the eye turns about the person's vertical axis.
@@ -60,6 +65,11 @@ fn main() -> anyhow::Result<()> {
                 let t = Instant::now();
                 rasterize_into(&mut gb, &coarse.mesh, &camera);
                 coarse_t.push(t.elapsed());
+                if coarse.closed {
+                    let t = Instant::now();
+                    rasterize_front_into(&mut gb, &coarse.mesh, &camera);
+                    front_t.push(t.elapsed());
+                }
             }
             let draw = |coarse: bool| -> anyhow::Result<r2human::buffer::RgbaImage> {
                 let mut source = SourceView::of(&input);
@@ -76,12 +86,14 @@ fn main() -> anyhow::Result<()> {
         }
         let list = |v: &[f32], digits: usize| v.iter().map(|x| format!("{x:.digits$}")).collect::<Vec<_>>().join(" / ");
         println!(
-            "| {} | {} / {} | {:.1} / {:.1} | {} | {} |",
+            "| {} | {} / {} | {} | {:.1} / {:.1} / {} | {} | {} |",
             photo.file_name().map_or_else(|| photo.display().to_string(), |n| n.to_string_lossy().into_owned()),
             input.mesh.triangle_count(),
             coarse.mesh.triangle_count(),
+            if coarse.closed { "yes" } else { "no" },
             median_ms(full_t),
             median_ms(coarse_t),
+            if front_t.is_empty() { "-".to_string() } else { format!("{:.1}", median_ms(front_t)) },
             list(&psnrs, 1),
             list(&ious, 3)
         );

@@ -229,6 +229,8 @@ fn the_coarse_view_mesh_is_made_when_asked_and_draws_the_same_person() {
     for (what, input, spacing) in [("still", &still, 4.0 / 256.0), ("frame", &frame, 8.0 / 256.0)] {
         let coarse = input.coarse.as_ref().unwrap_or_else(|| panic!("{what}: no coarse mesh"));
         assert!((coarse.spacing - spacing).abs() < 1e-6, "{what}: spacing {}", coarse.spacing);
+        // The figure stands inside the grid: both builders close the surface, so far views skip back faces.
+        assert!(coarse.closed, "{what}: the coarse mesh is not closed");
         let ratio = coarse.mesh.triangle_count() as f32 / input.mesh.triangle_count() as f32;
         assert!((0.1..0.45).contains(&ratio), "{what}: {ratio} of the triangles");
         // Silhouettes at an oblique view with pixels of the coarse spacing: nearly the same.

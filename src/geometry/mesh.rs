@@ -1,6 +1,7 @@
 //! Triangle meshes in body-cube coordinates.
 
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 
 /// Why a mesh cannot be drawn ([`TriMesh::validate`]).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -98,6 +99,27 @@ impl TriMesh {
     /// Whether the mesh has no triangles.
     pub fn is_empty(&self) -> bool {
         self.triangles.is_empty()
+    }
+
+    /// Whether the surface is closed and consistently wound: every directed edge is used by exactly one triangle
+    /// and its reverse by exactly one other. Then, seen from outside, every triangle facing away from the camera
+    /// is hidden behind one facing it, and a raster may skip them ([`super::raster::rasterize_front_into`]).
+    /// False for an empty mesh. Sorts the `3 * triangles` directed edges once.
+    pub fn is_closed(&self) -> bool {
+        if self.triangles.is_empty() {
+            return false;
+        }
+        let key = |a: u32, b: u32| (u64::from(a) << 32) | u64::from(b);
+        let mut edges: Vec<u64> =
+            self.triangles.par_iter().flat_map_iter(|t| (0..3).map(move |i| key(t[i], t[(i + 1) % 3]))).collect();
+        edges.par_sort_unstable();
+        if edges.windows(2).any(|w| w[0] == w[1]) {
+            return false;
+        }
+        edges.par_iter().all(|&e| {
+            let (a, b) = ((e >> 32) as u32, e as u32);
+            a != b && edges.binary_search(&key(b, a)).is_ok()
+        })
     }
 
     /// Axis-aligned bounds `(min, max)`; `None` for an empty mesh.
@@ -240,5 +262,24 @@ mod tests {
         let (same, e) = s.simplified(n);
         assert_eq!(same, s);
         assert_eq!(e, 0.0);
+    }
+
+    #[test]
+    fn closed_means_every_edge_once_each_way() {
+        let cube = TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5));
+        assert!(cube.is_closed());
+        // A hole: one triangle removed.
+        let mut holed = cube.clone();
+        holed.triangles.pop();
+        assert!(!holed.is_closed());
+        // One triangle wound the other way.
+        let mut flipped = cube.clone();
+        flipped.triangles[3].swap(1, 2);
+        assert!(!flipped.is_closed());
+        // A doubled triangle pair (each edge three times).
+        let mut doubled = cube.clone();
+        doubled.triangles.extend_from_slice(&cube.triangles[..2]);
+        assert!(!doubled.is_closed());
+        assert!(!TriMesh::default().is_closed());
     }
 }

@@ -140,17 +140,25 @@ pub fn rasterize(mesh: &TriMesh, camera: &Camera) -> GBuffer {
 /// [`rasterize`], also recording which triangle each pixel shows ([`GBuffer::triangle`]).
 pub fn rasterize_with_triangles(mesh: &TriMesh, camera: &Camera) -> GBuffer {
     let mut out = GBuffer::default();
-    rasterize_into_impl(&mut out, mesh, camera, true);
+    rasterize_into_impl(&mut out, mesh, camera, true, false);
     out
 }
 
 /// Rasterises `mesh` as seen by `camera` into `out`, resized to the camera's image size. Reuses `out`'s memory
 /// and a per-thread scratch cache, so repeated calls at one size allocate nothing.
 pub fn rasterize_into(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera) {
-    rasterize_into_impl(out, mesh, camera, false)
+    rasterize_into_impl(out, mesh, camera, false, false)
 }
 
-fn rasterize_into_impl(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera, with_triangles: bool) {
+/// [`rasterize_into`] skipping the triangles that face away from the camera (wound clockwise on screen), for a
+/// mesh that is closed and consistently wound ([`TriMesh::is_closed`]) seen from outside: there they are all
+/// hidden, so the result is the same for less work. On any other mesh, or from inside a closed one, it leaves
+/// holes. Triangles cut by the near plane are kept.
+pub fn rasterize_front_into(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera) {
+    rasterize_into_impl(out, mesh, camera, false, true)
+}
+
+fn rasterize_into_impl(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera, with_triangles: bool, front_only: bool) {
     let with_color = !mesh.colors.is_empty() && mesh.colors.len() == mesh.positions.len();
     let with_uv = !mesh.uvs.is_empty() && mesh.uvs.len() == mesh.positions.len();
     out.reset_with_uv(camera.width, camera.height, with_color, with_uv);
@@ -162,9 +170,9 @@ fn rasterize_into_impl(out: &mut GBuffer, mesh: &TriMesh, camera: &Camera, with_
     }
     let Some(fc) = FastCamera::new(camera) else { return };
     SCRATCH.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut scratch) => rasterize_with(&mut scratch, out, mesh, &fc),
+        Ok(mut scratch) => rasterize_with(&mut scratch, out, mesh, &fc, front_only),
         // Re-entered on this thread (e.g. rayon work stealing inside a nested call): use a fresh scratch.
-        Err(_) => rasterize_with(&mut Scratch::default(), out, mesh, &fc),
+        Err(_) => rasterize_with(&mut Scratch::default(), out, mesh, &fc, front_only),
     });
 }
 
@@ -436,7 +444,7 @@ fn clip_polygon(fc: &FastCamera, tri: [ClipVertex; 3], guard: f32, out: &mut Vec
     out.extend_from_slice(&a);
 }
 
-fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastCamera) {
+fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastCamera, front_only: bool) {
     let (w, h) = (out.width, out.height);
     let nv = mesh.positions.len();
     let guard = fc.guard();
@@ -468,7 +476,7 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
     let n_chunks = rayon::current_num_threads().clamp(1, 64);
     let chunk_len = n_tris.div_ceil(n_chunks).max(1);
     s.chunks.resize_with(n_chunks, BinChunk::default);
-    let (clip, outcode, spans) = (&s.clip, &s.outcode, &s.spans);
+    let (clip, outcode, spans, screen) = (&s.clip, &s.outcode, &s.spans, &s.screen);
     s.chunks.par_iter_mut().enumerate().for_each(|(k, chunk)| {
         if chunk.bins.len() < n_bands {
             chunk.bins.resize_with(n_bands, Vec::new);
@@ -489,6 +497,9 @@ fn rasterize_with(s: &mut Scratch, out: &mut GBuffer, mesh: &TriMesh, fc: &FastC
                 continue; // non-finite vertex, or entirely outside one plane
             }
             if (o0 | o1 | o2) == 0 {
+                if front_only && faces_away([screen[i0], screen[i1], screen[i2]]) {
+                    continue;
+                }
                 bin_spans(&mut chunk.bins, [spans[i0], spans[i1], spans[i2]], t as u32, w, h);
                 continue;
             }
@@ -656,6 +667,13 @@ impl CentreSpan {
         let last = |x: f32| floor_small((x + BIN_SLACK).clamp(-LIMIT, LIMIT) - 0.5);
         Self { col_first: first(v.u), col_last: last(v.u), row_first: first(v.v), row_last: last(v.v) }
     }
+}
+
+/// Whether a screen triangle of a mesh wound counter-clockwise seen from outside ([`TriMesh`]) shows its back:
+/// screen rows grow downwards, so a front face has a negative signed area in `(u, v)`.
+#[inline]
+fn faces_away([a, b, c]: [ScreenVertex; 3]) -> bool {
+    (b.u - a.u) * (c.v - a.v) - (b.v - a.v) * (c.u - a.u) > 0.0
 }
 
 /// [`bin_spans`] for a triangle made by clipping (its vertices have no precomputed spans).
@@ -1131,5 +1149,38 @@ mod tests {
             checked += 1;
         }
         assert!(checked > 300);
+    }
+
+    #[test]
+    fn skipping_back_faces_of_a_closed_mesh_changes_nothing_seen_from_outside() {
+        let mut two = TriMesh::cuboid(Vec3::new(-0.6, -0.8, -0.2), Vec3::new(0.1, 0.7, 0.3));
+        let other = TriMesh::cuboid(Vec3::new(0.2, -0.3, -0.5), Vec3::new(0.6, 0.2, 0.1));
+        let offset = two.positions.len() as u32;
+        two.positions.extend_from_slice(&other.positions);
+        two.triangles.extend(other.triangles.iter().map(|t| t.map(|i| i + offset)));
+        two.compute_normals();
+        assert!(two.is_closed());
+        let fov = Fov::symmetric(1.0, 1.2);
+        let cameras = [
+            Camera::source(96),
+            Camera::orbit(137.0, -35.0, 80, 96),
+            Camera::orbit(30.0, 89.9, 96, 96),
+            Camera::perspective(Vec3::new(0.4, 0.3, 2.5), Quat::from_rotation_y(0.15), fov, 0.05, 96, 80),
+        ];
+        for cam in cameras {
+            let all = rasterize(&two, &cam);
+            let mut front = GBuffer::new(0, 0);
+            rasterize_front_into(&mut front, &two, &cam);
+            assert!(all.mask.iter().filter(|&&m| m).count() > 500);
+            assert_eq!(all.mask, front.mask);
+            assert_eq!(all.depth, front.depth);
+            assert_eq!(all.normal, front.normal);
+        }
+        // From inside a box every face shows its back: skipping them leaves nothing (the documented limit).
+        let inside = Camera::perspective(Vec3::new(-0.2, 0.0, 0.0), Quat::IDENTITY, fov, 0.01, 32, 32);
+        let mut front = GBuffer::new(0, 0);
+        rasterize_front_into(&mut front, &two, &inside);
+        assert!(rasterize(&two, &inside).mask.iter().all(|&m| m));
+        assert!(front.mask.iter().all(|&m| !m));
     }
 }

@@ -48,7 +48,7 @@ pub const FRAME_MESH_STEP: usize = 2;
 fn coarse_frame_mesh(surfaces: &InflatedSurfaces, resolution: usize) -> Option<CoarseMesh> {
     let step = 2 * FRAME_MESH_STEP;
     let mesh = mesh_from_surfaces(surfaces, step).ok()?;
-    Some(CoarseMesh { mesh, spacing: step as f32 * 2.0 / resolution.max(1) as f32 })
+    Some(CoarseMesh::new(mesh, step as f32 * 2.0 / resolution.max(1) as f32))
 }
 
 /// How much coarser than the source grid a frame's silhouette is inflated

@@ -42,6 +42,6 @@ pub use person::{
     Drawn, Neural, NeuralCounters, NeuralPolicy, NeuralRef, NeuralRequest, NeuralViewTimes, PersonBackend, Scene,
     SceneNeural, SourceView,
 };
-pub use prepared::{mesh_for_view, CoarseMesh, PrepareOptions, PreparedInput, StageTimings};
+pub use prepared::{mesh_for_view, CoarseMesh, PrepareOptions, PreparedInput, StageTimings, ViewMesh};
 pub use still::*;
 pub use view::{CpuView, ViewRenderer};

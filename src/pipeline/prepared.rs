@@ -139,20 +139,45 @@ pub struct CoarseMesh {
     pub mesh: TriMesh,
     /// Distance between its samples across the source view (body-cube units).
     pub spacing: f32,
+    /// Whether it is closed and consistently wound ([`TriMesh::is_closed`]): a view from outside may then skip
+    /// the triangles facing away ([`crate::geometry::raster::rasterize_front_into`]).
+    pub closed: bool,
+}
+
+impl CoarseMesh {
+    /// `mesh` with its sample `spacing`, its closedness checked once.
+    pub fn new(mesh: TriMesh, spacing: f32) -> Self {
+        let closed = mesh.is_closed();
+        Self { mesh, spacing, closed }
+    }
+}
+
+/// The mesh a view draws ([`mesh_for_view`]) and whether its back faces may be skipped.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewMesh<'m> {
+    /// The mesh.
+    pub mesh: &'m TriMesh,
+    /// Closed and consistently wound, and the camera outside its bounds: back faces are hidden.
+    pub front_only: bool,
 }
 
 /// The mesh a view is drawn with: `full`, or `coarse` when a pixel of `camera` spans at least the coarse mesh's
 /// sample spacing at the centre of the person's bounds, so the full mesh's extra triangles would fall inside
 /// pixels. (For a person a few body heights away the footprint varies by the person's depth over the distance,
-/// a few tens of per cent at most.)
-pub fn mesh_for_view<'m>(full: &'m TriMesh, coarse: Option<&'m CoarseMesh>, camera: &Camera) -> &'m TriMesh {
-    let (Some(coarse), Some((lo, hi))) = (coarse, full.bounds()) else { return full };
+/// a few tens of per cent at most.) The coarse mesh's back faces are skipped when it is closed and the camera is
+/// outside its bounds.
+pub fn mesh_for_view<'m>(full: &'m TriMesh, coarse: Option<&'m CoarseMesh>, camera: &Camera) -> ViewMesh<'m> {
+    let whole = ViewMesh { mesh: full, front_only: false };
+    let (Some(coarse), Some((lo, hi))) = (coarse, full.bounds()) else { return whole };
     // The footprint is never NaN (0 for points it cannot see), so `<` refuses every unsure case.
     if coarse.mesh.is_empty() || camera.pixel_footprint((lo + hi) * 0.5) < coarse.spacing {
-        full
-    } else {
-        &coarse.mesh
+        return whole;
     }
+    let outside = camera.is_orthographic() || {
+        let eye = camera.position();
+        eye.cmplt(lo).any() || eye.cmpgt(hi).any()
+    };
+    ViewMesh { mesh: &coarse.mesh, front_only: coarse.closed && outside }
 }
 
 #[cfg(test)]
@@ -165,8 +190,17 @@ mod tests {
     #[test]
     fn a_view_draws_the_coarse_mesh_only_when_its_pixels_are_as_large_as_the_coarse_samples() {
         let full = TriMesh::uv_sphere(Vec3::ZERO, 0.5, 64, 64);
-        let coarse = CoarseMesh { mesh: TriMesh::uv_sphere(Vec3::ZERO, 0.5, 16, 16), spacing: 0.01 };
-        let is_coarse = |camera: &Camera| std::ptr::eq(mesh_for_view(&full, Some(&coarse), camera), &coarse.mesh);
+        let coarse = CoarseMesh::new(TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)), 0.01);
+        assert!(coarse.closed);
+        let is_coarse = |camera: &Camera| {
+            let chosen = mesh_for_view(&full, Some(&coarse), camera);
+            assert_eq!(
+                chosen.front_only,
+                std::ptr::eq(chosen.mesh, &coarse.mesh),
+                "back faces skipped on the coarse mesh only"
+            );
+            std::ptr::eq(chosen.mesh, &coarse.mesh)
+        };
         // Orthographic over the body cube: 2 / 512 = 0.0039 per pixel (full), 2 / 128 = 0.0156 (coarse), and
         // exactly the spacing at 200 pixels.
         assert!(!is_coarse(&Camera::orthographic(Affine3A::IDENTITY, 1.0, 512, 512)));
@@ -181,8 +215,13 @@ mod tests {
         assert!(!is_coarse(&at(0.8)));
         // Inside the person, no coarse mesh, or an empty one: the full mesh.
         assert!(!is_coarse(&at(0.0)));
-        assert!(std::ptr::eq(mesh_for_view(&full, None, &at(3.0)), &full));
-        let empty = CoarseMesh { mesh: TriMesh::default(), spacing: 0.01 };
-        assert!(std::ptr::eq(mesh_for_view(&full, Some(&empty), &at(3.0)), &full));
+        assert!(std::ptr::eq(mesh_for_view(&full, None, &at(3.0)).mesh, &full));
+        let empty = CoarseMesh::new(TriMesh::default(), 0.01);
+        assert!(std::ptr::eq(mesh_for_view(&full, Some(&empty), &at(3.0)).mesh, &full));
+        // A coarse mesh with a hole draws all its faces.
+        let mut holed = coarse.clone();
+        holed.mesh.triangles.pop();
+        let holed = CoarseMesh::new(holed.mesh, 0.01);
+        assert!(!mesh_for_view(&full, Some(&holed), &at(3.0)).front_only);
     }
 }

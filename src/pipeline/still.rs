@@ -100,7 +100,7 @@ impl PreparedInput {
 /// the triangles, sample spacing two source pixels ([`PreparedInput::coarse`]).
 fn coarse_still_mesh(fof: &Fof, opts: &PrepareOptions) -> CoarseMesh {
     let mesh = marching::extract_mesh(&fof.halved(), opts.depth_samples.div_ceil(2));
-    CoarseMesh { mesh, spacing: 2.0 * 2.0 / opts.resolution.max(1) as f32 }
+    CoarseMesh::new(mesh, 2.0 * 2.0 / opts.resolution.max(1) as f32)
 }
 
 /// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning

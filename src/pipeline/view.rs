@@ -70,8 +70,11 @@ impl CpuView {
         camera: &Camera,
     ) -> Result<(RgbaImage, Drawn), PipelineError> {
         let mut timings = StageTimings::default();
-        let mesh = super::mesh_for_view(source.mesh, source.coarse, camera);
-        timings.time("target raster", || raster::rasterize_into(&mut self.target, mesh, camera));
+        let view = super::mesh_for_view(source.mesh, source.coarse, camera);
+        timings.time("target raster", || match view.front_only {
+            true => raster::rasterize_front_into(&mut self.target, view.mesh, camera),
+            false => raster::rasterize_into(&mut self.target, view.mesh, camera),
+        });
         let mut backend =
             CpuBackend { target: &self.target, fill: self.fill, flowz: &mut self.flowz, timings: &mut timings };
         let (person, drawn) = match self.policy.draw(&mut backend, source, neural, scene, camera) {
