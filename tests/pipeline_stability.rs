@@ -226,6 +226,9 @@ fn the_coarse_view_mesh_is_made_when_asked_and_draws_the_same_person() {
     let still = PreparedInput::prepare(&rgb, &mask, &asked).unwrap();
     let mut frames = r2human::pipeline::frame::FramePath::new(asked);
     let frame = frames.prepare(&rgb, &mask).unwrap();
+    // The frame path's mesh is closed by construction and says so; the still path's is not checked.
+    assert!(frame.mesh_closed && frame.mesh.is_closed());
+    assert!(!still.mesh_closed);
     for (what, input, spacing) in [("still", &still, 4.0 / 256.0), ("frame", &frame, 8.0 / 256.0)] {
         let coarse = input.coarse.as_ref().unwrap_or_else(|| panic!("{what}: no coarse mesh"));
         assert!((coarse.spacing - spacing).abs() < 1e-6, "{what}: spacing {}", coarse.spacing);

@@ -122,7 +122,18 @@ fn box_scene() -> Scene {
     let (w, h) = (gbuffer.width, gbuffer.height);
     let mask = GrayImage::from_fn(w, h, |c, r| if gbuffer.mask[r * w + c] { 1.0 } else { 0.0 });
     let rgb = RgbImage::from_fn(w, h, |c, r| if gbuffer.mask[r * w + c] { FRONT } else { Vec3::ZERO });
-    Scene { mesh, coarse: None, rgb, mask, gbuffer, camera: source_camera, back: None, side: None, neural: None }
+    Scene {
+        mesh,
+        mesh_closed: true,
+        coarse: None,
+        rgb,
+        mask,
+        gbuffer,
+        camera: source_camera,
+        back: None,
+        side: None,
+        neural: None,
+    }
 }
 
 fn box_feed() -> Box<dyn SceneFeed> {

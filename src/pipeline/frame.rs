@@ -397,6 +397,8 @@ impl FramePath {
             fof: None,
             surfaces: Some(surfaces),
             mesh,
+            // Two height fields joined by a wall along every outline edge (`mesh_from_surfaces`).
+            mesh_closed: true,
             coarse,
             source_gbuffer,
             back,

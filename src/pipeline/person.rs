@@ -24,6 +24,8 @@ use super::{CoarseMesh, NeuralInput, PreparedInput, SharedNeural};
 pub struct SourceView<'a> {
     /// The person's mesh.
     pub mesh: &'a TriMesh,
+    /// Whether `mesh` is known to be closed and consistently wound ([`PreparedInput::mesh_closed`]).
+    pub mesh_closed: bool,
     /// The same person sampled half as finely across, for views whose pixels are that large
     /// ([`super::mesh_for_view`]); `None`: every view draws `mesh`.
     pub coarse: Option<&'a CoarseMesh>,
@@ -46,6 +48,7 @@ impl<'a> SourceView<'a> {
     pub fn of(input: &'a PreparedInput) -> Self {
         Self {
             mesh: &input.mesh,
+            mesh_closed: input.mesh_closed,
             coarse: input.coarse.as_ref(),
             rgb: &input.normalised.rgb,
             mask: &input.normalised.mask,
@@ -84,6 +87,8 @@ impl std::fmt::Debug for SceneNeural {
 pub struct Scene {
     /// The person's mesh.
     pub mesh: TriMesh,
+    /// Whether `mesh` is known to be closed and consistently wound ([`PreparedInput::mesh_closed`]).
+    pub mesh_closed: bool,
     /// Its coarse copy for views with large pixels, when the input was prepared with one.
     pub coarse: Option<CoarseMesh>,
     /// Source colour, premultiplied linear RGB.
@@ -107,6 +112,7 @@ impl Scene {
     pub fn from_prepared(input: &PreparedInput, neural: Option<SceneNeural>) -> Self {
         Self {
             mesh: input.mesh.clone(),
+            mesh_closed: input.mesh_closed,
             coarse: input.coarse.clone(),
             rgb: input.normalised.rgb.clone(),
             mask: input.normalised.mask.clone(),
@@ -122,6 +128,7 @@ impl Scene {
     pub fn source(&self) -> SourceView<'_> {
         SourceView {
             mesh: &self.mesh,
+            mesh_closed: self.mesh_closed,
             coarse: self.coarse.as_ref(),
             rgb: &self.rgb,
             mask: &self.mask,
@@ -393,6 +400,7 @@ mod tests {
     fn scene() -> Scene {
         Scene {
             mesh: TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
+            mesh_closed: true,
             coarse: None,
             rgb: Image::new(4, 4, Vec3::ONE),
             mask: Image::new(4, 4, 1.0),

@@ -104,6 +104,9 @@ pub struct PreparedInput {
     pub surfaces: Option<inflate::InflatedSurfaces>,
     /// The mesh: extracted from the FOF (still path) or joined from the two depth maps (frame path).
     pub mesh: TriMesh,
+    /// Whether `mesh` is known to be closed and consistently wound (the frame path's, by construction): views from
+    /// outside may skip its back faces. False where it was not checked (the still path's marching cubes).
+    pub mesh_closed: bool,
     /// The same geometry sampled half as finely across, when [`PrepareOptions::coarse_views`] asked for it: the
     /// CPU renderers draw a view with it when one of the view's pixels spans at least its sample spacing there
     /// ([`mesh_for_view`]).
@@ -164,20 +167,26 @@ pub struct ViewMesh<'m> {
 /// The mesh a view is drawn with: `full`, or `coarse` when a pixel of `camera` spans at least the coarse mesh's
 /// sample spacing at the centre of the person's bounds, so the full mesh's extra triangles would fall inside
 /// pixels. (For a person a few body heights away the footprint varies by the person's depth over the distance,
-/// a few tens of per cent at most.) The coarse mesh's back faces are skipped when it is closed and the camera is
-/// outside its bounds.
-pub fn mesh_for_view<'m>(full: &'m TriMesh, coarse: Option<&'m CoarseMesh>, camera: &Camera) -> ViewMesh<'m> {
-    let whole = ViewMesh { mesh: full, front_only: false };
-    let (Some(coarse), Some((lo, hi))) = (coarse, full.bounds()) else { return whole };
-    // The footprint is never NaN (0 for points it cannot see), so `<` refuses every unsure case.
-    if coarse.mesh.is_empty() || camera.pixel_footprint((lo + hi) * 0.5) < coarse.spacing {
-        return whole;
-    }
+/// a few tens of per cent at most.) The drawn mesh's back faces are skipped when it is closed (`full_closed`,
+/// [`CoarseMesh::closed`]) and the camera is outside the person's bounds.
+pub fn mesh_for_view<'m>(
+    full: &'m TriMesh,
+    full_closed: bool,
+    coarse: Option<&'m CoarseMesh>,
+    camera: &Camera,
+) -> ViewMesh<'m> {
+    let Some((lo, hi)) = full.bounds() else { return ViewMesh { mesh: full, front_only: false } };
     let outside = camera.is_orthographic() || {
         let eye = camera.position();
         eye.cmplt(lo).any() || eye.cmpgt(hi).any()
     };
-    ViewMesh { mesh: &coarse.mesh, front_only: coarse.closed && outside }
+    match coarse {
+        // The footprint is never NaN (0 for points it cannot see), so `<` refuses every unsure case.
+        Some(c) if !c.mesh.is_empty() && camera.pixel_footprint((lo + hi) * 0.5) >= c.spacing => {
+            ViewMesh { mesh: &c.mesh, front_only: c.closed && outside }
+        }
+        _ => ViewMesh { mesh: full, front_only: full_closed && outside },
+    }
 }
 
 #[cfg(test)]
@@ -193,7 +202,7 @@ mod tests {
         let coarse = CoarseMesh::new(TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)), 0.01);
         assert!(coarse.closed);
         let is_coarse = |camera: &Camera| {
-            let chosen = mesh_for_view(&full, Some(&coarse), camera);
+            let chosen = mesh_for_view(&full, false, Some(&coarse), camera);
             assert_eq!(
                 chosen.front_only,
                 std::ptr::eq(chosen.mesh, &coarse.mesh),
@@ -215,13 +224,16 @@ mod tests {
         assert!(!is_coarse(&at(0.8)));
         // Inside the person, no coarse mesh, or an empty one: the full mesh.
         assert!(!is_coarse(&at(0.0)));
-        assert!(std::ptr::eq(mesh_for_view(&full, None, &at(3.0)).mesh, &full));
+        assert!(std::ptr::eq(mesh_for_view(&full, false, None, &at(3.0)).mesh, &full));
+        // A full mesh known to be closed skips its back faces from outside, not from inside.
+        assert!(mesh_for_view(&full, true, None, &at(3.0)).front_only);
+        assert!(!mesh_for_view(&full, true, None, &at(0.0)).front_only);
         let empty = CoarseMesh::new(TriMesh::default(), 0.01);
-        assert!(std::ptr::eq(mesh_for_view(&full, Some(&empty), &at(3.0)).mesh, &full));
+        assert!(std::ptr::eq(mesh_for_view(&full, false, Some(&empty), &at(3.0)).mesh, &full));
         // A coarse mesh with a hole draws all its faces.
         let mut holed = coarse.clone();
         holed.mesh.triangles.pop();
         let holed = CoarseMesh::new(holed.mesh, 0.01);
-        assert!(!mesh_for_view(&full, Some(&holed), &at(3.0)).front_only);
+        assert!(!mesh_for_view(&full, false, Some(&holed), &at(3.0)).front_only);
     }
 }

@@ -87,6 +87,7 @@ impl PreparedInput {
             fof: Some(fof),
             surfaces: None,
             mesh,
+            mesh_closed: false,
             coarse,
             source_gbuffer,
             back,

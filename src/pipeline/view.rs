@@ -70,7 +70,7 @@ impl CpuView {
         camera: &Camera,
     ) -> Result<(RgbaImage, Drawn), PipelineError> {
         let mut timings = StageTimings::default();
-        let view = super::mesh_for_view(source.mesh, source.coarse, camera);
+        let view = super::mesh_for_view(source.mesh, source.mesh_closed, source.coarse, camera);
         timings.time("target raster", || match view.front_only {
             true => raster::rasterize_front_into(&mut self.target, view.mesh, camera),
             false => raster::rasterize_into(&mut self.target, view.mesh, camera),

@@ -461,6 +461,7 @@ mod tests {
         use crate::geometry::{Camera, TriMesh};
         let scene = Scene {
             mesh: TriMesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5)),
+            mesh_closed: true,
             coarse: None,
             rgb: RgbImage::new(4, 4, Vec3::ONE),
             mask: GrayImage::new(4, 4, 1.0),
