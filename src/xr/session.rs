@@ -749,7 +749,12 @@ pub fn run_session(
         let renderer = renderer.as_dyn();
         let render_thread =
             std::thread::Builder::new().name("r2human-xr-render".into()).spawn_scoped(scope, move || {
-                m.run_render_loop(renderer);
+                // The eyes' parallel stages run on a pool of their own: in the global pool they would queue behind
+                // the live worker's (segmentation, geometry) and an eye would wait for a whole frame's work.
+                match eye_pool() {
+                    Some(pool) => pool.install(|| m.run_render_loop(renderer)),
+                    None => m.run_render_loop(renderer),
+                }
             });
         if let Err(e) = render_thread {
             return EndReason::RenderFailed(format!("cannot start the render thread: {e}"));
@@ -1255,6 +1260,19 @@ fn frame_loop(
         st.exports.at_frame(ctx.config, st.pacing.person_frames);
         if ctx.config.max_person_frames.is_some_and(|n| st.pacing.person_frames >= n) {
             request_exit(EndReason::FrameLimit, &mut exit_requested);
+        }
+    }
+}
+
+/// A thread pool for the render thread's parallel work, one thread per core; `None` (the global pool is used,
+/// with a debug message) when the system refuses the threads.
+fn eye_pool() -> Option<rayon::ThreadPool> {
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    match rayon::ThreadPoolBuilder::new().num_threads(threads).thread_name(|i| format!("r2human-eyes-{i}")).build() {
+        Ok(pool) => Some(pool),
+        Err(e) => {
+            tracing::debug!("no thread pool of its own for the eyes ({e}); they share the global one");
+            None
         }
     }
 }
