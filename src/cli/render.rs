@@ -54,12 +54,21 @@ pub struct GeometryArgs {
     /// Number of Fourier occupancy coefficients (FOF-X N).
     #[arg(long, default_value_t = 32)]
     pub fof_order: usize,
+    /// Live sources (--video, --camera) only: draw each frame on its own, without the person model kept across
+    /// the frames (what the camera has seen of the person's sides and back; docs/live.md "The person model").
+    #[arg(long)]
+    pub no_person_model: bool,
 }
 
 impl GeometryArgs {
     /// The options as [`crate::app::offline`] takes them.
     pub fn options(&self) -> GeometryOptions {
-        GeometryOptions { geometry: self.geometry, fill: self.fill.into(), fof_order: self.fof_order }
+        GeometryOptions {
+            geometry: self.geometry,
+            fill: self.fill.into(),
+            fof_order: self.fof_order,
+            person_model: !self.no_person_model,
+        }
     }
 }
 
