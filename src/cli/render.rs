@@ -54,10 +54,11 @@ pub struct GeometryArgs {
     /// Number of Fourier occupancy coefficients (FOF-X N).
     #[arg(long, default_value_t = 32)]
     pub fof_order: usize,
-    /// Live sources (--video, --camera) only: draw each frame on its own, without the person model kept across
-    /// the frames (what the camera has seen of the person's sides and back; docs/live.md "The person model").
+    /// Live sources (--video, --camera) only: keep a person model across the frames (the shape the silhouettes
+    /// showed from each side, the colours of the sides and back the camera saw; docs/live.md "The person model").
+    /// Off by default: its yaw tracking is lost on the synthetic people's turns (docs/evaluation.md).
     #[arg(long)]
-    pub no_person_model: bool,
+    pub person_model: bool,
 }
 
 impl GeometryArgs {
@@ -67,7 +68,7 @@ impl GeometryArgs {
             geometry: self.geometry,
             fill: self.fill.into(),
             fof_order: self.fof_order,
-            person_model: !self.no_person_model,
+            person_model: self.person_model,
         }
     }
 }

@@ -8,14 +8,18 @@
 //! geometry and the colours, not a re-cropping), then centred in depth like every geometry. Methods:
 //!
 //! - `frame-path`: the geometric renderer on what [`FramePath`] prepared (what a live source shows today);
+//! - `model`: the same preparation rewritten by the person model kept across the clip's frames ([`PersonModel`]:
+//!   the hull's depths and the kept colours of the back, its yaw tracked from the frames alone; the clip's true
+//!   turn is only compared with it, in `turn_model.csv`);
 //! - `oracle`: the geometric renderer on the same frame's normalised input with the true geometry (the frame's
 //!   ground-truth FOF, [`PreparedInput::from_fof`]): the ceiling of any geometry.
 //!
-//! Outputs in `--out`: `turn.csv` (one row per clip, frame, method and view group), `turn.md` (per clip and over
-//! every clip: the first frame, the last one — the person has turned once and faces the camera again — and the
-//! mean over the turn), `turn_divergent_psnr.png` (divergent whole-frame PSNR over the frames, mean over clips) and
-//! `sheets/<clip>.png` (contact sheets: six moments of the clip; rows: the camera's frame, then at yaw 180 and
-//! yaw 90 the ground truth, the frame path and the oracle).
+//! Outputs in `--out`: `turn.csv` (one row per clip, frame, method and view group), `turn_model.csv` (the model's
+//! tracking per frame), `turn.md` (per clip and over every clip: the first frame, the last one — the person has
+//! turned once and faces the camera again — and the mean over the turn), `turn_divergent_psnr.png` (divergent
+//! whole-frame PSNR over the frames, mean over clips) and `sheets/<clip>.png` (contact sheets: six moments of the
+//! clip; rows: the camera's frame, then at yaw 180 and yaw 90 the ground truth, the frame path, the model and the
+//! oracle).
 
 use std::path::PathBuf;
 use std::time::Instant;

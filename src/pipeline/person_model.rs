@@ -36,7 +36,7 @@
 //! carved or kept there) until the next frame decides. A turn keeps the colours in step with the tracked yaw and
 //! does not reset.
 //!
-//! Memory is fixed at construction ([`PersonModel::memory_bytes`]): about 7 MB whatever the length of the source.
+//! Memory is fixed at construction ([`PersonModel::memory_bytes`]): 6.3 MB whatever the length of the source.
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;

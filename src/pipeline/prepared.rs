@@ -39,8 +39,8 @@ pub struct PrepareOptions {
     /// The pose network that finds the face for the back image ([`super::load_back_pose`]; [`back::back_image`]); `None`:
     /// no back image (the renderers then colour what the photo does not show from the photo itself).
     pub back_pose: Option<SharedPose>,
-    /// Live sources: keep the person model across frames ([`super::person_model`], on by default; `--no-person-model`
-    /// turns it off). Stills ignore it.
+    /// Live sources: keep the person model across frames ([`super::person_model`]; `--person-model`, off by
+    /// default). Stills ignore it.
     pub person_model: bool,
 }
 
@@ -57,7 +57,7 @@ impl Default for PrepareOptions {
             placement: None,
             warm_start: false,
             back_pose: None,
-            person_model: true,
+            person_model: false,
         }
     }
 }
