@@ -44,7 +44,7 @@ pub struct GeometryOptions {
     pub fill: OcclusionFill,
     /// Number of Fourier occupancy coefficients (FOF-X N), 2 to 256.
     pub fof_order: usize,
-    /// Whether live sources keep the person model across frames ([`crate::pipeline::person_model`]).
+    /// Whether a video's frames keep the person model across them ([`crate::pipeline::person_model`]).
     pub person_model: bool,
 }
 

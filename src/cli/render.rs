@@ -54,7 +54,7 @@ pub struct GeometryArgs {
     /// Number of Fourier occupancy coefficients (FOF-X N).
     #[arg(long, default_value_t = 32)]
     pub fof_order: usize,
-    /// Live sources (--video, --camera) only: keep a person model across the frames (the shape the silhouettes
+    /// `render --video` only: keep a person model across the frames (the shape the silhouettes
     /// showed from each side, the colours of the sides and back the camera saw; docs/live.md "The person model").
     /// Off by default: its yaw tracking is lost on the synthetic people's turns (docs/evaluation.md).
     #[arg(long)]
