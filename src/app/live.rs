@@ -28,6 +28,7 @@ use crate::capture::{CaptureError, Frame, FrameSource, SegmentMethod, Segmenter,
 use crate::geometry::Camera;
 use crate::pipeline::frame::{mask_iou, FramePath, PlacementRefresh};
 use crate::pipeline::input::{normalise, NormalisedInput};
+use crate::pipeline::person_model::PersonModel;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{NeuralInput, PipelineError, PrepareOptions, PreparedInput, SharedNeural, ViewRenderer};
 
@@ -113,12 +114,16 @@ impl FrameProcessor for NormaliseProcessor {
 /// rate). Stage names in the statistics are the frame path's.
 pub struct PrepareProcessor {
     path: FramePath,
+    /// The person kept across frames ([`PrepareOptions::person_model`]).
+    model: Option<Box<PersonModel>>,
 }
 
 impl PrepareProcessor {
-    /// A processor preparing frames with `options` ([`FramePath::new`]: frames' geometry, warm-started body fit).
+    /// A processor preparing frames with `options` ([`FramePath::new`]: frames' geometry, warm-started body fit;
+    /// then the person model unless `options.person_model` is off).
     pub fn new(options: PrepareOptions) -> Self {
-        Self { path: FramePath::new(options) }
+        let model = options.person_model.then(|| Box::new(PersonModel::new()));
+        Self { path: FramePath::new(options), model }
     }
 
     /// The options frames are prepared with.
@@ -136,7 +141,13 @@ impl FrameProcessor for PrepareProcessor {
         mask: &GrayImage,
         stats: &mut StageStats,
     ) -> Result<PreparedInput, PipelineError> {
-        let prepared = self.path.prepare(&frame.rgb, mask)?;
+        let mut prepared = self.path.prepare(&frame.rgb, mask)?;
+        if let Some(model) = self.model.as_mut() {
+            let step = model.update(&mut prepared);
+            if step.restarted || !step.reset_bands.is_empty() {
+                tracing::info!("frame {}: person model {}", frame.index, step.describe());
+            }
+        }
         for (name, d) in &prepared.timings.0 {
             stats.record(name, *d);
         }
@@ -145,6 +156,9 @@ impl FrameProcessor for PrepareProcessor {
 
     fn reset(&mut self) {
         self.path.reset();
+        if let Some(model) = self.model.as_mut() {
+            model.reset();
+        }
     }
 }
 

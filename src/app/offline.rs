@@ -44,6 +44,8 @@ pub struct GeometryOptions {
     pub fill: OcclusionFill,
     /// Number of Fourier occupancy coefficients (FOF-X N), 2 to 256.
     pub fof_order: usize,
+    /// Whether a video's frames keep the person model across them ([`crate::pipeline::person_model`]).
+    pub person_model: bool,
 }
 
 impl GeometryOptions {
@@ -73,6 +75,7 @@ impl GeometryOptions {
             body,
             placement,
             back_pose,
+            person_model: self.person_model,
             ..Default::default()
         })
     }

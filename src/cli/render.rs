@@ -54,12 +54,22 @@ pub struct GeometryArgs {
     /// Number of Fourier occupancy coefficients (FOF-X N).
     #[arg(long, default_value_t = 32)]
     pub fof_order: usize,
+    /// `render --video` only: keep a person model across the frames (the shape the silhouettes
+    /// showed from each side, the colours of the sides and back the camera saw; docs/live.md "The person model").
+    /// Off by default: its yaw tracking is lost on the synthetic people's turns (docs/evaluation.md).
+    #[arg(long)]
+    pub person_model: bool,
 }
 
 impl GeometryArgs {
     /// The options as [`crate::app::offline`] takes them.
     pub fn options(&self) -> GeometryOptions {
-        GeometryOptions { geometry: self.geometry, fill: self.fill.into(), fof_order: self.fof_order }
+        GeometryOptions {
+            geometry: self.geometry,
+            fill: self.fill.into(),
+            fof_order: self.fof_order,
+            person_model: self.person_model,
+        }
     }
 }
 

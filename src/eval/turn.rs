@@ -8,14 +8,18 @@
 //! geometry and the colours, not a re-cropping), then centred in depth like every geometry. Methods:
 //!
 //! - `frame-path`: the geometric renderer on what [`FramePath`] prepared (what a live source shows today);
+//! - `model`: the same preparation rewritten by the person model kept across the clip's frames ([`PersonModel`]:
+//!   the hull's depths and the kept colours of the back, its yaw tracked from the frames alone; the clip's true
+//!   turn is only compared with it, in `turn_model.csv`);
 //! - `oracle`: the geometric renderer on the same frame's normalised input with the true geometry (the frame's
 //!   ground-truth FOF, [`PreparedInput::from_fof`]): the ceiling of any geometry.
 //!
-//! Outputs in `--out`: `turn.csv` (one row per clip, frame, method and view group), `turn.md` (per clip and over
-//! every clip: the first frame, the last one — the person has turned once and faces the camera again — and the
-//! mean over the turn), `turn_divergent_psnr.png` (divergent whole-frame PSNR over the frames, mean over clips) and
-//! `sheets/<clip>.png` (contact sheets: six moments of the clip; rows: the camera's frame, then at yaw 180 and
-//! yaw 90 the ground truth, the frame path and the oracle).
+//! Outputs in `--out`: `turn.csv` (one row per clip, frame, method and view group), `turn_model.csv` (the model's
+//! tracking per frame), `turn.md` (per clip and over every clip: the first frame, the last one — the person has
+//! turned once and faces the camera again — and the mean over the turn), `turn_divergent_psnr.png` (divergent
+//! whole-frame PSNR over the frames, mean over clips) and `sheets/<clip>.png` (contact sheets: six moments of the
+//! clip; rows: the camera's frame, then at yaw 180 and yaw 90 the ground truth, the frame path, the model and the
+//! oracle).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -33,6 +37,7 @@ use crate::io::mesh_io::TexturedMesh;
 use crate::io::npy::write_atomic;
 use crate::pipeline::frame::FramePath;
 use crate::pipeline::input::NormaliseTransform;
+use crate::pipeline::person_model::PersonModel;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{PrepareOptions, PreparedInput, StageTimings, ViewRenderer};
 use crate::synth::turn::{TurnOptions, TurningClip};
@@ -104,7 +109,7 @@ impl Default for TurnEvalOptions {
 }
 
 /// The methods scored at every frame.
-pub const TURN_METHODS: [&str; 2] = ["frame-path", "oracle"];
+pub const TURN_METHODS: [&str; 3] = ["frame-path", "model", "oracle"];
 
 /// The view groups: close (at most 45 degrees from the camera), divergent (at least 90).
 pub const GROUPS: [&str; 2] = ["close", "divergent"];
@@ -134,11 +139,36 @@ pub struct TurnRow {
     pub views: usize,
 }
 
+/// What the person model did on one frame of one clip, beside the clip's truth.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ModelTrackRow {
+    /// The clip.
+    pub clip: String,
+    /// Frame index.
+    pub frame: usize,
+    /// How far the person has truly turned (degrees, the clip's ground truth: reported, never used by the model).
+    pub turn: f32,
+    /// The yaw the model tracked (degrees, since it last started).
+    pub yaw: f32,
+    /// The tracked yaw minus the true turn since the model last started, wrapped to `[-180, 180)`.
+    pub yaw_error: f32,
+    /// Whether the whole model restarted on this frame.
+    pub restarted: bool,
+    /// Bands reset on this frame.
+    pub reset_bands: usize,
+    /// Mean hull weight over the silhouette.
+    pub hull_weight: f32,
+    /// Milliseconds the model's update took.
+    pub ms: f32,
+}
+
 /// What [`run_turn_eval`] produced.
 #[derive(Clone, Debug, Default)]
 pub struct TurnReport {
     /// Every frame's rows.
     pub rows: Vec<TurnRow>,
+    /// The person model's tracking, per clip and frame.
+    pub tracking: Vec<ModelTrackRow>,
     /// Clips (or frames) that failed, with the reason.
     pub failed: Vec<(String, String)>,
 }
@@ -181,20 +211,24 @@ const SHEET_YAWS: [f32; 2] = [180.0, 90.0];
 /// Columns (moments) of a contact sheet.
 const SHEET_COLUMNS: usize = 6;
 
-/// Plays one clip through the frame path and scores every frame; pushes the rows and returns the contact sheet's
-/// columns. A frame the frame path refuses is reported in `failed` and skipped.
+/// Plays one clip through the frame path and the person model and scores every frame; pushes the rows and the
+/// model's tracking into `report` and returns the contact sheet's columns. A frame the frame path refuses is
+/// reported in `report.failed` and skipped.
 fn eval_clip(
     name: &str,
     clip: &TurningClip,
     assets: Option<&SynthAssets>,
     opts: &TurnEvalOptions,
     prepare: &PrepareOptions,
-    rows: &mut Vec<TurnRow>,
-    failed: &mut Vec<(String, String)>,
+    report: &mut TurnReport,
 ) -> Result<Vec<SheetColumn>, EvalError> {
+    let TurnReport { rows, tracking, failed } = report;
     let r = opts.size;
     let n = clip.frames();
     let mut path = FramePath::new(prepare.clone());
+    let mut model = PersonModel::new();
+    // The true turn when the model last started (the tracked yaw counts from there).
+    let mut turn_at_start = clip.options.yaw(0);
     let sheet_frames: Vec<usize> = (0..SHEET_COLUMNS).map(|k| k * (n - 1) / (SHEET_COLUMNS - 1)).collect();
     let mut sheet = Vec::new();
     for i in 0..n {
@@ -209,6 +243,23 @@ fn eval_clip(
             }
         };
         let ms_frame = t.elapsed().as_secs_f32() * 1e3;
+        let mut modelled = prepared.clone();
+        let step = model.update(&mut modelled);
+        if step.restarted || model.frames() == 1 {
+            turn_at_start = clip.options.yaw(i);
+        }
+        let truth_turn = clip.options.yaw(i) - turn_at_start;
+        tracking.push(ModelTrackRow {
+            clip: name.to_string(),
+            frame: i,
+            turn: clip.options.yaw(i),
+            yaw: step.yaw_degrees,
+            yaw_error: (step.yaw_degrees - truth_turn + 180.0).rem_euclid(360.0) - 180.0,
+            restarted: step.restarted,
+            reset_bands: step.reset_bands.len(),
+            hull_weight: step.hull_weight,
+            ms: step.ms,
+        });
         // The ground truth of this moment in the frame path's normalisation, centred in depth.
         let transform = prepared.normalised.transform;
         let mut truth = mesh.clone();
@@ -221,7 +272,7 @@ fn eval_clip(
         let oracle = PreparedInput::from_fof(prepared.normalised.clone(), fof, prepare, StageTimings::default())
             .map_err(|e| EvalError::stage("oracle geometry", e))?;
         let ms_oracle = t.elapsed().as_secs_f32() * 1e3;
-        let inputs = [(&prepared, ms_frame), (&oracle, ms_oracle)];
+        let inputs = [(&prepared, ms_frame), (&modelled, ms_frame + step.ms), (&oracle, ms_oracle)];
         let mut renderers: Vec<ViewRenderer<'_>> =
             inputs.iter().map(|(p, _)| ViewRenderer::new(p, OcclusionFill::default(), false)).collect();
         let mut acc: [[Acc; 2]; TURN_METHODS.len()] = Default::default();
@@ -315,7 +366,7 @@ pub fn run_turn_eval(
     for (name, clip) in clips {
         let r = clip.and_then(|(clip, synthetic)| {
             let a = if synthetic { assets } else { None };
-            let sheet = eval_clip(&name, &clip, a, opts, &prepare, &mut report.rows, &mut report.failed)?;
+            let sheet = eval_clip(&name, &clip, a, opts, &prepare, &mut report)?;
             write_sheet(&sheets_dir.join(format!("{name}.png")), &sheet, opts.size)
         });
         if let Err(e) = r {
@@ -456,7 +507,8 @@ fn summary_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
         "# r2human eval --turn\n\n{} clip(s): {} frame(s) each ({} turning once, then {} facing the camera again; \
          arms swinging {} degrees), {}x{} views at yaws {:?} relative to the camera (pitch 0). Close = at most 45 \
          degrees from the camera, divergent = at least 90. PSNR frame: whole frame, sRGB on black (the paper's \
-         Table 2 convention). `frame-path`: the live frame path; `oracle`: the same frames with the true geometry.\n\n\
+         Table 2 convention). `frame-path`: the live frame path; `model`: the same frames through the person model kept across them \
+         (`pipeline::person_model`); `oracle`: the same frames with the true geometry.\n\n\
          | clip | method | group | PSNR frame: first | last | mean | mask IoU: first | last | mean |\n\
          |---|---|---|---|---|---|---|---|---|\n",
         clips.len(),
@@ -504,10 +556,11 @@ fn summary_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
     if opts.event != EventChoice::None {
         md.push_str(&event_markdown(opts, rep));
     }
+    md.push_str(&tracking_markdown(opts, rep));
     md.push_str(
         "\n![Divergent whole-frame PSNR over the turn](turn_divergent_psnr.png)\n\nContact sheets (`sheets/`): six \
-         moments of each clip; rows: the camera's frame, then at yaw 180 the ground truth, the frame path and the \
-         oracle, then the same at yaw 90.\n",
+         moments of each clip; rows: the camera's frame, then at yaw 180 the ground truth, the frame path, the \
+         model and the oracle, then the same at yaw 90.\n",
     );
     if !rep.failed.is_empty() {
         md.push_str("\n## Failed\n\n");
@@ -516,6 +569,44 @@ fn summary_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
         }
     }
     md
+}
+
+/// The person model's own figures: the tracked yaw's error against the true turn (the truth is only compared
+/// with, never given to the model), its restarts and band resets, and its cost per frame.
+fn tracking_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
+    let t = &rep.tracking;
+    if t.is_empty() {
+        return String::new();
+    }
+    let abs_error = |keep: &dyn Fn(&ModelTrackRow) -> bool| {
+        let v: Vec<f32> = t.iter().filter(|r| keep(r)).map(|r| r.yaw_error.abs()).collect();
+        mean(&v)
+    };
+    let last_turning = opts.turn.turn_frames.saturating_sub(1);
+    let last = opts.turn.frames() - 1;
+    let mut ms: Vec<f32> = t.iter().map(|r| r.ms).filter(|v| v.is_finite()).collect();
+    ms.sort_by(f32::total_cmp);
+    let median = ms.get(ms.len() / 2).copied().unwrap_or(f32::NAN);
+    let p95 = ms.get((ms.len() * 95 / 100).min(ms.len().saturating_sub(1))).copied().unwrap_or(f32::NAN);
+    let restarts: Vec<String> =
+        t.iter().filter(|r| r.restarted).map(|r| format!("{} frame {}", r.clip, r.frame)).collect();
+    let band_resets = t.iter().filter(|r| !r.restarted && r.reset_bands > 0).count();
+    format!(
+        "\nThe person model (`model` rows): yaw tracked from the frames' colours, its error against the true turn \
+         (mean over clips of |error|): {:.1} degrees over every frame, {:.1} at the last turning frame ({}), {:.1} at \
+         the last frame; restarts: {}; frames with bands reset: {}; update {:.1} ms median, {:.1} ms p95 per frame \
+         (release build, this machine, {}x{}; `turn_model.csv` has every frame).\n",
+        abs_error(&|_| true),
+        abs_error(&|r| r.frame == last_turning),
+        last_turning,
+        abs_error(&|r| r.frame == last),
+        if restarts.is_empty() { "none".to_string() } else { restarts.join(", ") },
+        band_resets,
+        median,
+        p95,
+        opts.size,
+        opts.size,
+    )
 }
 
 /// Frames a second holds in the clips' time line (the clips are made to be played at 16 frames a second).
@@ -584,6 +675,24 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
     }
     let p = opts.out.join("turn.csv");
     write_atomic(&p, csv.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
+    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,restarted,reset_bands,hull_weight,ms\n");
+    for r in &rep.tracking {
+        let fields = [
+            format!("\"{}\"", r.clip.replace('"', "\"\"")),
+            r.frame.to_string(),
+            format!("{:.1}", r.turn),
+            format!("{:.2}", r.yaw),
+            format!("{:.2}", r.yaw_error),
+            r.restarted.to_string(),
+            r.reset_bands.to_string(),
+            format!("{:.3}", r.hull_weight),
+            format!("{:.2}", r.ms),
+        ];
+        track.push_str(&fields.join(","));
+        track.push('\n');
+    }
+    let p = opts.out.join("turn_model.csv");
+    write_atomic(&p, track.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
     let p = opts.out.join("turn.md");
     write_atomic(&p, summary_markdown(opts, rep).as_bytes()).map_err(|e| EvalError::io(&p, e))?;
     plot_turn(&opts.out.join("turn_divergent_psnr.png"), opts, rep)
@@ -686,7 +795,7 @@ mod tests {
         let rep = run_turn_eval(&opts, None).unwrap();
         assert!(rep.failed.is_empty(), "{:?}", rep.failed);
         // Every frame, both methods, both groups; every score finite.
-        assert_eq!(rep.rows.len(), 5 * 2 * 2);
+        assert_eq!(rep.rows.len(), 5 * 3 * 2);
         assert!(rep.rows.iter().all(|r| r.scores.psnr_frame.is_finite() && (0.0..=1.0).contains(&r.scores.mask_iou)));
         // True geometry draws the unseen side's silhouette better than the frame path's guess.
         let iou = |m: &str| rep.mean_of(m, "divergent", |_| true, |r| r.scores.mask_iou);
@@ -695,7 +804,7 @@ mod tests {
             assert!(dir.path().join(f).is_file(), "{f}");
         }
         let csv = std::fs::read_to_string(dir.path().join("turn.csv")).unwrap();
-        assert_eq!(csv.lines().count(), 1 + 20);
+        assert_eq!(csv.lines().count(), 1 + 30);
         // Nothing to turn, or a turn out of range, is a sentence, not a panic.
         assert!(run_turn_eval(&TurnEvalOptions { subjects: 0, ..opts.clone() }, None).is_err());
         let bad = TurnEvalOptions { turn: TurnOptions { turn_frames: 2, ..opts.turn }, ..opts.clone() };

@@ -29,6 +29,7 @@ pub mod input;
 pub mod models;
 pub mod neural;
 pub mod person;
+pub mod person_model;
 pub mod prepared;
 pub mod still;
 pub mod view;

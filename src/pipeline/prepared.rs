@@ -43,6 +43,9 @@ pub struct PrepareOptions {
     /// than two source pixels (the XR eyes, the window): interactive views ask for it, offline renders and the
     /// evaluation (512 px over the body cube, one source pixel a pixel) never use it and leave it out.
     pub coarse_views: bool,
+    /// Live sources: keep the person model across frames ([`super::person_model`]; `--person-model`, off by
+    /// default). Stills ignore it.
+    pub person_model: bool,
 }
 
 impl Default for PrepareOptions {
@@ -59,6 +62,7 @@ impl Default for PrepareOptions {
             warm_start: false,
             back_pose: None,
             coarse_views: false,
+            person_model: false,
         }
     }
 }

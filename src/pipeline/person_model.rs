@@ -1,0 +1,1243 @@
+//! A person model kept across the frames of a live source: what the camera has seen stays.
+//!
+//! One frame shows one side of a person; the frame path ([`super::frame`]) guesses the thickness from the
+//! silhouette and the back's colours from the front. A live person turns, and every frame is a measured view of
+//! the same person. [`PersonModel`] keeps, in the person's own frame (the frame that turns with them about the
+//! vertical axis through their torso):
+//!
+//! - **the shape the silhouettes have shown** ([`HULL_SIDE`]² cells on each of [`HULL_SLICES`] horizontal
+//!   slices): a visual hull carved by every frame's silhouette. Under the orthographic source camera and a turn
+//!   about the vertical axis, each row of the silhouette constrains one horizontal slice of the person, so each
+//!   cell keeps the signed distance (inside positive) of its projection to that row's silhouette, and the hull is
+//!   the second smallest over the frames (one stray frame does not carve). The field is continuous, so the surface
+//!   is found between cells.
+//! - **the colour of every surface seen** ([`MAP_ANGLES`] x [`MAP_ROWS`] texels of a cylinder about the same
+//!   axis), each texel with a confidence: how squarely the camera saw it (the front's normal), capped at
+//!   [`MAP_MAX_WEIGHT`] so that newer views outweigh old ones.
+//!
+//! **The person's orientation comes from the frames**: each frame's yaw is tracked against the model (the
+//! candidate turns around the constant-velocity prediction, each scored by how well the frame's colours fit the
+//! kept colours where the model holds them; a parabola through the best three), never from any ground truth. A
+//! person of one flat colour gives no match; the yaw then follows the prediction and the model only keeps what
+//! the current frame says.
+//!
+//! **Rendering with it** ([`PersonModel::update`] rewrites a [`PreparedInput`] of the frame path): inside the
+//! current frame's silhouette (the current frame always decides where the person is), the front and back depths
+//! become the hull's where its slice has been seen from enough directions ([`coverage_weight`]), blended with the
+//! frame's own guess before; the back image (what the renderer draws on every surface the camera does not see)
+//! takes the kept colour where the model holds it, else today's fill. What the camera sees keeps the camera's
+//! colours.
+//!
+//! **Forgetting**: per horizontal band of the body ([`BANDS`]), the colours the frame shows are compared with the
+//! kept ones at the tracked yaw; a band whose mean difference exceeds [`RESET_COLOUR_ERROR`] on
+//! [`RESET_STRIKES`] frames in a row is reset (hull, colours and the directions seen); when half the bands holding
+//! colour reset at once, or the mean over the bands exceeds the threshold as long (another person, a cut), the
+//! whole model restarts from this frame. A band that disagrees once keeps what it holds (nothing of that frame is
+//! carved or kept there) until the next frame decides. A turn keeps the colours in step with the tracked yaw and
+//! does not reset.
+//!
+//! Memory is fixed at construction ([`PersonModel::memory_bytes`]): 6.3 MB whatever the length of the source.
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::back::BackImage;
+use super::PreparedInput;
+use crate::buffer::GrayImage;
+use crate::geometry::inflate::InflatedSurfaces;
+use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer};
+
+/// Cells across each horizontal slice of the hull (both horizontal axes).
+pub const HULL_SIDE: usize = 64;
+
+/// Horizontal slices of the hull over the model's height (body-cube y from 1 down to -1).
+pub const HULL_SLICES: usize = 128;
+
+/// Half the side of a slice in model units (the body cube of the frame the model started on, centred on the
+/// person's vertical axis): a person turning within a circle of this radius is held.
+pub const HULL_HALF: f32 = 1.0;
+
+/// Tolerance added to every carving distance (model units, about 2 pixels at 512²): a yaw tracked a degree off
+/// does not carve the person's edge.
+pub const CARVE_MARGIN: f32 = 0.008;
+
+/// Texels around the colour cylinder.
+pub const MAP_ANGLES: usize = 256;
+
+/// Texels along the colour cylinder's height (body-cube y from 1 down to -1).
+pub const MAP_ROWS: usize = 512;
+
+/// Largest confidence a colour texel accumulates: a new view squarely seen takes at least a third of it.
+pub const MAP_MAX_WEIGHT: f32 = 2.0;
+
+/// Confidence from which a kept colour is drawn in full (below it, blended with today's fill).
+pub const MAP_FULL_WEIGHT: f32 = 0.8;
+
+/// Horizontal bands of the body that are forgotten on their own.
+pub const BANDS: usize = 8;
+
+/// Directions (yaw modulo 180 degrees: a silhouette and its mirror say the same) a slice's coverage counts.
+pub const YAW_BINS: usize = 12;
+
+/// Degrees either side of the predicted yaw the tracker tries, one degree apart.
+pub const SEARCH_DEGREES: i32 = 16;
+
+/// Mean absolute colour difference (linear RGB, averaged over the channels) between a band of the frame and the
+/// model above which the band counts as changed.
+pub const RESET_COLOUR_ERROR: f32 = 0.16;
+
+/// Frames in a row a band must count as changed before it is reset.
+pub const RESET_STRIKES: u8 = 2;
+
+/// Most pixels the tracker reads per frame.
+const MAX_TRACK_POINTS: usize = 1500;
+
+/// Texels either side around the colour cylinder the tracker's coarse step averages (8 degrees).
+const COARSE_BLUR: usize = 6;
+
+/// Colour samples a band needs before its difference counts.
+const MIN_BAND_SAMPLES: usize = 24;
+
+/// Step between the pixels the tracker and the forgetting read (source pixels at 512², scaled with the size).
+const TRACK_STEP_512: usize = 4;
+
+/// Step between the rays cast through the hull (source pixels at 512², scaled with the size); the depths between
+/// them are interpolated.
+const RAY_STEP_512: usize = 4;
+
+/// One frame's placement of the model: how the current normalised frame relates to the model's coordinates.
+#[derive(Clone, Copy, Debug)]
+struct Placement {
+    /// Source side in pixels.
+    size: f32,
+    /// Current scale over the model's reference scale.
+    k: f32,
+    /// Column of the person's vertical axis in the current frame (continuous source pixels).
+    axis: f32,
+    /// Current row = `k (1 - Y) size / 2 + row_offset` for model height `Y`.
+    row_offset: f32,
+    /// Yaw (radians): the person has turned this far from the model's frame.
+    yaw: f32,
+    /// Where the photo lies in the source view (rows and columns outside are unknown).
+    frame: (Vec2, Vec2),
+}
+
+impl Placement {
+    /// Source pixels per model unit.
+    fn px(&self) -> f32 {
+        self.k * self.size * 0.5
+    }
+
+    /// The current (continuous) row of model height `y`.
+    fn row(&self, y: f32) -> f32 {
+        self.k * (1.0 - y) * self.size * 0.5 + self.row_offset
+    }
+
+    /// The model height of current (continuous) row `q`.
+    fn height(&self, q: f32) -> f32 {
+        1.0 - 2.0 * (q - self.row_offset) / (self.k * self.size)
+    }
+
+    /// Model `(u, w)` (horizontal, depth) of camera-aligned `(x, z)` about the axis.
+    fn model_of(self, x: f32, z: f32) -> (f32, f32) {
+        let (s, c) = self.yaw.sin_cos();
+        (c * x - s * z, s * x + c * z)
+    }
+
+    /// Camera-aligned `x` about the axis of model `(u, w)`.
+    fn camera_x(self, u: f32, w: f32) -> f32 {
+        let (s, c) = self.yaw.sin_cos();
+        c * u + s * w
+    }
+}
+
+/// The model's reference: the normalisation of the frame it started on.
+#[derive(Clone, Copy, Debug)]
+struct Reference {
+    scale: f32,
+    offset_y: f32,
+    /// The person's axis in photo pixels (smoothed over frames).
+    axis_photo: f32,
+}
+
+/// What one [`PersonModel::update`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ModelFrame {
+    /// The tracked yaw (degrees): how far the person has turned since the model started.
+    pub yaw_degrees: f32,
+    /// Whether the yaw came from matching the kept colours (else from the prediction).
+    pub tracked: bool,
+    /// Bands reset on this frame (0 = the top band).
+    pub reset_bands: Vec<usize>,
+    /// Whether the whole model restarted on this frame.
+    pub restarted: bool,
+    /// Per band, the mean colour difference between the frame and the model (NaN where too few samples).
+    pub band_error: [f32; BANDS],
+    /// Mean over the current silhouette's slices of how far the hull replaced the frame's own depths (0..1).
+    pub hull_weight: f32,
+    /// Fraction of the back image's pixels that took the kept colours.
+    pub back_from_model: f32,
+    /// Milliseconds the update took.
+    pub ms: f32,
+}
+
+impl ModelFrame {
+    /// What the forgetting did, in words (for the log).
+    pub fn describe(&self) -> String {
+        if self.restarted {
+            "restarted (most of the person changed)".to_string()
+        } else if self.reset_bands.is_empty() {
+            "kept".to_string()
+        } else {
+            format!("forgot bands {:?} (0 = the top)", self.reset_bands)
+        }
+    }
+}
+
+/// The person model (see the module docs).
+#[derive(Clone, Debug)]
+pub struct PersonModel {
+    /// Per slice, per cell: the two smallest carving distances (model units; infinity = not carved).
+    hull: Vec<[f32; 2]>,
+    /// Per slice, the directions seen (bit per [`YAW_BINS`] bin).
+    seen: Vec<u16>,
+    /// Per texel: linear RGB and the confidence.
+    map: Vec<[f32; 4]>,
+    reference: Option<Reference>,
+    yaw: f32,
+    velocity: f32,
+    strikes: [u8; BANDS],
+    /// Frames in a row the mean over the bands has counted as changed.
+    whole_strikes: u8,
+    frames: u64,
+}
+
+impl Default for PersonModel {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl PersonModel {
+    /// An empty model.
+    pub fn new() -> Self {
+        Self {
+            hull: vec![[f32::INFINITY; 2]; HULL_SLICES * HULL_SIDE * HULL_SIDE],
+            seen: vec![0; HULL_SLICES],
+            map: vec![[0.0; 4]; MAP_ANGLES * MAP_ROWS],
+            reference: None,
+            yaw: 0.0,
+            velocity: 0.0,
+            strikes: [0; BANDS],
+            whole_strikes: 0,
+            frames: 0,
+        }
+    }
+
+    /// Bytes the model holds (fixed: it does not grow with the frames).
+    pub fn memory_bytes(&self) -> usize {
+        std::mem::size_of_val(self.hull.as_slice())
+            + std::mem::size_of_val(self.seen.as_slice())
+            + std::mem::size_of_val(self.map.as_slice())
+    }
+
+    /// Frames the model has taken since it (re)started.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// Forgets everything (a new shot, a new source size).
+    pub fn reset(&mut self) {
+        self.hull.iter_mut().for_each(|c| *c = [f32::INFINITY; 2]);
+        self.seen.iter_mut().for_each(|s| *s = 0);
+        self.map.iter_mut().for_each(|t| *t = [0.0; 4]);
+        self.reference = None;
+        self.yaw = 0.0;
+        self.velocity = 0.0;
+        self.strikes = [0; BANDS];
+        self.whole_strikes = 0;
+        self.frames = 0;
+    }
+
+    /// The yaw the model tracked last (degrees).
+    pub fn yaw_degrees(&self) -> f32 {
+        self.yaw.to_degrees()
+    }
+
+    /// How far the hull decides the depth of slice `j` (0: the frame's own guess; 1: the hull), from the directions
+    /// it has been seen from.
+    fn slice_weight(&self, j: usize) -> f32 {
+        coverage_weight(self.seen.get(j).map_or(0, |s| s.count_ones()) as usize)
+    }
+
+    /// Takes one prepared frame of the frame path and rewrites it with what the model holds (see the module docs):
+    /// its one-shell surfaces, mesh and source view, its back image and the back's side image. A frame without
+    /// one-shell surfaces, or without a person, passes unchanged.
+    pub fn update(&mut self, prepared: &mut PreparedInput) -> ModelFrame {
+        let started = std::time::Instant::now();
+        let mut out = ModelFrame { band_error: [f32::NAN; BANDS], ..Default::default() };
+        let Some(guess) = prepared.surfaces.clone() else { return out };
+        let size = prepared.normalised.mask.width;
+        let mask = &prepared.normalised.mask;
+        if size < 8
+            || mask.height != size
+            || guess.mask.data.len() != size * size
+            || guess.front.data.len() != size * size
+            || guess.back.data.len() != size * size
+            || prepared.normalised.rgb.data.len() != size * size
+        {
+            return out;
+        }
+        let transform = prepared.normalised.transform;
+        if !(transform.scale.is_finite() && transform.scale > 0.0 && transform.offset.is_finite()) {
+            return out;
+        }
+        let Some(axis) = axis_column(&guess.mask) else { return out };
+        // The axis in photo pixels, smoothed; a new model takes this frame's normalisation as its reference.
+        let axis_photo = (axis - transform.offset.x) / transform.scale;
+        let reference = match self.reference {
+            Some(mut r) => {
+                r.axis_photo = 0.5 * r.axis_photo + 0.5 * axis_photo;
+                r
+            }
+            None => Reference { scale: transform.scale, offset_y: transform.offset.y, axis_photo },
+        };
+        self.reference = Some(reference);
+        let k = transform.scale / reference.scale;
+        let mut place = Placement {
+            size: size as f32,
+            k,
+            axis: reference.axis_photo * transform.scale + transform.offset.x,
+            row_offset: transform.offset.y - k * reference.offset_y,
+            yaw: self.yaw + self.velocity,
+            frame: prepared.normalised.frame,
+        };
+        let step = |at_512: usize| (at_512 * size).div_ceil(512).max(1);
+        // Track the yaw against the kept colours, and read each band's difference at it.
+        if self.frames > 0 {
+            let mut points = track_points(prepared, &guess, &place, step(TRACK_STEP_512));
+            self.hull_depths(&mut points, &place);
+            let coarse = self.track(&points, &place, -SEARCH_DEGREES..=SEARCH_DEGREES, COARSE_BLUR);
+            let fine = coarse.and_then(|(yaw, _)| self.track(&points, &Placement { yaw, ..place }, -3..=3, 0));
+            if let Some((yaw, band_error)) = fine.or(coarse) {
+                out.tracked = true;
+                out.band_error = band_error;
+                self.velocity = 0.5 * self.velocity + 0.5 * (yaw - self.yaw);
+                place.yaw = yaw;
+            } else {
+                self.velocity *= 0.8;
+            }
+        }
+        self.forget(&mut out, &mut place, transform, axis_photo);
+        self.yaw = place.yaw;
+        // A band that disagrees with the model but is not reset yet keeps what it holds: nothing of this frame is
+        // carved or kept there until the next frame says whether it changed.
+        let suspect: [bool; BANDS] = std::array::from_fn(|b| self.strikes[b] > 0);
+        // Carve with this frame's silhouette, mark the direction seen.
+        let profiles = RowProfiles::of(&guess.mask, &place);
+        self.carve(&profiles, &place, &suspect);
+        let bin = yaw_bin(place.yaw);
+        for j in 0..HULL_SLICES {
+            let q = place.row(slice_height(j));
+            if !suspect[band_of(slice_height(j))] && q >= place.frame.0.y && q <= place.frame.1.y {
+                self.seen[j] |= 1 << bin;
+            }
+        }
+        // Depths: the hull's where it has been seen from enough directions, else the frame's own.
+        let (surfaces, hull_weight) = self.blend_depths(&guess, &place, step(RAY_STEP_512));
+        out.hull_weight = hull_weight;
+        let centred = crate::body::placed::centred(surfaces.clone());
+        // Colours: keep what this frame sees, then draw the back from the model.
+        let gbuffer = source_gbuffer(&centred);
+        self.keep_colours(prepared, &surfaces, &gbuffer.normal, &place, &suspect);
+        out.back_from_model = self.back_from_model(prepared, &surfaces, &place);
+        if let Ok(mesh) = mesh_from_surfaces(&centred, super::frame::FRAME_MESH_STEP) {
+            prepared.mesh = mesh;
+            prepared.source_gbuffer = gbuffer;
+            prepared.surfaces = Some(centred);
+            // The encoder's FOF, if any, no longer matches the geometry: drop it (it is encoded on demand).
+            prepared.fof = None;
+        }
+        self.frames += 1;
+        out.yaw_degrees = self.yaw.to_degrees();
+        out.ms = started.elapsed().as_secs_f32() * 1e3;
+        prepared.timings.0.push(("person model", started.elapsed()));
+        out
+    }
+
+    /// The forgetting step: bands whose colours disagree for [`RESET_STRIKES`] frames are reset; most of the
+    /// bands holding colour at once restart the model on this frame.
+    fn forget(
+        &mut self,
+        out: &mut ModelFrame,
+        place: &mut Placement,
+        transform: super::input::NormaliseTransform,
+        axis_photo: f32,
+    ) {
+        let mut holding = 0;
+        let mut changed = Vec::new();
+        for b in 0..BANDS {
+            let e = out.band_error[b];
+            if e.is_nan() {
+                self.strikes[b] = 0;
+                continue;
+            }
+            holding += 1;
+            if e > RESET_COLOUR_ERROR {
+                self.strikes[b] = self.strikes[b].saturating_add(1);
+                if self.strikes[b] >= RESET_STRIKES {
+                    changed.push(b);
+                }
+            } else {
+                self.strikes[b] = 0;
+            }
+        }
+        let errors: Vec<f32> = out.band_error.iter().copied().filter(|e| !e.is_nan()).collect();
+        let whole = errors.iter().sum::<f32>() / errors.len().max(1) as f32;
+        self.whole_strikes = if holding > 0 && whole > RESET_COLOUR_ERROR { self.whole_strikes + 1 } else { 0 };
+        if self.whole_strikes > 0 && self.whole_strikes < RESET_STRIKES {
+            // The whole person may have changed: every band waits for the next frame.
+            self.strikes.iter_mut().for_each(|s| *s = (*s).max(1));
+        }
+        if changed.is_empty() && self.whole_strikes < RESET_STRIKES {
+            return;
+        }
+        if 2 * changed.len() >= holding || self.whole_strikes >= RESET_STRIKES {
+            // Another person (or the same one changed everywhere): start again from this frame.
+            self.reset();
+            self.reference = Some(Reference { scale: transform.scale, offset_y: transform.offset.y, axis_photo });
+            place.k = 1.0;
+            place.row_offset = 0.0;
+            place.yaw = 0.0;
+            place.axis = axis_photo * transform.scale + transform.offset.x;
+            out.restarted = true;
+            out.reset_bands = (0..BANDS).collect();
+            return;
+        }
+        for &b in &changed {
+            self.reset_band(b);
+            self.strikes[b] = 0;
+        }
+        out.reset_bands = changed;
+    }
+
+    /// Forgets band `b`: its hull slices, their directions and its colour rows.
+    fn reset_band(&mut self, b: usize) {
+        let cells = HULL_SIDE * HULL_SIDE;
+        for j in (0..HULL_SLICES).filter(|&j| band_of(slice_height(j)) == b) {
+            self.hull[j * cells..(j + 1) * cells].iter_mut().for_each(|c| *c = [f32::INFINITY; 2]);
+            self.seen[j] = 0;
+        }
+        for row in (0..MAP_ROWS).filter(|&r| band_of(map_height(r)) == b) {
+            self.map[row * MAP_ANGLES..(row + 1) * MAP_ANGLES].iter_mut().for_each(|t| *t = [0.0; 4]);
+        }
+    }
+
+    /// Moves each tracked point's depth (the frame's guess) toward the hull's front at the predicted yaw, as far
+    /// as its slice is measured ([`PersonModel::slice_weight`]): the angle a point has about the axis depends on
+    /// its depth, and the guess is only a guess.
+    fn hull_depths(&self, points: &mut [TrackPoint], place: &Placement) {
+        points.par_iter_mut().for_each(|p| {
+            let Some(j) = slice_of(p.y) else { return };
+            let weight = self.slice_weight(j);
+            if weight <= 0.0 {
+                return;
+            }
+            if let Some((front, _)) = self.ray(j, p.x, place) {
+                p.z = weight * front + (1.0 - weight) * p.z;
+            }
+        });
+    }
+
+    /// The yaw that fits `points` best to the kept colours among the candidates `range` (whole degrees) around
+    /// `place.yaw`, refined by a parabola, with each band's mean difference there; `None` when the model holds too
+    /// few of the points' colours. With `blur` (texels either side around the cylinder) the points' blurred colours
+    /// are matched to the kept colours averaged as wide: the coarse step, which a striped garment's period does not
+    /// fool.
+    fn track(
+        &self,
+        points: &[TrackPoint],
+        place: &Placement,
+        range: std::ops::RangeInclusive<i32>,
+        blur: usize,
+    ) -> Option<(f32, [f32; BANDS])> {
+        if points.is_empty() {
+            return None;
+        }
+        let first = *range.start();
+        let candidates: Vec<(f32, usize, [f32; BANDS], [usize; BANDS])> = range
+            .into_par_iter()
+            .map(|d| {
+                let yaw = place.yaw + (d as f32).to_radians();
+                let p = Placement { yaw, ..*place };
+                let (mut sum, mut n) = (0.0f32, 0usize);
+                let (mut band_sum, mut band_n) = ([0.0f32; BANDS], [0usize; BANDS]);
+                for pt in points {
+                    let (u, w) = p.model_of(pt.x, pt.z);
+                    let Some(kept) = self.colour_at(u, w, pt.y, blur) else { continue };
+                    let seen = if blur > 0 { pt.blurred } else { pt.rgb };
+                    let e = (seen - kept).abs().element_sum() / 3.0;
+                    sum += e;
+                    n += 1;
+                    band_sum[pt.band] += e;
+                    band_n[pt.band] += 1;
+                }
+                let mean = if n > 0 { sum / n as f32 } else { f32::INFINITY };
+                let mut band = [f32::NAN; BANDS];
+                for b in 0..BANDS {
+                    if band_n[b] >= MIN_BAND_SAMPLES {
+                        band[b] = band_sum[b] / band_n[b] as f32;
+                    }
+                }
+                (mean, n, band, band_n)
+            })
+            .collect();
+        let most = candidates.iter().map(|c| c.1).max().unwrap_or(0);
+        if most < (points.len() / 8).max(MIN_BAND_SAMPLES) {
+            return None;
+        }
+        // Among candidates matching at least half as many points as the best-covered one.
+        let score = |i: usize| {
+            let c = &candidates[i];
+            if 2 * c.1 >= most {
+                c.0
+            } else {
+                f32::INFINITY
+            }
+        };
+        let best = (0..candidates.len()).min_by(|&a, &b| score(a).total_cmp(&score(b)))?;
+        if !score(best).is_finite() {
+            return None;
+        }
+        let mut offset = (best as i32 + first) as f32;
+        if best > 0 && best + 1 < candidates.len() {
+            let (a, b, c) = (score(best - 1), score(best), score(best + 1));
+            let denom = a - 2.0 * b + c;
+            if a.is_finite() && c.is_finite() && denom > 1e-9 {
+                offset += (0.5 * (a - c) / denom).clamp(-0.5, 0.5);
+            }
+        }
+        Some((place.yaw + offset.to_radians(), candidates[best].2))
+    }
+
+    /// The kept colour at model `(u, w)` and height `y`: the mean of the texels held with at least half the full
+    /// confidence among `blur` texels either side around the cylinder; `None` where none is.
+    fn colour_at(&self, u: f32, w: f32, y: f32, blur: usize) -> Option<Vec3> {
+        let centre = texel_index(u, w, y)?;
+        let (row, col) = (centre / MAP_ANGLES, centre % MAP_ANGLES);
+        let (mut sum, mut n) = (Vec3::ZERO, 0.0f32);
+        for k in 0..=2 * blur {
+            let c = (col + MAP_ANGLES + k - blur) % MAP_ANGLES;
+            let t = &self.map[row * MAP_ANGLES + c];
+            if t[3] >= MAP_FULL_WEIGHT * 0.5 {
+                sum += Vec3::new(t[0], t[1], t[2]);
+                n += 1.0;
+            }
+        }
+        (n > 0.0).then(|| sum / n)
+    }
+
+    /// The colour texel at model `(u, w)` and height `y`.
+    fn texel(&self, u: f32, w: f32, y: f32) -> Option<&[f32; 4]> {
+        self.map.get(texel_index(u, w, y)?)
+    }
+
+    /// Carves every slice the current frame shows with its silhouette rows (not those of `suspect` bands).
+    fn carve(&mut self, profiles: &RowProfiles, place: &Placement, suspect: &[bool; BANDS]) {
+        let cells = HULL_SIDE * HULL_SIDE;
+        // The camera-aligned x of every cell (the same on every slice).
+        let xs: Vec<f32> = (0..cells)
+            .map(|i| {
+                let (u, w) = (cell_centre(i % HULL_SIDE), cell_centre(i / HULL_SIDE));
+                place.camera_x(u, w)
+            })
+            .collect();
+        let px = place.px();
+        self.hull.par_chunks_mut(cells).enumerate().for_each(|(j, slice)| {
+            if suspect[band_of(slice_height(j))] {
+                return;
+            }
+            let q = place.row(slice_height(j));
+            let Some(row) = profiles.row(q) else { return };
+            for (cell, &x) in slice.iter_mut().zip(&xs) {
+                let d = row.at(place.axis + x * px) / px + CARVE_MARGIN;
+                if d < cell[0] {
+                    cell[1] = cell[0];
+                    cell[0] = d;
+                } else if d < cell[1] {
+                    cell[1] = d;
+                }
+            }
+        });
+    }
+
+    /// The hull's field on slice `j` at model `(u, w)` (bilinear; outside the slice: empty).
+    fn field(&self, j: usize, u: f32, w: f32) -> f32 {
+        let n = HULL_SIDE as f32;
+        let (fx, fz) = ((u + HULL_HALF) / (2.0 * HULL_HALF) * n - 0.5, (w + HULL_HALF) / (2.0 * HULL_HALF) * n - 0.5);
+        if !(fx >= 0.0 && fz >= 0.0 && fx <= n - 1.0 && fz <= n - 1.0) {
+            return -1.0;
+        }
+        let (c0, r0) = (fx as usize, fz as usize);
+        let (c1, r1) = ((c0 + 1).min(HULL_SIDE - 1), (r0 + 1).min(HULL_SIDE - 1));
+        let (tx, tz) = (fx - c0 as f32, fz - r0 as f32);
+        let base = j * HULL_SIDE * HULL_SIDE;
+        let v = |c: usize, r: usize| self.hull[base + r * HULL_SIDE + c][1].clamp(-1.0, 1.0);
+        let top = v(c0, r0) * (1.0 - tx) + v(c1, r0) * tx;
+        let bottom = v(c0, r1) * (1.0 - tx) + v(c1, r1) * tx;
+        top * (1.0 - tz) + bottom * tz
+    }
+
+    /// The hull's front and back (camera-aligned z about the axis, model units) along the ray at camera-aligned
+    /// `x` through slice `j`; `None` when the ray misses it.
+    fn ray(&self, j: usize, x: f32, place: &Placement) -> Option<(f32, f32)> {
+        let reach = HULL_HALF * std::f32::consts::SQRT_2;
+        let step = 2.0 * HULL_HALF / HULL_SIDE as f32;
+        let steps = (2.0 * reach / step).ceil() as usize;
+        let at = |z: f32| {
+            let (u, w) = place.model_of(x, z);
+            self.field(j, u, w)
+        };
+        let crossing = |from: f32, dir: f32| -> Option<f32> {
+            let mut prev = at(from);
+            if prev > 0.0 {
+                return Some(from);
+            }
+            for s in 1..=steps {
+                let z = from + dir * s as f32 * step;
+                let v = at(z);
+                if v > 0.0 {
+                    let t = prev / (prev - v);
+                    return Some(z - dir * step * (1.0 - t));
+                }
+                prev = v;
+            }
+            None
+        };
+        let front = crossing(reach, -1.0)?;
+        let back = crossing(-reach, 1.0)?;
+        (front >= back).then_some((front, back))
+    }
+
+    /// The frame's surfaces with the hull's depths blended in per slice by [`PersonModel::slice_weight`] (inside
+    /// the frame's own silhouette), and the mean weight over the silhouette.
+    fn blend_depths(&self, guess: &InflatedSurfaces, place: &Placement, step: usize) -> (InflatedSurfaces, f32) {
+        let size = guess.mask.width;
+        let mut out = guess.clone();
+        let (gw, gh) = (size.div_ceil(step), size.div_ceil(step));
+        let px = place.px();
+        // Rays on a coarse grid of pixel centres, over the rows and columns that hold the person.
+        let grid: Vec<Option<(f32, f32)>> = (0..gw * gh)
+            .into_par_iter()
+            .map(|i| {
+                let (c, r) = ((i % gw) * step, (i / gw) * step);
+                let near = (r.saturating_sub(step)..(r + step + 1).min(size)).any(|rr| {
+                    (c.saturating_sub(step)..(c + step + 1).min(size)).any(|cc| guess.mask.data[rr * size + cc] > 0.5)
+                });
+                if !near {
+                    return None;
+                }
+                let q = r as f32 + 0.5;
+                let j = slice_of(place.height(q))?;
+                if self.slice_weight(j) <= 0.0 {
+                    return None;
+                }
+                let x = (c as f32 + 0.5 - place.axis) / px;
+                self.ray(j, x, place).map(|(f, b)| (f * place.k, b * place.k))
+            })
+            .collect();
+        let (mut weight_sum, mut count) = (0.0f32, 0usize);
+        for r in 0..size {
+            let q = r as f32 + 0.5;
+            let weight = slice_of(place.height(q)).map_or(0.0, |j| self.slice_weight(j));
+            for c in 0..size {
+                let i = r * size + c;
+                if guess.mask.data[i] <= 0.5 {
+                    continue;
+                }
+                count += 1;
+                if weight <= 0.0 {
+                    continue;
+                }
+                // Bilinear between the coarse rays, over the ones that hit.
+                let (gx, gy) = (c as f32 / step as f32, r as f32 / step as f32);
+                let (x0, y0) = (gx.floor() as usize, gy.floor() as usize);
+                let (tx, ty) = (gx - x0 as f32, gy - y0 as f32);
+                let (mut f, mut b, mut wsum) = (0.0f32, 0.0f32, 0.0f32);
+                for (dx, dy, wt) in
+                    [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+                {
+                    let (xx, yy) = (x0 + dx, y0 + dy);
+                    if xx >= gw || yy >= gh || wt <= 0.0 {
+                        continue;
+                    }
+                    if let Some((hf, hb)) = grid[yy * gw + xx] {
+                        f += wt * hf;
+                        b += wt * hb;
+                        wsum += wt;
+                    }
+                }
+                if wsum < 1e-3 {
+                    continue;
+                }
+                let (hf, hb) = (f / wsum, b / wsum);
+                if !(hf.is_finite() && hb.is_finite()) {
+                    continue;
+                }
+                weight_sum += weight;
+                let front = weight * hf + (1.0 - weight) * guess.front.data[i];
+                let back = weight * hb + (1.0 - weight) * guess.back.data[i];
+                out.front.data[i] = front.clamp(-1.0, 1.0);
+                out.back.data[i] = back.clamp(-1.0, 1.0).min(out.front.data[i]);
+            }
+        }
+        (out, if count > 0 { weight_sum / count as f32 } else { 0.0 })
+    }
+
+    /// Keeps the colours this frame shows on its front (depths `surfaces`, about the axis; source-view normals
+    /// `normals`), each with the confidence of how squarely the camera saw it; `suspect` bands keep what they hold.
+    fn keep_colours(
+        &mut self,
+        prepared: &PreparedInput,
+        surfaces: &InflatedSurfaces,
+        normals: &[Vec3],
+        place: &Placement,
+        suspect: &[bool; BANDS],
+    ) {
+        let size = surfaces.mask.width;
+        let mask = &prepared.normalised.mask;
+        let rgb = &prepared.normalised.rgb;
+        let px = place.px();
+        for r in 1..size.saturating_sub(1) {
+            let y = place.height(r as f32 + 0.5);
+            if suspect[band_of(y)] {
+                continue;
+            }
+            for c in 1..size - 1 {
+                let i = r * size + c;
+                // Inside, away from the outline (the rim's colours are the background's as much as the person's).
+                if mask.data[i] < 0.99 || [i - 1, i + 1, i - size, i + size].iter().any(|&n| mask.data[n] < 0.99) {
+                    continue;
+                }
+                let nz = normals.get(i).map_or(0.0, |n| n.z);
+                let confidence = nz * nz;
+                if confidence.is_nan() || confidence <= 0.25 {
+                    continue;
+                }
+                let x = (c as f32 + 0.5 - place.axis) / px;
+                let z = surfaces.front.data[i] / place.k;
+                let (u, w) = place.model_of(x, z);
+                let Some(t) = texel_index(u, w, y) else { continue };
+                let colour = rgb.data[i] / mask.data[i].max(1e-3);
+                if !colour.is_finite() {
+                    continue;
+                }
+                let texel = &mut self.map[t];
+                let total = texel[3] + confidence;
+                for ch in 0..3 {
+                    texel[ch] = (texel[ch] * texel[3] + colour[ch] * confidence) / total;
+                }
+                texel[3] = total.min(MAP_MAX_WEIGHT);
+            }
+        }
+    }
+
+    /// Draws the back image from the kept colours at the back surface (depths `surfaces`, about the axis) where
+    /// the model holds them, over today's fill (or the photo itself when there is none); rewrites the back's side
+    /// image to match. Returns the fraction of the silhouette's pixels that took the model's colours.
+    fn back_from_model(&self, prepared: &mut PreparedInput, surfaces: &InflatedSurfaces, place: &Placement) -> f32 {
+        let size = surfaces.mask.width;
+        let px = place.px();
+        let mask = prepared.normalised.mask.clone();
+        let mut back = prepared.back.clone().unwrap_or_else(|| BackImage {
+            rgb: prepared.normalised.rgb.clone(),
+            head: GrayImage::new(size, size, 0.0),
+        });
+        if back.rgb.data.len() != size * size || back.head.data.len() != size * size {
+            return 0.0;
+        }
+        let (mut taken, mut inside) = (0usize, 0usize);
+        for r in 0..size {
+            let y = place.height(r as f32 + 0.5);
+            for c in 0..size {
+                let i = r * size + c;
+                let m = mask.data[i];
+                if m <= 0.0 {
+                    continue;
+                }
+                inside += 1;
+                let x = (c as f32 + 0.5 - place.axis) / px;
+                let z = surfaces.back.data[i] / place.k;
+                let (u, w) = place.model_of(x, z);
+                let Some(t) = self.texel(u, w, y) else { continue };
+                let a = (t[3] / MAP_FULL_WEIGHT).clamp(0.0, 1.0);
+                if a <= 0.0 {
+                    continue;
+                }
+                let kept = Vec3::new(t[0], t[1], t[2]) * m;
+                back.rgb.data[i] = back.rgb.data[i] * (1.0 - a) + kept * a;
+                back.head.data[i] *= 1.0 - a;
+                taken += 1;
+            }
+        }
+        if taken > 0 {
+            prepared.side.back = Some(super::warp::SideImages::of(&back.rgb, None, &mask).rgb);
+            prepared.back = Some(back);
+        }
+        if inside > 0 {
+            taken as f32 / inside as f32
+        } else {
+            0.0
+        }
+    }
+}
+
+/// How far the hull decides a slice's depths once it has been seen from `bins` of the [`YAW_BINS`] directions: 0
+/// up to a quarter of them, 1 from three quarters on, smooth between (a slice seen only from the front and its
+/// mirror says nothing about its depth; seen from most directions, its thickness is measured).
+pub fn coverage_weight(bins: usize) -> f32 {
+    let t = ((bins as f32 / YAW_BINS as f32 - 0.25) / 0.5).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// The [`YAW_BINS`] bin of `yaw` (radians) modulo half a turn.
+fn yaw_bin(yaw: f32) -> usize {
+    let t = yaw.rem_euclid(std::f32::consts::PI) / std::f32::consts::PI;
+    ((t * YAW_BINS as f32) as usize).min(YAW_BINS - 1)
+}
+
+/// Model height of slice `j`'s centre.
+fn slice_height(j: usize) -> f32 {
+    1.0 - (j as f32 + 0.5) * 2.0 / HULL_SLICES as f32
+}
+
+/// The slice holding model height `y`.
+fn slice_of(y: f32) -> Option<usize> {
+    let f = (1.0 - y) * 0.5 * HULL_SLICES as f32;
+    (f.is_finite() && f >= 0.0 && f < HULL_SLICES as f32).then_some(f as usize)
+}
+
+/// Model height of colour row `r`'s centre.
+fn map_height(r: usize) -> f32 {
+    1.0 - (r as f32 + 0.5) * 2.0 / MAP_ROWS as f32
+}
+
+/// The band of model height `y` (0 at the top).
+fn band_of(y: f32) -> usize {
+    (((1.0 - y) * 0.5 * BANDS as f32).max(0.0) as usize).min(BANDS - 1)
+}
+
+/// Centre of hull cell `i` along one horizontal axis (model units).
+fn cell_centre(i: usize) -> f32 {
+    -HULL_HALF + (i as f32 + 0.5) * 2.0 * HULL_HALF / HULL_SIDE as f32
+}
+
+/// The colour texel of model `(u, w)` and height `y`: the angle about the axis (0 = the model's front) and the
+/// height.
+fn texel_index(u: f32, w: f32, y: f32) -> Option<usize> {
+    let row = (1.0 - y) * 0.5 * MAP_ROWS as f32;
+    if !(row.is_finite() && row >= 0.0 && row < MAP_ROWS as f32 && u.is_finite() && w.is_finite()) {
+        return None;
+    }
+    let a = fast_atan2(u, w) / std::f32::consts::TAU + 0.5;
+    let col = ((a * MAP_ANGLES as f32) as usize) % MAP_ANGLES;
+    Some(row as usize * MAP_ANGLES + col)
+}
+
+/// `y.atan2(x)` to within 0.0015 radians (a fifth of a colour texel), several times cheaper: the angle is taken
+/// for every pixel of every frame. 0 for a zero vector.
+fn fast_atan2(y: f32, x: f32) -> f32 {
+    use std::f32::consts::{FRAC_PI_2, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    let (lo, hi) = (ax.min(ay), ax.max(ay));
+    if hi <= 0.0 || !(x.is_finite() && y.is_finite()) {
+        return 0.0;
+    }
+    let t = lo / hi;
+    let t2 = t * t;
+    // A minimax polynomial for atan on [0, 1].
+    let mut a = t * (0.999_866 + t2 * (-0.330_299_5 + t2 * (0.180_141 + t2 * (-0.085_133 + t2 * 0.020_835_1))));
+    if ay > ax {
+        a = FRAC_PI_2 - a;
+    }
+    if x < 0.0 {
+        a = PI - a;
+    }
+    if y < 0.0 {
+        -a
+    } else {
+        a
+    }
+}
+
+/// The column of the person's vertical axis: the median column of the silhouette's torso rows (from 30 % to 55 %
+/// of its height from the top), where arms and feet weigh least. `None` for an empty mask.
+fn axis_column(mask: &GrayImage) -> Option<f32> {
+    let (w, h) = (mask.width, mask.height);
+    let rows: Vec<usize> = (0..h).filter(|&r| mask.data[r * w..(r + 1) * w].iter().any(|&m| m > 0.5)).collect();
+    let (top, bottom) = (*rows.first()?, *rows.last()?);
+    let span = (bottom - top + 1) as f32;
+    let (lo, hi) = (top + (0.30 * span) as usize, top + (0.55 * span) as usize);
+    let mut histogram = vec![0usize; w];
+    for r in lo..=hi.min(h - 1) {
+        for (c, &m) in mask.data[r * w..(r + 1) * w].iter().enumerate() {
+            if m > 0.5 {
+                histogram[c] += 1;
+            }
+        }
+    }
+    let total: usize = histogram.iter().sum();
+    if total == 0 {
+        return None;
+    }
+    let mut seen = 0;
+    for (c, &n) in histogram.iter().enumerate() {
+        seen += n;
+        if 2 * seen >= total {
+            return Some(c as f32 + 0.5);
+        }
+    }
+    None
+}
+
+/// A pixel the tracker reads: camera-aligned `x` and front depth `z` about the axis and model height `y` (model
+/// units), its colour (sharp and blurred) and its band.
+#[derive(Clone, Copy, Debug)]
+struct TrackPoint {
+    x: f32,
+    y: f32,
+    z: f32,
+    rgb: Vec3,
+    /// The colours around it, averaged.
+    blurred: Vec3,
+    band: usize,
+}
+
+/// The pixels the tracker reads: every `step`-th pixel well inside the silhouette whose front (the frame's own
+/// guess) faces the camera.
+fn track_points(prepared: &PreparedInput, guess: &InflatedSurfaces, place: &Placement, step: usize) -> Vec<TrackPoint> {
+    let size = guess.mask.width;
+    let mask = &prepared.normalised.mask;
+    let px = place.px();
+    let mut points = Vec::new();
+    let margin = 2 * step;
+    for r in (margin..size.saturating_sub(margin)).step_by(step) {
+        for c in (margin..size.saturating_sub(margin)).step_by(step) {
+            let i = r * size + c;
+            let inner = [i, i - margin, i + margin, i - margin * size, i + margin * size];
+            if inner.iter().any(|&n| mask.data[n] < 0.99 || guess.mask.data[n] <= 0.5) {
+                continue;
+            }
+            // The front's slope from the neighbours `margin` away: keep what faces the camera.
+            let (dx, dy) = (
+                (guess.front.data[i + margin] - guess.front.data[i - margin]) * size as f32 / (4.0 * margin as f32),
+                (guess.front.data[i - margin * size] - guess.front.data[i + margin * size]) * size as f32
+                    / (4.0 * margin as f32),
+            );
+            let nz = 1.0 / (1.0 + dx * dx + dy * dy).sqrt();
+            if nz.is_nan() || nz <= 0.6 {
+                continue;
+            }
+            let rgb = prepared.normalised.rgb.data[i] / mask.data[i].max(1e-3);
+            let y = place.height(r as f32 + 0.5);
+            if !rgb.is_finite() || !(-1.0..=1.0).contains(&y) {
+                continue;
+            }
+            let x = (c as f32 + 0.5 - place.axis) / px;
+            // The colours around it (a box of five by five samples `step` apart, inside the silhouette).
+            let (mut blurred, mut n) = (Vec3::ZERO, 0.0f32);
+            for dr in -2i64..=2 {
+                for dc in -2i64..=2 {
+                    let (rr, cc) = (r as i64 + dr * step as i64, c as i64 + dc * step as i64);
+                    if rr < 0 || cc < 0 || rr >= size as i64 || cc >= size as i64 {
+                        continue;
+                    }
+                    let k = rr as usize * size + cc as usize;
+                    if mask.data[k] >= 0.99 {
+                        blurred += prepared.normalised.rgb.data[k] / mask.data[k];
+                        n += 1.0;
+                    }
+                }
+            }
+            let blurred = if n > 0.0 { blurred / n } else { rgb };
+            points.push(TrackPoint { x, y, z: guess.front.data[i] / place.k, rgb, blurred, band: band_of(y) });
+        }
+    }
+    // At most MAX_TRACK_POINTS, spread over the silhouette.
+    let every = points.len().div_ceil(MAX_TRACK_POINTS).max(1);
+    points.into_iter().step_by(every).collect()
+}
+
+/// Per row of a silhouette, the signed distance along the row (source pixels, inside positive) from each pixel
+/// centre to the row's outline; rows and columns outside the photo are unknown.
+struct RowProfiles {
+    size: usize,
+    distance: Vec<f32>,
+    frame: (Vec2, Vec2),
+}
+
+/// One row of [`RowProfiles`], read at continuous columns.
+struct RowAt<'a> {
+    a: &'a [f32],
+    b: &'a [f32],
+    t: f32,
+    frame: (f32, f32),
+}
+
+impl RowAt<'_> {
+    /// The signed distance at continuous column `q`: interpolated between pixel centres; past the image's edge
+    /// the distance goes on falling (outside), and past the photo's edge it is unknown (infinite: no carving).
+    fn at(&self, q: f32) -> f32 {
+        if !q.is_finite() || q < self.frame.0 || q > self.frame.1 {
+            return f32::INFINITY;
+        }
+        let n = self.a.len();
+        let x = q - 0.5;
+        let value = |row: &[f32], i: usize| row[i];
+        let sample = |row: &[f32]| {
+            if x <= 0.0 {
+                value(row, 0).min(0.0) + x
+            } else if x >= (n - 1) as f32 {
+                value(row, n - 1).min(0.0) - (x - (n - 1) as f32)
+            } else {
+                let i = x as usize;
+                let t = x - i as f32;
+                value(row, i) * (1.0 - t) + value(row, i + 1) * t
+            }
+        };
+        sample(self.a) * (1.0 - self.t) + sample(self.b) * self.t
+    }
+}
+
+impl RowProfiles {
+    /// The profiles of `mask` (above 0.5 is the person).
+    fn of(mask: &GrayImage, place: &Placement) -> Self {
+        let (w, h) = (mask.width, mask.height);
+        let mut distance = vec![0.0f32; w * h];
+        distance.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, out)| {
+            let row = &mask.data[r * w..(r + 1) * w];
+            let inside = |c: usize| row[c] > 0.5;
+            // Distance to the nearest pixel of the other kind, left then right; the image's edges count as
+            // outside one pixel beyond.
+            let far = (2 * w) as f32;
+            let (mut last_in, mut last_out) = (f32::NEG_INFINITY, -1.0f32);
+            for (c, o) in out.iter_mut().enumerate() {
+                if inside(c) {
+                    last_in = c as f32;
+                    *o = c as f32 - last_out;
+                } else {
+                    last_out = c as f32;
+                    *o = if last_in.is_finite() { c as f32 - last_in } else { far };
+                }
+            }
+            let (mut next_in, mut next_out) = (f32::INFINITY, w as f32);
+            for c in (0..w).rev() {
+                if inside(c) {
+                    next_in = c as f32;
+                    out[c] = (out[c].min(next_out - c as f32)) - 0.5;
+                } else {
+                    next_out = c as f32;
+                    let d = if next_in.is_finite() { next_in - c as f32 } else { far };
+                    out[c] = -(out[c].min(d) - 0.5);
+                }
+            }
+        });
+        Self { size: w.min(h), distance, frame: place.frame }
+    }
+
+    /// The row at continuous row `q` (interpolated between the two nearest); above or below the image but inside
+    /// the photo, a row with nobody; outside the photo, `None` (unknown).
+    fn row(&self, q: f32) -> Option<RowAt<'_>> {
+        if !q.is_finite() || q < self.frame.0.y || q > self.frame.1.y || self.size == 0 {
+            return None;
+        }
+        let n = self.size;
+        let y = (q - 0.5).clamp(0.0, (n - 1) as f32);
+        if q < 0.0 || q > n as f32 {
+            // Beyond the normalised view: nobody there (the view holds the whole person).
+            return None;
+        }
+        let r0 = y as usize;
+        let r1 = (r0 + 1).min(n - 1);
+        let frame = (self.frame.0.x, self.frame.1.x);
+        Some(RowAt {
+            a: &self.distance[r0 * n..(r0 + 1) * n],
+            b: &self.distance[r1 * n..(r1 + 1) * n],
+            t: y - r0 as f32,
+            frame,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::buffer::RgbImage;
+    use crate::pipeline::frame::FramePath;
+    use crate::pipeline::PrepareOptions;
+
+    /// Semi-axes (body-cube units) of the test person: an elliptic column, wide across and thin in depth.
+    const A: f32 = 0.3;
+    const B: f32 = 0.15;
+
+    /// The colour of the column's surface at angle `phi` about its axis and height `y`; `other` is another person.
+    fn pattern(phi: f32, y: f32, other: bool) -> Vec3 {
+        if other {
+            Vec3::new(0.15 + 0.1 * (2.0 * phi).sin(), 0.7, 0.2 + 0.1 * (6.0 * y).cos())
+        } else {
+            Vec3::new(
+                0.5 + 0.35 * (3.0 * phi).sin(),
+                0.5 + 0.35 * (5.0 * phi + 2.0 * y).cos(),
+                0.45 + 0.3 * (phi + 6.0 * y).sin(),
+            )
+        }
+    }
+
+    /// A `size`² orthographic frame of the column turned by `yaw` (radians; the model's convention), with a head
+    /// (a narrower column on top) so that the silhouette has a torso band: linear RGB and the mask.
+    fn frame(size: usize, yaw: f32, other: bool) -> (RgbImage, GrayImage) {
+        let mut rgb = RgbImage::new(size, size, Vec3::ZERO);
+        let mut mask = GrayImage::new(size, size, 0.0);
+        let (s, c) = yaw.sin_cos();
+        for r in 0..size {
+            let y = 1.0 - 2.0 * (r as f32 + 0.5) / size as f32;
+            let scale = if y > 0.55 { 0.45 } else { 1.0 };
+            if !(-0.85..=0.8).contains(&y) {
+                continue;
+            }
+            let (a, b) = (A * scale, B * scale);
+            for col in 0..size {
+                let x = 2.0 * (col as f32 + 0.5) / size as f32 - 1.0;
+                // u = c x - s z, w = s x + c z on the ellipse u²/a² + w²/b² = 1: a quadratic in z.
+                let qa = s * s / (a * a) + c * c / (b * b);
+                let qb = 2.0 * (-c * x * s / (a * a) + s * x * c / (b * b));
+                let qc = c * c * x * x / (a * a) + s * s * x * x / (b * b) - 1.0;
+                let disc = qb * qb - 4.0 * qa * qc;
+                if disc < 0.0 {
+                    continue;
+                }
+                let z = (-qb + disc.sqrt()) / (2.0 * qa);
+                let (u, w) = (c * x - s * z, s * x + c * z);
+                let phi = (u / a).atan2(w / b);
+                rgb.set(col, r, pattern(phi, y, other));
+                mask.set(col, r, 1.0);
+            }
+        }
+        (rgb, mask)
+    }
+
+    /// The normalised front-back thickness at the silhouette's centre column, mid-torso.
+    fn centre_thickness(p: &PreparedInput) -> f32 {
+        let s = p.surfaces.as_ref().expect("one-shell surfaces");
+        let size = s.mask.width;
+        let axis = axis_column(&s.mask).expect("a person") as usize;
+        let r = (0..size).filter(|&r| s.mask.data[r * size + axis] > 0.5).nth(size / 6).expect("rows");
+        let i = r * size + axis;
+        s.front.data[i] - s.back.data[i]
+    }
+
+    const SIZE: usize = 128;
+
+    fn path() -> FramePath {
+        FramePath::new(PrepareOptions { resolution: SIZE, depth_samples: SIZE, ..Default::default() })
+    }
+
+    /// Plays a turn of `steps` frames of `degrees` each; returns the last frame's prepared input before and after
+    /// the model, the model and every frame's [`ModelFrame`].
+    fn turn(model: &mut PersonModel, steps: usize, degrees: f32) -> (PreparedInput, PreparedInput, Vec<ModelFrame>) {
+        let mut path = path();
+        let mut frames = Vec::new();
+        let mut last = None;
+        for i in 0..=steps {
+            let (rgb, mask) = frame(SIZE, (i as f32 * degrees).to_radians(), false);
+            let prepared = path.prepare(&rgb, &mask).expect("a frame");
+            let mut modelled = prepared.clone();
+            frames.push(model.update(&mut modelled));
+            last = Some((prepared, modelled));
+        }
+        let (a, b) = last.expect("frames");
+        (a, b, frames)
+    }
+
+    #[test]
+    fn a_turn_measures_the_thickness_the_frame_guesses() {
+        let mut model = PersonModel::new();
+        let (guess, modelled, frames) = turn(&mut model, 36, 10.0);
+        // The yaw is tracked from the colours alone, to within a few degrees after a whole turn.
+        let last = frames.last().unwrap();
+        let error = (last.yaw_degrees - 360.0 + 180.0).rem_euclid(360.0) - 180.0;
+        assert!(error.abs() < 6.0, "tracked {} degrees after a turn of 360", last.yaw_degrees);
+        assert!(frames.iter().skip(1).all(|f| f.tracked), "every frame after the first is tracked");
+        // Facing the camera again, the true thickness at the centre is 2 B (normalised like the frame).
+        let truth = 2.0 * B * guess.normalised.transform.scale;
+        let (before, after) = (centre_thickness(&guess), centre_thickness(&modelled));
+        assert!((after - truth).abs() < 0.2 * truth, "model {after} vs truth {truth} (frame's guess {before})");
+        assert!((after - truth).abs() * 2.0 < (before - truth).abs(), "model {after} guess {before} truth {truth}");
+        assert!(last.hull_weight > 0.8, "{}", last.hull_weight);
+        // The back image comes from the model, and nothing reset on a turn.
+        assert!(last.back_from_model > 0.5, "{}", last.back_from_model);
+        assert!(frames.iter().all(|f| !f.restarted && f.reset_bands.is_empty()), "a turn reset the model");
+        // Memory is what the model was made with.
+        assert_eq!(model.memory_bytes(), PersonModel::new().memory_bytes());
+    }
+
+    #[test]
+    fn a_cut_to_another_person_restarts_the_model() {
+        let mut model = PersonModel::new();
+        let _ = turn(&mut model, 12, 10.0);
+        let mut path = path();
+        let mut restarted_at = None;
+        for i in 0..6 {
+            let (rgb, mask) = frame(SIZE, (i as f32 * 10.0).to_radians(), true);
+            let mut p = path.prepare(&rgb, &mask).expect("a frame");
+            let f = model.update(&mut p);
+            if f.restarted && restarted_at.is_none() {
+                restarted_at = Some(i);
+            }
+        }
+        let at = restarted_at.expect("the model restarted after the cut");
+        assert!(at < RESET_STRIKES as usize + 1, "restarted {at} frames after the cut");
+    }
+
+    #[test]
+    fn the_fast_angle_is_the_angle() {
+        for k in 0..2000 {
+            let a = k as f32 * 0.0131 - 13.0;
+            let (r, s) = (0.3 + (k % 7) as f32, a.sin());
+            let (y, x) = (r * s, r * a.cos());
+            let d = (fast_atan2(y, x) - y.atan2(x) + 3.0 * std::f32::consts::PI).rem_euclid(std::f32::consts::TAU)
+                - std::f32::consts::PI;
+            assert!(d.abs() < 0.0015, "{y} {x}: {d}");
+        }
+        assert_eq!(fast_atan2(0.0, 0.0), 0.0);
+        assert_eq!(fast_atan2(f32::NAN, 1.0), 0.0);
+    }
+
+    #[test]
+    fn no_nan_at_extreme_views_and_no_panic_on_odd_input() {
+        let mut model = PersonModel::new();
+        let (_, modelled, _) = turn(&mut model, 20, 18.0);
+        let mut renderer =
+            crate::pipeline::ViewRenderer::new(&modelled, crate::pipeline::warp::OcclusionFill::default(), false);
+        for (yaw, pitch) in [(90.0, 0.0), (180.0, 0.0), (270.0, 89.0), (45.0, -89.0), (135.0, 60.0)] {
+            let cam = crate::geometry::Camera::orbit(yaw, pitch, 64, 64);
+            let img = renderer.render_person(&cam).expect("a view");
+            assert!(img.data.iter().all(|p| p.is_finite()), "yaw {yaw} pitch {pitch}");
+        }
+        assert!(modelled.mesh.positions.iter().all(|p| p.is_finite()));
+        // A frame without surfaces, an empty mask and a frame of another size pass without a panic.
+        let mut still = modelled.clone();
+        still.surfaces = None;
+        assert_eq!(model.update(&mut still).ms, 0.0);
+        let mut empty = modelled.clone();
+        if let Some(s) = empty.surfaces.as_mut() {
+            s.mask.data.iter_mut().for_each(|m| *m = 0.0);
+        }
+        let _ = model.update(&mut empty);
+        let mut other = path();
+        let (rgb, mask) = frame(48, 0.3, false);
+        let mut small = other.prepare(&rgb, &mask).expect("a frame");
+        let _ = model.update(&mut small);
+        assert!(small.surfaces.as_ref().unwrap().front.data.iter().all(|v| v.is_finite()));
+    }
+}
