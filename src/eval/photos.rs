@@ -351,7 +351,11 @@ fn run_method(
         Some(pose) => {
             let yaws_and_views: Vec<(f32, &RgbaImage)> = PHOTO_YAWS.iter().copied().zip(&views).collect();
             let mut net = pose.0.lock().unwrap_or_else(|p| p.into_inner());
-            Some(super::plausible::check(&mut net, &yaws_and_views).map_err(|e| fail(e.into()))?)
+            // The photo's frame in the views (the normalised input's, scaled to the views' size).
+            let scale = opts.size as f32 / reference.normalised.rgb.width.max(1) as f32;
+            let (lo, hi) = reference.normalised.frame;
+            let frame = Some((lo * scale, hi * scale));
+            Some(super::plausible::check(&mut net, &yaws_and_views, frame).map_err(|e| fail(e.into()))?)
         }
         None => None,
     };

@@ -34,7 +34,7 @@ use std::ops::Range;
 
 use glam::{Vec2, Vec3};
 
-use crate::body::pose::{index, PoseEstimator, PoseLandmarks};
+use crate::body::pose::{index, PhotoFrame, PoseEstimator, PoseLandmarks};
 use crate::body::BodyError;
 use crate::buffer::{GrayImage, Image, RgbImage, RgbaImage};
 use crate::geometry::camera::Camera;
@@ -106,6 +106,9 @@ pub struct Reference {
     /// Which way the face points at yaw 0 (degrees from the camera toward +x, the yaw at which a camera faces it),
     /// from the network's image landmarks ([`face_direction`]); `None` when those are degenerate.
     pub head_turn: Option<f32>,
+    /// Where the photo lies in the views (`None`: the whole view), given to the pose network so that a photo cut
+    /// at the bottom (a portrait) is read as one ([`crate::body::pose::cut_at_bottom`]).
+    pub frame: Option<PhotoFrame>,
     /// The yaw-0 view itself (premultiplied linear RGBA).
     front: RgbaImage,
 }
@@ -314,16 +317,20 @@ fn face_direction(read: &PoseLandmarks) -> Option<f32> {
 }
 
 impl Reference {
-    /// Reads the yaw-0 view `front` (premultiplied linear RGBA, square) with `pose`; `None` when the network finds
-    /// no person in it.
-    pub fn read(pose: &mut PoseEstimator, front: &RgbaImage) -> Result<Option<Self>, BodyError> {
+    /// Reads the yaw-0 view `front` (premultiplied linear RGBA, square; the photo within `frame`, `None`: all of
+    /// it) with `pose`; `None` when the network finds no person in it.
+    pub fn read(
+        pose: &mut PoseEstimator,
+        front: &RgbaImage,
+        frame: Option<PhotoFrame>,
+    ) -> Result<Option<Self>, BodyError> {
         let (rgb, mask) = network_inputs(front);
-        let Some(read) = pose.estimate(&rgb, &mask, None)?.filter(|r| r.score >= MIN_PERSON_SCORE) else {
+        let Some(read) = pose.estimate(&rgb, &mask, frame)?.filter(|r| r.score >= MIN_PERSON_SCORE) else {
             return Ok(None);
         };
         let head = head_rows(&read, &mask_of(front), front.width);
         let head_turn = face_direction(&read);
-        Ok(Some(Self { read, size: front.width, head, head_turn, front: front.clone() }))
+        Ok(Some(Self { read, size: front.width, head, head_turn, frame, front: front.clone() }))
     }
 
     /// Where landmark `i` of the yaw-0 view projects in the view at `yaw` (degrees), the hips at the body
@@ -436,7 +443,7 @@ fn measure(
     view: &RgbaImage,
 ) -> Result<(ViewCheck, Option<f32>), BodyError> {
     let (rgb, mask) = network_inputs(view);
-    let read = pose.estimate(&rgb, &mask, None)?;
+    let read = pose.estimate(&rgb, &mask, reference.frame)?;
     let camera = Camera::orbit(yaw, 0.0, view.width, view.height);
     let person = read.as_ref().map_or(0.0, |r| r.score);
     let pose_error = read.as_ref().and_then(|found| {
@@ -471,16 +478,21 @@ fn axial_mean(directions: impl Iterator<Item = f32>) -> Option<f32> {
 }
 
 /// Runs the check on one method's views (`(yaw in degrees, premultiplied linear RGBA)`, square, one of them at
-/// yaw 0, which every view is predicted from) with the pose network `pose`. The head's band is centred on the
+/// yaw 0, which every view is predicted from; the photo within `frame`, `None`: all of the view) with the pose
+/// network `pose`. The head's band is centred on the
 /// face's direction averaged over the views that see the face (within [`FACE_SEEN`] of facing it), else the
 /// yaw-0 view's.
-pub fn check(pose: &mut PoseEstimator, views: &[(f32, &RgbaImage)]) -> Result<Plausibility, BodyError> {
+pub fn check(
+    pose: &mut PoseEstimator,
+    views: &[(f32, &RgbaImage)],
+    frame: Option<PhotoFrame>,
+) -> Result<Plausibility, BodyError> {
     let Some(&(_, front)) =
         views.iter().find(|(yaw, _)| yaw.rem_euclid(360.0).min(360.0 - yaw.rem_euclid(360.0)) < 0.5)
     else {
         return Ok(Plausibility { reference: false, views: Vec::new() });
     };
-    let Some(reference) = Reference::read(pose, front)? else {
+    let Some(reference) = Reference::read(pose, front, frame)? else {
         return Ok(Plausibility { reference: false, views: Vec::new() });
     };
     let mut measured = Vec::with_capacity(views.len());
@@ -778,7 +790,7 @@ mod tests {
             );
             let truth_views: Vec<(f32, RgbaImage)> = YAWS.iter().map(|&y| (y, view(&subject.mesh, y))).collect();
             let refs: Vec<(f32, &RgbaImage)> = truth_views.iter().map(|(y, v)| (*y, v)).collect();
-            let checked = check(&mut pose, &refs).expect("pose network runs");
+            let checked = check(&mut pose, &refs, None).expect("pose network runs");
             if !checked.reference {
                 eprintln!("PLAUS\tno-reference\t{seed}");
             }
@@ -800,7 +812,7 @@ mod tests {
                 let mut bad_views: Vec<(f32, RgbaImage)> = YAWS.iter().map(|&y| (y, view(mesh, y))).collect();
                 bad_views.extend(shown.iter().filter(|y| !YAWS.contains(y)).map(|&y| (y, view(mesh, y))));
                 let refs: Vec<(f32, &RgbaImage)> = bad_views.iter().map(|(y, v)| (*y, v)).collect();
-                let checked = check(&mut pose, &refs).expect("pose network runs");
+                let checked = check(&mut pose, &refs, None).expect("pose network runs");
                 if !checked.reference {
                     eprintln!("PLAUS\t{name}\t{seed}\tno reference");
                 }
