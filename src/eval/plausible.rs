@@ -134,10 +134,11 @@ pub struct ViewCheck {
     pub yaw: f32,
     /// The pose network's presence score (0 when it found nobody).
     pub person: f32,
-    /// RMS landmark distance from the prediction in 3-D shoulder widths; `None` without a read of the view or
-    /// with fewer than three landmarks to compare.
+    /// RMS distance of the body landmarks from their rows in the yaw-0 view, in 3-D shoulder widths (left and
+    /// right read either way); `None` without a read of the view or with fewer than three landmarks to compare.
     pub pose_error: Option<f32>,
-    /// The face's direction at yaw 0 the head band is centred on ([`Reference::head_turn`]).
+    /// The face's direction at yaw 0 (degrees) the head band is centred on: the average over the views in
+    /// [`check`], [`Reference::head_turn`] in [`check_view`].
     pub head_turn: Option<f32>,
     /// The head's width over its width at yaw 0; `None` when it could not be measured.
     pub head_width: Option<f32>,
