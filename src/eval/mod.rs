@@ -8,6 +8,7 @@ pub mod ground_truth;
 pub mod memory;
 pub mod metrics;
 pub mod photos;
+pub mod plausible;
 pub mod runner;
 pub mod scans;
 pub mod turn;

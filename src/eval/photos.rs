@@ -84,7 +84,8 @@ pub struct PhotoNets<'a> {
     pub body: Option<&'a SharedBody>,
     /// The placement network of the body-placed rows (`None`: the fixed rule).
     pub placement: Option<&'a crate::pipeline::SharedPlacementNet>,
-    /// The pose network that finds the face for the back image (the default fill's).
+    /// The pose network that finds the face for the back image (the default fill's); also what the plausibility
+    /// check reads the views with ([`super::plausible`]).
     pub back_pose: Option<&'a crate::pipeline::SharedPose>,
 }
 
@@ -133,6 +134,9 @@ pub struct PhotoRow {
     /// True when the geometry's network output was rejected by the pipeline's guard
     /// ([`crate::pipeline::guard`]) and the prior it refined was used instead.
     pub guard_fallback: bool,
+    /// What the pose network sees in the views ([`super::plausible`]); `None` when the pose network is not
+    /// loaded.
+    pub plausibility: Option<super::plausible::Plausibility>,
 }
 
 impl PhotoRow {
@@ -144,6 +148,34 @@ impl PhotoRow {
     /// True when no check fails: no detached fragment at any yaw and no doubled surface.
     pub fn passes(&self) -> bool {
         self.worst_detached() <= FRAGMENT_TOLERANCE && self.doubled <= DOUBLED_TOLERANCE
+    }
+}
+
+/// The plausibility check's CSV columns of one row: pass, views passing of all, the worst pose error, the head's
+/// width at each yaw of [`PHOTO_YAWS`], the back of the head's likeness to the face (empty where not measured).
+fn plausibility_columns(p: Option<&super::plausible::Plausibility>) -> Vec<String> {
+    let Some(p) = p else { return vec![String::new(); 4 + PHOTO_YAWS.len()] };
+    let f = |x: Option<f32>| x.map_or(String::new(), |x| format!("{x:.3}"));
+    let (pass, n) = p.passing_views();
+    let worst =
+        p.views.iter().filter_map(|v| v.pose_error).fold(None, |m: Option<f32>, e| Some(m.map_or(e, |m| m.max(e))));
+    let mut out = vec![p.passes().to_string(), format!("{pass}/{n}"), f(worst)];
+    out.extend(PHOTO_YAWS.iter().map(|&y| f(p.views.iter().find(|v| v.yaw == y).and_then(|v| v.head_width))));
+    out.push(f(p.views.iter().find_map(|v| v.back_likeness)));
+    out
+}
+
+/// The plausibility check's cell in `photos.md`: `pass (k/n views)` or `FAIL (k/n views): ` and the failures.
+fn plausibility_cell(p: Option<&super::plausible::Plausibility>) -> String {
+    match p {
+        None => "-".to_string(),
+        Some(p) => {
+            let (pass, n) = p.passing_views();
+            match p.failures() {
+                f if f.is_empty() => format!("pass ({pass}/{n} views)"),
+                f => format!("FAIL ({pass}/{n} views): {}", f.join("; ")),
+            }
+        }
     }
 }
 
@@ -315,6 +347,18 @@ fn run_method(
         .as_ref()
         .map_or(0.0, |fof| doubled_fraction_beyond(fof, &reference.explained(), &input.normalised.mask, 1));
     let guard_fallback = method.geometry != GeometryMode::Inflate && input.fof.as_ref() == Some(&reference.inflation.0);
+    let plausibility = match nets.back_pose {
+        Some(pose) => {
+            let yaws_and_views: Vec<(f32, &RgbaImage)> = PHOTO_YAWS.iter().copied().zip(&views).collect();
+            let mut net = pose.0.lock().unwrap_or_else(|p| p.into_inner());
+            // The photo's frame in the views (the normalised input's, scaled to the views' size).
+            let scale = opts.size as f32 / reference.normalised.rgb.width.max(1) as f32;
+            let (lo, hi) = reference.normalised.frame;
+            let frame = Some((lo * scale, hi * scale));
+            Some(super::plausible::check(&mut net, &yaws_and_views, frame).map_err(|e| fail(e.into()))?)
+        }
+        None => None,
+    };
     let row = PhotoRow {
         photo: name.to_string(),
         method: method.label.clone(),
@@ -324,6 +368,7 @@ fn run_method(
         doubled,
         ms_per_input,
         guard_fallback,
+        plausibility,
     };
     Ok((row, views))
 }
@@ -450,14 +495,18 @@ pub fn run_photo_eval_with(
 
 fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &PhotoReport) -> Result<(), EvalError> {
     let yaw_cols: Vec<String> = PHOTO_YAWS.iter().map(|y| format!("detached_yaw{}", *y as i32)).collect();
+    let head_cols: Vec<String> = PHOTO_YAWS.iter().map(|y| format!("head_width_yaw{}", *y as i32)).collect();
     let mut csv = format!(
-        "photo,method,segmentation,input_psnr,doubled,{},ms_per_input,passes,guard_fallback\n",
-        yaw_cols.join(",")
+        "photo,method,segmentation,input_psnr,doubled,{},ms_per_input,passes,guard_fallback,plausible,\
+         plausible_views,worst_pose_error,{},back_likeness\n",
+        yaw_cols.join(","),
+        head_cols.join(",")
     );
     for r in &rep.rows {
         let detached: Vec<String> = r.detached.iter().map(|d| format!("{d:.5}")).collect();
+        let plausible = plausibility_columns(r.plausibility.as_ref());
         csv.push_str(&format!(
-            "{},{},{},{:.3},{:.5},{},{:.1},{},{}\n",
+            "{},{},{},{:.3},{:.5},{},{:.1},{},{},{}\n",
             r.photo,
             r.method,
             r.segmentation,
@@ -466,7 +515,8 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
             detached.join(","),
             r.ms_per_input,
             r.passes(),
-            r.guard_fallback
+            r.guard_fallback,
+            plausible.join(",")
         ));
     }
     let p = opts.out.join("photos.csv");
@@ -483,9 +533,16 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
          larger count of the silhouette-inflation prior (one shell) and of the fitted body's FOF {}; a geometry \
          counts as doubled above {:.0} %. The body prior's own rows are explained by construction.\n\
          - **guard**: `prior` where the pipeline's guard rejected the network's geometry (doubled shells or detached \
-         volume, `pipeline::guard`) and the method drew the prior it refined instead.\n\n\
-         | photo | method | segmentation | input PSNR | detached (worst yaw) | doubled | guard | ms/input | checks |\n\
-         |---|---|---|---|---|---|---|---|---|\n",
+         volume, `pipeline::guard`) and the method drew the prior it refined instead.\n\
+         - **plausible** (not part of **checks**; `eval::plausible`, docs/evaluation.md): the pose network reads \
+         every view; it must find a person (score at least {:.1}) whose body landmarks lie on the rows of the yaw-0 \
+         view's (an orbit keeps rows) within {:.1} shoulder widths (RMS); the head's width between \
+         the eyes and the mouth over its width at yaw 0 must fit a head {:.1}-{:.1} times as deep as wide, turned \
+         within {:.0}° of the face's direction (±{:.0} %); the back of the head at yaw {:.0} must not look like \
+         the mirrored face (likeness at most {:.2}). Views passing of all, and the failures; `-` without the pose network.\n\n\
+         | photo | method | segmentation | input PSNR | detached (worst yaw) | doubled | guard | ms/input | checks | \
+         plausible |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
         rep.sheets.len(),
         opts.dir.display(),
         opts.size,
@@ -500,6 +557,14 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
             "(not loaded in this run: an arm really in front of the torso counts as doubled, an upper bound)"
         },
         DOUBLED_TOLERANCE * 100.0,
+        super::plausible::MIN_PERSON_SCORE,
+        super::plausible::MAX_POSE_ERROR,
+        super::plausible::HEAD_DEPTH_RATIO.0,
+        super::plausible::HEAD_DEPTH_RATIO.1,
+        super::plausible::HEAD_TURN,
+        super::plausible::HEAD_TOLERANCE * 100.0,
+        super::plausible::BACK_YAW,
+        super::plausible::MAX_BACK_LIKENESS,
     );
     for r in &rep.rows {
         let (worst_i, worst) =
@@ -509,7 +574,7 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
                 .enumerate()
                 .fold((0, 0.0f32), |best, (i, d)| if d > best.1 { (i, d) } else { best });
         md.push_str(&format!(
-            "| {} | {} | {} | {:.2} | {:.2} % (yaw {}) | {:.2} % | {} | {:.0} | {} |\n",
+            "| {} | {} | {} | {:.2} | {:.2} % (yaw {}) | {:.2} % | {} | {:.0} | {} | {} |\n",
             r.photo,
             r.method,
             r.segmentation,
@@ -519,7 +584,8 @@ fn write_photo_reports(opts: &PhotoEvalOptions, methods: &[PhotoMethod], rep: &P
             r.doubled * 100.0,
             if r.guard_fallback { "prior" } else { "-" },
             r.ms_per_input,
-            if r.passes() { "pass" } else { "FAIL" }
+            if r.passes() { "pass" } else { "FAIL" },
+            plausibility_cell(r.plausibility.as_ref())
         ));
     }
     let labels: Vec<&str> = methods.iter().map(|m| m.label.as_str()).collect();
