@@ -102,7 +102,7 @@ if [ "$RUNTIME" = 1 ]; then
     chroot "$ROOT" env -i "${BASE_ENV[@]}" "${COMP_ENV[@]}" SIMULATED_ENABLE=1 XRT_NO_STDIN=1 \
         monado-service >"$LOG_DIR/monado.log" 2>&1 &
     MONADO_PID=$!
-    for _ in $(seq 200); do
+    for _ in $(seq 600); do
         [ -S "$ROOT$XDG_DIR/monado_comp_ipc" ] && break
         if ! kill -0 "$MONADO_PID" 2>/dev/null; then
             echo "run-in-root.sh: monado-service exited early; see $LOG_DIR/monado.log" >&2
@@ -111,7 +111,7 @@ if [ "$RUNTIME" = 1 ]; then
         sleep 0.05
     done
     if [ ! -S "$ROOT$XDG_DIR/monado_comp_ipc" ]; then
-        echo "run-in-root.sh: monado-service did not create its socket within 10 s; see $LOG_DIR/monado.log" >&2
+        echo "run-in-root.sh: monado-service did not create its socket within 30 s; see $LOG_DIR/monado.log" >&2
         exit 3
     fi
 fi
