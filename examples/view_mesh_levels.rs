@@ -55,7 +55,7 @@ fn main() -> anyhow::Result<()> {
             // The viewer walks around the person: the eye turns about the person's vertical axis.
             let turn = Quat::from_rotation_y(yaw.to_radians());
             let eye = placement.position + turn * (head - placement.position);
-            let look = Quat::from_rotation_arc(Vec3::NEG_Z, (placement.position + Vec3::Y * 0.9 - eye).normalize());
+            let look = turn * Quat::from_rotation_x(-(0.7f32 / 1.75).atan());
             let camera =
                 placement.eye_camera(eye, look, Fov::symmetric(std::f32::consts::FRAC_PI_2, w as f32 / h as f32), w, h);
             for _ in 0..9 {
