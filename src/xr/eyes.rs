@@ -272,6 +272,10 @@ impl EyeRenderer for GpuEyes {
     }
 }
 
+/// Result buffer sets of the CPU eyes: the next pair is drawn into one while the display loop's copy out of the
+/// other waits for its frame ([`EyeRenderer::buffer_sets`]).
+pub const CPU_EYE_BUFFER_SETS: usize = 2;
+
 /// The per-eye CPU reference renderers ([`CpuView`], one per eye so spatial fusion follows each eye's own view
 /// sequence), for a session whose only Vulkan device is a software rasteriser: there the Vulkan passes share the
 /// CPU's cores with the rasteriser's own overhead and run several times slower than the reference. Each finished
@@ -282,7 +286,8 @@ pub struct CpuEyes {
     session: Arc<gpu::Context>,
     views: Vec<CpuView>,
     sizes: Vec<(usize, usize)>,
-    staging: Vec<Buffer>,
+    /// Host-visible result buffers: [`CPU_EYE_BUFFER_SETS`] sets of one per eye.
+    staging: Vec<Vec<Buffer>>,
     feed: Box<dyn SceneFeed>,
     scene: Option<Arc<Scene>>,
     scene_count: u64,
@@ -310,7 +315,8 @@ impl CpuEyes {
         feed: Box<dyn SceneFeed>,
     ) -> Result<Self, gpu::GpuError> {
         needs_panorama(mode, environment.as_ref())?;
-        let staging = staging_buffers(&session, sizes)?;
+        let staging =
+            (0..CPU_EYE_BUFFER_SETS).map(|_| staging_buffers(&session, sizes)).collect::<Result<Vec<_>, _>>()?;
         let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
         Ok(Self {
             session,
@@ -376,14 +382,19 @@ impl EyeRenderer for CpuEyes {
             }
             _ => crate::compose::compose_ar(&person).data,
         };
-        let buffer = self.staging.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
-        // Safe to rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
+        let buffer =
+            self.staging.get_mut(eye.set).and_then(|s| s.get_mut(eye.eye)).ok_or(EyeError::NoRenderer(eye.eye))?;
+        // Safe to rewrite: the display loop never took this set's frame, or reported its copy finished (`copied`).
         buffer.write(&data);
         Ok(buffer.buffer)
     }
 
     fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
         wait_for_copy(&self.session, fence)
+    }
+
+    fn buffer_sets(&self) -> usize {
+        CPU_EYE_BUFFER_SETS
     }
 
     fn take_messages(&mut self) -> Vec<String> {

@@ -58,6 +58,9 @@ pub struct EyeRequest {
     pub body_camera: Camera,
     /// The same eye in reference-space coordinates (for a room-locked panorama).
     pub stage_camera: Camera,
+    /// Which of the renderer's result buffer sets to write (below [`EyeRenderer::buffer_sets`]): the display loop
+    /// may still be copying out of the others.
+    pub set: usize,
 }
 
 /// Why the render thread could not render the eyes (it stops; the session ends with this sentence).
@@ -115,6 +118,11 @@ pub trait EyeRenderer: Send {
     fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError>;
     /// Waits until the display loop's copy (signalled by `fence`) has finished reading the result buffers.
     fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError>;
+    /// How many sets of result buffers the renderer keeps ([`EyeRequest::set`]). With one, the next pair waits
+    /// until the display loop has copied the last one; with two, it is drawn while that copy waits for its frame.
+    fn buffer_sets(&self) -> usize {
+        1
+    }
     /// Messages for the user since the last call (a live source that ended, a corrupt frame).
     fn take_messages(&mut self) -> Vec<String>;
 }
@@ -137,8 +145,12 @@ struct Slots {
     pending: Option<RenderRequest>,
     shutdown: bool,
     latest: Option<Arc<RenderedEyes>>,
+    /// The newest frame the display loop took to copy ([`RenderMailbox::take_newer`]).
+    taken: Option<u64>,
     /// The newest frame whose copy was submitted, with the fence of that copy.
     consumed: Option<(u64, vk::Fence)>,
+    /// The newest frame whose copy has finished ([`RenderMailbox::copied`]).
+    copied: Option<u64>,
     error: Option<String>,
     /// Every per-eye render time, in fixed memory (sessions run for hours).
     eye_times: DurationHistogram,
@@ -175,6 +187,22 @@ impl RenderMailbox {
     /// The newest finished frame, if any.
     pub fn latest(&self) -> Option<Arc<RenderedEyes>> {
         self.lock().latest.clone()
+    }
+
+    /// The newest finished frame when it is newer than `seen`, marked as taken: the render thread does not write
+    /// its buffers again until [`RenderMailbox::copied`] reports the copy out of them.
+    pub fn take_newer(&self, seen: Option<u64>) -> Option<Arc<RenderedEyes>> {
+        let mut s = self.lock();
+        let frame = s.latest.clone().filter(|f| Some(f.request.seq) != seen)?;
+        s.taken = Some(frame.request.seq);
+        Some(frame)
+    }
+
+    /// The display loop's copy of frame `seq` out of the result buffers has finished (it waited for it): the
+    /// render thread may write them again without touching the copy's fence, which the display loop reuses.
+    pub fn copied(&self, seq: u64) {
+        self.lock().copied = Some(seq);
+        self.wake.notify_all();
     }
 
     /// The display loop submitted the copy of frame `seq` out of the result buffers; `fence` signals its end.
@@ -224,22 +252,26 @@ impl RenderMailbox {
 
     /// The render thread's body: renders the newest request until [`RenderMailbox::shutdown`].
     pub fn run_render_loop(&self, renderer: &mut dyn EyeRenderer) {
-        // The frame whose result buffers the display loop may still be copying from.
-        let mut awaiting_copy: Option<u64> = None;
+        let sets = renderer.buffer_sets().max(1);
+        // Published frames whose buffer set the display loop may still read, oldest first: (frame, set).
+        let mut in_flight: std::collections::VecDeque<(u64, usize)> = std::collections::VecDeque::new();
         loop {
-            let (request, copy_fence) = {
+            let (request, set, copy_fence) = {
                 let mut s = self.lock();
                 loop {
                     if s.shutdown {
                         return;
                     }
-                    let copied = match (awaiting_copy, s.consumed) {
-                        (None, _) => Some(None),
-                        (Some(seq), Some((done, fence))) if done >= seq => Some(Some(fence)),
-                        _ => None,
+                    let free = if in_flight.len() < sets {
+                        (0..sets).find(|k| in_flight.iter().all(|&(_, used)| used != *k)).map(|k| (k, None))
+                    } else {
+                        in_flight.front().and_then(|&(frame, set)| set_released(&s, frame).map(|fence| (set, fence)))
                     };
-                    if let (Some(fence), true) = (copied, s.pending.is_some()) {
-                        break (s.pending.take().expect("checked above"), fence);
+                    if let (Some((set, fence)), true) = (free, s.pending.is_some()) {
+                        if in_flight.len() >= sets {
+                            in_flight.pop_front();
+                        }
+                        break (s.pending.take().expect("checked above"), set, fence);
                     }
                     s = self.wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
@@ -248,7 +280,6 @@ impl RenderMailbox {
                 if let Some(fence) = copy_fence {
                     renderer.wait_copied(fence)?;
                 }
-                awaiting_copy = None;
                 if renderer.refresh(&request.placement)? {
                     self.lock().uploads += 1;
                 }
@@ -256,11 +287,11 @@ impl RenderMailbox {
                 if !renderer.has_content() {
                     return Ok(None);
                 }
-                render_request(renderer, &request).map(Some)
+                render_request(renderer, &request, set).map(Some)
             })();
             match result {
                 Ok(Some(frame)) => {
-                    awaiting_copy = Some(frame.request.seq);
+                    in_flight.push_back((frame.request.seq, set));
                     let mut s = self.lock();
                     for &t in &frame.eye_times {
                         s.eye_times.record(t);
@@ -277,8 +308,33 @@ impl RenderMailbox {
     }
 }
 
-/// Renders both eyes of one request.
-pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -> Result<RenderedEyes, EyeError> {
+/// Whether the buffers of published `frame` may be written again, and the copy fence to wait for first:
+/// - a copy of it (or of a later frame: copies run in submission order) reported finished ([`RenderMailbox::copied`]):
+///   at once, no fence;
+/// - a copy of it submitted ([`RenderMailbox::consumed`]): after waiting for that copy's fence; this is only used
+///   with one buffer set, where the display loop cannot reuse the fence before the render thread publishes again;
+/// - while it is the newest frame and not copied: not yet (the display loop will take it);
+/// - after a newer one, at once unless the display loop took it and has not reported its copy finished.
+fn set_released(s: &Slots, frame: u64) -> Option<Option<vk::Fence>> {
+    if s.copied.is_some_and(|c| c >= frame) {
+        return Some(None);
+    }
+    let newest = s.latest.as_ref().is_some_and(|l| l.request.seq == frame);
+    let submitted = s.consumed.filter(|&(seq, _)| seq >= frame).map(|(_, fence)| fence);
+    match (newest, submitted) {
+        (true, Some(fence)) => Some(Some(fence)),
+        (true, None) => None,
+        (false, _) if s.taken == Some(frame) => None,
+        (false, _) => Some(None),
+    }
+}
+
+/// Renders both eyes of one request into the renderer's buffer set `set`.
+pub fn render_request(
+    renderer: &mut dyn EyeRenderer,
+    request: &RenderRequest,
+    set: usize,
+) -> Result<RenderedEyes, EyeError> {
     let mut cameras = Vec::with_capacity(request.views.len());
     let mut outputs = Vec::with_capacity(request.views.len());
     let mut eye_times = Vec::with_capacity(request.views.len());
@@ -286,7 +342,7 @@ pub fn render_request(renderer: &mut dyn EyeRenderer, request: &RenderRequest) -
         let body_camera = request.placement.eye_camera(view.position, view.orientation, view.fov, w, h);
         let stage_camera = Placement::stage_camera(view.position, view.orientation, view.fov, w, h);
         let start = Instant::now();
-        outputs.push(renderer.render_eye(&EyeRequest { eye, body_camera, stage_camera })?);
+        outputs.push(renderer.render_eye(&EyeRequest { eye, body_camera, stage_camera, set })?);
         eye_times.push(start.elapsed());
         cameras.push(body_camera);
     }
@@ -360,6 +416,10 @@ mod tests {
         seen: Arc<Mutex<Vec<(usize, Vec3, Vec3)>>>,
         waited: Arc<Mutex<Vec<u64>>>,
         messages: Vec<String>,
+        /// Buffer sets it keeps (0 = the default, one).
+        sets: usize,
+        /// The set each eye render was asked to write.
+        used_sets: Arc<Mutex<Vec<usize>>>,
     }
 
     impl EyeRenderer for Fake {
@@ -386,6 +446,7 @@ mod tests {
                 }
             }
             self.seen.lock().unwrap().push((e.eye, e.body_camera.position(), e.stage_camera.position()));
+            self.used_sets.lock().unwrap().push(e.set);
             Ok(vk::Buffer::from_raw(100 + e.eye as u64))
         }
         fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
@@ -394,6 +455,9 @@ mod tests {
         }
         fn take_messages(&mut self) -> Vec<String> {
             std::mem::take(&mut self.messages)
+        }
+        fn buffer_sets(&self) -> usize {
+            self.sets.max(1)
         }
     }
 
@@ -415,7 +479,7 @@ mod tests {
     fn render_request_uses_the_placement_for_each_eye() {
         let req = request(1);
         let mut r = Fake { content: true, ..Default::default() };
-        let frame = render_request(&mut r, &req).unwrap();
+        let frame = render_request(&mut r, &req, 0).unwrap();
         assert_eq!(frame.outputs, vec![vk::Buffer::from_raw(100), vk::Buffer::from_raw(101)]);
         assert_eq!((frame.cameras[0].width, frame.cameras[0].height), (8, 6));
         let seen = r.seen.lock().unwrap();
@@ -499,5 +563,43 @@ mod tests {
         t.join().unwrap();
         assert_eq!(mailbox.error().as_deref(), Some("eye 0: camera of 8x8 for a renderer of 4x4"));
         assert!(mailbox.latest().is_none());
+    }
+
+    #[test]
+    fn with_two_buffer_sets_the_next_pair_is_drawn_while_the_last_waits_for_its_copy() {
+        let mailbox = RenderMailbox::new();
+        let used = Arc::new(Mutex::new(Vec::new()));
+        let waited = Arc::new(Mutex::new(Vec::new()));
+        let mut r = Fake { sets: 2, used_sets: used.clone(), waited: waited.clone(), ..Default::default() };
+        let rendered = |seq: u64| {
+            let deadline = Instant::now() + Duration::from_secs(10);
+            while mailbox.latest().is_none_or(|f| f.request.seq != seq) {
+                assert!(Instant::now() < deadline, "request {seq} was not rendered");
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        };
+        std::thread::scope(|scope| {
+            let m = mailbox.clone();
+            scope.spawn(move || m.run_render_loop(&mut r));
+            // Two pairs without any copy: one per set.
+            mailbox.request(request(1));
+            rendered(1);
+            mailbox.request(request(2));
+            rendered(2);
+            // The display loop takes frame 2 (not 1, which it never saw): frame 1's set is free at once.
+            assert_eq!(mailbox.take_newer(Some(1)).map(|f| f.request.seq), Some(2));
+            assert!(mailbox.take_newer(Some(2)).is_none(), "a frame already taken is not new");
+            mailbox.request(request(3));
+            rendered(3);
+            // Frame 2 was taken and its copy not reported finished: its set stays untouched.
+            mailbox.request(request(4));
+            std::thread::sleep(Duration::from_millis(50));
+            assert_eq!(mailbox.latest().unwrap().request.seq, 3, "drew over a frame being copied");
+            mailbox.copied(2);
+            rendered(4);
+            mailbox.shutdown();
+        });
+        assert_eq!(*used.lock().unwrap(), vec![0, 0, 1, 1, 0, 0, 1, 1]);
+        assert!(waited.lock().unwrap().is_empty(), "the render thread touched a copy fence");
     }
 }

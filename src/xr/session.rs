@@ -1152,11 +1152,14 @@ fn frame_loop(
             // re-submit the last ones (the compositor reprojects them from the poses they were rendered for).
             let mut fresh = false;
             if fs.should_render {
-                if let Some(frame) = ctx.mailbox.latest() {
-                    if last_uploaded != Some(frame.request.seq) {
+                if let Some(frame) = ctx.mailbox.take_newer(last_uploaded) {
+                    {
                         let capture = ctx.config.capture && st.capture_of.is_none();
-                        let fence = uploader.upload(ctx.vk, eyes, &frame.outputs, capture, &mut waited)?;
-                        ctx.mailbox.consumed(frame.request.seq, fence);
+                        uploader.upload(ctx.vk, eyes, &frame.outputs, capture, &mut waited)?;
+                        // The copy is waited for here (the next upload would wait for it anyway), so the render
+                        // thread reuses the buffers on this report and never touches the fence this loop reuses.
+                        uploader.wait()?;
+                        ctx.mailbox.copied(frame.request.seq);
                         if capture {
                             st.capture_of = Some(frame.clone());
                         }
