@@ -1153,38 +1153,36 @@ fn frame_loop(
             let mut fresh = false;
             if fs.should_render {
                 if let Some(frame) = ctx.mailbox.take_newer(last_uploaded) {
-                    {
-                        let capture = ctx.config.capture && st.capture_of.is_none();
-                        uploader.upload(ctx.vk, eyes, &frame.outputs, capture, &mut waited)?;
-                        // The copy is waited for here (the next upload would wait for it anyway), so the render
-                        // thread reuses the buffers on this report and never touches the fence this loop reuses.
-                        uploader.wait()?;
-                        ctx.mailbox.copied(frame.request.seq);
-                        if capture {
-                            st.capture_of = Some(frame.clone());
-                        }
-                        // The mirror window opens with the first image, so it maps above the runtime's own
-                        // window when both share a display.
-                        if let Some(l) = st.mirror_loop.take() {
-                            match Mirror::new(l, ctx.vk) {
-                                Ok(m) => st.mirror = Some(m),
-                                Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
-                            }
-                        }
-                        if let Some(m) = &mut st.mirror {
-                            let images: Vec<_> = eyes.iter().map(|e| &e.linear).collect();
-                            if let Err(e) = m.present(&images) {
-                                tracing::warn!("desktop mirror stopped: {e}");
-                                if let Some(m) = st.mirror.take() {
-                                    st.mirror_presented = m.presented;
-                                    m.destroy();
-                                }
-                            }
-                        }
-                        last_uploaded = Some(frame.request.seq);
-                        shown = Some(frame);
-                        fresh = true;
+                    let capture = ctx.config.capture && st.capture_of.is_none();
+                    uploader.upload(ctx.vk, eyes, &frame.outputs, capture, &mut waited)?;
+                    // The copy is waited for here (the next upload would wait for it anyway), so the render
+                    // thread reuses the buffers on this report and never touches the fence this loop reuses.
+                    uploader.wait()?;
+                    ctx.mailbox.copied(frame.request.seq);
+                    if capture {
+                        st.capture_of = Some(frame.clone());
                     }
+                    // The mirror window opens with the first image, so it maps above the runtime's own
+                    // window when both share a display.
+                    if let Some(l) = st.mirror_loop.take() {
+                        match Mirror::new(l, ctx.vk) {
+                            Ok(m) => st.mirror = Some(m),
+                            Err(e) => tracing::warn!("desktop mirror disabled: {e}"),
+                        }
+                    }
+                    if let Some(m) = &mut st.mirror {
+                        let images: Vec<_> = eyes.iter().map(|e| &e.linear).collect();
+                        if let Err(e) = m.present(&images) {
+                            tracing::warn!("desktop mirror stopped: {e}");
+                            if let Some(m) = st.mirror.take() {
+                                st.mirror_presented = m.presented;
+                                m.destroy();
+                            }
+                        }
+                    }
+                    last_uploaded = Some(frame.request.seq);
+                    shown = Some(frame);
+                    fresh = true;
                 }
             }
             let person = shown.as_ref().filter(|_| fs.should_render && eyes.iter().all(|e| e.has_content()));
