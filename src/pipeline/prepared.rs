@@ -2,6 +2,7 @@
 //! ([`PrepareOptions`]) and the stage clock ([`StageTimings`]). The still path (`still`) and the frame path
 //! (`frame`) fill it.
 
+use glam::Vec3;
 use std::time::{Duration, Instant};
 
 use crate::geometry::fof::Fof;
@@ -149,13 +150,16 @@ pub struct CoarseMesh {
     /// Whether it is closed and consistently wound ([`TriMesh::is_closed`]): a view from outside may then skip
     /// the triangles facing away ([`crate::geometry::raster::rasterize_front_into`]).
     pub closed: bool,
+    /// Its bounding box (`None` when empty), computed once: every view asks for it.
+    pub bounds: Option<(Vec3, Vec3)>,
 }
 
 impl CoarseMesh {
-    /// `mesh` with its sample `spacing`, its closedness checked once.
+    /// `mesh` with its sample `spacing`, its closedness and bounds computed once.
     pub fn new(mesh: TriMesh, spacing: f32) -> Self {
         let closed = mesh.is_closed();
-        Self { mesh, spacing, closed }
+        let bounds = mesh.bounds();
+        Self { mesh, spacing, closed, bounds }
     }
 }
 
@@ -172,24 +176,27 @@ pub struct ViewMesh<'m> {
 /// sample spacing at the centre of the person's bounds, so the full mesh's extra triangles would fall inside
 /// pixels. (For a person a few body heights away the footprint varies by the person's depth over the distance,
 /// a few tens of per cent at most.) The drawn mesh's back faces are skipped when it is closed (`full_closed`,
-/// [`CoarseMesh::closed`]) and the camera is outside the person's bounds.
+/// [`CoarseMesh::closed`]) and the camera is outside the drawn mesh's bounds. The coarse mesh's bounds are kept
+/// with it ([`CoarseMesh::bounds`]); the full mesh's are computed only when it is drawn closed.
 pub fn mesh_for_view<'m>(
     full: &'m TriMesh,
     full_closed: bool,
     coarse: Option<&'m CoarseMesh>,
     camera: &Camera,
 ) -> ViewMesh<'m> {
-    let Some((lo, hi)) = full.bounds() else { return ViewMesh { mesh: full, front_only: false } };
-    let outside = camera.is_orthographic() || {
-        let eye = camera.position();
-        eye.cmplt(lo).any() || eye.cmpgt(hi).any()
+    let outside = |bounds: Option<(Vec3, Vec3)>| {
+        bounds.is_some_and(|(lo, hi)| {
+            let eye = camera.position();
+            camera.is_orthographic() || eye.cmplt(lo).any() || eye.cmpgt(hi).any()
+        })
+    };
+    // The footprint is never NaN (0 for points it cannot see), so `>=` refuses every unsure case.
+    let coarse_enough = |c: &CoarseMesh| {
+        !c.mesh.is_empty() && c.bounds.is_some_and(|(lo, hi)| camera.pixel_footprint((lo + hi) * 0.5) >= c.spacing)
     };
     match coarse {
-        // The footprint is never NaN (0 for points it cannot see), so `<` refuses every unsure case.
-        Some(c) if !c.mesh.is_empty() && camera.pixel_footprint((lo + hi) * 0.5) >= c.spacing => {
-            ViewMesh { mesh: &c.mesh, front_only: c.closed && outside }
-        }
-        _ => ViewMesh { mesh: full, front_only: full_closed && outside },
+        Some(c) if coarse_enough(c) => ViewMesh { mesh: &c.mesh, front_only: c.closed && outside(c.bounds) },
+        _ => ViewMesh { mesh: full, front_only: full_closed && outside(full.bounds()) },
     }
 }
 

@@ -15,7 +15,6 @@
 //! is uploaded turned by the placement's yaw (and uploaded again when a controller turns the person).
 
 use std::sync::Arc;
-use std::time::Duration;
 
 use ash::vk;
 use glam::Vec4;
@@ -96,14 +95,8 @@ impl NeuralEyeStats {
     }
 }
 
-/// How long the render thread waits for the display loop's copy out of its result buffers before giving up
-/// (the copy is a few hundred microseconds of GPU work; a stuck fence means a lost device).
-const COPY_TIMEOUT: Duration = Duration::from_secs(5);
-
 /// The per-eye Vulkan renderers and their inputs. See the module docs.
 pub struct GpuEyes {
-    /// The OpenXR session's device (the copy fences live there).
-    session: Arc<gpu::Context>,
     renderers: Vec<Renderer>,
     /// Per-eye staging buffers on the session's device when the renderers run on their own device.
     staging: Option<Vec<Buffer>>,
@@ -153,7 +146,6 @@ impl GpuEyes {
         let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
         let staging = if Arc::ptr_eq(&session, &render) { None } else { Some(staging_buffers(&session, sizes)?) };
         Ok(Self {
-            session,
             renderers,
             staging,
             feed,
@@ -250,7 +242,7 @@ impl EyeRenderer for GpuEyes {
         }
         match self.staging.as_mut().and_then(|s| s.get_mut(eye.eye)) {
             // Separate device: hand the result over through the session device's host-visible buffer. Safe to
-            // rewrite: the display loop's copy out of it finished before this render started (`wait_copied`).
+            // rewrite: the display loop reported its copy out of it finished before this render started (`copied`).
             Some(buffer) => {
                 let data: Vec<Vec4> = match r.read_output(mode) {
                     RenderedFrame::Vr(img) => img.data.iter().map(|c| c.extend(1.0)).collect(),
@@ -261,10 +253,6 @@ impl EyeRenderer for GpuEyes {
             }
             None => Ok(r.output_buffer()),
         }
-    }
-
-    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
-        wait_for_copy(&self.session, fence)
     }
 
     fn take_messages(&mut self) -> Vec<String> {
@@ -283,7 +271,6 @@ pub const CPU_EYE_BUFFER_SETS: usize = 2;
 /// host-visible buffer on the session's device: one upload per eye render, which the display loop copies into the
 /// swapchain image as it copies a Vulkan eye.
 pub struct CpuEyes {
-    session: Arc<gpu::Context>,
     views: Vec<CpuView>,
     sizes: Vec<(usize, usize)>,
     /// Host-visible result buffers: [`CPU_EYE_BUFFER_SETS`] sets of one per eye.
@@ -319,7 +306,6 @@ impl CpuEyes {
             (0..CPU_EYE_BUFFER_SETS).map(|_| staging_buffers(&session, sizes)).collect::<Result<Vec<_>, _>>()?;
         let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
         Ok(Self {
-            session,
             views: sizes.iter().map(|_| CpuView::new(OcclusionFill::default(), true)).collect(),
             sizes: sizes.to_vec(),
             staging,
@@ -389,10 +375,6 @@ impl EyeRenderer for CpuEyes {
         Ok(buffer.buffer)
     }
 
-    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
-        wait_for_copy(&self.session, fence)
-    }
-
     fn buffer_sets(&self) -> usize {
         CPU_EYE_BUFFER_SETS
     }
@@ -416,23 +398,12 @@ fn staging_buffers(session: &Arc<gpu::Context>, sizes: &[(usize, usize)]) -> Res
     sizes.iter().map(|&(w, h)| Buffer::new(session, (w * h * 16) as u64, vk::BufferUsageFlags::TRANSFER_SRC)).collect()
 }
 
-/// Waits on the session device for the display loop's copy signalled by `fence` ([`COPY_TIMEOUT`] at most).
-fn wait_for_copy(session: &gpu::Context, fence: vk::Fence) -> Result<(), EyeError> {
-    // SAFETY: the fence belongs to this device and is only reset by the display loop after it has seen a newer
-    // frame, which the render thread publishes only after this wait.
-    let result = unsafe { session.device().wait_for_fences(&[fence], true, COPY_TIMEOUT.as_nanos() as u64) };
-    match result {
-        Ok(()) => Ok(()),
-        Err(vk::Result::TIMEOUT) => Err(EyeError::CopyTimeout(COPY_TIMEOUT)),
-        Err(e) => Err(EyeError::CopyWait(e)),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::io::environment::direction_to_uv;
     use glam::{Quat, Vec3};
+    use std::time::Duration;
 
     #[test]
     fn the_panorama_stays_locked_to_the_room_when_the_person_turns() {

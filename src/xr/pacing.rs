@@ -4,9 +4,11 @@
 //! yet started is simply replaced) and picks up the newest finished [`RenderedEyes`] whenever there is one. The
 //! render thread renders both eyes for the newest request it finds, on the GPU: a finished frame is a set of
 //! device buffers, which the display loop copies into the swapchain images with one small GPU submission (no
-//! pixels pass through the CPU). The render thread must not overwrite those buffers before that copy has run, so
-//! after publishing a frame it waits until the display loop hands back the copy's fence ([`RenderMailbox::consumed`])
-//! and waits on that fence itself — the display loop never waits for the render thread.
+//! pixels pass through the CPU). The render thread must not overwrite those buffers before that copy has run: the
+//! display loop marks the frame it copies ([`RenderMailbox::take_newer`]) and reports the copy finished
+//! ([`RenderMailbox::copied`]), and the render thread draws into a buffer set only when no copy may still read it
+//! (with two sets, the next pair is drawn while the last one's copy waits) — the display loop never waits for the
+//! render thread.
 //!
 //! A frame whose image is not new re-submits the previous image with the eye poses it was rendered for, so the
 //! compositor reprojects it to the current head pose. [`PacingStats`] measures what the viewer gets: the share of
@@ -97,12 +99,6 @@ pub enum EyeError {
         /// The renderer's (width, height).
         renderer: (usize, usize),
     },
-    /// The display loop's copy out of the eye buffers did not finish in time.
-    #[error("the copy into the swapchain did not finish within {0:?} (device lost?)")]
-    CopyTimeout(Duration),
-    /// Waiting for that copy failed.
-    #[error("waiting for the copy into the swapchain failed: {0}")]
-    CopyWait(vk::Result),
 }
 
 /// The render thread's side of the eye renderer (implemented on the Vulkan renderer by
@@ -116,8 +112,6 @@ pub trait EyeRenderer: Send {
     /// Renders one eye; returns the device buffer holding the result (`vec4` linear RGBA per pixel, row-major,
     /// of the eye camera's size), valid until the next call for that eye.
     fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError>;
-    /// Waits until the display loop's copy (signalled by `fence`) has finished reading the result buffers.
-    fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError>;
     /// How many sets of result buffers the renderer keeps ([`EyeRequest::set`]). With one, the next pair waits
     /// until the display loop has copied the last one; with two, it is drawn while that copy waits for its frame.
     fn buffer_sets(&self) -> usize {
@@ -147,8 +141,6 @@ struct Slots {
     latest: Option<Arc<RenderedEyes>>,
     /// The newest frame the display loop took to copy ([`RenderMailbox::take_newer`]).
     taken: Option<u64>,
-    /// The newest frame whose copy was submitted, with the fence of that copy.
-    consumed: Option<(u64, vk::Fence)>,
     /// The newest frame whose copy has finished ([`RenderMailbox::copied`]).
     copied: Option<u64>,
     error: Option<String>,
@@ -205,12 +197,6 @@ impl RenderMailbox {
         self.wake.notify_all();
     }
 
-    /// The display loop submitted the copy of frame `seq` out of the result buffers; `fence` signals its end.
-    pub fn consumed(&self, seq: u64, fence: vk::Fence) {
-        self.lock().consumed = Some((seq, fence));
-        self.wake.notify_all();
-    }
-
     /// The render thread's error, if it stopped on one.
     pub fn error(&self) -> Option<String> {
         self.lock().error.clone()
@@ -256,30 +242,27 @@ impl RenderMailbox {
         // Published frames whose buffer set the display loop may still read, oldest first: (frame, set).
         let mut in_flight: std::collections::VecDeque<(u64, usize)> = std::collections::VecDeque::new();
         loop {
-            let (request, set, copy_fence) = {
+            let (request, set) = {
                 let mut s = self.lock();
                 loop {
                     if s.shutdown {
                         return;
                     }
                     let free = if in_flight.len() < sets {
-                        (0..sets).find(|k| in_flight.iter().all(|&(_, used)| used != *k)).map(|k| (k, None))
+                        (0..sets).find(|k| in_flight.iter().all(|&(_, used)| used != *k))
                     } else {
-                        in_flight.front().and_then(|&(frame, set)| set_released(&s, frame).map(|fence| (set, fence)))
+                        in_flight.front().filter(|&&(frame, _)| set_released(&s, frame)).map(|&(_, set)| set)
                     };
-                    if let (Some((set, fence)), true) = (free, s.pending.is_some()) {
+                    if let (Some(set), true) = (free, s.pending.is_some()) {
                         if in_flight.len() >= sets {
                             in_flight.pop_front();
                         }
-                        break (s.pending.take().expect("checked above"), set, fence);
+                        break (s.pending.take().expect("checked above"), set);
                     }
                     s = self.wake.wait(s).unwrap_or_else(|p| p.into_inner());
                 }
             };
             let result = (|| -> Result<Option<RenderedEyes>, EyeError> {
-                if let Some(fence) = copy_fence {
-                    renderer.wait_copied(fence)?;
-                }
                 if renderer.refresh(&request.placement)? {
                     self.lock().uploads += 1;
                 }
@@ -308,25 +291,17 @@ impl RenderMailbox {
     }
 }
 
-/// Whether the buffers of published `frame` may be written again, and the copy fence to wait for first:
+/// Whether the buffers of published `frame` may be written again:
 /// - a copy of it (or of a later frame: copies run in submission order) reported finished ([`RenderMailbox::copied`]):
-///   at once, no fence;
-/// - a copy of it submitted ([`RenderMailbox::consumed`]): after waiting for that copy's fence; this is only used
-///   with one buffer set, where the display loop cannot reuse the fence before the render thread publishes again;
+///   yes;
 /// - while it is the newest frame and not copied: not yet (the display loop will take it);
-/// - after a newer one, at once unless the display loop took it and has not reported its copy finished.
-fn set_released(s: &Slots, frame: u64) -> Option<Option<vk::Fence>> {
+/// - after a newer one: yes unless the display loop took it and has not reported its copy finished.
+fn set_released(s: &Slots, frame: u64) -> bool {
     if s.copied.is_some_and(|c| c >= frame) {
-        return Some(None);
+        return true;
     }
     let newest = s.latest.as_ref().is_some_and(|l| l.request.seq == frame);
-    let submitted = s.consumed.filter(|&(seq, _)| seq >= frame).map(|(_, fence)| fence);
-    match (newest, submitted) {
-        (true, Some(fence)) => Some(Some(fence)),
-        (true, None) => None,
-        (false, _) if s.taken == Some(frame) => None,
-        (false, _) => Some(None),
-    }
+    !newest && s.taken != Some(frame)
 }
 
 /// Renders both eyes of one request into the renderer's buffer set `set`.
@@ -414,7 +389,6 @@ mod tests {
         content: bool,
         fail: bool,
         seen: Arc<Mutex<Vec<(usize, Vec3, Vec3)>>>,
-        waited: Arc<Mutex<Vec<u64>>>,
         messages: Vec<String>,
         /// Buffer sets it keeps (0 = the default, one).
         sets: usize,
@@ -448,10 +422,6 @@ mod tests {
             self.seen.lock().unwrap().push((e.eye, e.body_camera.position(), e.stage_camera.position()));
             self.used_sets.lock().unwrap().push(e.set);
             Ok(vk::Buffer::from_raw(100 + e.eye as u64))
-        }
-        fn wait_copied(&mut self, fence: vk::Fence) -> Result<(), EyeError> {
-            self.waited.lock().unwrap().push(fence.as_raw());
-            Ok(())
         }
         fn take_messages(&mut self) -> Vec<String> {
             std::mem::take(&mut self.messages)
@@ -493,7 +463,6 @@ mod tests {
         let mailbox = RenderMailbox::new();
         let gate = Arc::new((Mutex::new(false), Condvar::new()));
         let fake = Fake { gate: Some(gate.clone()), ..Default::default() };
-        let waited = fake.waited.clone();
         std::thread::scope(|scope| {
             let m = mailbox.clone();
             scope.spawn(move || {
@@ -542,9 +511,12 @@ mod tests {
             if first != 50 {
                 std::thread::sleep(Duration::from_millis(50));
                 assert_eq!(mailbox.latest().unwrap().request.seq, first, "rendered over a frame still being copied");
-                mailbox.consumed(first, vk::Fence::from_raw(7));
+                // The display loop takes the first frame: still not drawn over until its copy is reported finished.
+                assert_eq!(mailbox.take_newer(None).map(|f| f.request.seq), Some(first));
+                std::thread::sleep(Duration::from_millis(50));
+                assert_eq!(mailbox.latest().unwrap().request.seq, first, "rendered over a frame being copied");
+                mailbox.copied(first);
                 wait_for(50);
-                assert_eq!(*waited.lock().unwrap(), vec![7], "the copy fence was not waited on");
             }
             assert!(mailbox.eye_times().count() <= 4, "at most two requests rendered");
             assert_eq!(mailbox.uploads(), 1);
@@ -569,8 +541,7 @@ mod tests {
     fn with_two_buffer_sets_the_next_pair_is_drawn_while_the_last_waits_for_its_copy() {
         let mailbox = RenderMailbox::new();
         let used = Arc::new(Mutex::new(Vec::new()));
-        let waited = Arc::new(Mutex::new(Vec::new()));
-        let mut r = Fake { sets: 2, used_sets: used.clone(), waited: waited.clone(), ..Default::default() };
+        let mut r = Fake { sets: 2, used_sets: used.clone(), ..Default::default() };
         let rendered = |seq: u64| {
             let deadline = Instant::now() + Duration::from_secs(10);
             while mailbox.latest().is_none_or(|f| f.request.seq != seq) {
@@ -600,6 +571,5 @@ mod tests {
             mailbox.shutdown();
         });
         assert_eq!(*used.lock().unwrap(), vec![0, 0, 1, 1, 0, 0, 1, 1]);
-        assert!(waited.lock().unwrap().is_empty(), "the render thread touched a copy fence");
     }
 }
