@@ -138,6 +138,29 @@ pub fn supersampled(img: &RgbImage, size: usize, taps: usize, map: impl Fn(Vec2)
     out
 }
 
+/// `img` read bilinearly on an axis-aligned grid: output pixel `(c, r)` is `sample_bilinear(img, xs[c], ys[r],
+/// outside)`, to the bit, with each column's and row's bilinear cell worked out once instead of per pixel (an image
+/// scaled and shifted: a network's mask brought back to the frame, a frame brought to the source view). Rows in
+/// parallel (each pixel on its own, so the same values in any order).
+pub fn sample_bilinear_grid<T>(img: &Image<T>, xs: &[f32], ys: &[f32], outside: T) -> Image<T>
+where
+    T: Copy + Send + Sync + std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
+{
+    use rayon::prelude::*;
+    let (w, h) = (xs.len(), ys.len());
+    let columns: Vec<Option<(i64, f32)>> = xs.iter().map(|&x| bilinear_cell(x)).collect();
+    let mut data = vec![outside; w * h];
+    data.par_chunks_mut(w.max(1)).zip(ys.par_iter()).for_each(|(row, &y)| {
+        let Some(cell_y) = bilinear_cell(y) else { return };
+        for (out, column) in row.iter_mut().zip(&columns) {
+            if let Some(cell_x) = *column {
+                *out = sample_bilinear_cell(img, cell_x, cell_y, outside);
+            }
+        }
+    });
+    Image { width: w, height: h, data }
+}
+
 /// Bilinear sample of an image at continuous pixel coordinates (pixel centres at `+0.5`).
 ///
 /// Samples outside the image read `outside` (the reference warps with zeros outside), and any non-finite
@@ -267,6 +290,22 @@ pub fn neighbours8(p: usize, width: usize, height: usize) -> impl Iterator<Item 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_grid_sampler_gives_the_bits_of_sampling_each_pixel() {
+        let img = GrayImage::from_fn(37, 23, |c, r| ((c * 31 + r * 17) % 11) as f32 * 0.1 - 0.3);
+        // Scaled down, scaled up and shifted off the image, with a non-finite column and row.
+        let xs: Vec<f32> = (0..50).map(|c| if c == 7 { f32::NAN } else { -3.0 + c as f32 * 0.83 }).collect();
+        let ys: Vec<f32> = (0..31).map(|r| if r == 4 { f32::INFINITY } else { 25.0 - r as f32 * 1.7 }).collect();
+        let grid = sample_bilinear_grid(&img, &xs, &ys, 0.25);
+        assert_eq!((grid.width, grid.height), (50, 31));
+        for (r, &y) in ys.iter().enumerate() {
+            for (c, &x) in xs.iter().enumerate() {
+                assert_eq!(grid.get(c, r).to_bits(), sample_bilinear(&img, x, y, 0.25).to_bits(), "({c}, {r})");
+            }
+        }
+        assert!(sample_bilinear_grid(&img, &[], &ys, 0.0).data.is_empty());
+    }
 
     #[test]
     fn zeroed_buffers_hold_zeros_large_or_small() {

@@ -27,7 +27,7 @@ use super::segment::Segmenter;
 use super::{CaptureError, Frame};
 use glam::Vec3;
 
-use crate::buffer::{linear_to_srgb, sample_bilinear, GrayImage};
+use crate::buffer::{linear_to_srgb, sample_bilinear_grid, GrayImage};
 use crate::neural::{ExecutionProvider, RuntimeOptions};
 
 /// ISNet input side used by default: below 512 the model misses people on plain backgrounds (measured on the
@@ -281,25 +281,30 @@ impl OnnxSegmenter {
         let region = self.region(frame.width(), frame.height());
         let (w, h) = (frame.width() as f32, frame.height() as f32);
         let mut input = ndarray::Array4::<f32>::zeros((1, 3, s, s));
-        for r in 0..s {
-            for c in 0..s {
-                let x = region.x0 + (c as f32 + 0.5) * region.sx;
-                let y = region.y0 + (r as f32 + 0.5) * region.sy;
-                let v = match self.kind {
-                    // Stretch-resize, as ISNet's own preprocessing does (edges clamped).
-                    SegmentationModel::Isnet => {
-                        sample_bilinear(&frame.rgb, x.clamp(0.5, w - 0.5), y.clamp(0.5, h - 0.5), Vec3::ZERO)
+        // The grid is axis-aligned: each column's and row's bilinear cell is worked out once.
+        let axis = |start: f32, step: f32, extent: f32| -> Vec<f32> {
+            (0..s)
+                .map(|k| {
+                    let x = start + (k as f32 + 0.5) * step;
+                    match self.kind {
+                        // Stretch-resize, as ISNet's own preprocessing does (edges clamped).
+                        SegmentationModel::Isnet => x.clamp(0.5, extent - 0.5),
+                        // Outside the frame: black padding, like MediaPipe's letterboxing.
+                        SegmentationModel::MediapipePose => x,
                     }
-                    // Outside the frame: black padding, like MediaPipe's letterboxing.
-                    SegmentationModel::MediapipePose => sample_bilinear(&frame.rgb, x, y, Vec3::ZERO),
+                })
+                .collect()
+        };
+        let (xs, ys) = (axis(region.x0, region.sx, w), axis(region.y0, region.sy, h));
+        let sampled = sample_bilinear_grid(&frame.rgb, &xs, &ys, Vec3::ZERO);
+        for (k, v) in sampled.data.iter().enumerate() {
+            let (r, c) = (k / s, k % s);
+            for ch in 0..3 {
+                let srgb = linear_to_srgb(v[ch]);
+                input[[0, ch, r, c]] = match self.kind {
+                    SegmentationModel::Isnet => (srgb * 255.0 - 128.0) / 256.0,
+                    SegmentationModel::MediapipePose => srgb,
                 };
-                for ch in 0..3 {
-                    let srgb = linear_to_srgb(v[ch]);
-                    input[[0, ch, r, c]] = match self.kind {
-                        SegmentationModel::Isnet => (srgb * 255.0 - 128.0) / 256.0,
-                        SegmentationModel::MediapipePose => srgb,
-                    };
-                }
             }
         }
         let fail = |e: String| CaptureError::Model(format!("running `{}` failed: {e}", self.path.display()));
@@ -374,13 +379,10 @@ impl OnnxSegmenter {
             self.presence,
             selfie.is_some()
         );
-        let in_frame = |raw: &GrayImage| {
-            GrayImage::from_fn(w, h, |c, r| {
-                let u = (c as f32 + 0.5 - region.x0) / region.sx;
-                let v = (r as f32 + 0.5 - region.y0) / region.sy;
-                sample_bilinear(raw, u, v, 0.0)
-            })
-        };
+        // The frame's pixel centres in the network's grid (axis-aligned: one bilinear cell per column and row).
+        let us: Vec<f32> = (0..w).map(|c| (c as f32 + 0.5 - region.x0) / region.sx).collect();
+        let vs: Vec<f32> = (0..h).map(|r| (r as f32 + 0.5 - region.y0) / region.sy).collect();
+        let in_frame = |raw: &GrayImage| sample_bilinear_grid(raw, &us, &vs, 0.0);
         let mut mask = in_frame(&raw);
         let bbox = bounding_box(&largest_component(&threshold(&mask, 0.5)));
         if let Some(selfie) = selfie {

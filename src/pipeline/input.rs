@@ -5,7 +5,7 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use crate::buffer::{neighbours4, neighbours8, sample_bilinear, GrayImage, Image, RgbImage};
+use crate::buffer::{bilinear_cell, neighbours4, neighbours8, sample_bilinear_cell, GrayImage, Image, RgbImage};
 
 /// Fraction of the source image height the person's mask spans (1.8 of the cube's 2 units).
 pub const PERSON_HEIGHT_FRACTION: f32 = 0.9;
@@ -133,20 +133,23 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
     let taps = ((1.0 / scale).ceil() as usize).clamp(1, 8);
     let mut out_rgb = Image::new(resolution, resolution, Vec3::ZERO);
     let mut out_mask = Image::new(resolution, resolution, 0.0f32);
+    // The transform is a scale and a shift: a tap's photo x depends on its column only and its y on its row only,
+    // so each bilinear cell is worked out once (`sample_bilinear` per tap gives the same bits).
+    let tap = |k: usize| (k / taps) as f32 + ((k % taps) as f32 + 0.5) / taps as f32;
+    let columns: Vec<_> =
+        (0..resolution * taps).map(|k| bilinear_cell(transform.inverse(Vec2::new(tap(k), 0.0)).x)).collect();
+    let row_cells: Vec<_> =
+        (0..resolution * taps).map(|k| bilinear_cell(transform.inverse(Vec2::new(0.0, tap(k))).y)).collect();
     let rows = out_rgb.data.par_chunks_mut(resolution).zip(out_mask.data.par_chunks_mut(resolution));
     rows.enumerate().for_each(|(row, (rgb_row, mask_row))| {
+        let row_taps = &row_cells[row * taps..(row + 1) * taps];
         for col in 0..resolution {
             let mut acc_rgb = Vec3::ZERO;
             let mut acc_m = 0.0;
-            for j in 0..taps {
-                for i in 0..taps {
-                    let q = Vec2::new(
-                        col as f32 + (i as f32 + 0.5) / taps as f32,
-                        row as f32 + (j as f32 + 0.5) / taps as f32,
-                    );
-                    let p = transform.inverse(q);
-                    acc_rgb += sample_bilinear(&premultiplied, p.x, p.y, Vec3::ZERO);
-                    acc_m += sample_bilinear(mask, p.x, p.y, 0.0);
+            for y in row_taps.iter().flatten() {
+                for x in columns[col * taps..(col + 1) * taps].iter().flatten() {
+                    acc_rgb += sample_bilinear_cell(&premultiplied, *x, *y, Vec3::ZERO);
+                    acc_m += sample_bilinear_cell(mask, *x, *y, 0.0);
                 }
             }
             let n = (taps * taps) as f32;
@@ -231,6 +234,41 @@ mod tests {
 
     fn rect_mask(w: usize, h: usize, c0: usize, c1: usize, r0: usize, r1: usize) -> GrayImage {
         Image::from_fn(w, h, |c, r| if (c0..=c1).contains(&c) && (r0..=r1).contains(&r) { 1.0 } else { 0.0 })
+    }
+
+    #[test]
+    fn normalise_is_the_mean_of_bilinear_samples_of_the_premultiplied_photo() {
+        use crate::buffer::sample_bilinear;
+        // A person 300 px tall shrunk to a 64 px grid (six taps a side) and one 60 px tall grown to a 128 px grid
+        // (one tap), each against the definition sampled per tap.
+        for (w, h, mask, res) in
+            [(200, 330, rect_mask(200, 330, 40, 150, 10, 309), 64), (90, 70, rect_mask(90, 70, 30, 60, 5, 64), 128)]
+        {
+            let rgb = Image::from_fn(w, h, |c, r| Vec3::new(c as f32 / w as f32, r as f32 / h as f32, 0.3));
+            let out = normalise(&rgb, &mask, res).unwrap();
+            let t = out.transform;
+            let taps = ((1.0 / t.scale).ceil() as usize).clamp(1, 8);
+            let premultiplied =
+                Image { width: w, height: h, data: rgb.data.iter().zip(&mask.data).map(|(c, m)| *c * *m).collect() };
+            for (row, col) in [(0, 0), (10, 31), (32, 32), (50, 20), (63, 63), (res - 1, res / 2)] {
+                let (mut acc_rgb, mut acc_m) = (Vec3::ZERO, 0.0);
+                for j in 0..taps {
+                    for i in 0..taps {
+                        let q = Vec2::new(
+                            col as f32 + (i as f32 + 0.5) / taps as f32,
+                            row as f32 + (j as f32 + 0.5) / taps as f32,
+                        );
+                        let p = t.inverse(q);
+                        acc_rgb += sample_bilinear(&premultiplied, p.x, p.y, Vec3::ZERO);
+                        acc_m += sample_bilinear(&mask, p.x, p.y, 0.0);
+                    }
+                }
+                let n = (taps * taps) as f32;
+                assert_eq!(taps, if res == 64 { 6 } else { 1 });
+                assert_eq!(*out.rgb.get(col, row), acc_rgb / n, "({col}, {row}), {taps} taps");
+                assert_eq!(*out.mask.get(col, row), (acc_m / n).clamp(0.0, 1.0), "({col}, {row})");
+            }
+        }
     }
 
     #[test]
