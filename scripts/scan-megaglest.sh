@@ -35,6 +35,10 @@
 #   persian_swordman romans_archer romans_fire_archer romans_gladiator romans_slave romans_swordsman
 #   romans_wartime_mechanic tech_guard tech_technician.
 #   Decisions are taken on dev; the held-out half is evaluated once a decision is made.
+# Dropped after looking at the ground-truth sheets of both halves (before any number was read): units that the name
+#   rule let in but whose model is not a person on foot. norsemen_crossbow (a wheeled siege crossbow) and
+#   romans_tribune (on a horse), both dev. The split keeps its positions (computed on the 49 names); a dropped unit
+#   just leaves its half: dev 23, held out 24.
 #
 #   bash scripts/scan-megaglest.sh [OUT]            all 49 (about 25 minutes in a release build, 512 px)
 #   SPLIT=dev bash scripts/scan-megaglest.sh OUT    the dev half only; SPLIT=held-out the held-out half only
@@ -71,6 +75,7 @@ while read -r faction units; do
   done
 done <<< "$CHARACTERS"
 mapfile -t sorted < <(printf '%s\n' "${names[@]}" | LC_ALL=C sort)
+DROPPED="norsemen_crossbow romans_tribune"
 FILES="$OUT/files"
 rm -rf "$FILES"
 scans=()
@@ -82,6 +87,7 @@ for i in "${!sorted[@]}"; do
     all) ;;
     *) echo "SPLIT must be dev, held-out or all" >&2; exit 2 ;;
   esac
+  case " $DROPPED " in *" $name "*) continue ;; esac
   faction="${name%%_*}"
   unit="${name#*_}"
   xml="$FACTIONS/$faction/units/$unit/$unit.xml"
