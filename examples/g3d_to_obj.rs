@@ -35,9 +35,11 @@ struct Reader<'a> {
 
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8]> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.data.len()).ok_or_else(|| {
-            anyhow!("truncated: {n} bytes at {}, the file has {}", self.at, self.data.len())
-        })?;
+        let end = self
+            .at
+            .checked_add(n)
+            .filter(|&e| e <= self.data.len())
+            .ok_or_else(|| anyhow!("truncated: {n} bytes at {}, the file has {}", self.at, self.data.len()))?;
         let s = &self.data[self.at..end];
         self.at = end;
         Ok(s)
