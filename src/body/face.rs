@@ -143,6 +143,10 @@ pub struct FaceMesh {
     pub score: f32,
     /// The region the mesh came from.
     pub region: FaceRegion,
+    /// How far the mesh moved between the read on the pose's region and the read on the first mesh's own region
+    /// ([`FaceEstimator::estimate`]): RMS distance of the points in the image over the face's width; NaN with one
+    /// read. A face the network is sure of lands in the same place from both crops.
+    pub drift: f32,
 }
 
 impl FaceMesh {
@@ -161,7 +165,7 @@ impl FaceMesh {
             })
             .collect();
         let score = sigmoid(logit);
-        Some(Self { points, score, region })
+        Some(Self { points, score, region, drift: f32::NAN })
     }
 
     /// Width of the face: distance between the outline's cheek points (pixels).
@@ -174,6 +178,14 @@ impl FaceMesh {
     pub fn yaw(&self) -> f32 {
         let (l, r) = (self.points[CHEEK_IMAGE_LEFT], self.points[CHEEK_IMAGE_RIGHT]);
         (r.z - l.z).abs().atan2(l.truncate().distance(r.truncate()))
+    }
+
+    /// The distance between the eyes' midpoint of the mesh (outer corners) and of the pose landmarks (2, 5) over
+    /// the face's width: where the two networks put the face apart. NaN without the pose's eyes.
+    pub fn pose_offset(&self, pose: &PoseLandmarks) -> f32 {
+        let (Some(a), Some(b)) = (pose.landmarks.get(2), pose.landmarks.get(5)) else { return f32::NAN };
+        let mesh_eyes = (self.points[EYE_OUTER_IMAGE_LEFT] + self.points[EYE_OUTER_IMAGE_RIGHT]).truncate() * 0.5;
+        mesh_eyes.distance((a.pixel + b.pixel) * 0.5) / self.width()
     }
 }
 
@@ -246,7 +258,19 @@ impl FaceEstimator {
         let Some(region) = FaceRegion::from_pose(pose) else { return Ok(None) };
         let Some(first) = self.run(rgb, region)? else { return Ok(None) };
         let Some(next) = FaceRegion::from_mesh(&first) else { return Ok(Some(first)) };
-        Ok(Some(self.run(rgb, next)?.unwrap_or(first)))
+        Ok(Some(match self.run(rgb, next)? {
+            Some(mut second) => {
+                let sum: f32 = first
+                    .points
+                    .iter()
+                    .zip(&second.points)
+                    .map(|(a, b)| a.truncate().distance_squared(b.truncate()))
+                    .sum();
+                second.drift = (sum / POINT_COUNT as f32).sqrt() / second.width();
+                second
+            }
+            None => first,
+        }))
     }
 }
 
@@ -326,6 +350,7 @@ pub fn with_face_relief(mut surfaces: InflatedSurfaces, mesh: &FaceMesh) -> (Inf
             .any(|dr| (-slack..=slack).any(|dc| dc * dc + dr * dr <= slack * slack && mask_at(c + dc, r + dr)))
     };
     let inside_share = outline.iter().filter(|&&p| near_mask(p)).count() as f32 / outline.len() as f32;
+    tracing::debug!("face mesh outline near the mask: {inside_share:.3}");
     if inside_share < MIN_OUTLINE_IN_MASK {
         return (surfaces, Some(NoRelief::OutsideMask(inside_share)));
     }
@@ -456,7 +481,7 @@ mod tests {
             let p = centre + rr * Vec2::new(a.cos(), a.sin());
             points[i] = p.extend(depth(p));
         }
-        FaceMesh { points, score: 1.0, region: FaceRegion { centre, side: 3.0 * radius, angle: 0.0 } }
+        FaceMesh { points, score: 1.0, region: FaceRegion { centre, side: 3.0 * radius, angle: 0.0 }, drift: 0.0 }
     }
 
     fn flat(w: usize, front: f32, back: f32) -> InflatedSurfaces {

@@ -944,6 +944,7 @@ pub fn run_eval_with(opts: &EvalOptions, nopts: &NeuralEvalOptions) -> Result<Ev
             }
             name = format!("{stem} ({k})");
         }
+        tracing::debug!("eval: scan {name}");
         let mut acc = MethodAcc::default();
         let mut iou = GeometryIou::default();
         let r = synth::scan::load_scan_with(scan, &opts.scan_orientation).map_err(EvalError::from).and_then(|s| {

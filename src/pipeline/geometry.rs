@@ -269,7 +269,14 @@ pub fn body_placed_surfaces(
                 None => surfaces,
             };
             match face {
-                Some(face) => timings.time("face relief", || with_face_relief(surfaces, &face)),
+                Some(face) => {
+                    tracing::debug!(
+                        "face mesh: drift {:.3}, pose offset {:.3} of the width",
+                        face.drift,
+                        face.pose_offset(landmarks)
+                    );
+                    timings.time("face relief", || with_face_relief(surfaces, &face))
+                }
                 None => surfaces,
             }
         }
