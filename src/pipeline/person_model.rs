@@ -15,11 +15,18 @@
 //!   axis), each texel with a confidence: how squarely the camera saw it (the front's normal), capped at
 //!   [`MAP_MAX_WEIGHT`] so that newer views outweigh old ones.
 //!
-//! **The person's orientation comes from the frames**: each frame's yaw is tracked against the model (the
-//! candidate turns around the constant-velocity prediction, each scored by how well the frame's colours fit the
-//! kept colours where the model holds them; a parabola through the best three), never from any ground truth. A
-//! person of one flat colour gives no match; the yaw then follows the prediction and the model only keeps what
-//! the current frame says.
+//! **The person's orientation comes from the body** ([`PersonModel::with_pose`]): each frame the pose network
+//! reads the torso once ([`crate::body::pose::PoseEstimator::track`], on MediaPipe's tracking region), and its
+//! world landmarks give the torso's yaw ([`body_yaw`]: the normal of shoulders and hips). The network confuses a
+//! person's front and back away from profile (the same image read with depths negated and sides swapped: yaw
+//! `pi - m` instead of `m`), so both readings go into a filter over yaw and turning speed (`YawFilter`) that
+//! counts them alike: the branch is decided by the motion (a person turning on would have to reverse at profile to
+//! follow the mirror branch), and the first reading is taken to face the camera. Never from any ground truth.
+//! The colours can refine the filter's yaw within [`COLOUR_REFINE_DEGREES`] (0 by default: on the turning clips
+//! 4 or 10 degrees changed nothing measurable). Without a pose network or a torso read, the yaw is tracked from
+//! the colours alone: each candidate turn around the constant-velocity prediction scored by how well the frame's
+//! colours fit the kept colours where the model holds them (a parabola through the best three); a person of one
+//! flat colour then gives no match and the yaw follows the prediction.
 //!
 //! **Rendering with it** ([`PersonModel::update`] rewrites a [`PreparedInput`] of the frame path): inside the
 //! current frame's silhouette (the current frame always decides where the person is), the front and back depths
@@ -58,7 +65,8 @@ pub const HULL_SLICES: usize = 128;
 pub const HULL_HALF: f32 = 1.0;
 
 /// Tolerance added to every carving distance (model units, about 2 pixels at 512²): a yaw tracked a degree off
-/// does not carve the person's edge.
+/// does not carve the person's edge. (0.02 was tried with the body's yaw: no gain at the turn's end, 0.1 dB less
+/// over it.)
 pub const CARVE_MARGIN: f32 = 0.008;
 
 /// Texels around the colour cylinder.
@@ -84,9 +92,9 @@ pub const SEARCH_DEGREES: i32 = 16;
 
 /// Degrees either side of the body's yaw the colours refine it ([`PersonModel::with_colour_refine`]; 0: the body's
 /// yaw alone).
-pub const COLOUR_REFINE_DEGREES: i32 = 4;
+pub const COLOUR_REFINE_DEGREES: i32 = 0;
 
-/// Cells of the body's yaw filter around the turn ([`YawFilter`]; 5 degrees each).
+/// Cells of the body's yaw filter around the turn (`YawFilter`; 5 degrees each).
 pub const YAW_CELLS: usize = 72;
 
 /// Turning speeds the yaw filter holds, in cells a frame either side of standing still (up to 25 degrees a frame).
@@ -195,7 +203,7 @@ pub struct ModelFrame {
     /// The body's yaw this frame read (degrees, in the model's frame, of its two branches the one nearer the
     /// tracked yaw), when the pose network found the torso.
     pub body_yaw_degrees: Option<f32>,
-    /// Whether a body reading went into the yaw ([`YawFilter`]).
+    /// Whether a body reading went into the yaw (`YawFilter`).
     pub body_used: bool,
     /// Milliseconds the pose network's read took (inside `ms`).
     pub pose_ms: f32,
@@ -302,6 +310,7 @@ impl PersonModel {
         std::mem::size_of_val(self.hull.as_slice())
             + std::mem::size_of_val(self.seen.as_slice())
             + std::mem::size_of_val(self.map.as_slice())
+            + YAW_CELLS * YawFilter::SPEEDS * std::mem::size_of::<f32>()
     }
 
     /// Frames the model has taken since it (re)started.
