@@ -122,7 +122,8 @@ impl PrepareProcessor {
     /// A processor preparing frames with `options` ([`FramePath::new`]: frames' geometry, warm-started body fit;
     /// then the person model unless `options.person_model` is off).
     pub fn new(options: PrepareOptions) -> Self {
-        let model = options.person_model.then(|| Box::new(PersonModel::new()));
+        // The model reads the body's orientation with the back image's pose network when it is loaded.
+        let model = options.person_model.then(|| Box::new(PersonModel::new().with_pose(options.back_pose.clone())));
         Self { path: FramePath::new(options), model }
     }
 

@@ -661,6 +661,34 @@ impl PoseEstimator {
         Ok((raw.unwrap_or_default(), score, world.unwrap_or_default()))
     }
 
+    /// One run of the network, as MediaPipe tracks a person across video frames: on `region` (the previous frame's
+    /// [`PoseLandmarks::next_region`]) when given and still holding most of the mask's box, else on the mask's
+    /// region. `None` when the mask is empty or no pose is found. The person model reads the torso's orientation
+    /// this way on every frame (one run instead of [`PoseEstimator::estimate`]'s two or more).
+    pub fn track(
+        &mut self,
+        rgb: &RgbImage,
+        mask: &GrayImage,
+        region: Option<PoseRegion>,
+    ) -> Result<Option<PoseLandmarks>, BodyError> {
+        if (rgb.width, rgb.height) != (mask.width, mask.height) {
+            return Err(BodyError::Model(format!(
+                "image is {}x{} but mask is {}x{}",
+                rgb.width, rgb.height, mask.width, mask.height
+            )));
+        }
+        let Some(from_mask) = PoseRegion::from_mask(mask) else { return Ok(None) };
+        // The tracked region holds the person while the mask's box centre lies inside it and it is not much smaller
+        // than the box.
+        let holds = |r: &PoseRegion| {
+            let d = (r.centre - from_mask.centre).abs();
+            d.max_element() < 0.25 * r.side && r.side > 0.6 * from_mask.side && r.side < 2.5 * from_mask.side
+        };
+        let region = region.filter(holds).unwrap_or(from_mask);
+        let frame = (Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32));
+        self.run(rgb, PhotoFingerprint::of(rgb), region, frame)
+    }
+
     /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`; the photo lies in
     /// `frame` of the image, the whole image when `None`): one run on the mask's region, then one on the region
     /// that run gives ([`PoseLandmarks::refined_region`]). `None` when the mask is empty or no pose is found.

@@ -58,6 +58,14 @@ pub struct TurnArgs {
     /// With --turn: how far each arm's elevation swings during the turn (degrees, 0 to 45).
     #[arg(long, default_value_t = 15.0)]
     pub arm_swing: f32,
+    /// eval --turn: the person model's yaw from the colours alone (without reading the body's orientation with
+    /// the pose network), to compare.
+    #[arg(long)]
+    pub model_colour_only: bool,
+    /// eval --turn: degrees either side of the body's yaw the person model's colours refine it (0: the body's
+    /// yaw alone).
+    #[arg(long, default_value_t = crate::pipeline::person_model::COLOUR_REFINE_DEGREES)]
+    pub model_colour_refine: i32,
 }
 
 impl TurnArgs {
@@ -309,6 +317,8 @@ fn run_turn_eval(args: &EvalArgs) -> Result<()> {
         size: args.size,
         turn: args.turn_clip.options(),
         event: args.turn_clip.event,
+        model_pose: !args.turn_clip.model_colour_only,
+        model_colour_refine: args.turn_clip.model_colour_refine,
         ..Default::default()
     };
     let options = crate::neural::RuntimeOptions { ep: args.ep, ..Default::default() };

@@ -66,6 +66,11 @@ pub struct TurnEvalOptions {
     pub texture_size: usize,
     /// What happens halfway through the turn (`--event`): nothing, a cut to another subject, or the top taken off.
     pub event: EventChoice,
+    /// Whether the person model reads the body's orientation with the pose network (`--model-colour-only` turns
+    /// it off: the yaw from the colours alone).
+    pub model_pose: bool,
+    /// Degrees either side of the body's yaw the model's colours refine it (`--model-colour-refine`).
+    pub model_colour_refine: i32,
 }
 
 /// The event of the clips ([`crate::synth::turn::TurnEvent`]), at frame `turn_frames / 2`.
@@ -104,6 +109,8 @@ impl Default for TurnEvalOptions {
             yaws: vec![20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
             texture_size: 1024,
             event: EventChoice::None,
+            model_pose: true,
+            model_colour_refine: crate::pipeline::person_model::COLOUR_REFINE_DEGREES,
         }
     }
 }
@@ -152,14 +159,21 @@ pub struct ModelTrackRow {
     pub yaw: f32,
     /// The tracked yaw minus the true turn since the model last started, wrapped to `[-180, 180)`.
     pub yaw_error: f32,
+    /// The body's reading (degrees, the model's frame) minus the true turn, wrapped; empty when the pose network read
+    /// no torso.
+    pub body_error: Option<f32>,
+    /// Whether the body's reading moved the yaw.
+    pub body_used: bool,
     /// Whether the whole model restarted on this frame.
     pub restarted: bool,
     /// Bands reset on this frame.
     pub reset_bands: usize,
     /// Mean hull weight over the silhouette.
     pub hull_weight: f32,
-    /// Milliseconds the model's update took.
+    /// Milliseconds the model's update took (with the pose read).
     pub ms: f32,
+    /// Milliseconds of it the pose network's read took.
+    pub pose_ms: f32,
 }
 
 /// What [`run_turn_eval`] produced.
@@ -226,7 +240,8 @@ fn eval_clip(
     let r = opts.size;
     let n = clip.frames();
     let mut path = FramePath::new(prepare.clone());
-    let mut model = PersonModel::new();
+    let pose = if opts.model_pose { prepare.back_pose.clone() } else { None };
+    let mut model = PersonModel::new().with_pose(pose).with_colour_refine(opts.model_colour_refine);
     // The true turn when the model last started (the tracked yaw counts from there).
     let mut turn_at_start = clip.options.yaw(0);
     let sheet_frames: Vec<usize> = (0..SHEET_COLUMNS).map(|k| k * (n - 1) / (SHEET_COLUMNS - 1)).collect();
@@ -249,16 +264,20 @@ fn eval_clip(
             turn_at_start = clip.options.yaw(i);
         }
         let truth_turn = clip.options.yaw(i) - turn_at_start;
+        let wrapped = |d: f32| (d + 180.0).rem_euclid(360.0) - 180.0;
         tracking.push(ModelTrackRow {
             clip: name.to_string(),
             frame: i,
             turn: clip.options.yaw(i),
             yaw: step.yaw_degrees,
-            yaw_error: (step.yaw_degrees - truth_turn + 180.0).rem_euclid(360.0) - 180.0,
+            yaw_error: wrapped(step.yaw_degrees - truth_turn),
+            body_error: step.body_yaw_degrees.map(|b| wrapped(b - truth_turn)),
+            body_used: step.body_used,
             restarted: step.restarted,
             reset_bands: step.reset_bands.len(),
             hull_weight: step.hull_weight,
             ms: step.ms,
+            pose_ms: step.pose_ms,
         });
         // The ground truth of this moment in the frame path's normalisation, centred in depth.
         let transform = prepared.normalised.transform;
@@ -582,6 +601,23 @@ fn tracking_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
         let v: Vec<f32> = t.iter().filter(|r| keep(r)).map(|r| r.yaw_error.abs()).collect();
         mean(&v)
     };
+    let median_of = |mut v: Vec<f32>| {
+        v.retain(|x| x.is_finite());
+        v.sort_by(f32::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f32::NAN)
+    };
+    let p95_of = |mut v: Vec<f32>| {
+        v.retain(|x| x.is_finite());
+        v.sort_by(f32::total_cmp);
+        v.get((v.len() * 95 / 100).min(v.len().saturating_sub(1))).copied().unwrap_or(f32::NAN)
+    };
+    let median_error = median_of(t.iter().map(|r| r.yaw_error.abs()).collect());
+    let p95_error = p95_of(t.iter().map(|r| r.yaw_error.abs()).collect());
+    let max_error = t.iter().map(|r| r.yaw_error.abs()).fold(0.0f32, f32::max);
+    let body_median = median_of(t.iter().filter_map(|r| r.body_error).map(f32::abs).collect());
+    let body_frames = t.iter().filter(|r| r.body_used).count();
+    let without_pose = median_of(t.iter().map(|r| r.ms - r.pose_ms).collect());
+    let pose_median = median_of(t.iter().map(|r| r.pose_ms).collect());
     let last_turning = opts.turn.turn_frames.saturating_sub(1);
     let last = opts.turn.frames() - 1;
     let mut ms: Vec<f32> = t.iter().map(|r| r.ms).filter(|v| v.is_finite()).collect();
@@ -591,11 +627,23 @@ fn tracking_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
     let restarts: Vec<String> =
         t.iter().filter(|r| r.restarted).map(|r| format!("{} frame {}", r.clip, r.frame)).collect();
     let band_resets = t.iter().filter(|r| !r.restarted && r.reset_bands > 0).count();
+    let source = if opts.model_pose {
+        format!(
+            "from the body (the pose network's torso, one read a frame; {body_frames} of {} frames moved by it; \
+             the reading alone {body_median:.1} degrees median |error|), refined by the colours within {} degrees",
+            t.len(),
+            opts.model_colour_refine
+        )
+    } else {
+        "from the frames' colours alone".to_string()
+    };
     format!(
-        "\nThe person model (`model` rows): yaw tracked from the frames' colours, its error against the true turn \
-         (mean over clips of |error|): {:.1} degrees over every frame, {:.1} at the last turning frame ({}), {:.1} at \
-         the last frame; restarts: {}; frames with bands reset: {}; update {:.1} ms median, {:.1} ms p95 per frame \
-         (release build, this machine, {}x{}; `turn_model.csv` has every frame).\n",
+        "\nThe person model (`model` rows): yaw tracked {source}; its error against the true turn: {median_error:.1} \
+         degrees median |error| over every frame ({p95_error:.1} p95, {max_error:.1} largest), mean over clips of \
+         |error| {:.1} over every frame, {:.1} at the last turning frame ({}), {:.1} at the last frame; restarts: {}; \
+         frames with bands reset: {}; update {:.1} ms median, {:.1} ms p95 per frame, of which the pose read \
+         {pose_median:.1} ms median ({without_pose:.1} ms median without it; release build, this machine, {}x{}; \
+         `turn_model.csv` has every frame).\n",
         abs_error(&|_| true),
         abs_error(&|r| r.frame == last_turning),
         last_turning,
@@ -675,7 +723,7 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
     }
     let p = opts.out.join("turn.csv");
     write_atomic(&p, csv.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
-    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,restarted,reset_bands,hull_weight,ms\n");
+    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,body_error_deg,body_used,restarted,reset_bands,hull_weight,ms,pose_ms\n");
     for r in &rep.tracking {
         let fields = [
             format!("\"{}\"", r.clip.replace('"', "\"\"")),
@@ -683,10 +731,13 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
             format!("{:.1}", r.turn),
             format!("{:.2}", r.yaw),
             format!("{:.2}", r.yaw_error),
+            r.body_error.map_or(String::new(), |e| format!("{e:.2}")),
+            r.body_used.to_string(),
             r.restarted.to_string(),
             r.reset_bands.to_string(),
             format!("{:.3}", r.hull_weight),
             format!("{:.2}", r.ms),
+            format!("{:.2}", r.pose_ms),
         ];
         track.push_str(&fields.join(","));
         track.push('\n');
