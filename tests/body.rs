@@ -720,3 +720,48 @@ fn a_real_face_gets_its_relief_from_the_face_mesh() {
     assert!(with_mesh > 0.5 * width, "nose {with_mesh} for a face {width} wide");
     assert!(with_mesh > dome + 0.25 * width, "nose {with_mesh}, dome alone {dome}");
 }
+
+/// The live frame path's face read for the back image, warm-started (`pipeline::read_face_near`: one tracked run
+/// on the region the last read came from) finds the face the full read finds on the next frame: each bundled photo
+/// (its still mask), then the photo moved by a few pixels as the next frame; eyes, mouth and ears within 0.15 of
+/// the eye-to-mouth distance. Without a region it is the full read.
+#[test]
+fn a_warm_started_face_read_finds_the_full_reads_face() {
+    use r2human::body::pose::PoseEstimator;
+    use r2human::pipeline::{read_face, read_face_near, SharedPose, StageTimings};
+    let Some(model_file) = installed_pose_model() else { return };
+    let net = PoseEstimator::load(Some(&model_file), &Default::default()).expect("pose model");
+    let pose = SharedPose(std::sync::Arc::new(std::sync::Mutex::new(net)));
+    let repo = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut t = StageTimings::default();
+    for photo in ["astronaut.png", "basketball_full_body.png", "grace_hopper.jpg"] {
+        let (rgb, _) = r2human::capture::load_image_frame(&repo.join("assets/photos").join(photo)).unwrap();
+        let stem = photo.split('.').next().unwrap();
+        let still = image::open(repo.join(format!("tests/data/photo_masks/{stem}.png"))).unwrap().to_luma8();
+        let mask =
+            Image::from_fn(rgb.width, rgb.height, |c, r| still.get_pixel(c as u32, r as u32).0[0] as f32 / 255.0);
+        let first = r2human::pipeline::input::normalise(&rgb, &mask, 512).unwrap();
+        let (face, region) = read_face_near(&first, &pose, None, &mut t);
+        assert_eq!(face, read_face(&first, &pose, &mut t), "{photo}: without a region it is the full read");
+        let region = region.unwrap_or_else(|| panic!("{photo}: no region"));
+        // The next frame: the photo moved by (3, 2) pixels.
+        fn moved<T: Copy>(img: &Image<T>) -> Image<T> {
+            Image::from_fn(img.width, img.height, |c, r| *img.get(c.saturating_sub(3), r.saturating_sub(2)))
+        }
+        let next = r2human::pipeline::input::normalise(&moved(&rgb), &moved(&mask), 512).unwrap();
+        let (warm, _) = read_face_near(&next, &pose, Some(region), &mut t);
+        let warm = warm.unwrap_or_else(|| panic!("{photo}: the warm read found no face"));
+        let full = read_face(&next, &pose, &mut t).expect("a face");
+        let unit = (full.eyes - full.mouth).length();
+        let far = [
+            (warm.eyes - full.eyes).length(),
+            (warm.mouth - full.mouth).length(),
+            (warm.ears[0] - full.ears[0]).length(),
+            (warm.ears[1] - full.ears[1]).length(),
+        ]
+        .into_iter()
+        .fold(0.0f32, f32::max);
+        eprintln!("{photo}: warm and full face reads {:.3} eye-to-mouth distances apart ({unit:.1} px)", far / unit);
+        assert!(far <= 0.15 * unit, "{photo}: {:.3} eye-to-mouth distances apart", far / unit);
+    }
+}

@@ -16,7 +16,8 @@
 //!   kept for up to [`BACK_IMAGE_EVERY`] frames while the silhouette stays as it was ([`BACK_KEEP_IOU`]), with its
 //!   side image. Its face comes from the body fit's pose read when the geometry fitted one, else from the pose
 //!   network every [`BACK_FACE_EVERY`] frames (the face sits still in the normalised frame, which follows the
-//!   person).
+//!   person), read in one run on the region the last read came from, with a full read every
+//!   [`FULL_FACE_READ_EVERY`]th.
 //! - **The encoder's FOF on demand**: only the neural renderer reads a FOF; it is encoded from the maps when it
 //!   asks ([`PreparedInput::fof_with`]).
 //!
@@ -29,10 +30,10 @@ use super::back::{BackImage, FacePoints};
 use super::input::{self, NormalisedInput};
 use super::prepared::CoarseMesh;
 use super::{
-    back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces_coarse, read_face,
+    back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces_coarse, read_face_near,
     warn_once, warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
 };
-use crate::body::pose::PoseLandmarks;
+use crate::body::pose::{PoseLandmarks, PoseRegion};
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::inflate::InflatedSurfaces;
 use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer, SurfaceMeshError};
@@ -59,6 +60,10 @@ pub const FRAME_INFLATION_FACTOR: usize = 2;
 /// Frames between two reads of the face by the pose network for the back image, when the geometry fitted no body
 /// (whose pose read gives the face on every frame).
 pub const BACK_FACE_EVERY: u64 = 8;
+
+/// Every this many face reads one is a full read ([`crate::body::pose::PoseEstimator::estimate`]); the others are
+/// one tracked run on the region the read before came from ([`super::still::read_face_near`]).
+pub const FULL_FACE_READ_EVERY: u64 = 4;
 
 /// Frames a back image is kept for at most ([`FramePath`]): it holds the colours of clothing and hair, which change
 /// slowly; a silhouette that changes more ([`BACK_KEEP_IOU`]) makes a new one sooner.
@@ -135,6 +140,9 @@ pub struct FramePath {
     smoother: SurfaceSmoother,
     frames: u64,
     face: Option<(u64, FacePoints)>,
+    /// The region the last face read came from and how many tracked reads in a row it has served
+    /// ([`FULL_FACE_READ_EVERY`]).
+    face_region: Option<(PoseRegion, u64)>,
     back: Option<KeptBack>,
     placement: Option<Placement>,
     pending: Option<std::thread::JoinHandle<PlacementResult>>,
@@ -277,6 +285,7 @@ impl FramePath {
             smoother: SurfaceSmoother::new(SURFACE_SMOOTHING, SURFACE_RESET_IOU),
             frames: 0,
             face: None,
+            face_region: None,
             back: None,
             placement: None,
             pending: None,
@@ -500,7 +509,14 @@ impl FramePath {
         match self.face {
             Some((at, face)) if self.frames - at < BACK_FACE_EVERY => Some(face),
             _ => {
-                let face = read_face(normalised, net, timings);
+                // Warm-started on the last read's region (one network run), with a full read every
+                // FULL_FACE_READ_EVERY reads so a drifting track cannot persist.
+                let (region, tracked) = match self.face_region {
+                    Some((r, n)) if n + 1 < FULL_FACE_READ_EVERY => (Some(r), n + 1),
+                    _ => (None, 0),
+                };
+                let (face, read_on) = read_face_near(normalised, net, region, timings);
+                self.face_region = read_on.map(|r| (r, tracked));
                 // No face found is remembered as well: the next read is due in BACK_FACE_EVERY frames either way.
                 self.face = face.map(|f| (self.frames, f));
                 face
@@ -512,6 +528,7 @@ impl FramePath {
     pub fn reset(&mut self) {
         self.smoother.reset();
         self.face = None;
+        self.face_region = None;
         self.back = None;
         self.placement = None;
         self.pending = None;

@@ -3,7 +3,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-use crate::body::pose::PoseLandmarks;
+use crate::body::pose::{PoseLandmarks, PoseRegion};
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::fof::Fof;
 use crate::geometry::marching;
@@ -139,6 +139,38 @@ pub fn read_face(
         Err(e) => {
             tracing::debug!("back image: the pose network failed: {e}");
             None
+        }
+    }
+}
+
+/// [`read_face`] warm-started: with `region` (the region the last read of the same person came from, in the same
+/// normalised frame, which follows the person) one run of the pose network there
+/// ([`crate::body::pose::PoseEstimator::read_in`]) instead of the full read's two to six; the full read when there is
+/// no region, or the tracked run finds no usable face. Also returns the region the answer came from, for the next
+/// read (stage "back image (face landmarks)").
+pub fn read_face_near(
+    normalised: &NormalisedInput,
+    pose: &SharedPose,
+    region: Option<PoseRegion>,
+    timings: &mut StageTimings,
+) -> (Option<back::FacePoints>, Option<PoseRegion>) {
+    let found = timings.time("back image (face landmarks)", || {
+        let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let tracked = match region {
+            Some(r) => p.read_in(&normalised.rgb, r, Some(normalised.frame)),
+            None => Ok(None),
+        };
+        match tracked {
+            Ok(Some(l)) if back::FacePoints::from_pose(&l).is_some() => Ok(Some(l)),
+            _ => p.estimate(&normalised.rgb, &normalised.mask, Some(normalised.frame)),
+        }
+    });
+    match found {
+        Ok(Some(l)) => (back::FacePoints::from_pose(&l), Some(l.region)),
+        Ok(None) => (None, None),
+        Err(e) => {
+            tracing::debug!("back image: the pose network failed: {e}");
+            (None, None)
         }
     }
 }
