@@ -109,23 +109,9 @@ for player in $OA_PLAYERS; do
   "$REPO/target/release/examples/md3_to_obj" "$OA_PK3" "$player" "$CHARS/$player"
   scans+=("$CHARS/$player/$player.obj")
 done
-# evaluate_set NAME SECTION FILE...: one eval over the files (with a sheet of their ground truth) into OUT/NAME, then
-# prints its report from the heading SECTION on.
-evaluate_set() {
-  local name="$1" section="$2"
-  shift 2
-  mkdir -p "$OUT/$name"
-  "$REPO/target/release/examples/scan_sheet" "$OUT/$name/sheet.png" --up y --facing +z --size 256 "$@"
-  local args=()
-  for s in "$@"; do
-    args+=(--scan "$s")
-  done
-  echo "== $name ($#)"
-  # shellcheck disable=SC2086
-  R2HUMAN_LOG="$log" "$R2HUMAN" eval "${args[@]}" --up y --facing +z ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/$name"
-  sed -n "/^$section/,\$p" "$OUT/$name/report.md"
-}
-evaluate_set characters "## Scans together" "${scans[@]}"
+# shellcheck source=lib/evaluate-scans.sh
+source "$REPO/scripts/lib/evaluate-scans.sh"
+evaluate_scans "$OUT/characters" characters "## Scans together" "${scans[@]}"
 
 # The three new characters, on their own.
 FRESH="$WORK/fresh"
@@ -134,7 +120,7 @@ rm -rf "$FRESH"
 for player in angelyss ayumi; do
   "$REPO/target/release/examples/md3_to_obj" "$OA_MATURE_PK3" "$player" "$FRESH/$player"
 done
-evaluate_set fresh "### all" "$FRESH/angelyss/angelyss.obj" "$FRESH/ayumi/ayumi.obj" "$FRESH/neko/neko.obj"
+evaluate_scans "$OUT/fresh" fresh "### all" "$FRESH/angelyss/angelyss.obj" "$FRESH/ayumi/ayumi.obj" "$FRESH/neko/neko.obj"
 
 # The UFO: Alien Invasion characters (their own split, their own eval).
 bash "$REPO/scripts/scan-ufoai.sh" "$OUT/ufoai"

@@ -97,14 +97,6 @@ for i in "${!sorted[@]}"; do
     echo "dropped $name: conversion failed" >&2
   fi
 done
-mkdir -p "$OUT/characters"
-"$REPO/target/release/examples/scan_sheet" "$OUT/characters/sheet.png" --up y --facing +z --size 256 "${scans[@]}"
-args=()
-for s in "${scans[@]}"; do
-  args+=(--scan "$s")
-done
-echo "== megaglest $SPLIT (${#scans[@]})"
-# shellcheck disable=SC2086
-R2HUMAN_LOG="${R2HUMAN_LOG:-warn,r2human::synth=info}" "$REPO/target/release/r2human" eval "${args[@]}" --up y --facing +z \
-  ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/characters"
-sed -n "/^## Scans together/,\$p" "$OUT/characters/report.md"
+# shellcheck source=lib/evaluate-scans.sh
+source "$REPO/scripts/lib/evaluate-scans.sh"
+evaluate_scans "$OUT/characters" "megaglest $SPLIT" "## Scans together" "${scans[@]}"

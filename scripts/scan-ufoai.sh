@@ -60,14 +60,6 @@ while read -r name body head; do
   "$REPO/target/release/examples/md2_to_obj" "$PK3" "$body" "$head" "$name" "$FILES/$name"
   scans+=("$FILES/$name/$name.obj")
 done <<< "$CHARACTERS"
-mkdir -p "$OUT/characters"
-"$REPO/target/release/examples/scan_sheet" "$OUT/characters/sheet.png" --up y --facing +z --size 256 "${scans[@]}"
-args=()
-for s in "${scans[@]}"; do
-  args+=(--scan "$s")
-done
-echo "== ufoai (${#scans[@]})"
-# shellcheck disable=SC2086
-R2HUMAN_LOG="${R2HUMAN_LOG:-warn,r2human::synth=info}" "$REPO/target/release/r2human" eval "${args[@]}" --up y --facing +z \
-  ${R2HUMAN_SCAN_ARGS:-} --out "$OUT/characters"
-sed -n "/^## Scans together/,\$p" "$OUT/characters/report.md"
+# shellcheck source=lib/evaluate-scans.sh
+source "$REPO/scripts/lib/evaluate-scans.sh"
+evaluate_scans "$OUT/characters" ufoai "## Scans together" "${scans[@]}"

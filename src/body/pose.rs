@@ -685,12 +685,7 @@ impl PoseEstimator {
         mask: &GrayImage,
         region: Option<PoseRegion>,
     ) -> Result<Option<PoseLandmarks>, BodyError> {
-        if (rgb.width, rgb.height) != (mask.width, mask.height) {
-            return Err(BodyError::Model(format!(
-                "image is {}x{} but mask is {}x{}",
-                rgb.width, rgb.height, mask.width, mask.height
-            )));
-        }
+        same_size(rgb, mask)?;
         let Some(from_mask) = PoseRegion::from_mask(mask) else { return Ok(None) };
         // The tracked region holds the person while the mask's box centre lies inside it and it is not much smaller
         // than the box.
@@ -698,9 +693,7 @@ impl PoseEstimator {
             let d = (r.centre - from_mask.centre).abs();
             d.max_element() < 0.25 * r.side && r.side > 0.6 * from_mask.side && r.side < 2.5 * from_mask.side
         };
-        let region = region.filter(holds).unwrap_or(from_mask);
-        let frame = (Vec2::ZERO, Vec2::new(rgb.width as f32, rgb.height as f32));
-        self.run(rgb, PhotoFingerprint::of(rgb), region, frame)
+        self.read_in(rgb, region.filter(holds).unwrap_or(from_mask), None)
     }
 
     /// Landmarks of the person in `rgb` (linear RGB) whose mask is `mask` (same size, `[0, 1]`; the photo lies in
@@ -712,12 +705,7 @@ impl PoseEstimator {
         mask: &GrayImage,
         frame: Option<PhotoFrame>,
     ) -> Result<Option<PoseLandmarks>, BodyError> {
-        if (rgb.width, rgb.height) != (mask.width, mask.height) {
-            return Err(BodyError::Model(format!(
-                "image is {}x{} but mask is {}x{}",
-                rgb.width, rgb.height, mask.width, mask.height
-            )));
-        }
+        same_size(rgb, mask)?;
         self.estimate_on(rgb, PhotoFingerprint::of(rgb), mask, frame)
     }
 
@@ -781,6 +769,17 @@ impl PoseEstimator {
             None => first,
         })
     }
+}
+
+/// An error unless `rgb` and `mask` have the same size (the reads take the mask's pixels as the photo's).
+fn same_size(rgb: &RgbImage, mask: &GrayImage) -> Result<(), BodyError> {
+    if (rgb.width, rgb.height) != (mask.width, mask.height) {
+        return Err(BodyError::Model(format!(
+            "image is {}x{} but mask is {}x{}",
+            rgb.width, rgb.height, mask.width, mask.height
+        )));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

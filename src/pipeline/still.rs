@@ -129,18 +129,7 @@ pub fn read_face(
     pose: &SharedPose,
     timings: &mut StageTimings,
 ) -> Option<back::FacePoints> {
-    let found = timings.time("back image (face landmarks)", || {
-        let mut p = pose.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        p.estimate(&normalised.rgb, &normalised.mask, Some(normalised.frame))
-    });
-    match found {
-        Ok(Some(l)) => back::FacePoints::from_pose(&l),
-        Ok(None) => None,
-        Err(e) => {
-            tracing::debug!("back image: the pose network failed: {e}");
-            None
-        }
-    }
+    read_face_near(normalised, pose, None, timings).0
 }
 
 /// [`read_face`] warm-started: with `region` (the region the last read of the same person came from, in the same
