@@ -2,7 +2,8 @@
 # A fourth independent set for `r2human eval --scan` (issue 33), from a source and a format the project had not
 # used: the player characters of Nexuiz (Debian's `nexuiz-data`, GPL-2+), ZYMOTIC skeletal models inside the game's
 # data.pk3, posed at the first pose of their `idle` scene and written Y up, facing +z, by `examples/zym_to_obj.rs`
-# with their TGA skins.
+# with their TGA skins (`textures.pk3`, from the
+# package's dependency nexuiz-textures).
 #
 # Why Nexuiz: xonotic-data, sauerbraten-data and alien-arena-data are not in this machine's Debian; redeclipse-data
 # has two player models; 0ad-data ships its art as .pmd/.dds in a 3.2 GB zip; openarena's players are already
@@ -28,8 +29,8 @@ set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 OUT="${1:-$REPO/out/scan-nexuiz}"
 SPLIT="${SPLIT:-all}"
-PK3=/usr/share/games/nexuiz/data/data.pk3
-if [ ! -f "$PK3" ]; then
+DATA=/usr/share/games/nexuiz/data
+if [ ! -f "$DATA/data.pk3" ] || [ ! -f "$DATA/textures.pk3" ]; then
   export DEBIAN_FRONTEND=noninteractive
   apt-get update
   apt-get install -y --no-install-recommends nexuiz-data
@@ -49,7 +50,7 @@ for i in "${!sorted[@]}"; do
     all) ;;
     *) echo "SPLIT must be dev, held-out or all" >&2; exit 2 ;;
   esac
-  if "$REPO/target/release/examples/zym_to_obj" "$PK3" "$name" "$FILES/$name"; then
+  if "$REPO/target/release/examples/zym_to_obj" "$DATA" "$name" "$FILES/$name"; then
     scans+=("$FILES/$name/$name.obj")
   else
     echo "dropped $name: conversion failed" >&2
