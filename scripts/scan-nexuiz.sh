@@ -36,6 +36,8 @@ if [ ! -f "$DATA/data.pk3" ] || [ ! -f "$DATA/textures.pk3" ]; then
   apt-get install -y --no-install-recommends nexuiz-data
 fi
 cd "$REPO"
+# shellcheck source=lib/evaluate-scans.sh
+source "$REPO/scripts/lib/evaluate-scans.sh"
 cargo build --release --quiet --bin r2human --example zym_to_obj --example scan_sheet
 CHARACTERS="heroine insurrectionist lycanthrope marine nexus pyria shock skadi specop"
 mapfile -t sorted < <(printf '%s\n' $CHARACTERS | LC_ALL=C sort)
@@ -44,18 +46,11 @@ rm -rf "$FILES"
 scans=()
 for i in "${!sorted[@]}"; do
   name="${sorted[$i]}"
-  case "$SPLIT" in
-    dev) [ $((i % 2)) -eq 0 ] || continue ;;
-    held-out) [ $((i % 2)) -eq 1 ] || continue ;;
-    all) ;;
-    *) echo "SPLIT must be dev, held-out or all" >&2; exit 2 ;;
-  esac
+  in_split "$i" || continue
   if "$REPO/target/release/examples/zym_to_obj" "$DATA" "$name" "$FILES/$name"; then
     scans+=("$FILES/$name/$name.obj")
   else
     echo "dropped $name: conversion failed" >&2
   fi
 done
-# shellcheck source=lib/evaluate-scans.sh
-source "$REPO/scripts/lib/evaluate-scans.sh"
 evaluate_scans "$OUT/characters" "nexuiz $SPLIT" "## Scans together" "${scans[@]}"
