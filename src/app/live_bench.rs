@@ -111,8 +111,17 @@ impl std::fmt::Display for LiveBenchReport {
             ms(self.view_median),
             self.encodes
         )?;
-        let stages: Vec<String> = s.stages.iter().map(|st| format!("{} {:.1}", st.name, st.median_ms())).collect();
-        write!(f, "stage medians (ms): {}", stages.join(", "))
+        // A stage that did not run once per completed frame (kept between frames, or run on frames then dropped)
+        // says how often it ran.
+        let stages: Vec<String> = s
+            .stages
+            .iter()
+            .map(|st| match st.total == s.completed {
+                true => format!("{} {:.1}", st.name, st.median_ms()),
+                false => format!("{} {:.1} (x{})", st.name, st.median_ms(), st.total),
+            })
+            .collect();
+        write!(f, "stage medians (ms; (xN): ran N times): {}", stages.join(", "))
     }
 }
 

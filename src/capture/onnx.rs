@@ -383,25 +383,64 @@ impl OnnxSegmenter {
         let us: Vec<f32> = (0..w).map(|c| (c as f32 + 0.5 - region.x0) / region.sx).collect();
         let vs: Vec<f32> = (0..h).map(|r| (r as f32 + 0.5 - region.y0) / region.sy).collect();
         let in_frame = |raw: &GrayImage| sample_bilinear_grid(raw, &us, &vs, 0.0);
-        let mut mask = in_frame(&raw);
-        let bbox = bounding_box(&largest_component(&threshold(&mask, 0.5)));
-        if let Some(selfie) = selfie {
-            keep_larger(&mut mask, &in_frame(&selfie));
-        }
-        // Keep the soft edge, but only around the main (largest) object: stray blobs are not the person.
-        let keep = fill_holes(&largest_component(&threshold(&mask, 0.5)));
-        let keep = dilate(&keep, 2);
-        for (m, &k) in mask.data.iter_mut().zip(&keep.data) {
-            if !k {
-                *m = 0.0;
+        // The pose model's grid covers the square around the person at about a frame pixel or coarser: its main
+        // object is found there, at a fraction of the frame's pixels, and only the answer is read into the frame.
+        let on_grid = self.kind == SegmentationModel::MediapipePose;
+        let (mask, bbox) = if on_grid {
+            let mut grid = raw;
+            // The box is in frame pixels, clamped to the frame.
+            let bbox = bounding_box(&largest_component(&threshold(&grid, 0.5))).map(|(c0, r0, c1, r1)| {
+                let x = |c: usize| (region.x0 + c as f32 * region.sx).clamp(0.0, w as f32);
+                let y = |r: usize| (region.y0 + r as f32 * region.sy).clamp(0.0, h as f32);
+                (x(c0), y(r0), x(c1), y(r1))
+            });
+            if let Some(selfie) = selfie {
+                keep_larger(&mut grid, &selfie);
             }
-        }
+            // One grid cell of margin keeps the soft edge (the frame's 2 px at the usual 2 px a cell).
+            let keep = dilate(&fill_holes(&largest_component(&threshold(&grid, 0.5))), 1);
+            for (m, &k) in grid.data.iter_mut().zip(&keep.data) {
+                if !k {
+                    *m = 0.0;
+                }
+            }
+            // Only the frame pixels whose bilinear cells reach a kept cell can be above 0: the rest stay 0.
+            let mut mask = GrayImage::new(w, h, 0.0);
+            if let Some((c0, r0, c1, r1)) = bounding_box(&keep) {
+                let reach = |v: f32, lo: usize, hi: usize| v + 0.5 >= lo as f32 && v - 0.5 <= hi as f32;
+                let columns: Vec<usize> = (0..w).filter(|&c| reach(us[c], c0, c1)).collect();
+                let rows: Vec<usize> = (0..h).filter(|&r| reach(vs[r], r0, r1)).collect();
+                if let (Some(&cl), Some(&rl)) = (columns.first(), rows.first()) {
+                    let (cn, rn) = (columns.len(), rows.len());
+                    let part = sample_bilinear_grid(&grid, &us[cl..cl + cn], &vs[rl..rl + rn], 0.0);
+                    for (k, line) in part.data.chunks_exact(cn).enumerate() {
+                        mask.data[(rl + k) * w + cl..][..cn].copy_from_slice(line);
+                    }
+                }
+            }
+            (mask, bbox)
+        } else {
+            let mut mask = in_frame(&raw);
+            let bbox = bounding_box(&largest_component(&threshold(&mask, 0.5)))
+                .map(|(c0, r0, c1, r1)| (c0 as f32, r0 as f32, c1 as f32, r1 as f32));
+            if let Some(selfie) = selfie {
+                keep_larger(&mut mask, &in_frame(&selfie));
+            }
+            // Keep the soft edge, but only around the main (largest) object: stray blobs are not the person.
+            let keep = dilate(&fill_holes(&largest_component(&threshold(&mask, 0.5))), 2);
+            for (m, &k) in mask.data.iter_mut().zip(&keep.data) {
+                if !k {
+                    *m = 0.0;
+                }
+            }
+            (mask, bbox)
+        };
         if self.kind == SegmentationModel::MediapipePose {
             let s = self.input_size as f32;
             let held = self.track.filter(|&(tw, th, _)| (tw, th) == (w, h)).map(|(_, _, r)| r);
             self.track = bbox.map(|(c0, r0, c1, r1)| {
-                let side = (1.3 * ((c1 - c0) as f32).max((r1 - r0) as f32)).max(64.0);
-                let (cx, cy) = (0.5 * (c0 + c1) as f32, 0.5 * (r0 + r1) as f32);
+                let side = (1.3 * (c1 - c0).max(r1 - r0)).max(64.0);
+                let (cx, cy) = (0.5 * (c0 + c1), 0.5 * (r0 + r1));
                 let next = Region { x0: cx - 0.5 * side, y0: cy - 0.5 * side, sx: side / s, sy: side / s };
                 (w, h, held.filter(|r| r.holds(&next, s)).unwrap_or(next))
             });

@@ -10,8 +10,14 @@ use crate::buffer::GrayImage;
 /// Entries per parallel chunk of [`VecSmoother`]'s passes (small vectors stay on one thread).
 const PAR_CHUNK: usize = 1 << 16;
 
+/// A smoothed mask value below which a pixel is not the person at all (0): under the average a pixel the person
+/// left decays by `1 - alpha` a frame and never reaches 0, so a moving person trailed a wide band of ever smaller
+/// values (denormal floats after about a hundred frames), each one a partly covered pixel for the stages after. An
+/// 8-bit alpha shows nothing below 1/255.
+pub const MASK_FLOOR: f32 = 1.0 / 256.0;
+
 /// EMA of soft masks: `s = a*m + (1-a)*s`, reset to `m` when the IoU of `s` and `m` (at 0.5) drops below
-/// `reset_iou` or the size changes.
+/// `reset_iou` or the size changes; values below [`MASK_FLOOR`] are 0.
 #[derive(Clone, Debug)]
 pub struct MaskSmoother {
     /// Weight of the new mask, in `(0, 1]` (1 = no smoothing).
@@ -35,14 +41,16 @@ impl MaskSmoother {
             None => true,
             Some(s) => (s.width, s.height) != (mask.width, mask.height) || iou_soft(s, mask) < self.reset_iou,
         };
+        let floor = |v: f32| if v >= MASK_FLOOR { v.min(1.0) } else { 0.0 };
         if reset {
             self.resets += 1;
-            self.state = Some(mask.clone());
+            // NaN fails the comparison: 0.
+            self.state = Some(GrayImage { data: mask.data.iter().map(|&v| floor(v)).collect(), ..mask.clone() });
         } else if let Some(s) = &mut self.state {
             let a = self.alpha;
             for (sv, &mv) in s.data.iter_mut().zip(&mask.data) {
                 let m = if mv.is_finite() { mv } else { 0.0 };
-                *sv = (a * m + (1.0 - a) * *sv).clamp(0.0, 1.0);
+                *sv = floor(a * m + (1.0 - a) * *sv);
             }
         }
         self.state.clone().unwrap_or_else(|| mask.clone())
@@ -154,6 +162,32 @@ mod tests {
         // Size change resets.
         let d = Image::new(4, 4, 1.0);
         assert_eq!(s.update(&d), d);
+    }
+
+    #[test]
+    fn a_pixel_the_person_left_reaches_zero() {
+        let person = Image::from_fn(8, 8, |x, _| if x < 6 { 1.0 } else { 0.0 });
+        let left = Image::from_fn(8, 8, |x, _| if x < 5 { 1.0 } else { 0.0 });
+        let mut s = MaskSmoother::new(0.6, 0.5);
+        s.update(&person);
+        // Column 5 decays by 0.4 a frame: 0.4, 0.16, 0.064, 0.0256, 0.01024, 0.0041, then 0.0016 < 1/256.
+        let mut value = 1.0f32;
+        for frame in 1..=7 {
+            let out = s.update(&left);
+            value *= 0.4;
+            let want = if value >= MASK_FLOOR { value } else { 0.0 };
+            assert!((out.get(5, 3) - want).abs() < 1e-6, "frame {frame}: {} vs {want}", out.get(5, 3));
+        }
+        assert_eq!(*s.update(&left).get(5, 3), 0.0);
+        // Tiny and non-finite inputs are 0 on a reset too.
+        let mut fresh = MaskSmoother::new(0.6, 0.5);
+        let noisy = Image::from_fn(4, 4, |x, y| match (x, y) {
+            (0, 0) => 1e-30,
+            (1, 0) => f32::NAN,
+            _ => 1.0,
+        });
+        let out = fresh.update(&noisy);
+        assert_eq!((*out.get(0, 0), *out.get(1, 0), *out.get(2, 0)), (0.0, 0.0, 1.0));
     }
 
     #[test]

@@ -133,8 +133,46 @@ pub struct BackImage {
 /// The back image of a person (see the module docs): `rgb` linear premultiplied by `mask`, `face` where the face
 /// is. Same size as `rgb`, premultiplied by the same mask, with its head weights ([`BackImage::head`]). `None` when
 /// the face points are unusable (degenerate or not finite) or the sizes disagree; every colour is finite and in
-/// `[0, 1]`.
+/// `[0, 1]`. [`back_layers`] masked by `mask`.
 pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<BackImage> {
+    back_layers(rgb, mask, face)?.masked(mask)
+}
+
+/// A back image before a mask multiplies it: its straight colour and head weight at every pixel of the grid, the
+/// person's and beyond (the clothing layer carried past the outline from the nearest cells). A live source keeps
+/// them between frames and masks them with each frame's own silhouette ([`super::frame`]): the colours of clothing
+/// and hair change more slowly than the outline.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BackLayers {
+    /// Straight linear colour, finite and in `[0, 1]`.
+    pub colour: RgbImage,
+    /// How much of `colour` is the head top's, before the mask ([`BackImage::head`]).
+    pub head: GrayImage,
+}
+
+impl BackLayers {
+    /// The back image of a person with silhouette `mask`: the colour premultiplied by it, the head weight where it
+    /// is above 0; `None` for a mask of another size.
+    pub fn masked(&self, mask: &GrayImage) -> Option<BackImage> {
+        let (w, h) = (self.colour.width, self.colour.height);
+        if (mask.width, mask.height) != (w, h) || mask.data.len() != self.colour.data.len() {
+            return None;
+        }
+        let mut rgb = Image::new(w, h, Vec3::ZERO);
+        let mut head = Image::new(w, h, 0.0f32);
+        for (i, &m) in mask.data.iter().enumerate() {
+            // NaN fails the comparison: outside.
+            if m > 0.0 {
+                rgb.data[i] = self.colour.data[i] * m.min(1.0);
+                head.data[i] = self.head.data[i];
+            }
+        }
+        Some(BackImage { rgb, head })
+    }
+}
+
+/// The layers of [`back_image`] (see there for `None`).
+pub fn back_layers(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option<BackLayers> {
     let (w, h) = (rgb.width, rgb.height);
     if (mask.width, mask.height) != (w, h) || w == 0 || h == 0 {
         return None;
@@ -146,26 +184,21 @@ pub fn back_image(rgb: &RgbImage, mask: &GrayImage, face: &FacePoints) -> Option
     };
     let clothing = clothing(rgb, mask, frame.d);
     let head = head_colour(w, h, &straight, &frame);
-    let mut out = Image::new(w, h, Vec3::ZERO);
+    let mut colour = Image::new(w, h, Vec3::ZERO);
     let mut weights = Image::new(w, h, 0.0f32);
-    out.data.par_chunks_mut(w).zip(weights.data.par_chunks_mut(w)).enumerate().for_each(|(row, (line, hws))| {
+    colour.data.par_chunks_mut(w).zip(weights.data.par_chunks_mut(w)).enumerate().for_each(|(row, (line, hws))| {
         for (col, (o, hw_out)) in line.iter_mut().zip(hws.iter_mut()).enumerate() {
-            let i = row * w + col;
-            let m = mask.data[i].clamp(0.0, 1.0);
-            if m <= 0.0 {
-                continue;
-            }
             let p = Vec2::new(col as f32 + 0.5, row as f32 + 0.5);
             let hw = match head {
                 Some(_) => frame.head_weight(p) * frame.frontality,
                 None => 0.0,
             };
-            let c = clothing.data[i] * (1.0 - hw) + head.unwrap_or(Vec3::ZERO) * hw;
-            *o = c.clamp(Vec3::ZERO, Vec3::ONE) * m;
+            let c = clothing.data[row * w + col] * (1.0 - hw) + head.unwrap_or(Vec3::ZERO) * hw;
+            *o = if c.is_finite() { c.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::ZERO };
             *hw_out = hw;
         }
     });
-    Some(BackImage { rgb: out, head: weights })
+    Some(BackLayers { colour, head: weights })
 }
 
 /// Colours in the clothing's palette (`palette`).
@@ -271,7 +304,8 @@ fn head_colour(w: usize, h: usize, straight: &dyn Fn(usize) -> Option<Vec3>, f: 
     })
 }
 
-/// The clothing layer (module docs): straight colour per source pixel (zero outside the person).
+/// The clothing layer (module docs): straight colour at every source pixel (past the person's outline, the nearest
+/// cells' colours).
 fn clothing(rgb: &RgbImage, mask: &GrayImage, d: f32) -> RgbImage {
     let (w, h) = (rgb.width, rgb.height);
     let factor = (WORK_FACTOR * w.max(h)).div_ceil(512).max(1);
@@ -339,9 +373,6 @@ fn clothing(rgb: &RgbImage, mask: &GrayImage, d: f32) -> RgbImage {
         let y = (row as f32 + 0.5) / factor as f32 - 0.5;
         let (y0, ty) = (y.floor(), y - y.floor());
         for (col, o) in line.iter_mut().enumerate() {
-            if mask.data[row * w + col] <= 0.0 {
-                continue;
-            }
             let x = (col as f32 + 0.5) / factor as f32 - 0.5;
             let (x0, tx) = (x.floor(), x - x.floor());
             let (xi, yi) = (x0 as isize, y0 as isize);

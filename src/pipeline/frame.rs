@@ -12,12 +12,15 @@
 //!   slopes at every pixel, no raster.
 //! - **Smoothing over time on the maps** ([`SurfaceSmoother`]): an exponential average of the depths where the
 //!   person was in both frames, restarted when the silhouette changes a lot (a cut, a person entering).
-//! - **The back image at its own rate**: it holds the colours of clothing and hair, which change slowly; one is
-//!   kept for up to [`BACK_IMAGE_EVERY`] frames while the silhouette stays as it was ([`BACK_KEEP_IOU`]), with its
-//!   side image. Its face comes from the back image's own pose network (whatever the geometry, as on stills) every
+//! - **The back image at its own rate**: it holds the colours of clothing and hair, which change slowly; its layers
+//!   before the mask ([`BackLayers`]) and their side image are kept for up to [`BACK_IMAGE_EVERY`] frames while the
+//!   silhouette stays near the one they were made on ([`BACK_KEEP_IOU`]), each frame masking them with its own
+//!   silhouette. Its face comes from the back image's own pose network (whatever the geometry, as on stills) every
 //!   [`BACK_FACE_EVERY`] frames (the face sits still in the normalised frame, which follows the
 //!   person), read in one run on the region the last read came from, with a full read every
 //!   [`FULL_FACE_READ_EVERY`]th.
+//! - **Side images on a coarser grid** ([`FRAME_SIDE_FACTOR`]): the photo's blur for the surfaces it sees
+//!   edge-on.
 //! - **The encoder's FOF on demand**: only the neural renderer reads a FOF; it is encoded from the maps when it
 //!   asks ([`PreparedInput::fof_with`]).
 //!
@@ -26,12 +29,12 @@
 
 use std::sync::atomic::AtomicBool;
 
-use super::back::{BackImage, FacePoints};
+use super::back::{BackLayers, FacePoints};
 use super::input::{self, NormalisedInput};
 use super::prepared::CoarseMesh;
 use super::{
-    back_image_from_face, body_placed_surfaces, compute_geometry, inflation_surfaces_coarse, read_face_near, warn_once,
-    warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
+    back_layers_from_face, body_placed_surfaces, compute_geometry, inflation_surfaces_coarse, read_face_near,
+    warn_once, warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
 };
 use crate::body::pose::PoseRegion;
 use crate::buffer::{GrayImage, RgbImage};
@@ -65,11 +68,19 @@ pub const BACK_FACE_EVERY: u64 = 8;
 pub const FULL_FACE_READ_EVERY: u64 = 4;
 
 /// Frames a back image is kept for at most ([`FramePath`]): it holds the colours of clothing and hair, which change
-/// slowly; a silhouette that changes more ([`BACK_KEEP_IOU`]) makes a new one sooner.
-pub const BACK_IMAGE_EVERY: u64 = 6;
+/// slowly; each frame masks its layers with its own silhouette. A silhouette that changes more ([`BACK_KEEP_IOU`])
+/// makes a new one sooner.
+pub const BACK_IMAGE_EVERY: u64 = 8;
 
-/// Mask IoU with the frame a kept back image was made on below which a new one is made.
-pub const BACK_KEEP_IOU: f32 = 0.98;
+/// Mask IoU with the frame a kept back image was made on below which a new one is made: the person moved enough
+/// that the kept colours may sit at the wrong places (an arm raised across the body). At 0.98 a person panned
+/// across a webcam's view made a new one on 9 frames in 10.
+pub const BACK_KEEP_IOU: f32 = 0.9;
+
+/// How much coarser than the source grid a frame's side images are blurred
+/// ([`warp::SideImages::with_back_side`]): a blur of [`warp::SIDE_BLUR`] (4 px at 512²) loses nothing on a grid
+/// twice as coarse.
+pub const FRAME_SIDE_FACTOR: usize = 2;
 
 /// Frames a body placement ([`GeometryMode::BodyPlaced`]: the fitted body's depths and the face relief, as offsets
 /// from the inflation prior) serves at most before a new one is made: the pose network, the body fit and the face
@@ -248,11 +259,13 @@ fn nearest_seed(w: usize, h: usize, seeds: &[usize]) -> Vec<Option<usize>> {
     source
 }
 
-/// A back image kept from an earlier frame, with its side image and the mask it was made on.
+/// A back image kept from an earlier frame: its layers before the mask ([`BackLayers`]) and their side image
+/// (straight, [`warp::SideImages::of_straight`]), each frame masked by its own silhouette; with the mask it was made
+/// on.
 struct KeptBack {
     frame: u64,
     mask: GrayImage,
-    back: BackImage,
+    layers: BackLayers,
     side: RgbImage,
 }
 
@@ -377,25 +390,26 @@ impl FramePath {
                 let kept = match kept {
                     Some(k) => Some(k),
                     None if opts.back_pose.is_some() => {
-                        back_image_from_face(&normalised, face.as_ref(), &mut colour_timings).map(|back| {
-                            let side = colour_timings.time("side images (back)", || {
-                                warp::SideImages::of(&back.rgb, None, &normalised.mask).rgb
-                            });
-                            KeptBack { frame, mask: normalised.mask.clone(), back, side }
+                        back_layers_from_face(&normalised, face.as_ref(), &mut colour_timings).map(|layers| {
+                            let side = colour_timings
+                                .time("side images (back)", || warp::SideImages::of_straight(&layers.colour));
+                            KeptBack { frame, mask: normalised.mask.clone(), layers, side }
                         })
                     }
                     None => None,
                 };
-                let side = colour_timings.time("side images", || {
-                    let back_side = kept.as_ref().map(|k| k.side.clone());
-                    warp::SideImages::with_back_side(&normalised.rgb, back_side, &normalised.mask)
+                let (back, side) = colour_timings.time("side images", || {
+                    let mask = &normalised.mask;
+                    let back = kept.as_ref().and_then(|k| k.layers.masked(mask));
+                    let back_side = kept.as_ref().map(|k| warp::premultiplied(&k.side, mask));
+                    (back, warp::SideImages::with_back_side(&normalised.rgb, back_side, mask, FRAME_SIDE_FACTOR))
                 });
-                (normalised, kept, side)
+                (normalised, kept, (back, side))
             },
         );
+        let (back, side) = side;
         let (mesh, source_gbuffer, coarse, geometry_timings) = geometry?;
         timings.0.extend(geometry_timings.0.into_iter().chain(colour_timings.0));
-        let back = kept.as_ref().map(|k| k.back.clone());
         self.back = kept;
         Ok(PreparedInput {
             source_camera,

@@ -159,14 +159,24 @@ pub fn back_image_from_face(
     face: Option<&back::FacePoints>,
     timings: &mut StageTimings,
 ) -> Option<back::BackImage> {
-    let back = face
-        .and_then(|f| timings.time("back image (filter)", || back::back_image(&normalised.rgb, &normalised.mask, f)));
-    if back.is_none() {
+    back_layers_from_face(normalised, face, timings)?.masked(&normalised.mask)
+}
+
+/// [`back_image_from_face`] before the mask multiplies it ([`back::BackLayers`]: what a live source keeps between
+/// frames); the same stage, the same warning.
+pub fn back_layers_from_face(
+    normalised: &NormalisedInput,
+    face: Option<&back::FacePoints>,
+    timings: &mut StageTimings,
+) -> Option<back::BackLayers> {
+    let layers = face
+        .and_then(|f| timings.time("back image (filter)", || back::back_layers(&normalised.rgb, &normalised.mask, f)));
+    if layers.is_none() {
         static WARNED: AtomicBool = AtomicBool::new(false);
         warn_once(
             &WARNED,
             "back image: no face found in this input; surfaces the photo does not show take the photo's colours",
         );
     }
-    back
+    layers
 }

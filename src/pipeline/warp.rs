@@ -121,17 +121,108 @@ impl SideImages {
     }
 
     /// [`SideImages::of`] with the back image's side image already made (a back image kept from an earlier frame,
-    /// [`super::frame`]): only the photo is blurred.
-    pub fn with_back_side(rgb: &RgbImage, back_side: Option<RgbImage>, mask: &GrayImage) -> Self {
+    /// [`super::frame`]), the photo blurred on a grid `factor` times coarser ([`blur_masked_coarse`]; 1: as
+    /// [`SideImages::of`]).
+    pub fn with_back_side(rgb: &RgbImage, back_side: Option<RgbImage>, mask: &GrayImage, factor: usize) -> Self {
         let sigma = SIDE_BLUR * rgb.width as f32;
         let back = back_side.filter(|b| (b.width, b.height) == (rgb.width, rgb.height));
-        Self { rgb: blur_masked(rgb, mask, sigma), back }
+        Self { rgb: blur_masked_coarse(rgb, mask, sigma, factor), back }
+    }
+
+    /// The side image of a straight colour image defined at every pixel (a back image's layers,
+    /// [`super::back::BackLayers`], kept between frames): blurred as the side images are, not premultiplied;
+    /// [`premultiplied`] by a frame's mask it is that frame's side image of the back.
+    pub fn of_straight(colour: &RgbImage) -> RgbImage {
+        let everywhere = GrayImage::new(colour.width, colour.height, 1.0);
+        blur_masked(colour, &everywhere, SIDE_BLUR * colour.width as f32)
     }
 
     /// The blurred colours as [`SourceColours`] without side images of their own.
     fn colours(&self) -> SourceColours<'_> {
         SourceColours { rgb: &self.rgb, back: self.back.as_ref(), side: None }
     }
+}
+
+/// `straight` premultiplied by `mask` (0 where the mask is not above 0; `straight` unchanged for a mask of another
+/// size).
+pub fn premultiplied(straight: &RgbImage, mask: &GrayImage) -> RgbImage {
+    if mask.data.len() != straight.data.len() || (mask.width, mask.height) != (straight.width, straight.height) {
+        return straight.clone();
+    }
+    let data = straight.data.iter().zip(&mask.data).map(|(c, &m)| if m > 0.0 { *c * m.min(1.0) } else { Vec3::ZERO });
+    RgbImage { width: straight.width, height: straight.height, data: data.collect() }
+}
+
+/// [`blur_masked`] computed on a grid `factor` times coarser: the premultiplied colour and the mask box-averaged,
+/// blurred by `sigma / factor`, read back bilinearly at each pixel and divided, premultiplied by the sharp mask. A
+/// blur of several pixels loses nothing a coarser grid cannot hold, at a `factor²`-th of the pixels (what a video
+/// frame can afford). `factor` 1, or an image smaller than `4 factor` a side, is [`blur_masked`].
+fn blur_masked_coarse(rgb: &RgbImage, mask: &GrayImage, sigma: f32, factor: usize) -> RgbImage {
+    let (w, h) = (rgb.width, rgb.height);
+    if factor <= 1 || w < 4 * factor || h < 4 * factor || mask.data.len() != w * h {
+        return blur_masked(rgb, mask, sigma);
+    }
+    let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
+    // Sums of each cell's premultiplied colour and coverage (the division below takes the same count from both).
+    let mut flat = vec![0.0f32; cw * ch * 4];
+    for (r, (line, mask_line)) in rgb.data.chunks_exact(w).zip(mask.data.chunks_exact(w)).enumerate() {
+        let cells = &mut flat[(r / factor) * cw * 4..][..cw * 4];
+        for ((cell, colours), masks) in cells.chunks_exact_mut(4).zip(line.chunks(factor)).zip(mask_line.chunks(factor))
+        {
+            for (v, &m) in colours.iter().zip(masks) {
+                let m = if m.is_finite() { m.clamp(0.0, 1.0) } else { 0.0 };
+                cell[0] += v.x;
+                cell[1] += v.y;
+                cell[2] += v.z;
+                cell[3] += m;
+            }
+        }
+    }
+    let Some(buffer) = image::ImageBuffer::<image::Rgba<f32>, Vec<f32>>::from_raw(cw as u32, ch as u32, flat) else {
+        return blur_masked(rgb, mask, sigma);
+    };
+    let blurred: Vec<Vec4> = image::imageops::fast_blur(&buffer, sigma / factor as f32)
+        .into_raw()
+        .chunks_exact(4)
+        .map(|p| Vec4::new(p[0], p[1], p[2], p[3]))
+        .collect();
+    // Bilinear at every pixel (cell centres at (k + 0.5) factor, edges clamped): each output row lerps its two
+    // cell rows once, then each pixel its two cells.
+    let f = factor as f32;
+    let columns: Vec<(usize, usize, f32)> = (0..w)
+        .map(|c| {
+            let x = ((c as f32 + 0.5) / f - 0.5).max(0.0);
+            let x0 = (x as usize).min(cw - 1);
+            (x0, (x0 + 1).min(cw - 1), x - x0 as f32)
+        })
+        .collect();
+    let mut out = Image::new(w, h, Vec3::ZERO);
+    let mut row_cells = vec![Vec4::ZERO; cw];
+    for (r, (line, mask_line)) in out.data.chunks_exact_mut(w).zip(mask.data.chunks_exact(w)).enumerate() {
+        if mask_line.iter().all(|&m| m.is_nan() || m <= 0.0) {
+            continue;
+        }
+        let y = ((r as f32 + 0.5) / f - 0.5).max(0.0);
+        let y0 = (y as usize).min(ch - 1);
+        let (y1, ty) = ((y0 + 1).min(ch - 1), y - y0 as f32);
+        let (top, bottom) = (&blurred[y0 * cw..][..cw], &blurred[y1 * cw..][..cw]);
+        for (cell, (t, b)) in row_cells.iter_mut().zip(top.iter().zip(bottom)) {
+            *cell = *t * (1.0 - ty) + *b * ty;
+        }
+        for ((o, &m), &(x0, x1, tx)) in line.iter_mut().zip(mask_line).zip(&columns) {
+            if m.is_nan() || m <= 0.0 {
+                continue;
+            }
+            let v = row_cells[x0] * (1.0 - tx) + row_cells[x1] * tx;
+            if v.w > 1e-6 {
+                let colour = v.truncate() / v.w * m.min(1.0);
+                if colour.is_finite() {
+                    *o = colour;
+                }
+            }
+        }
+    }
+    out
 }
 
 /// `blur(c m) / blur(m)` with a Gaussian-like blur of standard deviation `sigma` pixels (`image`'s
@@ -755,6 +846,76 @@ mod tests {
         assert!(SideImages::of(&stripes, Some(&small), &mask).back.is_none());
         let none = SideImages::of(&Image::new(16, 16, Vec3::ZERO), None, &Image::new(16, 16, 0.0));
         assert!(none.rgb.data.iter().all(|c| *c == Vec3::ZERO));
+    }
+
+    #[test]
+    fn side_images_on_a_coarser_grid_match_the_full_ones() {
+        // A disc of red and green stripes 2 px high on black, the disc's mask soft at its edge: a blur of 4 px
+        // computed on a grid twice as coarse. Red and green average to (0.5, 0.5, 0) away from the outline.
+        let res = 256;
+        let mask = Image::from_fn(res, res, |c, r| {
+            let d = (Vec2::new(c as f32 + 0.5, r as f32 + 0.5) - Vec2::splat(128.0)).length();
+            (80.0 - d).clamp(0.0, 1.0)
+        });
+        let rgb = Image::from_fn(res, res, |c, r| {
+            let m = mask.data[r * res + c];
+            let colour = if (r / 2) % 2 == 0 { Vec3::X } else { Vec3::Y };
+            colour * m
+        });
+        let full = SideImages::with_back_side(&rgb, None, &mask, 1);
+        assert_eq!(full, SideImages::of(&rgb, None, &mask));
+        let coarse = SideImages::with_back_side(&rgb, None, &mask, 2);
+        let (mut sum, mut n, mut worst) = (0.0f32, 0, 0.0f32);
+        for i in 0..res * res {
+            let m = mask.data[i];
+            if m <= 0.0 {
+                // Nothing outside the person.
+                assert_eq!(coarse.rgb.data[i], Vec3::ZERO, "{i}");
+                continue;
+            }
+            // Straight colours: no black from the background pulled in at the outline.
+            let (a, b) = (coarse.rgb.data[i] / m, full.rgb.data[i] / m);
+            assert!(a.is_finite() && (a.x + a.y) > 0.9, "{i}: {a}");
+            let e = (a - b).abs().max_element();
+            // The worst is taken where the person covers the pixel at least half: a pixel of the soft outline
+            // mixes a coarse cell's two rows of opposite stripes into a different share of its tiny coverage.
+            (sum, n) = (sum + e, n + 1);
+            if m >= 0.5 {
+                worst = worst.max(e);
+            }
+        }
+        assert!(sum / (n as f32) < 0.01, "mean {}", sum / n as f32);
+        // Stripes of 2 px are at the coarse grid's Nyquist limit (each cell row one stripe): near the outline, where
+        // the blur sees stripes on one side only, the two grids read them at different phases (0.107 here).
+        assert!(worst < 0.15, "worst {worst}");
+        // Well inside: the stripes' mean.
+        let centre = coarse.rgb.data[128 * res + 128];
+        assert!((centre - Vec3::new(0.5, 0.5, 0.0)).abs().max_element() < 0.02, "{centre}");
+        // Too small for the grid: the full blur.
+        let tiny = Image::new(6, 6, Vec3::X);
+        let ones = Image::new(6, 6, 1.0);
+        assert_eq!(SideImages::with_back_side(&tiny, None, &ones, 2), SideImages::of(&tiny, None, &ones));
+    }
+
+    #[test]
+    fn a_straight_layer_masked_is_its_premultiplied_side_image() {
+        // A uniform straight colour everywhere: its side image is the colour; masked, the colour times the mask.
+        let colour = Image::new(32, 32, Vec3::new(0.2, 0.4, 0.6));
+        let side = SideImages::of_straight(&colour);
+        assert!(side.data.iter().all(|c| (*c - Vec3::new(0.2, 0.4, 0.6)).abs().max_element() < 1e-5));
+        let mask = Image::from_fn(32, 32, |c, _| match c {
+            0..=9 => 0.0,
+            10 => 0.25,
+            11 => f32::NAN,
+            _ => 1.0,
+        });
+        let masked = premultiplied(&side, &mask);
+        assert_eq!(masked.data[5], Vec3::ZERO);
+        assert!((masked.data[10] - Vec3::new(0.05, 0.1, 0.15)).abs().max_element() < 1e-5);
+        assert_eq!(masked.data[11], Vec3::ZERO);
+        assert!((masked.data[20] - Vec3::new(0.2, 0.4, 0.6)).abs().max_element() < 1e-5);
+        // A mask of another size leaves it as it is.
+        assert_eq!(premultiplied(&side, &Image::new(4, 4, 1.0)), side);
     }
 
     #[test]
