@@ -356,16 +356,20 @@ pub fn inflate_resolvable_coarse(
     let inside = |c: i64, r: i64| {
         (0..cw as i64).contains(&c) && (0..ch as i64).contains(&r) && s.mask.data[r as usize * cw + c as usize] > 0.5
     };
+    // Coarse pixel centres around each column's and row's centre, worked out once.
+    let cell = |k: usize| {
+        let u = (k as f32 + 0.5) / f - 0.5;
+        let k0 = u.floor() as i64;
+        (k0, u - k0 as f32)
+    };
+    let columns: Vec<(i64, f32)> = (0..w).map(cell).collect();
     for r in 0..h {
-        for c in 0..w {
+        let (r0, fv) = cell(r);
+        for (c, &(c0, fu)) in columns.iter().enumerate() {
             let i = r * w + c;
             if mask.data[i] <= 0.5 {
                 continue;
             }
-            // Coarse pixel centres around this pixel's centre.
-            let (u, v) = ((c as f32 + 0.5) / f - 0.5, (r as f32 + 0.5) / f - 0.5);
-            let (c0, r0) = (u.floor() as i64, v.floor() as i64);
-            let (fu, fv) = (u - c0 as f32, v - r0 as f32);
             let (mut front, mut back, mut weight) = (0.0f32, 0.0f32, 0.0f32);
             for (dc, dr, wt) in
                 [(0, 0, (1.0 - fu) * (1.0 - fv)), (1, 0, fu * (1.0 - fv)), (0, 1, (1.0 - fu) * fv), (1, 1, fu * fv)]

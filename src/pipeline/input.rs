@@ -186,11 +186,18 @@ pub fn interior_colours_at_the_rim(mut input: NormalisedInput, rim: f32) -> Norm
     // Ring of every pixel: 0 outside the mask, 1..=rings on the rim, u8::MAX in the interior.
     const INTERIOR: u8 = u8::MAX;
     let mut ring: Vec<u8> = mask.iter().map(|&m| if m >= 0.5 { INTERIOR } else { 0 }).collect();
-    let outside: Vec<usize> = (0..w * h).filter(|&i| ring[i] == 0).collect();
     let mut layers: Vec<Vec<usize>> = Vec::with_capacity(rings as usize);
-    for k in 1..=rings {
+    // The first ring: the mask pixels with a 4-neighbour outside it (found from the mask's side: a person covers
+    // less of the grid than the background does).
+    let first: Vec<usize> =
+        (0..w * h).filter(|&i| ring[i] == INTERIOR && neighbours4(i, w, h).any(|j| ring[j] == 0)).collect();
+    for &i in &first {
+        ring[i] = 1;
+    }
+    layers.push(first);
+    for k in 2..=rings {
         let mut next = Vec::new();
-        for &i in layers.last().unwrap_or(&outside) {
+        for &i in layers.last().unwrap_or(&Vec::new()) {
             for j in neighbours4(i, w, h) {
                 if ring[j] == INTERIOR {
                     ring[j] = k;
