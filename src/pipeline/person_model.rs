@@ -884,7 +884,7 @@ impl PersonModel {
     /// `radius`: how far from the axis the slice's hull reaches ([`PersonModel::slice_radii`]); the ray is
     /// marched only within it.
     fn ray(&self, j: usize, x: f32, place: &Placement, radius: f32) -> Option<(f32, f32)> {
-        if !(x.abs() < radius) {
+        if x.is_nan() || radius.is_nan() || x.abs() >= radius {
             return None;
         }
         let reach = (radius * radius - x * x).sqrt();
