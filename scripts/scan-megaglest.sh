@@ -57,6 +57,8 @@ if [ ! -d "$FACTIONS" ]; then
   apt-get install -y --no-install-recommends megaglest-data
 fi
 cd "$REPO"
+# shellcheck source=lib/evaluate-scans.sh
+source "$REPO/scripts/lib/evaluate-scans.sh"
 cargo build --release --quiet --bin r2human --example g3d_to_obj --example scan_sheet
 CHARACTERS="
 egypt priest slave spearman spearthrower
@@ -81,12 +83,7 @@ rm -rf "$FILES"
 scans=()
 for i in "${!sorted[@]}"; do
   name="${sorted[$i]}"
-  case "$SPLIT" in
-    dev) [ $((i % 2)) -eq 0 ] || continue ;;
-    held-out) [ $((i % 2)) -eq 1 ] || continue ;;
-    all) ;;
-    *) echo "SPLIT must be dev, held-out or all" >&2; exit 2 ;;
-  esac
+  in_split "$i" || continue
   case " $DROPPED " in *" $name "*) continue ;; esac
   faction="${name%%_*}"
   unit="${name#*_}"
@@ -97,6 +94,4 @@ for i in "${!sorted[@]}"; do
     echo "dropped $name: conversion failed" >&2
   fi
 done
-# shellcheck source=lib/evaluate-scans.sh
-source "$REPO/scripts/lib/evaluate-scans.sh"
 evaluate_scans "$OUT/characters" "megaglest $SPLIT" "## Scans together" "${scans[@]}"

@@ -287,6 +287,11 @@ pub struct LiveOptions {
     pub stats_window: usize,
     /// Messages kept for display.
     pub max_messages: usize,
+    /// How much lower the segment and frame threads (and the threads they start: their thread pool, ONNX
+    /// Runtime's) are scheduled than the rest of the process, as a nice increment: when the display's own work
+    /// and a frame both want the cores, the display goes first. 0 (the default) leaves them alike; `xr` lowers them
+    /// ([`crate::app::xr_session`]).
+    pub worker_nice: i32,
 }
 
 impl Default for LiveOptions {
@@ -298,6 +303,7 @@ impl Default for LiveOptions {
             pace: true,
             stats_window: 120,
             max_messages: 8,
+            worker_nice: 0,
         }
     }
 }
@@ -531,14 +537,26 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
         };
         let seg_shared = Arc::clone(&shared);
         let seg_options = options.clone();
+        let nice = options.worker_nice;
         let segmenter = spawn("r2human-segment", move || {
+            // Before the segmenter is built, so that ONNX Runtime's threads inherit it.
+            lower_this_threads_priority(nice);
             segment_loop(&seg_shared, &seg_options);
             seg_shared.segmenter_done.store(true, Ordering::SeqCst);
             seg_shared.segmented_wake.notify_all();
         })?;
         let work_shared = Arc::clone(&shared);
         let worker = spawn("r2human-frame", move || {
-            process_loop(&work_shared, processor);
+            lower_this_threads_priority(nice);
+            // A pool of its own, started from this thread so its workers share its priority; the frame's parallel
+            // stages run there instead of in the global pool the display may draw with.
+            match rayon::ThreadPoolBuilder::new().thread_name(|i| format!("r2human-frame-{i}")).build() {
+                Ok(pool) => pool.install(|| process_loop(&work_shared, processor)),
+                Err(e) => {
+                    tracing::debug!("no thread pool of its own for the frame path ({e}); it shares the global one");
+                    process_loop(&work_shared, processor)
+                }
+            }
             work_shared.worker_done.store(true, Ordering::SeqCst);
         })?;
         Ok(Self { shared, description, live, threads: vec![capture, segmenter, worker] })
@@ -625,6 +643,29 @@ impl<T: Send + Sync + 'static> LivePipeline<T> {
 impl<T: Send + Sync + 'static> Drop for LivePipeline<T> {
     fn drop(&mut self) {
         self.shutdown();
+    }
+}
+
+/// Lowers the calling thread's scheduling priority by `by` nice steps (Linux keeps a nice value per thread, and
+/// threads started later from this one inherit it); nothing for `by <= 0`, or where the system refuses (a debug
+/// message).
+fn lower_this_threads_priority(by: i32) {
+    if by <= 0 {
+        return;
+    }
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: `gettid` and `getpriority`/`setpriority` on this thread's own id only read and set its scheduling
+        // attributes; errno is cleared first because -1 is a valid priority.
+        let refused = unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            *libc::__errno_location() = 0;
+            let now = libc::getpriority(libc::PRIO_PROCESS, tid);
+            *libc::__errno_location() != 0 || libc::setpriority(libc::PRIO_PROCESS, tid, (now + by).min(19)) != 0
+        };
+        if refused {
+            tracing::debug!("could not lower the live worker's priority: {}", std::io::Error::last_os_error());
+        }
     }
 }
 
@@ -1055,6 +1096,37 @@ pub fn camera_source(request: crate::capture::CameraRequest) -> SourceFactory {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(target_os = "linux")]
+    fn this_threads_nice() -> i32 {
+        // SAFETY: reads this thread's own scheduling priority.
+        unsafe { libc::getpriority(libc::PRIO_PROCESS, libc::syscall(libc::SYS_gettid) as libc::id_t) }
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_lowered_worker_and_the_threads_it_starts_run_lower_and_the_rest_does_not() {
+        let before = this_threads_nice();
+        let (worker, child) = std::thread::spawn(|| {
+            lower_this_threads_priority(3);
+            let child = std::thread::spawn(this_threads_nice).join().expect("child thread");
+            (this_threads_nice(), child)
+        })
+        .join()
+        .expect("worker thread");
+        let expected = (before + 3).min(19);
+        assert_eq!(worker, expected, "the worker itself");
+        assert_eq!(child, expected, "a thread it started (its pool, ONNX Runtime's)");
+        assert_eq!(this_threads_nice(), before, "the calling thread is untouched");
+        // Nothing to do without an increment.
+        let same = std::thread::spawn(|| {
+            lower_this_threads_priority(0);
+            this_threads_nice()
+        })
+        .join()
+        .expect("thread");
+        assert_eq!(same, before);
+    }
 
     #[test]
     fn latest_reader_never_waits_for_the_publisher() {

@@ -174,6 +174,11 @@ impl Drop for LiveFeed {
     }
 }
 
+/// How much lower the live pipeline's workers are scheduled than the eyes in a headset
+/// ([`LiveOptions::worker_nice`]): when both want the cores, the next eye pair goes first, so head motion keeps
+/// reaching the person layer while the person's frames come less often (docs/xr.md has the measured trade).
+pub const XR_LIVE_WORKER_NICE: i32 = 5;
+
 impl LiveFeed {
     /// Starts the live pipeline (capture and worker threads) on `factory`'s source with `segment`; with a neural
     /// renderer in `neural`, the worker also runs the encoder once per new frame (on a second instance of the
@@ -184,7 +189,7 @@ impl LiveFeed {
         prepare: PrepareOptions,
         neural: &NeuralAvailability,
     ) -> Result<Self> {
-        let options = LiveOptions { segment, ..Default::default() };
+        let options = LiveOptions { segment, worker_nice: XR_LIVE_WORKER_NICE, ..Default::default() };
         let worker = neural.second_instance().context("loading the neural models for the live worker")?;
         let pipeline = LivePipeline::start(factory, EncodeProcessor::new(prepare, worker), options)?;
         tracing::info!("live input: {}", pipeline.describe());

@@ -35,7 +35,7 @@ use crate::io::npy::write_atomic;
 use crate::pipeline::input::{normalise, NormalisedInput};
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    compute_geometry_and_pose, GeometryMode, PrepareOptions, PreparedInput, SharedBody, SharedFofNet, SharedNeural,
+    compute_geometry, GeometryMode, PrepareOptions, PreparedInput, SharedBody, SharedFofNet, SharedNeural,
     StageTimings, ViewRenderer,
 };
 
@@ -244,13 +244,12 @@ struct PhotoReference {
     /// The inflation prior and its stage times.
     inflation: Reused,
     /// The body prior's FOF (the inflation prior where it found no pose) and its stage times (the inflation prior's
-    /// included, as `--geometry body` computes both), with the pose it was fitted to.
+    /// included, as `--geometry body` computes both).
     body: Option<Reused>,
 }
 
-/// A geometry computed once per photo and reused by the methods that draw it: its FOF, the pose landmarks of the body
-/// it fitted (if any) and its stage times.
-type Reused = (Fof, Option<crate::body::pose::PoseLandmarks>, StageTimings);
+/// A geometry computed once per photo and reused by the methods that draw it: its FOF and its stage times.
+type Reused = (Fof, StageTimings);
 
 impl PhotoReference {
     fn of(rgb: &RgbImage, mask: &GrayImage, opts: &PhotoEvalOptions, nets: PhotoNets<'_>) -> Result<Self, EvalError> {
@@ -261,10 +260,10 @@ impl PhotoReference {
         let geometry = |mode: GeometryMode| -> Result<Reused, EvalError> {
             let o = PrepareOptions { body: nets.body.cloned(), ..photo_prepare_options(opts, mode) };
             let mut t = StageTimings::default();
-            let (fof, pose) = compute_geometry_and_pose(&normalised, &o, &mut t).map_err(|e| {
+            let fof = compute_geometry(&normalised, &o, &mut t).map_err(|e| {
                 EvalError::stage(if mode == GeometryMode::Body { "body prior" } else { "inflation prior" }, e)
             })?;
-            Ok((fof, pose, t))
+            Ok((fof, t))
         };
         let inflation = geometry(GeometryMode::Inflate)?;
         let body = if nets.body.is_some() { Some(geometry(GeometryMode::Body)?) } else { None };
@@ -305,20 +304,19 @@ fn run_method(
     };
     let t = Instant::now();
     // The priors were computed once per photo; their time counts as this method's (it needs them).
-    let ((fof, pose, mut timings), reused) = match (method.geometry, &reference.body) {
+    let ((fof, mut timings), reused) = match (method.geometry, &reference.body) {
         (GeometryMode::Inflate, _) => (reference.inflation.clone(), true),
         (GeometryMode::Body, Some(body)) => (body.clone(), true),
         _ => {
             let mut timings = StageTimings::default();
-            let (fof, pose) =
-                compute_geometry_and_pose(&reference.normalised, &prepare, &mut timings).map_err(|e| fail(e.into()))?;
-            ((fof, pose, timings), false)
+            let fof = compute_geometry(&reference.normalised, &prepare, &mut timings).map_err(|e| fail(e.into()))?;
+            ((fof, timings), false)
         }
     };
     let reused = reference.normalise.total() + if reused { timings.total() } else { Duration::ZERO };
     timings.0.splice(0..0, reference.normalise.0.iter().copied());
-    let input = PreparedInput::from_fof_and_pose(reference.normalised.clone(), fof, pose.as_ref(), &prepare, timings)
-        .map_err(|e| fail(e.into()))?;
+    let input =
+        PreparedInput::from_fof(reference.normalised.clone(), fof, &prepare, timings).map_err(|e| fail(e.into()))?;
     let mut renderer = if method.neural {
         let net = nets.neural.ok_or_else(|| fail("the neural renderer did not load".into()))?;
         let encoded = net.lock().unwrap_or_else(|p| p.into_inner()).encode(&input).map_err(|e| fail(e.into()))?;
@@ -337,7 +335,7 @@ fn run_method(
         detached.push(detached_fraction(&m));
         views.push(person);
     }
-    // Against the photo as normalised, not the input's colours (whose rim `from_fof_and_pose` replaced).
+    // Against the photo as normalised, not the input's colours (whose rim `from_fof` replaced).
     let photo = SrgbImage::from_linear_premultiplied(&reference.normalised.rgb.map(|c| c.extend(1.0)));
     let front = SrgbImage::from_linear_premultiplied(&views[0]);
     let input_psnr = psnr(&photo, &front, &vec![true; photo.data.len()]);

@@ -51,7 +51,7 @@ use crate::neural::{ExecutionProvider, RuntimeOptions};
 use crate::pipeline::input::NormalisedInput;
 use crate::pipeline::warp::OcclusionFill;
 use crate::pipeline::{
-    compute_geometry_and_pose, load_body, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput,
+    compute_geometry, load_body, load_fof_net, load_renderer, GeometryMode, PrepareOptions, PreparedInput,
     RendererChoice, SharedBody, SharedFofNet, SharedNeural, StageTimings, ViewRenderer,
 };
 use crate::synth::framing::{self, Framing, FramingChoice};
@@ -465,12 +465,11 @@ impl SubjectSource {
         NormalisedInput::in_source_view(self.rgb.clone(), self.mask.clone())
     }
 
-    /// The source view prepared as `render` prepares a photo with `o` (geometry, and the back image with the body
-    /// prior's face where it ran).
+    /// The source view prepared as `render` prepares a photo with `o` (geometry, and the back image).
     fn prepared_with(&self, o: &PrepareOptions) -> Result<PreparedInput, crate::pipeline::PipelineError> {
         let mut timings = StageTimings::default();
-        let (fof, pose) = compute_geometry_and_pose(&self.normalised(), o, &mut timings)?;
-        PreparedInput::from_fof_and_pose(self.normalised(), fof, pose.as_ref(), o, timings)
+        let fof = compute_geometry(&self.normalised(), o, &mut timings)?;
+        PreparedInput::from_fof(self.normalised(), fof, o, timings)
     }
 
     /// Per-input geometry `kind` (0 inflation prior, 1 ground-truth FOF, 2 FOF net, 3 body prior, 4 body-placed

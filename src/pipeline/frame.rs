@@ -14,8 +14,8 @@
 //!   person was in both frames, restarted when the silhouette changes a lot (a cut, a person entering).
 //! - **The back image at its own rate**: it holds the colours of clothing and hair, which change slowly; one is
 //!   kept for up to [`BACK_IMAGE_EVERY`] frames while the silhouette stays as it was ([`BACK_KEEP_IOU`]), with its
-//!   side image. Its face comes from the body fit's pose read when the geometry fitted one, else from the pose
-//!   network every [`BACK_FACE_EVERY`] frames (the face sits still in the normalised frame, which follows the
+//!   side image. Its face comes from the back image's own pose network (whatever the geometry, as on stills) every
+//!   [`BACK_FACE_EVERY`] frames (the face sits still in the normalised frame, which follows the
 //!   person), read in one run on the region the last read came from, with a full read every
 //!   [`FULL_FACE_READ_EVERY`]th.
 //! - **The encoder's FOF on demand**: only the neural renderer reads a FOF; it is encoded from the maps when it
@@ -30,10 +30,10 @@ use super::back::{BackImage, FacePoints};
 use super::input::{self, NormalisedInput};
 use super::prepared::CoarseMesh;
 use super::{
-    back_image_from_face, body_placed_surfaces, compute_geometry_and_pose, inflation_surfaces_coarse, read_face_near,
-    warn_once, warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
+    back_image_from_face, body_placed_surfaces, compute_geometry, inflation_surfaces_coarse, read_face_near, warn_once,
+    warp, GeometryMode, PipelineError, PrepareOptions, PreparedInput, StageTimings,
 };
-use crate::body::pose::{PoseLandmarks, PoseRegion};
+use crate::body::pose::PoseRegion;
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::inflate::InflatedSurfaces;
 use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer, SurfaceMeshError};
@@ -57,8 +57,7 @@ fn coarse_frame_mesh(surfaces: &InflatedSurfaces, resolution: usize) -> Option<C
 /// frame's own.
 pub const FRAME_INFLATION_FACTOR: usize = 2;
 
-/// Frames between two reads of the face by the pose network for the back image, when the geometry fitted no body
-/// (whose pose read gives the face on every frame).
+/// Frames between two reads of the face by the pose network for the back image.
 pub const BACK_FACE_EVERY: u64 = 8;
 
 /// Every this many face reads one is a full read ([`crate::body::pose::PoseEstimator::estimate`]); the others are
@@ -165,19 +164,18 @@ type PlacementResult = Result<(Placement, std::time::Duration), PipelineError>;
 /// What the body placement changed on one frame's inflation prior, carried to the frames after it: per pixel of the
 /// normalised frame, the placed front and back depths ([`body_placed_surfaces`]: the fitted body's depths and the
 /// face relief) minus that frame's own inflation prior, filled outside its silhouette from the nearest pixel inside
-/// (a pixel the person gains is placed like its neighbour), and the pose the body was fitted to.
+/// (a pixel the person gains is placed like its neighbour).
 #[derive(Clone, Debug)]
 struct Placement {
     frame: u64,
     mask: GrayImage,
     front: GrayImage,
     back: GrayImage,
-    pose: Option<PoseLandmarks>,
 }
 
 impl Placement {
     /// The offsets of `placed` from `inflated` (both one frame's depth-centred surfaces on the same grid).
-    fn of(frame: u64, inflated: &InflatedSurfaces, placed: &InflatedSurfaces, pose: Option<PoseLandmarks>) -> Self {
+    fn of(frame: u64, inflated: &InflatedSurfaces, placed: &InflatedSurfaces) -> Self {
         let n = inflated.mask.data.len();
         let inside = |i: usize| {
             inflated.mask.data[i] > 0.5
@@ -199,7 +197,6 @@ impl Placement {
             mask: inflated.mask.clone(),
             front: offset(&placed.front, &inflated.front),
             back: offset(&placed.back, &inflated.back),
-            pose,
         }
     }
 
@@ -335,8 +332,8 @@ impl FramePath {
                     opts.geometry.name()
                 ),
             );
-            let (fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
-            return PreparedInput::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings);
+            let fof = compute_geometry(&normalised, opts, &mut timings)?;
+            return PreparedInput::from_fof(normalised, fof, opts, timings);
         }
         // The rim's colours are only read by the colour stages: they are cleaned beside the geometry, which reads
         // the mask (and, fitting a body, the photo as it came).
@@ -348,14 +345,14 @@ impl FramePath {
             || rim_timings.time("rim colours", || input::interior_colours_at_the_rim(copy, rim)),
         );
         timings.0.extend(geometry_timings.0.into_iter().chain(rim_timings.0));
-        let (surfaces, pose) = self.placed(&normalised, geometry?, &mut timings)?;
+        let surfaces = self.placed(&normalised, geometry?, &mut timings)?;
         let surfaces = timings.time("smooth geometry", || self.smoother.update(surfaces));
         let frame = self.frames;
         // A back image made on a frame like this one serves it; the face is read only for a new one.
         let kept = self.back.take().filter(|k| k.serves(frame, &normalised.mask));
         let face = match kept {
             Some(_) => None,
-            None => self.face_for_back(&normalised, pose.as_ref(), &mut timings),
+            None => self.face_for_back(&normalised, &mut timings),
         };
         drop(normalised);
         let normalised = cleaned;
@@ -419,18 +416,17 @@ impl FramePath {
     /// A frame's one-shell surfaces from its inflation prior `inflated`: under [`GeometryMode::BodyPlaced`] with its
     /// body prior loaded, moved by the body placement — made on this frame when there is none to carry (the first
     /// frame, or the person moved too much: [`PLACEMENT_KEEP_IOU`]), else the last one carried while a new one is
-    /// made every [`PLACEMENT_EVERY`] frames (in the background unless [`FramePath::set_refresh`] says inline). The pose
-    /// comes with it when the body was fitted to this frame.
+    /// made every [`PLACEMENT_EVERY`] frames (in the background unless [`FramePath::set_refresh`] says inline).
     fn placed(
         &mut self,
         normalised: &NormalisedInput,
         inflated: InflatedSurfaces,
         timings: &mut StageTimings,
-    ) -> Result<(InflatedSurfaces, Option<PoseLandmarks>), PipelineError> {
+    ) -> Result<InflatedSurfaces, PipelineError> {
         let Some(body) =
             self.options.body.clone().filter(|_| self.options.geometry.resolved() == GeometryMode::BodyPlaced)
         else {
-            return Ok((inflated, None));
+            return Ok(inflated);
         };
         let frame = self.frames;
         if self.pending.as_ref().is_some_and(|p| p.is_finished()) {
@@ -446,29 +442,25 @@ impl FramePath {
                 // Made on an older frame: this frame makes its own.
                 drop(pending);
             }
-            let (placed, pose) = body_placed_surfaces(normalised, &self.options, &body, timings)?;
-            let placement =
-                timings.time("body placement (offsets)", || Placement::of(frame, &inflated, &placed, pose.clone()));
+            let placed = body_placed_surfaces(normalised, &self.options, &body, timings)?;
+            let placement = timings.time("body placement (offsets)", || Placement::of(frame, &inflated, &placed));
             self.placement = Some(placement);
-            return Ok((placed, pose));
+            return Ok(placed);
         }
         if due && self.pending.is_none() {
             let (normalised, options, inflated) = (normalised.clone(), self.options.clone(), inflated.clone());
             self.pending = Some(std::thread::spawn(move || {
                 let started = std::time::Instant::now();
                 let mut ignored = StageTimings::default();
-                let (placed, pose) = body_placed_surfaces(&normalised, &options, &body, &mut ignored)?;
-                Ok((Placement::of(frame, &inflated, &placed, pose), started.elapsed()))
+                let placed = body_placed_surfaces(&normalised, &options, &body, &mut ignored)?;
+                Ok((Placement::of(frame, &inflated, &placed), started.elapsed()))
             }));
         }
         let placement = self.placement.as_ref().filter(|_| carried);
-        let surfaces = match placement {
+        Ok(match placement {
             Some(p) => timings.time("body placement (carried)", || p.apply(inflated)),
             None => inflated,
-        };
-        // The pose of a placement carried for fewer frames than a face read serves (BACK_FACE_EVERY).
-        let pose = placement.filter(|p| frame - p.frame < BACK_FACE_EVERY).and_then(|p| p.pose.clone());
-        Ok((surfaces, pose))
+        })
     }
 
     /// Takes the body placement made in the background, said as the stage "body placement (background)"; one made
@@ -493,19 +485,11 @@ impl FramePath {
         }
     }
 
-    /// The face the back image is drawn around: the geometry's own pose read when it has one, else the last read
-    /// while it is younger than [`BACK_FACE_EVERY`] frames, else a new read by the back image's pose network.
-    fn face_for_back(
-        &mut self,
-        normalised: &NormalisedInput,
-        pose: Option<&PoseLandmarks>,
-        timings: &mut StageTimings,
-    ) -> Option<FacePoints> {
+    /// The face the back image is drawn around, whatever the geometry (a body fit's read is in another frame and
+    /// would change the back image with the geometry, as on stills: [`super::still::back_image_with`]): the last
+    /// read while it is younger than [`BACK_FACE_EVERY`] frames, else a new read by the back image's pose network.
+    fn face_for_back(&mut self, normalised: &NormalisedInput, timings: &mut StageTimings) -> Option<FacePoints> {
         let net = self.options.back_pose.as_ref()?;
-        if let Some(face) = pose.and_then(FacePoints::from_pose) {
-            self.face = Some((self.frames, face));
-            return Some(face);
-        }
         match self.face {
             Some((at, face)) if self.frames - at < BACK_FACE_EVERY => Some(face),
             _ => {
@@ -600,7 +584,7 @@ mod tests {
         // the front, +0.1 / 0.0 at the back.
         let inflated = surfaces(&[1.0, 1.0, 1.0, 0.0], &[0.3, 0.4, 0.3, -1.0], &[-0.3, -0.4, -0.3, -1.0]);
         let placed = surfaces(&[1.0, 1.0, 1.0, 0.0], &[0.4, 0.2, 0.4, -1.0], &[-0.2, -0.4, -0.2, -1.0]);
-        let p = Placement::of(7, &inflated, &placed, None);
+        let p = Placement::of(7, &inflated, &placed);
         // Pixel 3 takes pixel 2's offsets.
         let want_front = [0.1, -0.2, 0.1, 0.1];
         let want_back = [0.1, 0.0, 0.1, 0.1];

@@ -134,22 +134,10 @@ fn body_prior_fof_or_why(
     body: &SharedBody,
     timings: &mut StageTimings,
 ) -> Result<Fof, NoBodyFof> {
-    body_prior_fof_and_pose_or_why(normalised, opts, body, timings).map(|(fof, _)| fof)
-}
-
-/// [`body_prior_fof_or_why`] with the pose landmarks the body was fitted to.
-fn body_prior_fof_and_pose_or_why(
-    normalised: &NormalisedInput,
-    opts: &PrepareOptions,
-    body: &SharedBody,
-    timings: &mut StageTimings,
-) -> Result<(Fof, PoseLandmarks), NoBodyFof> {
     let (prior, silhouette) = fitted_body_or_why(normalised, opts, body, timings)?;
-    let pose = prior.landmarks.clone();
-    let fof = timings
+    timings
         .time("body FOF", || Fof::from_intervals(&body_intervals(normalised, opts, prior, &silhouette), opts.fof_order))
-        .map_err(|e| NoBodyFof::Failed(crate::body::BodyError::Fof(e)))?;
-    Ok((fof, pose))
+        .map_err(|e| NoBodyFof::Failed(crate::body::BodyError::Fof(e)))
 }
 
 /// The fitted body of an input and its silhouette's own inflation profile (solved beside the pose network and the
@@ -213,23 +201,22 @@ fn body_placed_geometry(
     opts: &PrepareOptions,
     body: &SharedBody,
     timings: &mut StageTimings,
-) -> Result<GeometryAndPose, PipelineError> {
-    let (surfaces, pose) = body_placed_surfaces(normalised, opts, body, timings)?;
-    let fof = timings.time("geometry (body placement -> FOF)", || {
+) -> Result<Fof, PipelineError> {
+    let surfaces = body_placed_surfaces(normalised, opts, body, timings)?;
+    Ok(timings.time("geometry (body placement -> FOF)", || {
         Fof::from_depth_maps(&surfaces.front, &surfaces.back, &surfaces.mask, opts.fof_order)
-    })?;
-    Ok((fof, pose))
+    })?)
 }
 
 /// The surfaces of [`GeometryMode::BodyPlaced`] (one shell per column), depth-centred
-/// ([`crate::body::placed::centred`]), and the pose landmarks the body was fitted to: what the still path encodes
-/// as a FOF and the frame path meshes directly ([`super::frame`]).
+/// ([`crate::body::placed::centred`]): what the still path encodes as a FOF and the frame path meshes directly
+/// ([`super::frame`]).
 pub fn body_placed_surfaces(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     body: &SharedBody,
     timings: &mut StageTimings,
-) -> Result<(inflate::InflatedSurfaces, Option<PoseLandmarks>), PipelineError> {
+) -> Result<inflate::InflatedSurfaces, PipelineError> {
     let (mut inflation_times, mut body_times) = (StageTimings::default(), StageTimings::default());
     let frame = crate::body::prior::effective_frame(&normalised.mask, Some(normalised.frame));
     let inflated =
@@ -240,10 +227,10 @@ pub fn body_placed_surfaces(
     );
     timings.0.extend(inflation_times.0.into_iter().chain(body_times.0));
     let mut surfaces = surfaces?;
-    let mut pose = None;
     let surfaces = match fitted {
         Ok((prior, silhouette)) => {
-            let landmarks: &PoseLandmarks = pose.insert(prior.landmarks.clone());
+            let landmarks = prior.landmarks.clone();
+            let landmarks = &landmarks;
             if prior.frame() != frame {
                 // The pose read stood the person on the straight bottom edge (soles, not a cut): inflate again with
                 // the frame the body was fitted in.
@@ -285,7 +272,7 @@ pub fn body_placed_surfaces(
             surfaces
         }
     };
-    Ok((timings.time("geometry (surface centring)", || crate::body::placed::centred(surfaces)), pose))
+    Ok(timings.time("geometry (surface centring)", || crate::body::placed::centred(surfaces)))
 }
 
 /// The face mesh ([`crate::body::face`]) of the person `pose` was read from; `None` when no face is found (said
@@ -392,12 +379,12 @@ fn body_geometry(
     body: &SharedBody,
     fallback: impl FnOnce(&mut StageTimings) -> Result<Fof, PipelineError>,
     timings: &mut StageTimings,
-) -> Result<GeometryAndPose, PipelineError> {
-    match body_prior_fof_and_pose_or_why(normalised, opts, body, timings) {
-        Ok((fof, pose)) => Ok((fof, Some(pose))),
+) -> Result<Fof, PipelineError> {
+    match body_prior_fof_or_why(normalised, opts, body, timings) {
+        Ok(fof) => Ok(fof),
         Err(why) => {
             warn_no_body_fof(&why);
-            Ok((fallback(timings)?, None))
+            fallback(timings)
         }
     }
 }
@@ -419,22 +406,8 @@ pub fn compute_geometry(
     opts: &PrepareOptions,
     timings: &mut StageTimings,
 ) -> Result<Fof, PipelineError> {
-    compute_geometry_and_pose(normalised, opts, timings).map(|(fof, _)| fof)
-}
-
-/// A per-input geometry and the pose landmarks the body prior read on the way (`None` when no body was fitted).
-pub type GeometryAndPose = (Fof, Option<PoseLandmarks>);
-
-/// [`compute_geometry`] with the pose landmarks the body was fitted to (`--geometry body`, `body-placed`, a FOF net
-/// that takes the body FOF, and `auto` when it is one of them), which the back image reuses for the face instead of running the pose network again
-/// ([`super::PreparedInput::from_fof_and_pose`]).
-pub fn compute_geometry_and_pose(
-    normalised: &NormalisedInput,
-    opts: &PrepareOptions,
-    timings: &mut StageTimings,
-) -> Result<GeometryAndPose, PipelineError> {
-    let (fof, pose) = chosen_geometry(normalised, opts, timings)?;
-    Ok((timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0), pose))
+    let fof = chosen_geometry(normalised, opts, timings)?;
+    Ok(timings.time("geometry (depth centring)", || crate::geometry::depth_centre::centre_fof(fof).0))
 }
 
 /// The silhouette-inflation prior of an input, timed: open where the photo cuts the person when `open` (the inflation
@@ -477,18 +450,18 @@ pub fn inflation_surfaces_coarse(
     Ok(timings.time("geometry (surface centring)", || crate::body::placed::centred(surfaces)))
 }
 
-/// [`compute_geometry_and_pose`] before the depth centring.
+/// [`compute_geometry`] before the depth centring.
 fn chosen_geometry(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     timings: &mut StageTimings,
-) -> Result<GeometryAndPose, PipelineError> {
+) -> Result<Fof, PipelineError> {
     let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, true, timings);
     if opts.geometry.fits_body() {
         let Some(body) = &opts.body else {
             // Auto without the body prior: `load_body` said so once.
             if opts.geometry == GeometryMode::Auto {
-                return Ok((inflation(timings)?, None));
+                return inflation(timings);
             }
             return Err(PipelineError::NoBody("no body prior was loaded (see load_body)".into()));
         };
@@ -507,25 +480,25 @@ fn fof_net_or_inflation(
     normalised: &NormalisedInput,
     opts: &PrepareOptions,
     timings: &mut StageTimings,
-) -> Result<GeometryAndPose, PipelineError> {
+) -> Result<Fof, PipelineError> {
     let inflation = |timings: &mut StageTimings| inflation_prior(normalised, opts, true, timings);
     // The network refines the closed prior it was trained on.
     let net_prior = |timings: &mut StageTimings| inflation_prior(normalised, opts, false, timings);
     let net = match (opts.geometry, &opts.fof_net) {
         // The body modes returned above: what is left is the inflation prior or the FOF net.
-        (mode, _) if mode.resolved() != GeometryMode::FofNet => return Ok((inflation(timings)?, None)),
+        (mode, _) if mode.resolved() != GeometryMode::FofNet => return inflation(timings),
         (GeometryMode::FofNet, None) => {
             return Err(PipelineError::NoFofNet("no FOF network was loaded (see load_fof_net)".into()))
         }
         (_, Some(net)) => net,
         // Auto without a loaded network (and the modes handled above).
-        (_, None) => return Ok((inflation(timings)?, None)),
+        (_, None) => return inflation(timings),
     };
     let takes_body = net.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).takes_body();
     // The body FOF the network takes: the body prior exactly as `--geometry body` computes it (its fall-back, the
     // inflation prior, when no pose is found: what the training data holds for such inputs).
-    let (prior, body, pose) = match (takes_body, &opts.body) {
-        (false, _) => (net_prior(timings)?, None, None),
+    let (prior, body) = match (takes_body, &opts.body) {
+        (false, _) => (net_prior(timings)?, None),
         (true, Some(body)) => {
             // The inflation prior and the body prior do not depend on each other: they run side by side (on two
             // cores the body fit is single-threaded, the pose network and the inflation are not). Their stage
@@ -533,18 +506,15 @@ fn fof_net_or_inflation(
             let (mut prior_times, mut body_times) = (StageTimings::default(), StageTimings::default());
             let (prior, body_fof) = rayon::join(
                 || net_prior(&mut prior_times),
-                || body_prior_fof_and_pose_or_why(normalised, opts, body, &mut body_times),
+                || body_prior_fof_or_why(normalised, opts, body, &mut body_times),
             );
             timings.0.extend(prior_times.0.into_iter().chain(body_times.0));
             let prior = prior?;
-            let (body_fof, pose) = match body_fof {
-                Ok((fof, pose)) => (fof, Some(pose)),
-                Err(why) => {
-                    warn_no_body_fof(&why);
-                    (prior.clone(), None)
-                }
-            };
-            (prior, Some(body_fof), pose)
+            let body_fof = body_fof.unwrap_or_else(|why| {
+                warn_no_body_fof(&why);
+                prior.clone()
+            });
+            (prior, Some(body_fof))
         }
         (true, None) if opts.geometry == GeometryMode::FofNet => {
             return Err(PipelineError::NoFofNet(
@@ -557,7 +527,7 @@ fn fof_net_or_inflation(
                 &WARNED,
                 "the FOF net takes the body FOF, but no body prior was loaded: using the silhouette-inflation prior",
             );
-            return Ok((inflation(timings)?, None));
+            return inflation(timings);
         }
     };
     let refined = timings.time("geometry (FOF net)", || {
@@ -595,12 +565,12 @@ fn fof_net_or_inflation(
                     &format!("the FOF net's geometry is not one plausible person ({why}); using the prior it refined"),
                 );
             }
-            Ok((fof, pose))
+            Ok(fof)
         }
         (Err(e), GeometryMode::Auto) => {
             static WARNED: AtomicBool = AtomicBool::new(false);
             warn_once(&WARNED, &format!("the FOF net failed on this input, using the prior it refines: {e}"));
-            Ok((base, pose))
+            Ok(base)
         }
         (Err(e), _) => Err(PipelineError::FofNetFailed(e)),
     }

@@ -3,7 +3,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-use crate::body::pose::{PoseLandmarks, PoseRegion};
+use crate::body::pose::PoseRegion;
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::fof::Fof;
 use crate::geometry::marching;
@@ -13,7 +13,7 @@ use crate::geometry::{Camera, TriMesh};
 use super::input::NormalisedInput;
 use super::prepared::CoarseMesh;
 use super::{
-    back, compute_geometry_and_pose, input, warn_once, warp, PipelineError, PrepareOptions, PreparedInput, SharedPose,
+    back, compute_geometry, input, warn_once, warp, PipelineError, PrepareOptions, PreparedInput, SharedPose,
     StageTimings,
 };
 
@@ -22,29 +22,17 @@ impl PreparedInput {
     pub fn prepare(rgb: &RgbImage, mask: &GrayImage, opts: &PrepareOptions) -> Result<Self, PipelineError> {
         let mut timings = StageTimings::default();
         let normalised = timings.time("normalise", || input::normalise(rgb, mask, opts.resolution))?;
-        let (fof, pose) = compute_geometry_and_pose(&normalised, opts, &mut timings)?;
-        Self::from_fof_and_pose(normalised, fof, pose.as_ref(), opts, timings)
+        let fof = compute_geometry(&normalised, opts, &mut timings)?;
+        Self::from_fof(normalised, fof, opts, timings)
     }
 
     /// Finishes preparation from an already computed FOF (e.g. a network's, or ground truth). The back image
-    /// (with `opts.back_pose`) depends on the photo alone: it is computed beside the mesh and the source raster,
-    /// and its stage times are recorded after theirs.
+    /// (with `opts.back_pose`) depends on the photo alone, whatever the geometry: its face is the pose network's own
+    /// read of the normalised photo ([`back_image_with`]), computed beside the mesh and the source raster, and its
+    /// stage times are recorded after theirs.
     pub fn from_fof(
         normalised: NormalisedInput,
         fof: Fof,
-        opts: &PrepareOptions,
-        timings: StageTimings,
-    ) -> Result<Self, PipelineError> {
-        Self::from_fof_and_pose(normalised, fof, None, opts, timings)
-    }
-
-    /// [`PreparedInput::from_fof`] with the pose landmarks the geometry's body prior read
-    /// ([`compute_geometry_and_pose`]): the back image takes its face from them instead of running the pose network
-    /// again.
-    pub fn from_fof_and_pose(
-        normalised: NormalisedInput,
-        fof: Fof,
-        pose: Option<&PoseLandmarks>,
         opts: &PrepareOptions,
         mut timings: StageTimings,
     ) -> Result<Self, PipelineError> {
@@ -71,8 +59,7 @@ impl PreparedInput {
             || {
                 let normalised =
                     back_timings.time("rim colours", || input::interior_colours_at_the_rim(normalised, rim));
-                let back =
-                    opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, pose, &mut back_timings));
+                let back = opts.back_pose.as_ref().and_then(|net| back_image_with(&normalised, net, &mut back_timings));
                 let side = back_timings.time("side images", || {
                     warp::SideImages::of(&normalised.rgb, back.as_ref().map(|b| &b.rgb), &normalised.mask)
                 });
@@ -107,18 +94,19 @@ fn coarse_still_mesh(fof: &Fof, opts: &PrepareOptions) -> CoarseMesh {
 /// The back image of a normalised input ([`back::back_image`]) with the face found by `pose`; `None` (one warning
 /// per process, then debug messages) when the pose network finds no person or no usable face, or fails.
 pub fn back_image_of(normalised: &NormalisedInput, pose: &SharedPose, timings: &mut StageTimings) -> Option<RgbImage> {
-    back_image_with(normalised, pose, None, timings).map(|back| back.rgb)
+    back_image_with(normalised, pose, timings).map(|back| back.rgb)
 }
 
-/// [`back_image_of`], with its head weights, from the face of `read` (pose landmarks of the same input, e.g. the
-/// body prior's, [`compute_geometry_and_pose`]) when it has a usable one: the pose network runs only without it.
+/// [`back_image_of`] with its head weights. The face is always the pose network's own read of the normalised photo
+/// in its own frame ([`read_face`]), never a geometry's read: the body prior reads in the frame
+/// [`crate::body::prior::effective_frame`] gives (a straight bottom edge counted as a cut), where the network can
+/// place the face elsewhere, so a geometry's read would change the back image with the geometry.
 pub fn back_image_with(
     normalised: &NormalisedInput,
     pose: &SharedPose,
-    read: Option<&PoseLandmarks>,
     timings: &mut StageTimings,
 ) -> Option<back::BackImage> {
-    let face = read.and_then(back::FacePoints::from_pose).or_else(|| read_face(normalised, pose, timings));
+    let face = read_face(normalised, pose, timings);
     back_image_from_face(normalised, face.as_ref(), timings)
 }
 

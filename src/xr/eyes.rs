@@ -21,7 +21,7 @@ use glam::Vec4;
 
 use super::pacing::{EyeError, EyeRenderer, EyeRequest};
 use super::placement::Placement;
-use crate::capture::stats::DurationHistogram;
+use crate::capture::stats::{DurationHistogram, StageStats};
 use crate::compose::{Mode, RenderedFrame};
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
@@ -280,10 +280,16 @@ pub struct CpuEyes {
     scene_count: u64,
     /// Neural eye renders, decoder runs, fallbacks and host times.
     pub neural_stats: NeuralEyeStats,
+    /// Each eye render's stages (the view's own, the composite, the write into device memory): medians over the
+    /// last [`EYE_STAGE_WINDOW`] eyes.
+    pub stages: StageStats,
     mode: Mode,
     environment: Option<Environment>,
     base_yaw: f32,
 }
+
+/// Eye renders over which [`CpuEyes::stages`] keeps its medians.
+pub const EYE_STAGE_WINDOW: usize = 512;
 
 impl std::fmt::Debug for CpuEyes {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -313,6 +319,7 @@ impl CpuEyes {
             scene: None,
             scene_count: 0,
             neural_stats: NeuralEyeStats::default(),
+            stages: StageStats::new(EYE_STAGE_WINDOW),
             mode,
             environment: if mode == Mode::Vr { environment } else { None },
             base_yaw,
@@ -358,20 +365,24 @@ impl EyeRenderer for CpuEyes {
                     self.neural_stats.decoder.record(t.elapsed());
                 }
                 self.neural_stats.counters += drawn;
+                for (name, d) in &view.timings.0 {
+                    self.stages.record(name, *d);
+                }
                 person
             }
             None => crate::buffer::RgbaImage::new(size.0, size.1, Vec4::ZERO),
         };
+        let stages = &mut self.stages;
         let data: Vec<Vec4> = match (self.mode, &self.environment) {
-            (Mode::Vr, Some(env)) => {
+            (Mode::Vr, Some(env)) => stages.time("compose (panorama)", || {
                 crate::compose::compose_vr(&person, env, camera).data.iter().map(|c| c.extend(1.0)).collect()
-            }
-            _ => crate::compose::compose_ar(&person).data,
+            }),
+            _ => stages.time("compose (AR layer)", || crate::compose::compose_ar(&person).data),
         };
         let buffer =
             self.staging.get_mut(eye.set).and_then(|s| s.get_mut(eye.eye)).ok_or(EyeError::NoRenderer(eye.eye))?;
         // Safe to rewrite: the display loop never took this set's frame, or reported its copy finished (`copied`).
-        buffer.write(&data);
+        stages.time("write to device memory", || buffer.write(&data));
         Ok(buffer.buffer)
     }
 

@@ -26,7 +26,7 @@ use super::placement::{Controls, Placement, DEFAULT_DISTANCE};
 use super::swapchain::{format_name, EyeSwapchain, EyeUploader, SwapchainFormat};
 use super::{load_entry, XrContext, XrError};
 use crate::buffer::RgbaImage;
-use crate::capture::stats::DurationHistogram;
+use crate::capture::stats::{DurationHistogram, StageSummary};
 use crate::compose::Mode;
 use crate::geometry::camera::{Camera, Fov};
 use crate::gpu::{self, backend::Backend};
@@ -300,6 +300,9 @@ pub struct SessionReport {
     pub eye_render_ms: Option<f64>,
     /// Number of eye renders.
     pub eye_renders: usize,
+    /// Median time of each stage of an eye render on the CPU reference (empty for the Vulkan passes, whose stage
+    /// times the GPU benchmark reads from timestamps).
+    pub eye_stages: Vec<StageSummary>,
     /// Times new content (a new input frame) was uploaded to the renderer.
     pub scene_uploads: u64,
     /// Messages about the input (a live source that ended, a corrupt frame); the session went on.
@@ -380,6 +383,11 @@ impl fmt::Display for SessionReport {
         }
         if let Some(ms) = self.eye_render_ms {
             writeln!(f, "per-eye render time (median of {}): {ms:.1} ms", self.eye_renders)?;
+        }
+        if !self.eye_stages.is_empty() {
+            let parts: Vec<String> =
+                self.eye_stages.iter().map(|s| format!("{} {:.1}", s.name, s.median_ms())).collect();
+            writeln!(f, "eye stages (median ms): {}", parts.join(", "))?;
         }
         writeln!(f, "eyes rendered on {}", self.render_path)?;
         writeln!(f, "person renderer: {}", self.person_renderer)?;
@@ -795,6 +803,7 @@ pub fn run_session(
     let _ = vk.wait_idle();
     drop(uploader);
     let neural = renderer.neural_stats().clone();
+    let eye_stages = renderer.stages();
     let person_renderer = neural.summary().unwrap_or_else(|| match engine {
         Backend::Cpu => "geometric (CPU reference)".to_string(),
         _ => "geometric (GPU passes)".to_string(),
@@ -840,6 +849,7 @@ pub fn run_session(
         pacing: loop_state.pacing,
         eye_render_ms: (eye_times.count() > 0).then(|| eye_times.median().as_secs_f64() * 1e3),
         eye_renders: eye_times.count() as usize,
+        eye_stages,
         scene_uploads: mailbox.uploads(),
         source_messages: mailbox.messages(),
         renderer_shares_queue: renderer_shares_queue(&vk),
@@ -1296,6 +1306,14 @@ impl Eyes {
         match self {
             Eyes::Gpu(e) => &e.neural_stats,
             Eyes::Cpu(e) => &e.neural_stats,
+        }
+    }
+
+    /// The CPU eyes' stage medians (none for the Vulkan passes).
+    fn stages(&self) -> Vec<StageSummary> {
+        match self {
+            Eyes::Gpu(_) => Vec::new(),
+            Eyes::Cpu(e) => e.stages.summary(),
         }
     }
 }
