@@ -87,6 +87,11 @@ pub trait FrameProcessor: Send + 'static {
     /// Forgets what earlier frames left behind (temporal smoothing): the next frame starts a new shot, e.g. a photo
     /// of another size in a folder.
     fn reset(&mut self) {}
+
+    /// The person's world landmarks the segmenter read on the frame [`FrameProcessor::process`] gets next
+    /// ([`crate::capture::Segmenter::body_world`]), before it is called; `None` when it read none. Ignored by
+    /// default.
+    fn body(&mut self, _world: Option<&[glam::Vec3]>) {}
 }
 
 /// The processor available on every build: normalisation of the person into the body cube (stage "normalise").
@@ -116,6 +121,10 @@ pub struct PrepareProcessor {
     path: FramePath,
     /// The person kept across frames ([`PrepareOptions::person_model`]).
     model: Option<Box<PersonModel>>,
+    /// The segmenter's world landmarks of the next frame ([`FrameProcessor::body`]).
+    body: Option<Vec<glam::Vec3>>,
+    /// Whether the segmenter has handed landmarks on: from then on the model reads no body of its own.
+    segmenter_reads_body: bool,
 }
 
 impl PrepareProcessor {
@@ -124,7 +133,7 @@ impl PrepareProcessor {
     pub fn new(options: PrepareOptions) -> Self {
         // The model reads the body's orientation with the back image's pose network when it is loaded.
         let model = options.person_model.then(|| Box::new(PersonModel::new().with_pose(options.back_pose.clone())));
-        Self { path: FramePath::new(options), model }
+        Self { path: FramePath::new(options), model, body: None, segmenter_reads_body: false }
     }
 
     /// The options frames are prepared with.
@@ -143,8 +152,14 @@ impl FrameProcessor for PrepareProcessor {
         stats: &mut StageStats,
     ) -> Result<PreparedInput, PipelineError> {
         let mut prepared = self.path.prepare(&frame.rgb, mask)?;
+        let body = self.body.take();
         if let Some(model) = self.model.as_mut() {
-            let step = model.update(&mut prepared);
+            // The segmenter's pose read when it gives one (no second run of the pose network), else the model's own.
+            let step = if self.segmenter_reads_body {
+                model.update_with_world(&mut prepared, body.as_deref())
+            } else {
+                model.update(&mut prepared)
+            };
             if step.restarted || !step.reset_bands.is_empty() {
                 tracing::info!("frame {}: person model {}", frame.index, step.describe());
             }
@@ -160,6 +175,11 @@ impl FrameProcessor for PrepareProcessor {
         if let Some(model) = self.model.as_mut() {
             model.reset();
         }
+    }
+
+    fn body(&mut self, world: Option<&[glam::Vec3]>) {
+        self.segmenter_reads_body |= world.is_some();
+        self.body = world.map(<[glam::Vec3]>::to_vec);
     }
 }
 
@@ -245,6 +265,10 @@ impl FrameProcessor for EncodeProcessor {
     fn reset(&mut self) {
         self.prepare.reset();
         self.kept = None;
+    }
+
+    fn body(&mut self, world: Option<&[glam::Vec3]>) {
+        self.prepare.body(world);
     }
 }
 
@@ -432,6 +456,8 @@ struct Segmented {
     frame: Frame,
     arrived: Instant,
     mask: GrayImage,
+    /// The person's world landmarks the segmenter read ([`crate::capture::Segmenter::body_world`]).
+    body: Option<Vec<glam::Vec3>>,
     /// The frame starts a new shot (another size): the processor forgets earlier frames first.
     new_shot: bool,
     stats: StageStats,
@@ -747,7 +773,8 @@ fn segment_loop<T>(shared: &Shared<T>, options: &LiveOptions) {
             merge_stats(shared, &local, None);
             continue;
         }
-        let item = Segmented { frame, arrived, mask, new_shot, stats: local };
+        let body = seg.body_world().map(<[glam::Vec3]>::to_vec);
+        let item = Segmented { frame, arrived, mask, body, new_shot, stats: local };
         let mut slot = shared.segmented.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(old) = slot.replace(item) {
             tracing::trace!("dropped segmented frame {}", old.frame.index);
@@ -788,12 +815,13 @@ fn process_loop<P: FrameProcessor>(shared: &Shared<P::Output>, mut processor: P)
     let mut sequence = 0u64;
     loop {
         let next = take_next(&shared.segmented, &shared.segmented_wake, &shared.stop, &shared.segmenter_done);
-        let Some(Segmented { frame, arrived, mask, new_shot, stats: mut local }) = next else { return };
+        let Some(Segmented { frame, arrived, mask, body, new_shot, stats: mut local }) = next else { return };
         // The segmenter waits for the slot to empty.
         shared.segmented_wake.notify_all();
         if new_shot {
             processor.reset();
         }
+        processor.body(body.as_deref());
         let output = processor.process(&frame, &mask, &mut local);
         let output = match output {
             Ok(o) => o,
@@ -970,6 +998,7 @@ pub fn render_video<P: FrameProcessor>(
             skip(&mut report, outcome, format!("frame {}: no person in this frame", frame.index));
             continue;
         }
+        processor.body(seg.body_world());
         let output = match processor.process(&frame, &mask, &mut stats) {
             Ok(o) => o,
             Err(source) => {

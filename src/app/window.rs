@@ -148,6 +148,8 @@ pub struct WindowOptions {
     pub frame_log: Option<PathBuf>,
     /// Close the window after this long (soak runs), whatever `frames` says.
     pub duration: Option<Duration>,
+    /// Live sources keep a person model across the frames ([`PrepareOptions::person_model`]).
+    pub person_model: bool,
 }
 
 impl Default for WindowOptions {
@@ -172,6 +174,7 @@ impl Default for WindowOptions {
             overlay: true,
             script: Vec::new(),
             resolution: crate::geometry::SOURCE_RESOLUTION,
+            person_model: false,
             neural: NeuralSetup::default(),
             spin: 0.0,
             frame_log: None,
@@ -376,7 +379,7 @@ pub fn run_view_with_stats(opts: WindowOptions) -> anyhow::Result<ViewStats> {
         let worker_neural = neural.second_instance().context("loading the neural models for the live worker")?;
         let frames =
             crate::pipeline::auto_frame_options(opts.neural.models.as_deref(), opts.resolution, &opts.neural.options)?;
-        let frames = PrepareOptions { coarse_views: true, ..frames };
+        let frames = PrepareOptions { coarse_views: true, person_model: opts.person_model, ..frames };
         let processor = EncodeProcessor::new(frames, worker_neural);
         let encodes = processor.encode_counter();
         let pipeline = LivePipeline::start(factory, processor, live_opts)?;

@@ -83,6 +83,8 @@ pub struct XrOptions {
     pub export: ExportOptions,
     /// Also export when this many frames have shown the person (`--export-at-frame`).
     pub export_at_frames: Vec<u64>,
+    /// Live sources keep a person model across the frames ([`PrepareOptions::person_model`]).
+    pub person_model: bool,
 }
 
 impl Default for XrOptions {
@@ -100,6 +102,7 @@ impl Default for XrOptions {
             export_dir: PathBuf::from("."),
             export: ExportOptions::default(),
             export_at_frames: Vec::new(),
+            person_model: false,
         }
     }
 }
@@ -393,7 +396,7 @@ fn frame_options(opts: &XrOptions) -> Result<PrepareOptions> {
         crate::geometry::SOURCE_RESOLUTION,
         &opts.neural.options,
     )?;
-    Ok(PrepareOptions { coarse_views: true, ..frames })
+    Ok(PrepareOptions { coarse_views: true, person_model: opts.person_model, ..frames })
 }
 
 #[cfg(test)]

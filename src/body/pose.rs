@@ -269,6 +269,27 @@ pub(super) fn network_value(linear: f32) -> f32 {
     }
 }
 
+/// The world landmarks (`Identity_4`, 39 x 3 values, metres, y down, z away from the camera) as
+/// [`PoseLandmarks::world`] holds them: the first [`LANDMARK_COUNT`], y up and z toward the camera; a non-finite
+/// point becomes the origin. `None` when there are too few values.
+pub fn decode_world(world: &[f32]) -> Option<Vec<Vec3>> {
+    if world.len() < NETWORK_POINTS * 3 {
+        return None;
+    }
+    Some(
+        (0..LANDMARK_COUNT)
+            .map(|i| {
+                let w = Vec3::new(world[i * 3], -world[i * 3 + 1], -world[i * 3 + 2]);
+                if w.is_finite() {
+                    w
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect(),
+    )
+}
+
 impl PoseLandmarks {
     /// Decodes the network's raw outputs (`raw`: 39 x 5 values, `world`: 39 x 3, `score`: pose presence) for
     /// `region` of a `frame`-sized image. Non-finite values become invisible points at the region's centre.
@@ -291,16 +312,7 @@ impl PoseLandmarks {
                 Landmark { pixel, depth, visibility, presence }
             })
             .collect();
-        let world: Vec<Vec3> = (0..LANDMARK_COUNT)
-            .map(|i| {
-                let w = Vec3::new(world[i * 3], -world[i * 3 + 1], -world[i * 3 + 2]);
-                if w.is_finite() {
-                    w
-                } else {
-                    Vec3::ZERO
-                }
-            })
-            .collect();
+        let world = decode_world(world)?;
         let next_region = PoseRegion::from_auxiliary(point(33).0, point(34).0);
         let score = if score.is_finite() { score.clamp(0.0, 1.0) } else { 0.0 };
         Some(Self { landmarks, world, score, region, next_region, frame_min: frame.0, frame_max: frame.1 })

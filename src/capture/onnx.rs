@@ -163,6 +163,10 @@ pub struct OnnxSegmenter {
     selfie: Option<Session>,
     /// The pose model's landmarks output (`Identity`), which says whether the feet are in view ([`feet_seen`]).
     landmarks_index: Option<usize>,
+    /// The pose model's world landmarks output (`Identity_4`).
+    world_index: Option<usize>,
+    /// Its world landmarks on the last read of a person ([`crate::body::pose::decode_world`]).
+    world: Option<Vec<glam::Vec3>>,
 }
 
 impl OnnxSegmenter {
@@ -198,6 +202,10 @@ impl OnnxSegmenter {
             SegmentationModel::MediapipePose => session.outputs().iter().position(|o| o.name() == "Identity_1"),
             SegmentationModel::Isnet => None,
         };
+        let world_index = match kind {
+            SegmentationModel::MediapipePose => session.outputs().iter().position(|o| o.name() == "Identity_4"),
+            SegmentationModel::Isnet => None,
+        };
         let (selfie, landmarks_index) = match kind {
             SegmentationModel::MediapipePose => {
                 (load_selfie(&path, &options), session.outputs().iter().position(|o| o.name() == "Identity"))
@@ -216,6 +224,8 @@ impl OnnxSegmenter {
             presence: 1.0,
             selfie,
             landmarks_index,
+            world_index,
+            world: None,
         })
     }
 
@@ -316,6 +326,10 @@ impl OnnxSegmenter {
             // Already a probability; a non-finite value counts as no person.
             let p = extract(i)?.iter().next().copied().filter(|v| v.is_finite()).unwrap_or(0.0);
             self.presence = p.clamp(0.0, 1.0);
+        }
+        if let Some(i) = self.world_index {
+            let values: Vec<f32> = extract(i)?.iter().copied().collect();
+            self.world = crate::body::pose::decode_world(&values);
         }
         let feet_seen = match self.landmarks_index {
             Some(i) => feet_seen(extract(i)?.as_slice().unwrap_or_default()),
@@ -486,6 +500,7 @@ impl Segmenter for OnnxSegmenter {
         }
         let first = self.segment_once(frame)?;
         let first_presence = self.presence;
+        let first_world = self.world.clone();
         let mask = if !self.tracking(w, h) {
             first
         } else {
@@ -499,15 +514,21 @@ impl Segmenter for OnnxSegmenter {
                 second
             } else {
                 self.presence = first_presence;
+                self.world = first_world;
                 first
             }
         };
         if self.says_nobody() {
             tracing::debug!("segmentation: frame {}: no person (presence {:.3})", frame.index, self.presence);
             self.track = None;
+            self.world = None;
             return Ok(GrayImage::new(mask.width, mask.height, 0.0));
         }
         Ok(mask)
+    }
+
+    fn body_world(&self) -> Option<&[glam::Vec3]> {
+        self.world.as_deref()
     }
 }
 
@@ -598,6 +619,33 @@ fn bounding_box(mask: &super::morph::BinaryMask) -> Option<(usize, usize, usize,
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The pose segmenter hands on the body it read with the mask: the bundled astronaut, facing the camera, reads a
+    /// torso whose normal points along the camera's axis (toward it, or away on the network's front/back mirror);
+    /// a frame without a person hands on none.
+    #[test]
+    fn the_pose_segmenter_hands_on_the_body_it_read() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let path = root.join(".tools/models/pose_landmark_full.onnx");
+        if !path.is_file() {
+            // Only when the model is not installed (scripts/setup.d/live.sh installs it).
+            eprintln!("SKIPPED: {} not installed", path.display());
+            return;
+        }
+        let mut seg = OnnxSegmenter::load(Some(&path), 0).expect("the installed pose model loads");
+        assert!(seg.body_world().is_none(), "nothing read yet");
+        let (rgb, _) = crate::capture::load_image_frame(&root.join("assets/photos/astronaut.png")).expect("photo");
+        let frame = |rgb| Frame { index: 0, timestamp: std::time::Duration::ZERO, rgb, alpha: None };
+        let mask = seg.segment(&frame(rgb)).expect("a mask");
+        assert!(mask.data.iter().any(|&v| v >= 0.5), "the astronaut is found");
+        let world = seg.body_world().expect("the body read with the mask");
+        let yaw = crate::pipeline::person_model::body_yaw(world).expect("a torso");
+        assert!(yaw.cos().abs() > 35f32.to_radians().cos(), "torso yaw {} degrees", yaw.to_degrees());
+        let grey = crate::buffer::RgbImage::new(320, 240, glam::Vec3::splat(0.21));
+        let empty = seg.segment(&frame(grey)).expect("a mask");
+        assert!(empty.data.iter().all(|&v| v < 0.5));
+        assert!(seg.body_world().is_none(), "a frame without a person hands on no body");
+    }
 
     /// 39 landmarks with every visibility logit `others`, the ankles' `left` and `right`.
     fn landmarks(others: f32, left: f32, right: f32) -> Vec<f32> {

@@ -20,6 +20,13 @@ pub trait Segmenter: Send {
     fn name(&self) -> &'static str;
     /// The person mask of `frame`, values in `[0, 1]`, same size as the frame.
     fn segment(&mut self, frame: &Frame) -> Result<GrayImage, CaptureError>;
+    /// The person's world landmarks the last [`Segmenter::segment`] read, when this segmenter runs MediaPipe's pose
+    /// model ([`crate::body::pose::PoseLandmarks::world`]'s convention: metres about the hips, y up, z toward the
+    /// camera): the body's orientation for the person model ([`crate::pipeline::person_model::body_yaw`]) without
+    /// a second run of the network. `None` by default.
+    fn body_world(&self) -> Option<&[glam::Vec3]> {
+        None
+    }
 }
 
 /// Which segmentation to use (`--segment alpha|plate|onnx|auto`).
@@ -143,6 +150,13 @@ impl Segmenter for AutoSegmenter {
             self.last = Some(name);
         }
         Ok(mask)
+    }
+
+    fn body_world(&self) -> Option<&[glam::Vec3]> {
+        match self.last {
+            Some("onnx") => self.model.as_ref().and_then(|m| m.body_world()),
+            _ => None,
+        }
     }
 }
 

@@ -58,10 +58,11 @@ pub struct TurnArgs {
     /// With --turn: how far each arm's elevation swings during the turn (degrees, 0 to 45).
     #[arg(long, default_value_t = 15.0)]
     pub arm_swing: f32,
-    /// eval --turn: the person model's yaw from the colours alone (without reading the body's orientation with
-    /// the pose network), to compare.
-    #[arg(long)]
-    pub model_colour_only: bool,
+    /// eval --turn: where the person model reads the body's orientation: segmenter (the live segmenter's pose
+    /// read of each frame, as a live camera hands it on), own (one pose read of its own a frame) or colour (none:
+    /// the yaw from the colours alone), to compare.
+    #[arg(long, value_enum, default_value_t = crate::eval::turn::ModelBody::Segmenter)]
+    pub model_body: crate::eval::turn::ModelBody,
     /// eval --turn: degrees either side of the body's yaw the person model's colours refine it (0: the body's
     /// yaw alone).
     #[arg(long, default_value_t = crate::pipeline::person_model::COLOUR_REFINE_DEGREES)]
@@ -317,7 +318,7 @@ fn run_turn_eval(args: &EvalArgs) -> Result<()> {
         size: args.size,
         turn: args.turn_clip.options(),
         event: args.turn_clip.event,
-        model_pose: !args.turn_clip.model_colour_only,
+        model_body: args.turn_clip.model_body,
         model_colour_refine: args.turn_clip.model_colour_refine,
         ..Default::default()
     };

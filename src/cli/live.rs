@@ -75,6 +75,10 @@ pub struct ViewArgs {
     /// Which renderer draws the person (G/N switch while running).
     #[command(flatten)]
     pub neural: NeuralArgs,
+    /// Live sources (--video, --camera): keep a person model across the frames (the shape the silhouettes showed
+    /// from each side and the colours of the sides and back the camera saw; docs/live.md "The person model").
+    #[arg(long)]
+    pub person_model: bool,
 }
 
 /// Arguments of `xr`.
@@ -131,6 +135,10 @@ pub struct XrArgs {
     /// Which renderer draws the person.
     #[command(flatten)]
     pub neural: NeuralArgs,
+    /// Live sources (--video, --camera): keep a person model across the frames (the shape the silhouettes showed
+    /// from each side and the colours of the sides and back the camera saw; docs/live.md "The person model").
+    #[arg(long)]
+    pub person_model: bool,
 }
 
 /// Arguments of `bench-live`.
@@ -233,6 +241,7 @@ pub fn run_view(args: &ViewArgs) -> Result<()> {
         export: args.export.options()?,
         screenshot_on_exit: args.screenshot_on_exit.clone(),
         neural: args.neural.setup(),
+        person_model: args.person_model,
         spin: args.spin,
         frame_log: args.frame_log.clone(),
         duration: match args.seconds.map(std::time::Duration::try_from_secs_f64) {
@@ -301,6 +310,7 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         export: args.export.options()?,
         export_at_frames: args.export_at_frame.clone(),
         backend: args.backend,
+        person_model: args.person_model,
         ..Default::default()
     })?;
     println!("{report}");

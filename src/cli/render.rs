@@ -55,10 +55,9 @@ pub struct GeometryArgs {
     #[arg(long, default_value_t = 32)]
     pub fof_order: usize,
     /// `render --video` only: keep a person model across the frames (the shape the silhouettes
-    /// showed from each side, the colours of the sides and back the camera saw; its yaw from the pose network's
-    /// read of the body on each frame; docs/live.md "The person model"). Off by default: it beats the frame path
-    /// on the views the camera cannot see after a turn, but not on every frame, and one turning clip in three ends
-    /// with its yaw on the front/back mirror (docs/evaluation.md).
+    /// showed from each side, the colours of the sides and back the camera saw; its yaw from the pose read of the
+    /// body on each frame; docs/live.md "The person model"). Off by default: its update costs more than the 10 ms
+    /// a live frame can spare (docs/live.md).
     #[arg(long)]
     pub person_model: bool,
 }

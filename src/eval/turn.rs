@@ -66,11 +66,35 @@ pub struct TurnEvalOptions {
     pub texture_size: usize,
     /// What happens halfway through the turn (`--event`): nothing, a cut to another subject, or the top taken off.
     pub event: EventChoice,
-    /// Whether the person model reads the body's orientation with the pose network (`--model-colour-only` turns
-    /// it off: the yaw from the colours alone).
-    pub model_pose: bool,
+    /// Where the person model reads the body's orientation (`--model-body`).
+    pub model_body: ModelBody,
     /// Degrees either side of the body's yaw the model's colours refine it (`--model-colour-refine`).
     pub model_colour_refine: i32,
+}
+
+/// Where the person model of `eval --turn` reads the body's orientation (`--model-body`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ModelBody {
+    /// The world landmarks of the live segmenter's pose read of each frame (MediaPipe's pose model on the square
+    /// around the person, [`crate::capture::Segmenter::body_world`]): what a live camera source hands the model.
+    #[default]
+    Segmenter,
+    /// A read of its own with the back image's pose network on MediaPipe's tracking region
+    /// ([`crate::body::pose::PoseEstimator::track`]): one more network run a frame.
+    Own,
+    /// No body read: the yaw from the colours alone.
+    Colour,
+}
+
+impl ModelBody {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelBody::Segmenter => "segmenter",
+            ModelBody::Own => "own",
+            ModelBody::Colour => "colour",
+        }
+    }
 }
 
 /// The event of the clips ([`crate::synth::turn::TurnEvent`]), at frame `turn_frames / 2`.
@@ -109,7 +133,7 @@ impl Default for TurnEvalOptions {
             yaws: vec![20.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0],
             texture_size: 1024,
             event: EventChoice::None,
-            model_pose: true,
+            model_body: ModelBody::Segmenter,
             model_colour_refine: crate::pipeline::person_model::COLOUR_REFINE_DEGREES,
         }
     }
@@ -240,8 +264,28 @@ fn eval_clip(
     let r = opts.size;
     let n = clip.frames();
     let mut path = FramePath::new(prepare.clone());
-    let pose = if opts.model_pose { prepare.back_pose.clone() } else { None };
+    let pose = if opts.model_body == ModelBody::Own { prepare.back_pose.clone() } else { None };
     let mut model = PersonModel::new().with_pose(pose).with_colour_refine(opts.model_colour_refine);
+    // The live segmenter, read on each camera frame for its pose model's world landmarks only (the true mask
+    // is the frame path's); without it installed, the yaw comes from the colours.
+    let mut segmenter = match opts.model_body {
+        ModelBody::Segmenter => {
+            match crate::capture::onnx::OnnxSegmenter::load(None, crate::capture::onnx::DEFAULT_INPUT_SIZE) {
+                Ok(s) if s.kind() == crate::capture::onnx::SegmentationModel::MediapipePose => Some(s),
+                Ok(_) => {
+                    tracing::warn!(
+                        "eval --turn: the segmentation model is not the pose model; the model's yaw from the colours"
+                    );
+                    None
+                }
+                Err(e) => {
+                    tracing::warn!("eval --turn: no segmentation model ({e}); the model's yaw from the colours");
+                    None
+                }
+            }
+        }
+        _ => None,
+    };
     // The true turn when the model last started (the tracked yaw counts from there).
     let mut turn_at_start = clip.options.yaw(0);
     let sheet_frames: Vec<usize> = (0..SHEET_COLUMNS).map(|k| k * (n - 1) / (SHEET_COLUMNS - 1)).collect();
@@ -259,7 +303,26 @@ fn eval_clip(
         };
         let ms_frame = t.elapsed().as_secs_f32() * 1e3;
         let mut modelled = prepared.clone();
-        let step = model.update(&mut modelled);
+        let step = match segmenter.as_mut() {
+            Some(seg) => {
+                use crate::capture::Segmenter;
+                let frame = crate::capture::Frame {
+                    index: i as u64,
+                    timestamp: std::time::Duration::ZERO,
+                    rgb: rgb.clone(),
+                    alpha: None,
+                };
+                let world = match seg.segment(&frame) {
+                    Ok(_) => seg.body_world(),
+                    Err(e) => {
+                        tracing::debug!("{name} frame {i}: the segmenter failed: {e}");
+                        None
+                    }
+                };
+                model.update_with_world(&mut modelled, world)
+            }
+            None => model.update(&mut modelled),
+        };
         if step.restarted || model.frames() == 1 {
             turn_at_start = clip.options.yaw(i);
         }
@@ -627,9 +690,13 @@ fn tracking_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
     let restarts: Vec<String> =
         t.iter().filter(|r| r.restarted).map(|r| format!("{} frame {}", r.clip, r.frame)).collect();
     let band_resets = t.iter().filter(|r| !r.restarted && r.reset_bands > 0).count();
-    let source = if opts.model_pose {
+    let source = if opts.model_body != ModelBody::Colour {
+        let read = match opts.model_body {
+            ModelBody::Segmenter => "the live segmenter's pose read of each frame",
+            _ => "one read of its own a frame",
+        };
         format!(
-            "from the body (the pose network's torso, one read a frame; {body_frames} of {} frames moved by it; \
+            "from the body (the pose network's torso, {read}; {body_frames} of {} frames moved by it; \
              the reading alone {body_median:.1} degrees median |error|), refined by the colours within {} degrees",
             t.len(),
             opts.model_colour_refine
