@@ -695,15 +695,15 @@ fn placement_net_upsamples_its_shift_inside_the_mask_and_rejects_broken_files() 
 }
 
 /// `load_placement_net` takes the model folder's `placement.onnx` for `body-placed` (and auto when it draws it),
-/// none for the other geometries or when the folder has none (no placement: every column at the prior's depth); a
+/// none for the other geometries or when the folder has none (the confidence-aware placement of `body::placed`); a
 /// file of another order is an error under `body-placed`. In the pipeline the net's shifts place the inflation
-/// prior (a different geometry from the one without a net), and a net that fails on the input leaves the columns
-/// at the prior's depth. Needs the pose model.
+/// prior (a different geometry from the one without a net), and a net that fails on the input gives the geometry
+/// without a net. Needs the pose model.
 #[test]
 fn body_placed_uses_the_folders_placement_net_and_falls_back_to_no_placement() {
     let dir = tempfile::tempdir().unwrap();
     let load = |mode, n| r2human::pipeline::load_placement_net(mode, Some(dir.path()), n, &cpu());
-    assert!(load(GeometryMode::BodyPlaced, 32).unwrap().is_none(), "no file: no placement");
+    assert!(load(GeometryMode::BodyPlaced, 32).unwrap().is_none(), "no file: no placement net");
     std::fs::copy(fixture("placement_split.onnx"), dir.path().join("placement.onnx")).unwrap();
     let e = load(GeometryMode::BodyPlaced, 32).expect_err("N = 4 file for N = 32");
     assert!(matches!(e, PipelineError::PlacementOrder(_)) && e.to_string().contains("--fof-order"), "{e}");
@@ -738,5 +738,5 @@ fn body_placed_uses_the_folders_placement_net_and_falls_back_to_no_placement() {
     assert!(timings.0.iter().any(|(name, _)| *name == "body placement (network)"), "{:?}", timings.0);
     assert_ne!(learned, fixed);
     let broken = Arc::new(Mutex::new(PlacementNet::load(&fixture("placement_nan32.onnx"), &cpu()).unwrap()));
-    assert_eq!(geometry(Some(broken)).0, fixed, "a failing net: no placement");
+    assert_eq!(geometry(Some(broken)).0, fixed, "a failing net: the placement without a net");
 }

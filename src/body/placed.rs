@@ -1,39 +1,37 @@
 //! The silhouette-inflation prior placed in depth by the fitted body (`--geometry body-placed`): what the
-//! pipeline draws is the inflation prior with the face relief ([`super::face`]) and, when the model folder has a
-//! placement network (`placement.onnx`), every column moved by that network's shift ([`place`]). Without one, no
-//! column moves: the fixed rule this module measured does not hold on people the fit was not made on.
+//! pipeline draws is the inflation prior with the face relief ([`super::face`]) and each column moved toward the
+//! fitted body's depth only as far as the fit can be trusted there ([`placement_confidence`], [`confident_shifts`]);
+//! with a placement network in the model folder (`placement.onnx`), every column moved by that network's shift
+//! instead ([`place`]).
 //!
-//! Why columns are no longer moved toward the fitted body's depth. Reduce every column of a person to one interval
-//! (its occupied length about its occupied centroid) and the ground truth loses little, so a geometry is mostly a
-//! thickness and a depth per column, and the inflation prior's thickness at the true depths would gain a lot
-//! (`cargo run --release --example geometry_oracle`). The fitted body's depths carry that on the synthetic
-//! (MakeHuman) people the fit is made of: the least-squares scale of the body's per-column depths that best fits the
-//! truth is 0.32–1.00 on `geometry_oracle 9 0 256`. On the dev half of the UFO: Alien Invasion characters
-//! (`scripts/scan-ufoai.sh`) it is −0.60 to −0.22 on all six civilians and 0.01–0.22 on the four soldiers: the
-//! body's depths point the wrong way as often as not, although the pose network sees every one of them facing the
-//! camera (facing 0.88–0.98), its key landmarks' mean visibility is 0.79–0.99 and the posed body covers as much of
-//! the silhouette as on the synthetic people (IoU 0.63–0.81 against 0.43–0.82). None of these signals tells a fit
-//! whose depths can be trusted from one whose cannot. A confidence map per column (the weight of the nearest
-//! landmark segment's body part times its visibility, zero where the posed body does not cover the column,
-//! averaged over 1/64 of the grid) lost on that dev half with every part weight tried (whole-frame PSNR at close /
-//! divergent views against the inflation prior, mean over the ten): head, torso and arms 0.5, legs 0: −0.17 /
-//! −0.26 dB; head and torso 0.5: −0.19 / −0.26; head 0.5: −0.15 / −0.13; torso 0.5: +0.03 / −0.14; arms 0.5: +0.07
-//! / +0.01 (worst character −0.15 dB); arms 1: +0.02 / −0.01; nothing moved, the face relief alone: +0.07 / +0.01
-//! (worst −0.08). The earlier rule, every column moved halfway ([`PLACEMENT_WEIGHT`]): −0.57 / −0.36 dB. So where
-//! the fit is unsure, which on people it was not made on is everywhere, each column stays at the prior's depth.
+//! Why a confidence. Reduce every column of a person to one interval (its occupied length about its occupied
+//! centroid) and the ground truth loses little, so a geometry is mostly a thickness and a depth per column, and the
+//! inflation prior's thickness at the true depths would gain a lot (`cargo run --release --example
+//! geometry_oracle`). The fitted body's depths carry that on the synthetic (MakeHuman) people the fit is made of;
+//! on people it was not made on (the UFO: Alien Invasion civilians of `scripts/scan-ufoai.sh`) the least-squares
+//! scale of the body's per-column depths that best fits the truth was negative, and moving every column halfway
+//! toward the body's depth ([`PLACEMENT_WEIGHT`], the earlier fixed rule) lost 0.57 / 0.36 dB of whole-frame PSNR
+//! at close / divergent views on that dev half. So a column moves only where four things hold at once: the posed
+//! body agrees with the silhouette as a whole, covers the column, explains its thickness (no coat, skirt, armour or
+//! prop the body does not fill), and the pose network sees the limb nearest the column. And it moves only relative
+//! to the rest of its image row ([`Reference::Row`]): what one frontal view says least, the body's lean, moves
+//! nothing; an arm ahead of the chest or one leg ahead of the other does. No column moves more than
+//! [`MAX_SHIFT_OF_THICKNESS`] of its own thickness, so a wrong placement still overlaps the prior's column. Where
+//! the fit is unsure every column stays at the prior's depth; on the Nexuiz dev players the confidence is zero on
+//! three of five (the posed body covers their silhouettes too poorly).
 //!
-//! [`depth_shifts`] and [`PLACEMENT_WEIGHT`] remain for the diagnostics that compare against that rule
-//! (`examples/fit_ambiguity.rs`). Depths are measured about the body's own volume centroid, so a placement moves
-//! columns against each other and not the person as a whole (the pipeline centres the result by the depth
-//! convention afterwards, [`centred`]).
+//! [`depth_shifts`] is the earlier rule, kept for the diagnostics that compare against it
+//! (`examples/fit_ambiguity.rs`). Depths are measured about the body's own volume, so a placement moves columns
+//! against each other and not the person as a whole (the pipeline centres the result by the depth convention
+//! afterwards, [`centred`]).
 
 use crate::buffer::{GrayImage, Image};
 use crate::geometry::depth_centre::{centring_shift, intervals_centroid_z, MIN_SHIFT};
 use crate::geometry::inflate::InflatedSurfaces;
+use glam::Vec2;
 
-/// The fraction of the way from the inflation prior's centre plane to the body's depth that the earlier fixed rule
-/// moved each column (chosen on the synthetic people and the five dev characters of `scripts/scan-check.sh`; the
-/// pipeline no longer applies it, module docs).
+/// The fraction of the way from the inflation prior's depth to the body's that a fully trusted column moves
+/// ([`confident_shifts`]; the earlier fixed rule moved every column this far, module docs).
 pub const PLACEMENT_WEIGHT: f32 = 0.5;
 
 /// The depth (body-cube z) each column moves by: `weight` times its centroid in `body` (the reconciled body
@@ -76,6 +74,183 @@ pub fn depth_shifts(body: &Image<Vec<(f32, f32)>>, mask: &GrayImage, weight: f32
         } else {
             0.0
         }
+    }))
+}
+
+/// Below this share of the posed body's own columns agreeing with the person's mask (intersection over union) no
+/// column is trusted; [`TRUSTED_AGREEMENT`] and above, fully ([`placement_confidence`]).
+pub const UNTRUSTED_AGREEMENT: f32 = 0.6;
+/// The agreement of the posed body with the mask at which the fit is fully trusted.
+pub const TRUSTED_AGREEMENT: f32 = 0.8;
+/// A column whose body thickness is this fraction of the inflation prior's or less is not explained by the body (a
+/// coat, a skirt, armour, a prop): no trust there.
+pub const UNEXPLAINED_THICKNESS: f32 = 0.4;
+/// A column whose body thickness is this fraction of the inflation prior's or more is explained by the body.
+pub const EXPLAINED_THICKNESS: f32 = 0.7;
+/// Visibility of the nearest skeleton segment's less visible end at or below which its columns are not trusted.
+pub const UNSEEN_VISIBILITY: f32 = 0.5;
+/// Visibility at or above which the nearest segment is fully trusted.
+pub const SEEN_VISIBILITY: f32 = 0.9;
+/// The farthest a column moves, as a fraction of its own thickness in the inflation prior: a wrong placement still
+/// overlaps the prior's column by at least half.
+pub const MAX_SHIFT_OF_THICKNESS: f32 = 0.5;
+
+/// 0 at or below `lo`, 1 at or above `hi`, linear between; 0 for NaN.
+pub fn ramp(x: f32, lo: f32, hi: f32) -> f32 {
+    if x.is_nan() {
+        return 0.0;
+    }
+    if hi <= lo {
+        return if x >= hi { 1.0 } else { 0.0 };
+    }
+    ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
+}
+
+/// Total occupied length of one column's intervals (empty, reversed and non-finite intervals count nothing).
+fn length(intervals: &[(f32, f32)]) -> f32 {
+    intervals.iter().filter(|(a, b)| a.is_finite() && b.is_finite() && b > a).map(|(a, b)| b - a).sum()
+}
+
+/// Distance from `p` to the segment `a`–`b`.
+fn segment_distance(p: Vec2, a: Vec2, b: Vec2) -> f32 {
+    let ab = b - a;
+    let t = if ab.length_squared() > 0.0 { ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+    p.distance(a + t * ab)
+}
+
+/// How far the fitted body's depth can be trusted at each column of the inflation prior `surfaces`, in `[0, 1]`
+/// (0 outside the mask): the product of
+/// - the fit's agreement with the silhouette: the intersection over union of the columns `own` covers (the posed
+///   body's own intervals, [`crate::geometry::fof::intervals_from_mesh`], not reconciled) and the mask, ramped
+///   from [`UNTRUSTED_AGREEMENT`] to [`TRUSTED_AGREEMENT`] ([`ramp`]);
+/// - whether the body covers the column at all (0 where only the silhouette says there is something);
+/// - whether the body explains the column's thickness: its own length over the prior's, ramped from
+///   [`UNEXPLAINED_THICKNESS`] to [`EXPLAINED_THICKNESS`] (a garment or prop the body does not fill gets none);
+/// - how well the pose network sees the part: the lower visibility of the two ends of the [`SKELETON`] segment
+///   nearest the column's centre (image distance), ramped from [`UNSEEN_VISIBILITY`] to [`SEEN_VISIBILITY`].
+///
+/// `None` when the grids differ or the landmarks lack the skeleton's points.
+///
+/// [`SKELETON`]: super::pose::SKELETON
+pub fn placement_confidence(
+    own: &Image<Vec<(f32, f32)>>,
+    surfaces: &InflatedSurfaces,
+    landmarks: &super::pose::PoseLandmarks,
+) -> Option<GrayImage> {
+    let (w, h) = (surfaces.mask.width, surfaces.mask.height);
+    let grids = [
+        (own.width, own.height),
+        (surfaces.front.width, surfaces.front.height),
+        (surfaces.back.width, surfaces.back.height),
+    ];
+    if grids.iter().any(|&g| g != (w, h)) || own.data.len() != w * h {
+        return None;
+    }
+    let points = &landmarks.landmarks;
+    let segments: Vec<(Vec2, Vec2, f32)> = super::pose::SKELETON
+        .iter()
+        .map(|&(a, b)| {
+            let (a, b) = (points.get(a)?, points.get(b)?);
+            Some((a.pixel, b.pixel, a.visibility.min(b.visibility)))
+        })
+        .collect::<Option<_>>()?;
+    let inside = |i: usize| surfaces.mask.data[i] > 0.5;
+    let covered = |i: usize| length(&own.data[i]) > 0.0;
+    let (mut both, mut either) = (0usize, 0usize);
+    for i in 0..w * h {
+        both += (inside(i) && covered(i)) as usize;
+        either += (inside(i) || covered(i)) as usize;
+    }
+    let agreement = if either > 0 { both as f32 / either as f32 } else { 0.0 };
+    let trust = ramp(agreement, UNTRUSTED_AGREEMENT, TRUSTED_AGREEMENT);
+    Some(Image::from_fn(w, h, |c, r| {
+        let i = r * w + c;
+        if trust == 0.0 || !inside(i) || !covered(i) {
+            return 0.0;
+        }
+        let prior = surfaces.front.data[i] - surfaces.back.data[i];
+        let explained = if prior > 0.0 {
+            ramp(length(&own.data[i]) / prior, UNEXPLAINED_THICKNESS, EXPLAINED_THICKNESS)
+        } else {
+            1.0
+        };
+        let p = Vec2::new(c as f32 + 0.5, r as f32 + 0.5);
+        let nearest = segments
+            .iter()
+            .map(|&(a, b, v)| (segment_distance(p, a, b), v))
+            .filter(|(d, _)| d.is_finite())
+            .min_by(|x, y| x.0.total_cmp(&y.0));
+        let seen = nearest.map_or(0.0, |(_, v)| ramp(v, UNSEEN_VISIBILITY, SEEN_VISIBILITY));
+        trust * explained * seen
+    }))
+}
+
+/// How columns are moved from the prior's depth toward the body's ([`confident_shifts`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reference {
+    /// About the centroid of all of the body's trusted volume: the body's lean and the head ahead of the feet move
+    /// columns too.
+    Whole,
+    /// About the centroid of the body's trusted volume in the column's own image row: only what lies ahead of or
+    /// behind the rest at the same height moves (an arm before the chest, one leg ahead of the other); the body's
+    /// lean, which one frontal view hardly says, moves nothing.
+    Row,
+}
+
+/// The depth (body-cube z) each column moves by under a confidence map: `weight × confidence × (c − c̄)`, `c` the
+/// column's centroid in `own` (the posed body's own intervals), `c̄` the confidence-weighted centroid of the body's
+/// volume (the whole of it or the column's row, `reference`), limited to [`MAX_SHIFT_OF_THICKNESS`] of the
+/// column's thickness in `surfaces` (the inflation prior). 0 where the confidence is 0 or the body holds nothing.
+/// `None` when the grids differ or `weight` is not finite.
+pub fn confident_shifts(
+    own: &Image<Vec<(f32, f32)>>,
+    surfaces: &InflatedSurfaces,
+    confidence: &GrayImage,
+    weight: f32,
+    reference: Reference,
+) -> Option<GrayImage> {
+    let (w, h) = (confidence.width, confidence.height);
+    let grids = [
+        (own.width, own.height),
+        (surfaces.front.width, surfaces.front.height),
+        (surfaces.back.width, surfaces.back.height),
+    ];
+    if grids.iter().any(|&g| g != (w, h))
+        || own.data.len() != w * h
+        || confidence.data.len() != w * h
+        || !weight.is_finite()
+    {
+        return None;
+    }
+    // Each column's centroid and trusted volume (confidence × length).
+    let columns: Vec<Option<(f32, f32)>> = (0..w * h)
+        .map(|i| {
+            let k = confidence.data[i];
+            let (c, _, _) = intervals_centroid_z(std::iter::once(own.data[i].as_slice()))?;
+            (k > 0.0 && k.is_finite()).then(|| (c, k * length(&own.data[i])))
+        })
+        .collect();
+    let mean = |range: std::ops::Range<usize>| {
+        let (mut moment, mut volume) = (0f64, 0f64);
+        for (c, v) in columns[range].iter().flatten() {
+            moment += (*c as f64) * (*v as f64);
+            volume += *v as f64;
+        }
+        (volume > 0.0).then(|| (moment / volume) as f32)
+    };
+    let whole = mean(0..w * h);
+    let rows: Vec<Option<f32>> = (0..h)
+        .map(|r| match reference {
+            Reference::Whole => whole,
+            Reference::Row => mean(r * w..(r + 1) * w),
+        })
+        .collect();
+    Some(Image::from_fn(w, h, |c, r| {
+        let i = r * w + c;
+        let (Some((centroid, _)), Some(reference)) = (columns[i], rows[r]) else { return 0.0 };
+        let thickness = (surfaces.front.data[i] - surfaces.back.data[i]).max(0.0);
+        let limit = MAX_SHIFT_OF_THICKNESS * thickness;
+        (weight * confidence.data[i] * (centroid - reference)).clamp(-limit, limit)
     }))
 }
 
@@ -180,6 +355,95 @@ mod tests {
         assert!((s.data[0] - 0.3).abs() < 1e-6 && (s.data[1] + 0.3).abs() < 1e-6);
         assert!((s.data[2] + 0.3).abs() < 1e-6, "the missing column copies its one neighbour in the mask");
         assert_eq!(s.data[3], 0.0);
+    }
+
+    #[test]
+    fn ramp_is_zero_below_one_above_and_linear_between() {
+        assert_eq!(ramp(0.2, 0.4, 0.7), 0.0);
+        assert_eq!(ramp(0.9, 0.4, 0.7), 1.0);
+        assert!((ramp(0.55, 0.4, 0.7) - 0.5).abs() < 1e-6);
+        assert_eq!(ramp(f32::NAN, 0.4, 0.7), 0.0);
+        // A step when the ends meet.
+        assert_eq!((ramp(0.5, 0.5, 0.5), ramp(0.49, 0.5, 0.5)), (1.0, 0.0));
+    }
+
+    /// Landmarks all far outside a `w`×1 grid (visibility 1) but the skeleton segment 11–13 along its row, its ends
+    /// seen with visibility `v11` and 1.
+    fn along_the_row(w: usize, v11: f32) -> crate::body::pose::PoseLandmarks {
+        let mut l = crate::body::pose::tests::torso(0.0);
+        for p in l.landmarks.iter_mut() {
+            p.pixel = Vec2::splat(1000.0);
+            p.visibility = 1.0;
+        }
+        l.landmarks[11].pixel = Vec2::new(0.5, 0.5);
+        l.landmarks[11].visibility = v11;
+        l.landmarks[13].pixel = Vec2::new(w as f32 - 0.5, 0.5);
+        l
+    }
+
+    #[test]
+    fn confidence_is_agreement_times_cover_times_explained_thickness_times_visibility() {
+        // Ten columns, the mask the first nine; the body covers columns 0-6 and 9 (outside the mask): IoU 7 / 10 =
+        // 0.7, trust ramp(0.7, 0.6, 0.8) = 0.5. The prior is 0.5 thick everywhere; body lengths 0.4 (explained:
+        // 0.8 >= 0.7), 0.1 in column 1 (0.2 <= 0.4: a garment, 0) and 0.275 in column 2 (0.55: half explained).
+        // The segment's less visible end has 0.7: ramp(0.7, 0.5, 0.9) = 0.5.
+        let own = intervals(10, 1, |c, _| match c {
+            1 => vec![(0.0, 0.1)],
+            2 => vec![(0.0, 0.275)],
+            0..=6 | 9 => vec![(0.0, 0.4)],
+            _ => vec![],
+        });
+        let mask = Image::from_fn(10, 1, |c, _| if c < 9 { 1.0f32 } else { 0.0 });
+        let surfaces = InflatedSurfaces { front: Image::new(10, 1, 0.25f32), back: Image::new(10, 1, -0.25f32), mask };
+        let k = placement_confidence(&own, &surfaces, &along_the_row(10, 0.7)).unwrap();
+        let want = [0.25, 0.0, 0.125, 0.25, 0.25, 0.25, 0.25, 0.0, 0.0, 0.0];
+        for (c, (got, want)) in k.data.iter().zip(want).enumerate() {
+            assert!((got - want).abs() < 1e-5, "column {c}: {got} vs {want}");
+        }
+        // The fit agreeing less with the silhouette (body on the mask's first five columns: IoU 5 / 10): no trust.
+        let own = intervals(10, 1, |c, _| if c < 5 || c == 9 { vec![(0.0, 0.4)] } else { vec![] });
+        assert!(placement_confidence(&own, &surfaces, &along_the_row(10, 1.0)).unwrap().data.iter().all(|&v| v == 0.0));
+        // Another grid: none.
+        assert!(placement_confidence(&intervals(3, 1, |_, _| vec![]), &surfaces, &along_the_row(10, 1.0)).is_none());
+    }
+
+    #[test]
+    fn confident_shifts_move_by_weight_confidence_and_depth_about_the_trusted_centroid_limited_by_thickness() {
+        // Row 0: centroids 0.3 and -0.1 (length 0.2, confidence 1), 0.9 untrusted; row 1: 0.5 and 0.5 (length 0.2,
+        // confidence 0.5), the third empty. Prior thickness 0.5 (limit 0.25).
+        let own = intervals(3, 2, |c, r| match (c, r) {
+            (0, 0) => vec![(0.2, 0.4)],
+            (1, 0) => vec![(-0.2, 0.0)],
+            (2, 0) => vec![(0.8, 1.0)],
+            (2, 1) => vec![],
+            _ => vec![(0.4, 0.6)],
+        });
+        let confidence = Image::from_fn(3, 2, |c, r| match (c, r) {
+            (2, _) => 0.0f32,
+            (_, 0) => 1.0,
+            _ => 0.5,
+        });
+        let surfaces = InflatedSurfaces {
+            front: Image::new(3, 2, 0.25f32),
+            back: Image::new(3, 2, -0.25f32),
+            mask: Image::new(3, 2, 1.0),
+        };
+        // Per row: row 0 about (0.3 * 0.2 - 0.1 * 0.2) / 0.4 = 0.1, row 1 about 0.5.
+        let s = confident_shifts(&own, &surfaces, &confidence, 0.5, Reference::Row).unwrap();
+        for (got, want) in s.data.iter().zip([0.1, -0.1, 0.0, 0.0, 0.0, 0.0]) {
+            assert!((got - want).abs() < 1e-6, "{got} vs {want}");
+        }
+        // About the whole: (0.06 - 0.02 + 0.5 * 0.1 + 0.5 * 0.1) / 0.6 = 0.14 / 0.6.
+        let c = 0.14 / 0.6;
+        let s = confident_shifts(&own, &surfaces, &confidence, 0.5, Reference::Whole).unwrap();
+        let want = [0.5 * (0.3 - c), 0.5 * (-0.1 - c), 0.0, 0.25 * (0.5 - c), 0.25 * (0.5 - c), 0.0];
+        for (got, want) in s.data.iter().zip(want) {
+            assert!((got - want).abs() < 1e-6, "{got} vs {want}");
+        }
+        // Weight 10: 2.0 and -2.0 limited to half the prior's thickness.
+        let s = confident_shifts(&own, &surfaces, &confidence, 10.0, Reference::Row).unwrap();
+        assert_eq!((s.data[0], s.data[1]), (0.25, -0.25));
+        assert!(confident_shifts(&own, &surfaces, &confidence, f32::NAN, Reference::Row).is_none());
     }
 
     #[test]

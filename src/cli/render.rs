@@ -41,9 +41,9 @@ pub struct GeometryArgs {
     /// Where the geometry comes from: inflate (silhouette-inflation prior), fofnet (the FOF network in the model
     /// folder correcting that prior; an error without fof.onnx), body (the body prior: pose landmarks -> fitted
     /// MakeHuman body -> its FOF reconciled with the silhouette, no FOF network; needs the pose model of
-    /// scripts/setup.d/live.sh), body-placed (the silhouette-inflation prior with each column moved halfway toward
-    /// the fitted body's depth, or as far as the model folder's placement.onnx says when it has one: the
-    /// silhouette's thickness, the body's placement; same pose model) or auto (the default: the geometry that wins
+    /// scripts/setup.d/live.sh), body-placed (the silhouette-inflation prior with the face mesh's relief and each
+    /// column moved toward the fitted body's depth only where the fit is trusted, or as far as the model folder's
+    /// placement.onnx says when it has one: the silhouette's thickness, the body's placement; same pose model) or auto (the default: the geometry that wins
     /// the whole evaluation, docs/geometry.md; on --video frames the inflation prior, which stays
     /// steady between frames).
     #[arg(long, value_enum, default_value_t = GeometryMode::Auto)]

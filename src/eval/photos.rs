@@ -82,7 +82,7 @@ pub struct PhotoNets<'a> {
     pub fof_net: Option<&'a SharedFofNet>,
     /// The body prior (pose network and fitter).
     pub body: Option<&'a SharedBody>,
-    /// The placement network of the body-placed rows (`None`: the fixed rule).
+    /// The placement network of the body-placed rows (`None`: the confidence-aware placement of `body::placed`).
     pub placement: Option<&'a crate::pipeline::SharedPlacementNet>,
     /// The pose network that finds the face for the back image (the default fill's); also what the plausibility
     /// check reads the views with ([`super::plausible`]).

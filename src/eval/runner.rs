@@ -435,7 +435,7 @@ struct Nets<'a> {
     neural: Option<&'a SharedNeural>,
     fof_net: Option<&'a SharedFofNet>,
     body: Option<&'a SharedBody>,
-    /// The placement network of the body-placed rows (`None`: the columns stay at the prior's depth).
+    /// The placement network of the body-placed rows (`None`: the confidence-aware placement of `body::placed`).
     placement: Option<&'a crate::pipeline::SharedPlacementNet>,
     /// The pose network that finds the face for the back image (the default fill's).
     back_pose: Option<&'a crate::pipeline::SharedPose>,
@@ -828,7 +828,7 @@ fn load_body_prior(nopts: &NeuralEvalOptions, notes: &mut Vec<String>) -> Option
 
 /// The placement network of the body-placed rows: the model folder's `placement.onnx` when it has one (noted in
 /// the report either way, so its rows say which placement they measure); a file that does not load is noted and
-/// the rows leave the columns at the prior's depth.
+/// the rows take the confidence-aware placement instead.
 pub(super) fn load_placement(
     nopts: &NeuralEvalOptions,
     notes: &mut Vec<String>,
@@ -846,16 +846,16 @@ pub(super) fn load_placement(
         }
         Ok(None) => {
             notes.push(format!(
-                "The body-placed rows leave every column at the inflation prior's depth, with the face relief (no {} in \
-                 the model folder).",
+                "The body-placed rows move each column toward the fitted body's depth as far as the fit is trusted there \
+                 (body::placed::placement_confidence), with the face relief (no {} in the model folder).",
                 crate::neural::PLACEMENT_FILE
             ));
             None
         }
         Err(e) => {
             let cause = std::error::Error::source(&e).map(|c| format!(" ({c})")).unwrap_or_default();
-            tracing::warn!("the body-placed rows leave the columns at the prior's depth: {e}{cause}");
-            notes.push(format!("The body-placed rows leave the columns at the prior's depth: {e}{cause}"));
+            tracing::warn!("the body-placed rows take the confidence-aware placement: {e}{cause}");
+            notes.push(format!("The body-placed rows take the confidence-aware placement: {e}{cause}"));
             None
         }
     }

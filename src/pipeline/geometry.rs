@@ -38,9 +38,9 @@ pub enum GeometryMode {
     Body,
     /// The silhouette-inflation prior with the face relief from the face mesh the pose landmarks locate
     /// ([`crate::body::face`]), every column moved by the shift of the model folder's `placement.onnx` when it has
-    /// one ([`super::load_placement_net`]), else left at the prior's depth ([`crate::body::placed`]: the fitted body's
-    /// depths do not hold on people the fit was not made on). An input where no pose is found gets the inflation
-    /// prior with a warning.
+    /// one ([`super::load_placement_net`]), else moved toward the fitted body's depth only as far as the fit is
+    /// trusted there ([`crate::body::placed::placement_confidence`]: at the prior's depth wherever it is unsure).
+    /// An input where no pose is found gets the inflation prior with a warning.
     #[value(name = "body-placed")]
     BodyPlaced,
 }
@@ -52,7 +52,10 @@ pub enum GeometryMode {
 /// but civ_female_body02 −0.10 / −0.16 dB (its face relief off), more than the 0.1 dB of noise it may lose by; the
 /// FOF net −0.33 / −0.13 dB; the body prior −2.19 / −1.49 dB. Volumetric IoU: the inflation prior 0.567, the FOF
 /// net 0.543, the body prior 0.395. The rule that moved every column halfway toward the fitted body's depth (what
-/// auto drew before) lost the dev half by 0.57 / 0.36 dB (docs/geometry.md). Needs no network.
+/// auto drew before) lost the dev half by 0.57 / 0.36 dB (docs/geometry.md). The confidence-aware body placement
+/// ([`crate::body::placed::placement_confidence`]) held every character of the Nexuiz players' held-out half
+/// (`scripts/scan-nexuiz.sh`, worst −0.05 / −0.07 dB) but not their mean (−0.003 / −0.018 dB), so auto stays the
+/// inflation prior (docs/geometry.md, "Confidence-aware body placement"). Needs no network.
 pub const AUTO_CHOICE: GeometryMode = GeometryMode::Inflate;
 
 /// What [`GeometryMode::Auto`] draws on the frames of a video or camera (`render --video`, and the live frames of
@@ -194,7 +197,8 @@ fn body_intervals(
 }
 
 /// [`GeometryMode::BodyPlaced`]: the inflation prior's surfaces (solved beside the pose network and the fit) with
-/// each column moved toward the fitted body's depth there ([`crate::body::placed`]); the inflation prior itself, with
+/// each column moved toward the fitted body's depth as far as the fit is trusted there ([`crate::body::placed`])
+/// and the face relief; the inflation prior itself, with
 /// one warning per process, when the body prior finds no pose or fails.
 fn body_placed_geometry(
     normalised: &NormalisedInput,
@@ -236,17 +240,26 @@ pub fn body_placed_surfaces(
                 // the frame the body was fitted in.
                 surfaces = timings.time("geometry (inflate, body's frame)", || inflated(prior.frame()))?;
             }
-            // The face mesh needs only the pose landmarks: it runs beside the body's intervals (which only a
-            // placement network uses: without one every column stays at the prior's depth, module docs of
-            // `body::placed`).
+            // The face mesh needs only the pose landmarks: it runs beside the placement (the network's when the
+            // model folder has one, else the confidence-aware one of `body::placed`).
             let (mut interval_times, mut face_times) = (StageTimings::default(), StageTimings::default());
             let (shifts, face) = rayon::join(
-                || {
-                    let net = opts.placement.as_ref()?;
-                    let intervals =
-                        interval_times.time("body intervals", || body_intervals(normalised, opts, prior, &silhouette));
-                    interval_times
-                        .time("body placement (network)", || placement_net_shifts(net, &surfaces, &intervals, opts))
+                || match opts.placement.as_ref() {
+                    Some(net) => {
+                        let intervals = interval_times
+                            .time("body intervals", || body_intervals(normalised, opts, prior.clone(), &silhouette));
+                        let learned = interval_times.time("body placement (network)", || {
+                            placement_net_shifts(net, &surfaces, &intervals, opts)
+                        });
+                        learned.or_else(|| {
+                            interval_times.time("body placement (confidence)", || {
+                                confident_placement(normalised, opts, prior, &surfaces)
+                            })
+                        })
+                    }
+                    None => interval_times.time("body placement (confidence)", || {
+                        confident_placement(normalised, opts, prior, &surfaces)
+                    }),
                 },
                 || face_times.time("face mesh", || face_mesh(normalised, body, landmarks)),
             );
@@ -273,6 +286,33 @@ pub fn body_placed_surfaces(
         }
     };
     Ok(timings.time("geometry (surface centring)", || crate::body::placed::centred(surfaces)))
+}
+
+/// The shifts of the confidence-aware placement ([`crate::body::placed::placement_confidence`],
+/// [`crate::body::placed::confident_shifts`]) of the fitted body `prior` for the inflation prior `surfaces`; `None`
+/// when nothing is placed.
+fn confident_placement(
+    normalised: &NormalisedInput,
+    opts: &PrepareOptions,
+    prior: crate::body::prior::BodyPrior,
+    surfaces: &inflate::InflatedSurfaces,
+) -> Option<GrayImage> {
+    use crate::body::placed::{confident_shifts, placement_confidence, Reference, PLACEMENT_WEIGHT};
+    let (w, h) = (surfaces.mask.width, surfaces.mask.height);
+    let mesh = centre_visible_depth(prior.mesh, &normalised.mask);
+    let own =
+        crate::geometry::fof::intervals_from_mesh(&mesh, w, h, crate::geometry::fof::sheet_thickness(opts.fof_order));
+    let confidence = placement_confidence(&own, surfaces, &prior.landmarks)?;
+    let shifts = confident_shifts(&own, surfaces, &confidence, PLACEMENT_WEIGHT, Reference::Row)?;
+    let inside: Vec<usize> = (0..w * h).filter(|&i| surfaces.mask.data[i] > 0.5).collect();
+    let n = inside.len().max(1) as f32;
+    tracing::debug!(
+        "body placement: mean confidence {:.3}, mean |shift| {:.4}, trusted share {:.3}",
+        inside.iter().map(|&i| confidence.data[i]).sum::<f32>() / n,
+        inside.iter().map(|&i| shifts.data[i].abs()).sum::<f32>() / n,
+        inside.iter().filter(|&&i| confidence.data[i] > 0.0).count() as f32 / n
+    );
+    Some(shifts)
 }
 
 /// The face mesh ([`crate::body::face`]) of the person `pose` was read from; `None` when no face is found (said
@@ -311,7 +351,7 @@ fn with_face_relief(
 
 /// The placement network's shifts for the inflation prior `surfaces` and the fitted body's reconciled `intervals`
 /// (both encoded as FOFs, as the network's training data holds them); `None`, with one warning per process, when
-/// the network fails on this input (the columns then stay at the prior's depth).
+/// the network fails on this input (the confidence-aware placement then stands in).
 fn placement_net_shifts(
     net: &SharedPlacementNet,
     surfaces: &inflate::InflatedSurfaces,
@@ -333,8 +373,9 @@ fn placement_net_shifts(
         Ok(s) => Some(s),
         Err(e) => {
             static WARNED: std::sync::Once = std::sync::Once::new();
-            WARNED
-                .call_once(|| tracing::warn!("placement network failed ({e}); the columns stay at the prior's depth"));
+            WARNED.call_once(|| {
+                tracing::warn!("placement network failed ({e}); columns are placed where the body fit is trusted")
+            });
             None
         }
     }

@@ -126,8 +126,8 @@ pub fn load_fof_net(
 
 /// Resolves `--geometry` and `--models` into the placement network of [`GeometryMode::BodyPlaced`] (also under
 /// [`GeometryMode::Auto`] when [`AUTO_CHOICE`] is it): the model folder's `placement.onnx` when it has one,
-/// `Ok(None)` (every column stays at the prior's depth) when it has none or for the other modes. A file that does
-/// not load (or predicts for another `N` than `fof_order`) is an error under `body-placed` and one warning (no
+/// `Ok(None)` (the confidence-aware placement of [`crate::body::placed`]) when it has none or for the other modes. A file that does
+/// not load (or predicts for another `N` than `fof_order`) is an error under `body-placed` and one warning (the confidence-aware
 /// placement) under auto.
 pub fn load_placement_net(
     mode: GeometryMode,
@@ -141,7 +141,7 @@ pub fn load_placement_net(
     let Some(path) = model_folder(models).map(|dir| dir.join(crate::neural::PLACEMENT_FILE)).filter(|p| p.is_file())
     else {
         tracing::info!(
-            "geometry: no body placement (no {}): the columns stay at the prior's depth",
+            "geometry: no placement network (no {}): columns are placed where the body fit is trusted",
             crate::neural::PLACEMENT_FILE
         );
         return Ok(None);
@@ -167,7 +167,7 @@ pub fn load_placement_net(
         }
         Err(e) if mode == GeometryMode::Auto => {
             let cause = std::error::Error::source(&e).map(|c| format!(" ({c})")).unwrap_or_default();
-            tracing::warn!("geometry: {e}{cause}; the columns stay at the prior's depth");
+            tracing::warn!("geometry: {e}{cause}; columns are placed where the body fit is trusted");
             Ok(None)
         }
         Err(e) => Err(e),

@@ -32,8 +32,8 @@ pub struct PrepareOptions {
     /// The body prior for [`GeometryMode::Body`] ([`super::load_body`]) and for a FOF net that takes the body FOF
     /// ([`super::load_body_for`]); `None` with `Body` is an error.
     pub body: Option<SharedBody>,
-    /// The placement network of [`GeometryMode::BodyPlaced`] ([`super::load_placement_net`]); `None`: every column
-    /// stays at the inflation prior's depth ([`crate::body::placed`]).
+    /// The placement network of [`GeometryMode::BodyPlaced`] ([`super::load_placement_net`]); `None`: each column
+    /// moves toward the fitted body's depth as far as the fit is trusted there ([`crate::body::placed`]).
     pub placement: Option<SharedPlacementNet>,
     /// Live input: warm-start the body prior from the previous frame (its tracking region and fitted pose).
     pub warm_start: bool,
