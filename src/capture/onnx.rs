@@ -412,12 +412,7 @@ impl OnnxSegmenter {
                 keep_larger(&mut grid, &selfie);
             }
             // One grid cell of margin keeps the soft edge (the frame's 2 px at the usual 2 px a cell).
-            let keep = dilate(&fill_holes(&largest_component(&threshold(&grid, 0.5))), 1);
-            for (m, &k) in grid.data.iter_mut().zip(&keep.data) {
-                if !k {
-                    *m = 0.0;
-                }
-            }
+            let keep = keep_main_object(&mut grid, 1);
             // Only the frame pixels whose bilinear cells reach a kept cell can be above 0: the rest stay 0.
             let mut mask = GrayImage::new(w, h, 0.0);
             if let Some((c0, r0, c1, r1)) = bounding_box(&keep) {
@@ -440,13 +435,7 @@ impl OnnxSegmenter {
             if let Some(selfie) = selfie {
                 keep_larger(&mut mask, &in_frame(&selfie));
             }
-            // Keep the soft edge, but only around the main (largest) object: stray blobs are not the person.
-            let keep = dilate(&fill_holes(&largest_component(&threshold(&mask, 0.5))), 2);
-            for (m, &k) in mask.data.iter_mut().zip(&keep.data) {
-                if !k {
-                    *m = 0.0;
-                }
-            }
+            keep_main_object(&mut mask, 2);
             (mask, bbox)
         };
         if self.kind == SegmentationModel::MediapipePose {
@@ -546,6 +535,18 @@ fn logistic(logit: f32) -> f32 {
 }
 
 /// `mask` with each pixel the larger of its own and `other`'s probability (the same grid).
+/// Keeps the soft edge, but only around the main (largest) object, its holes filled and `margin` pixels around it:
+/// stray blobs are not the person. Returns what was kept.
+fn keep_main_object(mask: &mut GrayImage, margin: usize) -> super::morph::BinaryMask {
+    let keep = dilate(&fill_holes(&largest_component(&threshold(mask, 0.5))), margin);
+    for (m, &k) in mask.data.iter_mut().zip(&keep.data) {
+        if !k {
+            *m = 0.0;
+        }
+    }
+    keep
+}
+
 fn keep_larger(mask: &mut GrayImage, other: &GrayImage) {
     for (m, &q) in mask.data.iter_mut().zip(&other.data) {
         *m = m.max(q);

@@ -158,16 +158,10 @@ impl BackLayers {
         if (mask.width, mask.height) != (w, h) || mask.data.len() != self.colour.data.len() {
             return None;
         }
-        let mut rgb = Image::new(w, h, Vec3::ZERO);
-        let mut head = Image::new(w, h, 0.0f32);
-        for (i, &m) in mask.data.iter().enumerate() {
-            // NaN fails the comparison: outside.
-            if m > 0.0 {
-                rgb.data[i] = self.colour.data[i] * m.min(1.0);
-                head.data[i] = self.head.data[i];
-            }
-        }
-        Some(BackImage { rgb, head })
+        let rgb = super::warp::premultiplied(&self.colour, mask);
+        // NaN fails the comparison: outside.
+        let head = self.head.data.iter().zip(&mask.data).map(|(&hw, &m)| if m > 0.0 { hw } else { 0.0 });
+        Some(BackImage { rgb, head: GrayImage { width: w, height: h, data: head.collect() } })
     }
 }
 
