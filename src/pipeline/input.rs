@@ -97,10 +97,17 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
     }
     let (w, h) = (mask.width, mask.height);
     let (mut c0, mut c1, mut r0, mut r1) = (usize::MAX, 0usize, usize::MAX, 0usize);
+    // The box of the pixels any part of the person covers (mask > 0): outside it the premultiplied colour and
+    // the mask are 0, and so is every output pixel whose taps read only there.
+    let (mut z0, mut z1, mut q0, mut q1) = (usize::MAX, 0usize, usize::MAX, 0usize);
     let mut count = 0usize;
     for r in 0..h {
         for c in 0..w {
-            if *mask.get(c, r) >= 0.5 {
+            let m = *mask.get(c, r);
+            if m > 0.0 {
+                (z0, z1, q0, q1) = (z0.min(c), z1.max(c), q0.min(r), q1.max(r));
+            }
+            if m >= 0.5 {
                 count += 1;
                 c0 = c0.min(c);
                 c1 = c1.max(c);
@@ -127,8 +134,15 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
     let offset = Vec2::splat(res * 0.5) - centre * scale;
     let transform = NormaliseTransform { scale, offset };
 
-    let premultiplied =
-        Image { width: w, height: h, data: rgb.data.iter().zip(&mask.data).map(|(c, m)| *c * *m).collect() };
+    let mut premultiplied = Image::new(w, h, Vec3::ZERO);
+    for r in q0..=q1 {
+        let span = r * w + z0..r * w + z1 + 1;
+        for ((p, c), m) in
+            premultiplied.data[span.clone()].iter_mut().zip(&rgb.data[span.clone()]).zip(&mask.data[span])
+        {
+            *p = *c * *m;
+        }
+    }
     // Supersample when shrinking so thin structures are averaged rather than aliased.
     let taps = ((1.0 / scale).ceil() as usize).clamp(1, 8);
     let mut out_rgb = Image::new(resolution, resolution, Vec3::ZERO);
@@ -140,10 +154,23 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
         (0..resolution * taps).map(|k| bilinear_cell(transform.inverse(Vec2::new(tap(k), 0.0)).x)).collect();
     let row_cells: Vec<_> =
         (0..resolution * taps).map(|k| bilinear_cell(transform.inverse(Vec2::new(0.0, tap(k))).y)).collect();
+    // The output columns and rows whose taps read a pixel of the person's box; the rest stay 0.
+    let reads = |cells: &[Option<(i64, f32)>], lo: usize, hi: usize| -> Option<(usize, usize)> {
+        let hit = |k: usize| {
+            cells[k * taps..(k + 1) * taps].iter().flatten().any(|&(i, _)| i + 1 >= lo as i64 && i <= hi as i64)
+        };
+        let first = (0..resolution).find(|&k| hit(k))?;
+        let last = (first..resolution).rev().find(|&k| hit(k))?;
+        Some((first, last))
+    };
+    let frame = (transform.forward(Vec2::ZERO), transform.forward(Vec2::new(w as f32, h as f32)));
+    let (Some((col_lo, col_hi)), Some((row_lo, row_hi))) = (reads(&columns, z0, z1), reads(&row_cells, q0, q1)) else {
+        return Ok(NormalisedInput { rgb: out_rgb, mask: out_mask, transform, frame });
+    };
     let rows = out_rgb.data.par_chunks_mut(resolution).zip(out_mask.data.par_chunks_mut(resolution));
-    rows.enumerate().for_each(|(row, (rgb_row, mask_row))| {
+    rows.enumerate().skip(row_lo).take(row_hi + 1 - row_lo).for_each(|(row, (rgb_row, mask_row))| {
         let row_taps = &row_cells[row * taps..(row + 1) * taps];
-        for col in 0..resolution {
+        for col in col_lo..=col_hi {
             let mut acc_rgb = Vec3::ZERO;
             let mut acc_m = 0.0;
             for y in row_taps.iter().flatten() {
@@ -157,7 +184,6 @@ pub fn normalise(rgb: &RgbImage, mask: &GrayImage, resolution: usize) -> Result<
             mask_row[col] = (acc_m / n).clamp(0.0, 1.0);
         }
     });
-    let frame = (transform.forward(Vec2::ZERO), transform.forward(Vec2::new(w as f32, h as f32)));
     Ok(NormalisedInput { rgb: out_rgb, mask: out_mask, transform, frame })
 }
 
@@ -247,17 +273,19 @@ mod tests {
     fn normalise_is_the_mean_of_bilinear_samples_of_the_premultiplied_photo() {
         use crate::buffer::sample_bilinear;
         // A person 300 px tall shrunk to a 64 px grid (six taps a side) and one 60 px tall grown to a 128 px grid
-        // (one tap), each against the definition sampled per tap.
-        for (w, h, mask, res) in
-            [(200, 330, rect_mask(200, 330, 40, 150, 10, 309), 64), (90, 70, rect_mask(90, 70, 30, 60, 5, 64), 128)]
-        {
+        // (one tap), each against the definition sampled per tap at every output pixel. The second mask also has
+        // faint pixels (under the 0.5 that sets the scale) away from the person: they are drawn too.
+        let mut faint = rect_mask(90, 70, 30, 60, 5, 64);
+        *faint.get_mut(15, 3) = 0.2;
+        *faint.get_mut(75, 66) = 0.05;
+        for (w, h, mask, res) in [(200, 330, rect_mask(200, 330, 40, 150, 10, 309), 64), (90, 70, faint, 128)] {
             let rgb = Image::from_fn(w, h, |c, r| Vec3::new(c as f32 / w as f32, r as f32 / h as f32, 0.3));
             let out = normalise(&rgb, &mask, res).unwrap();
             let t = out.transform;
             let taps = ((1.0 / t.scale).ceil() as usize).clamp(1, 8);
             let premultiplied =
                 Image { width: w, height: h, data: rgb.data.iter().zip(&mask.data).map(|(c, m)| *c * *m).collect() };
-            for (row, col) in [(0, 0), (10, 31), (32, 32), (50, 20), (63, 63), (res - 1, res / 2)] {
+            for (row, col) in (0..res).flat_map(|row| (0..res).map(move |col| (row, col))) {
                 let (mut acc_rgb, mut acc_m) = (Vec3::ZERO, 0.0);
                 for j in 0..taps {
                     for i in 0..taps {

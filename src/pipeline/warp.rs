@@ -163,7 +163,7 @@ fn blur_masked_coarse(rgb: &RgbImage, mask: &GrayImage, sigma: f32, factor: usiz
         return blur_masked(rgb, mask, sigma);
     }
     let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
-    // Sums of each cell's premultiplied colour and coverage (the division below takes the same count from both).
+    // Means of each cell's premultiplied colour and coverage: means, not sums, as `fast_blur` clamps to [0, 1].
     let mut flat = vec![0.0f32; cw * ch * 4];
     for (r, (line, mask_line)) in rgb.data.chunks_exact(w).zip(mask.data.chunks_exact(w)).enumerate() {
         let cells = &mut flat[(r / factor) * cw * 4..][..cw * 4];
@@ -176,6 +176,13 @@ fn blur_masked_coarse(rgb: &RgbImage, mask: &GrayImage, sigma: f32, factor: usiz
                 cell[2] += v.z;
                 cell[3] += m;
             }
+        }
+    }
+    for (j, cells) in flat.chunks_exact_mut(cw * 4).enumerate() {
+        let rows = (h - j * factor).min(factor);
+        for (i, cell) in cells.chunks_exact_mut(4).enumerate() {
+            let pixels = (rows * (w - i * factor).min(factor)) as f32;
+            cell.iter_mut().for_each(|v| *v /= pixels);
         }
     }
     let Some(buffer) = image::ImageBuffer::<image::Rgba<f32>, Vec<f32>>::from_raw(cw as u32, ch as u32, flat) else {
@@ -895,6 +902,22 @@ mod tests {
         let tiny = Image::new(6, 6, Vec3::X);
         let ones = Image::new(6, 6, 1.0);
         assert_eq!(SideImages::with_back_side(&tiny, None, &ones, 2), SideImages::of(&tiny, None, &ones));
+    }
+
+    #[test]
+    fn a_coarser_grid_keeps_a_flat_colour() {
+        // A flat mid colour over a whole frame whose sides are not multiples of the cell (partial cells at the right
+        // and bottom edges): every coarser grid gives the colour back, as the full blur does.
+        let colour = Vec3::new(0.8, 0.45, 0.2);
+        let (w, h) = (67, 50);
+        let rgb = Image::new(w, h, colour);
+        let mask = Image::new(w, h, 1.0);
+        for factor in [1, 2, 3, 4] {
+            let side = SideImages::with_back_side(&rgb, None, &mask, factor);
+            for (i, c) in side.rgb.data.iter().enumerate() {
+                assert!((*c - colour).abs().max_element() < 1e-4, "factor {factor}, pixel {i}: {c}");
+            }
+        }
     }
 
     #[test]
