@@ -747,7 +747,14 @@ fn the_live_pipeline_reports_frames_without_a_person() {
 fn the_live_mask_of_a_bundled_photo_is_the_still_mask() {
     let (Some(pose), Some(_)) = (model("pose_landmark_full.onnx"), model("selfie_segmentation.onnx")) else { return };
     let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
-    for (photo, at_least) in [("astronaut.png", 0.85), ("grace_hopper.jpg", 0.9), ("basketball_full_body.png", 0.85)] {
+    // The cameraman's tripod and camera are kept by ISNet, not by a person segmenter; a tracked square around the pose
+    // model's own object alone cuts his coat off at its edge (0.44).
+    for (photo, at_least) in [
+        ("astronaut.png", 0.92),
+        ("grace_hopper.jpg", 0.94),
+        ("basketball_full_body.png", 0.87),
+        ("cameraman_profile.png", 0.56),
+    ] {
         let mut seg = r2human::capture::onnx::OnnxSegmenter::load(Some(&pose), 0).unwrap();
         assert!(seg.has_selfie());
         let (rgb, _) = r2human::capture::load_image_frame(&repo.join("assets/photos").join(photo)).unwrap();
