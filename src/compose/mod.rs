@@ -320,9 +320,9 @@ mod tests {
         }
     }
 
-    /// Eyes looking across the longitude wrap and at the poles (where spans cannot be interpolated whole): the
-    /// halved spans against the per-pixel fallback, PSNR against the exact lookup and time (printed; a release
-    /// build with `--nocapture` gives the figures of docs/performance.md).
+    /// Eyes looking ahead (spans bend at the edges of a wide view), across the longitude wrap and at the poles: the
+    /// halved spans against the per-pixel fallback, PSNR against the exact lookup and the fastest of 31 alternated
+    /// runs (printed; a release build with `--nocapture` gives the figures of docs/performance.md).
     #[test]
     fn halving_spans_keeps_the_exact_lookup_and_saves_lookups() {
         let env = Environment::default_embedded();
@@ -333,8 +333,6 @@ mod tests {
             let q = glam::Quat::from_rotation_y(yaw) * glam::Quat::from_rotation_x(pitch);
             Camera::perspective(Vec3::new(0.0, 1.6, 0.0), q, fov, 0.05, w, h)
         };
-        // Ahead: the panorama's centre (spans bend at the edges of a wide view); behind: the longitude wrap; up and
-        // down: the poles.
         let cameras = [
             ("ahead", eye(0.0, 0.0)),
             ("behind", eye(std::f32::consts::PI, 0.0)),
@@ -345,22 +343,19 @@ mod tests {
             let exact = compose_vr_exact(&person, &env, &cam);
             let mut out = [Image::new(w, h, Vec3::ZERO), Image::new(w, h, Vec3::ZERO)];
             let mut times = [Vec::new(), Vec::new()];
-            for _ in 0..15 {
+            for _ in 0..31 {
                 for (k, splits) in [0, SPAN_SPLITS].into_iter().enumerate() {
                     let t = std::time::Instant::now();
                     compose_vr_rows(&person, &env, &cam, splits, &mut out[k].data, |c| c);
                     times[k].push(t.elapsed());
                 }
             }
-            let median = |t: &mut Vec<std::time::Duration>| {
-                t.sort();
-                t[t.len() / 2].as_secs_f64() * 1e3
-            };
+            let fastest = |t: &mut Vec<std::time::Duration>| t.iter().min().map_or(0.0, |d| d.as_secs_f64() * 1e3);
             let (unsplit, split) = (psnr(&out[0], &exact), psnr(&out[1], &exact));
             println!(
                 "{name}: per-pixel fallback {:.2} ms ({unsplit:.1} dB), halved spans {:.2} ms ({split:.1} dB)",
-                median(&mut times[0]),
-                median(&mut times[1])
+                fastest(&mut times[0]),
+                fastest(&mut times[1])
             );
             assert!(split > 50.0, "{name}: {split:.1} dB");
         }
