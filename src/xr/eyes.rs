@@ -15,14 +15,17 @@
 //! is uploaded turned by the placement's yaw (and uploaded again when a controller turns the person).
 
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use ash::vk;
 use glam::Vec4;
+use rayon::prelude::*;
 
-use super::pacing::{EyeError, EyeRenderer, EyeRequest};
+use super::pacing::{timed, EyeError, EyeRenderer, EyeRequest};
 use super::placement::Placement;
 use crate::capture::stats::{DurationHistogram, StageStats};
 use crate::compose::{Mode, RenderedFrame};
+use crate::geometry::Camera;
 use crate::gpu::{self, resources::Buffer, GpuView, Renderer};
 use crate::io::environment::Environment;
 use crate::pipeline::warp::OcclusionFill;
@@ -264,36 +267,188 @@ impl EyeRenderer for GpuEyes {
 /// other waits for its frame ([`EyeRenderer::buffer_sets`]).
 pub const CPU_EYE_BUFFER_SETS: usize = 2;
 
-/// The per-eye CPU reference renderers ([`CpuView`], one per eye so spatial fusion follows each eye's own view
-/// sequence), for a session whose only Vulkan device is a software rasteriser: there the Vulkan passes share the
-/// CPU's cores with the rasteriser's own overhead and run several times slower than the reference. Each finished
-/// eye image (composited over the room-locked panorama in VR, the premultiplied layer in AR) is written into a
-/// host-visible buffer on the session's device: one upload per eye render, which the display loop copies into the
-/// swapchain image as it copies a Vulkan eye.
+/// One eye of [`CpuEyeViews`]: its view sequence and its finished image.
+struct CpuEye {
+    view: CpuView,
+    size: (usize, usize),
+    /// The finished eye as the result buffer holds it (linear RGBA, row-major), kept from render to render.
+    pixels: Vec<Vec4>,
+}
+
+/// What drawing one eye measured, merged into [`CpuEyeViews`]' statistics in eye order once all eyes are drawn.
+#[derive(Default)]
+struct EyeRecord {
+    stages: Vec<(&'static str, Duration)>,
+    neural: NeuralCounters,
+    decoder: Option<Duration>,
+}
+
+/// The CPU eyes without device memory: one [`CpuView`] per eye (so spatial fusion follows each eye's own view
+/// sequence) and each eye's finished image, composited over the room-locked panorama in VR or as the premultiplied
+/// layer in AR. [`CpuEyes`] writes these images into the session's device memory; the pieces are public so the
+/// two ways of drawing a pair can be compared without a headset (`examples/xr_eye_pairs.rs`).
+pub struct CpuEyeViews {
+    eyes: Vec<CpuEye>,
+    mode: Mode,
+    environment: Option<Environment>,
+    /// Neural eye renders, decoder runs, fallbacks and host times.
+    pub neural_stats: NeuralEyeStats,
+    /// Each eye render's stages (the view's own, the composite, and in [`CpuEyes`] the write into device memory):
+    /// medians over the last [`EYE_STAGE_WINDOW`] eyes. With both eyes drawn at once a stage's time is its wall
+    /// time while the other eye is drawn beside it.
+    pub stages: StageStats,
+}
+
+impl std::fmt::Debug for CpuEyeViews {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CpuEyeViews").field("eyes", &self.eyes.len()).field("mode", &self.mode).finish()
+    }
+}
+
+impl CpuEyeViews {
+    /// One view sequence per eye of the given sizes. VR needs the panorama (`environment`); AR ignores it.
+    pub fn new(sizes: &[(usize, usize)], mode: Mode, environment: Option<Environment>) -> Result<Self, gpu::GpuError> {
+        needs_panorama(mode, environment.as_ref())?;
+        Ok(Self {
+            eyes: sizes
+                .iter()
+                .map(|&size| CpuEye { view: CpuView::new(OcclusionFill::default(), true), size, pixels: Vec::new() })
+                .collect(),
+            mode,
+            environment: if mode == Mode::Vr { environment } else { None },
+            neural_stats: NeuralEyeStats::default(),
+            stages: StageStats::new(EYE_STAGE_WINDOW),
+        })
+    }
+
+    /// Turns the panorama (VR) to `yaw` radians; nothing in AR.
+    pub fn set_panorama_yaw(&mut self, yaw: f32) {
+        if let Some(env) = &mut self.environment {
+            env.yaw = yaw;
+        }
+    }
+
+    /// Draws eye `eye` for `camera` (its size): the person of `scene` (the scene and a number that changes with it,
+    /// for the neural layer's reuse), or nobody when `None`, composited for the mode.
+    pub fn draw_eye(&mut self, scene: Option<(&Scene, u64)>, eye: usize, camera: &Camera) -> Result<(), EyeError> {
+        let (mode, environment) = (self.mode, self.environment.as_ref());
+        let one = self.eyes.get_mut(eye).ok_or(EyeError::NoRenderer(eye))?;
+        let record = draw_cpu_eye(one, eye, scene, mode, environment, camera)?;
+        self.record(record);
+        Ok(())
+    }
+
+    /// Draws the first `cameras.len()` eyes at the same time, each eye's work on its own worker of the current
+    /// rayon pool (the eyes' own parallel stages spread over the pool as each finishes), with the same pixels as
+    /// [`CpuEyeViews::draw_eye`] for each eye in turn (each eye keeps its own view sequence, and the stages are
+    /// deterministic). A neural scene's eyes are drawn one after the other: its decoder runs one view at a time
+    /// under its lock anyway, and a worker that waited for the lock inside the other eye's parallel work could
+    /// deadlock.
+    pub fn draw_eyes(&mut self, scene: Option<(&Scene, u64)>, cameras: &[Camera]) -> Result<(), EyeError> {
+        if cameras.len() > self.eyes.len() {
+            return Err(EyeError::NoRenderer(self.eyes.len()));
+        }
+        if scene.is_some_and(|(s, _)| s.neural.is_some()) {
+            for (eye, camera) in cameras.iter().enumerate() {
+                self.draw_eye(scene, eye, camera)?;
+            }
+            return Ok(());
+        }
+        let (mode, environment) = (self.mode, self.environment.as_ref());
+        let records: Vec<Result<EyeRecord, EyeError>> = self
+            .eyes
+            .par_iter_mut()
+            .zip(cameras.par_iter())
+            .enumerate()
+            .map(|(eye, (one, camera))| draw_cpu_eye(one, eye, scene, mode, environment, camera))
+            .collect();
+        for record in records {
+            self.record(record?);
+        }
+        Ok(())
+    }
+
+    /// Eye `eye`'s finished image (linear RGBA, row-major, of its size; empty before its first draw).
+    pub fn pixels(&self, eye: usize) -> Option<&[Vec4]> {
+        self.eyes.get(eye).map(|e| e.pixels.as_slice())
+    }
+
+    fn record(&mut self, record: EyeRecord) {
+        for (name, d) in record.stages {
+            self.stages.record(name, d);
+        }
+        if let Some(d) = record.decoder {
+            self.neural_stats.decoder.record(d);
+        }
+        self.neural_stats.counters += record.neural;
+    }
+}
+
+/// Draws one eye into its `pixels` (see [`CpuEyeViews::draw_eye`]); `index` names it in errors.
+fn draw_cpu_eye(
+    eye: &mut CpuEye,
+    index: usize,
+    scene: Option<(&Scene, u64)>,
+    mode: Mode,
+    environment: Option<&Environment>,
+    camera: &Camera,
+) -> Result<EyeRecord, EyeError> {
+    if eye.size != (camera.width, camera.height) {
+        return Err(EyeError::SizeMismatch { eye: index, camera: (camera.width, camera.height), renderer: eye.size });
+    }
+    let mut record = EyeRecord::default();
+    let view = &mut eye.view;
+    let person = match scene {
+        Some((scene, number)) => {
+            let before = view.neural_counters();
+            let t = Instant::now();
+            let (person, _) = view
+                .draw(scene.source(), scene.neural(), number, camera)
+                .map_err(|source| EyeError::Cpu { eye: index, source })?;
+            record.neural = view.neural_counters().since(before);
+            record.decoder = (record.neural.decoder_runs > 0).then(|| t.elapsed());
+            record.stages.extend(view.timings.0.iter().copied());
+            person
+        }
+        None => crate::buffer::RgbaImage::new(eye.size.0, eye.size.1, Vec4::ZERO),
+    };
+    let t = Instant::now();
+    match (mode, environment) {
+        (Mode::Vr, Some(env)) => {
+            crate::compose::compose_vr_rgba_into(&person, env, camera, &mut eye.pixels);
+            record.stages.push(("compose (panorama)", t.elapsed()));
+        }
+        _ => {
+            crate::compose::compose_ar_into(&person, &mut eye.pixels);
+            record.stages.push(("compose (AR layer)", t.elapsed()));
+        }
+    }
+    Ok(record)
+}
+
+/// The eyes on the CPU reference ([`CpuEyeViews`]), for a session whose only Vulkan device is a software
+/// rasteriser: there the Vulkan passes share the CPU's cores with the rasteriser's own overhead and run several
+/// times slower than the reference. Both eyes of a request are drawn at the same time
+/// ([`CpuEyeViews::draw_eyes`]); each finished eye image is written into a host-visible buffer on the session's
+/// device: one upload per eye render, which the display loop copies into the swapchain image as it copies a
+/// Vulkan eye.
 pub struct CpuEyes {
-    views: Vec<CpuView>,
-    sizes: Vec<(usize, usize)>,
+    /// The eyes' views, images and statistics.
+    pub views: CpuEyeViews,
     /// Host-visible result buffers: [`CPU_EYE_BUFFER_SETS`] sets of one per eye.
     staging: Vec<Vec<Buffer>>,
     feed: Box<dyn SceneFeed>,
     scene: Option<Arc<Scene>>,
     scene_count: u64,
-    /// Neural eye renders, decoder runs, fallbacks and host times.
-    pub neural_stats: NeuralEyeStats,
-    /// Each eye render's stages (the view's own, the composite, the write into device memory): medians over the
-    /// last [`EYE_STAGE_WINDOW`] eyes.
-    pub stages: StageStats,
-    mode: Mode,
-    environment: Option<Environment>,
     base_yaw: f32,
 }
 
-/// Eye renders over which [`CpuEyes::stages`] keeps its medians.
+/// Eye renders over which [`CpuEyeViews::stages`] keeps its medians.
 pub const EYE_STAGE_WINDOW: usize = 512;
 
 impl std::fmt::Debug for CpuEyes {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("CpuEyes").field("eyes", &self.views.len()).field("mode", &self.mode).finish()
+        f.debug_struct("CpuEyes").field("views", &self.views).finish()
     }
 }
 
@@ -307,23 +462,22 @@ impl CpuEyes {
         environment: Option<Environment>,
         feed: Box<dyn SceneFeed>,
     ) -> Result<Self, gpu::GpuError> {
-        needs_panorama(mode, environment.as_ref())?;
+        let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
+        let views = CpuEyeViews::new(sizes, mode, environment)?;
         let staging =
             (0..CPU_EYE_BUFFER_SETS).map(|_| staging_buffers(&session, sizes)).collect::<Result<Vec<_>, _>>()?;
-        let base_yaw = environment.as_ref().map_or(0.0, |e| e.yaw);
-        Ok(Self {
-            views: sizes.iter().map(|_| CpuView::new(OcclusionFill::default(), true)).collect(),
-            sizes: sizes.to_vec(),
-            staging,
-            feed,
-            scene: None,
-            scene_count: 0,
-            neural_stats: NeuralEyeStats::default(),
-            stages: StageStats::new(EYE_STAGE_WINDOW),
-            mode,
-            environment: if mode == Mode::Vr { environment } else { None },
-            base_yaw,
-        })
+        Ok(Self { views, staging, feed, scene: None, scene_count: 0, base_yaw })
+    }
+
+    /// Writes eye `eye`'s finished image into its result buffer of set `set`.
+    fn stage(&mut self, eye: usize, set: usize) -> Result<vk::Buffer, EyeError> {
+        let buffer = self.staging.get_mut(set).and_then(|s| s.get_mut(eye)).ok_or(EyeError::NoRenderer(eye))?;
+        let pixels = self.views.pixels(eye).ok_or(EyeError::NoRenderer(eye))?;
+        // Safe to rewrite: the display loop never took this set's frame, or reported its copy finished (`copied`).
+        let t = Instant::now();
+        buffer.write(pixels);
+        self.views.stages.record("write to device memory", t.elapsed());
+        Ok(buffer.buffer)
     }
 }
 
@@ -335,10 +489,8 @@ impl EyeRenderer for CpuEyes {
             self.scene_count += 1;
             uploaded = true;
         }
-        if let Some(env) = &mut self.environment {
-            // The panorama is looked up on the CPU: turning it is setting its yaw.
-            env.yaw = GpuEyes::room_locked_yaw(self.base_yaw, placement.yaw);
-        }
+        // The panorama is looked up on the CPU: turning it is setting its yaw.
+        self.views.set_panorama_yaw(GpuEyes::room_locked_yaw(self.base_yaw, placement.yaw));
         Ok(uploaded)
     }
 
@@ -347,43 +499,27 @@ impl EyeRenderer for CpuEyes {
     }
 
     fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError> {
-        let camera = &eye.body_camera;
-        let size = *self.sizes.get(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
-        if size != (camera.width, camera.height) {
-            return Err(EyeError::SizeMismatch { eye: eye.eye, camera: (camera.width, camera.height), renderer: size });
+        // Nobody when the person has left (the scene stays for their return).
+        let person = self.scene.as_deref().filter(|_| !self.feed.person_absent()).map(|s| (s, self.scene_count));
+        self.views.draw_eye(person, eye.eye, &eye.body_camera)?;
+        self.stage(eye.eye, eye.set)
+    }
+
+    /// Both eyes at once ([`CpuEyeViews::draw_eyes`]); each eye's time is the pair's wall time (drawing and the
+    /// writes into device memory) divided by the number of eyes, so the eye times of a request still add up to its
+    /// wall time.
+    fn render_eyes(&mut self, eyes: &[EyeRequest]) -> Result<Vec<(vk::Buffer, Duration)>, EyeError> {
+        // The pair is drawn as one when the eyes are 0, 1, … in order (as `render_request` asks them).
+        if eyes.iter().enumerate().any(|(k, e)| e.eye != k) {
+            return eyes.iter().map(|e| timed(|| self.render_eye(e))).collect();
         }
-        let view = self.views.get_mut(eye.eye).ok_or(EyeError::NoRenderer(eye.eye))?;
-        let person = match self.scene.as_ref().filter(|_| !self.feed.person_absent()) {
-            Some(scene) => {
-                let before = view.neural_counters();
-                let t = std::time::Instant::now();
-                let (person, _) = view
-                    .draw(scene.source(), scene.neural(), self.scene_count, camera)
-                    .map_err(|source| EyeError::Cpu { eye: eye.eye, source })?;
-                let drawn = view.neural_counters().since(before);
-                if drawn.decoder_runs > 0 {
-                    self.neural_stats.decoder.record(t.elapsed());
-                }
-                self.neural_stats.counters += drawn;
-                for (name, d) in &view.timings.0 {
-                    self.stages.record(name, *d);
-                }
-                person
-            }
-            None => crate::buffer::RgbaImage::new(size.0, size.1, Vec4::ZERO),
-        };
-        let stages = &mut self.stages;
-        let data: Vec<Vec4> = match (self.mode, &self.environment) {
-            (Mode::Vr, Some(env)) => stages.time("compose (panorama)", || {
-                crate::compose::compose_vr(&person, env, camera).data.iter().map(|c| c.extend(1.0)).collect()
-            }),
-            _ => stages.time("compose (AR layer)", || crate::compose::compose_ar(&person).data),
-        };
-        let buffer =
-            self.staging.get_mut(eye.set).and_then(|s| s.get_mut(eye.eye)).ok_or(EyeError::NoRenderer(eye.eye))?;
-        // Safe to rewrite: the display loop never took this set's frame, or reported its copy finished (`copied`).
-        stages.time("write to device memory", || buffer.write(&data));
-        Ok(buffer.buffer)
+        let start = Instant::now();
+        let cameras: Vec<Camera> = eyes.iter().map(|e| e.body_camera).collect();
+        let person = self.scene.as_deref().filter(|_| !self.feed.person_absent()).map(|s| (s, self.scene_count));
+        self.views.draw_eyes(person, &cameras)?;
+        let buffers = eyes.iter().map(|e| self.stage(e.eye, e.set)).collect::<Result<Vec<_>, _>>()?;
+        let share = start.elapsed() / eyes.len().max(1) as u32;
+        Ok(buffers.into_iter().map(|b| (b, share)).collect())
     }
 
     fn buffer_sets(&self) -> usize {
@@ -468,5 +604,76 @@ mod tests {
         assert!(feed.poll().is_some());
         assert!(feed.poll().is_none());
         assert!(feed.take_messages().is_empty());
+    }
+
+    /// A lit box seen from its source camera: a small scene whose warp, fusion and composite all do work.
+    fn box_scene() -> Scene {
+        use crate::buffer::{GrayImage, RgbImage};
+        use crate::geometry::raster::{rasterize_into, GBuffer};
+        use crate::geometry::{Camera, TriMesh};
+        let n = 32;
+        let mesh = TriMesh::cuboid(Vec3::new(-0.4, -0.6, -0.3), Vec3::new(0.4, 0.6, 0.3));
+        let camera = Camera::source(n);
+        let mut gbuffer = GBuffer::new(n, n);
+        rasterize_into(&mut gbuffer, &mesh, &camera);
+        Scene {
+            mesh,
+            mesh_closed: true,
+            coarse: None,
+            rgb: RgbImage::from_fn(n, n, |c, r| Vec3::new(c as f32 / n as f32, r as f32 / n as f32, 0.3)),
+            mask: GrayImage::new(n, n, 1.0),
+            gbuffer,
+            camera,
+            back: None,
+            side: None,
+            neural: None,
+        }
+    }
+
+    #[test]
+    fn both_eyes_at_once_draw_the_pixels_of_one_after_the_other() {
+        use crate::geometry::{Camera, Fov};
+        let scene = box_scene();
+        let (w, h) = (40, 36);
+        let fov = Fov::symmetric(1.2, w as f32 / h as f32);
+        // A head moving a little from frame to frame (spatial fusion carries each eye's last view), then a frame
+        // without the person.
+        let cameras = |frame: usize| -> Vec<Camera> {
+            let turn = Quat::from_rotation_y(0.05 * frame as f32);
+            [-0.032f32, 0.032]
+                .iter()
+                .map(|&x| Camera::perspective(turn * Vec3::new(x, 0.1, 2.2), turn, fov, 0.05, w, h))
+                .collect()
+        };
+        for mode in [Mode::Vr, Mode::Ar] {
+            let env = (mode == Mode::Vr).then(Environment::default_embedded);
+            let mut one_by_one = CpuEyeViews::new(&[(w, h); 2], mode, env.clone()).unwrap();
+            let mut at_once = CpuEyeViews::new(&[(w, h); 2], mode, env).unwrap();
+            for frame in 0..4 {
+                let person = (frame < 3).then_some((&scene, 1));
+                let cams = cameras(frame);
+                for (eye, camera) in cams.iter().enumerate() {
+                    one_by_one.draw_eye(person, eye, camera).unwrap();
+                }
+                at_once.draw_eyes(person, &cams).unwrap();
+                for eye in 0..2 {
+                    let bytes = |v: &CpuEyeViews| -> Vec<u32> {
+                        v.pixels(eye).unwrap().iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect()
+                    };
+                    let (a, b) = (bytes(&one_by_one), bytes(&at_once));
+                    assert_eq!(a.len(), w * h * 4);
+                    assert!(a == b, "{mode:?} frame {frame} eye {eye}: the pair differs");
+                }
+                // Something was drawn: the person covers part of the eye while present.
+                let covered = at_once.pixels(0).unwrap().iter().filter(|p| p.w > 0.5 && mode == Mode::Ar).count();
+                assert_eq!(covered > 0, mode == Mode::Ar && frame < 3, "{mode:?} frame {frame}");
+            }
+            assert_eq!(one_by_one.stages.summary().len(), at_once.stages.summary().len());
+        }
+        // Wrong sizes and too many cameras are errors, not panics.
+        let mut eyes = CpuEyeViews::new(&[(w, h); 2], Mode::Ar, None).unwrap();
+        let small = Camera::perspective(Vec3::Z, Quat::IDENTITY, fov, 0.05, 8, 8);
+        assert!(matches!(eyes.draw_eyes(Some((&scene, 1)), &[small]), Err(EyeError::SizeMismatch { eye: 0, .. })));
+        assert!(matches!(eyes.draw_eyes(None, &cameras(0).repeat(2)), Err(EyeError::NoRenderer(2))));
     }
 }

@@ -112,6 +112,13 @@ pub trait EyeRenderer: Send {
     /// Renders one eye; returns the device buffer holding the result (`vec4` linear RGBA per pixel, row-major,
     /// of the eye camera's size), valid until the next call for that eye.
     fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError>;
+    /// Renders the eyes of one request (eye indices `0..n` in order); returns each eye's result buffer (as
+    /// [`EyeRenderer::render_eye`]) and its render time. By default one eye after the other, each timed alone; a
+    /// renderer that draws them together says how it splits the time (the CPU eyes: the pair's wall time divided
+    /// among the eyes).
+    fn render_eyes(&mut self, eyes: &[EyeRequest]) -> Result<Vec<(vk::Buffer, Duration)>, EyeError> {
+        eyes.iter().map(|e| timed(|| self.render_eye(e))).collect()
+    }
     /// How many sets of result buffers the renderer keeps ([`EyeRequest::set`]). With one, the next pair waits
     /// until the display loop has copied the last one; with two, it is drawn while that copy waits for its frame.
     fn buffer_sets(&self) -> usize {
@@ -304,24 +311,38 @@ fn set_released(s: &Slots, frame: u64) -> bool {
     !newest && s.taken != Some(frame)
 }
 
-/// Renders both eyes of one request into the renderer's buffer set `set`.
+/// Renders both eyes of one request into the renderer's buffer set `set` ([`EyeRenderer::render_eyes`]).
 pub fn render_request(
     renderer: &mut dyn EyeRenderer,
     request: &RenderRequest,
     set: usize,
 ) -> Result<RenderedEyes, EyeError> {
-    let mut cameras = Vec::with_capacity(request.views.len());
-    let mut outputs = Vec::with_capacity(request.views.len());
-    let mut eye_times = Vec::with_capacity(request.views.len());
-    for (eye, (view, &(w, h))) in request.views.iter().zip(&request.sizes).enumerate() {
-        let body_camera = request.placement.eye_camera(view.position, view.orientation, view.fov, w, h);
-        let stage_camera = Placement::stage_camera(view.position, view.orientation, view.fov, w, h);
-        let start = Instant::now();
-        outputs.push(renderer.render_eye(&EyeRequest { eye, body_camera, stage_camera, set })?);
-        eye_times.push(start.elapsed());
-        cameras.push(body_camera);
-    }
-    Ok(RenderedEyes { request: request.clone(), cameras, outputs, eye_times })
+    let eyes: Vec<EyeRequest> = request
+        .views
+        .iter()
+        .zip(&request.sizes)
+        .enumerate()
+        .map(|(eye, (view, &(w, h)))| EyeRequest {
+            eye,
+            body_camera: request.placement.eye_camera(view.position, view.orientation, view.fov, w, h),
+            stage_camera: Placement::stage_camera(view.position, view.orientation, view.fov, w, h),
+            set,
+        })
+        .collect();
+    let (outputs, eye_times) = renderer.render_eyes(&eyes)?.into_iter().unzip();
+    Ok(RenderedEyes {
+        request: request.clone(),
+        cameras: eyes.iter().map(|e| e.body_camera).collect(),
+        outputs,
+        eye_times,
+    })
+}
+
+/// Runs `f` and returns its result with how long it took.
+pub(crate) fn timed<T, E>(f: impl FnOnce() -> Result<T, E>) -> Result<(T, Duration), E> {
+    let start = Instant::now();
+    let out = f()?;
+    Ok((out, start.elapsed()))
 }
 
 /// Per-frame pacing measurements of the person layer.

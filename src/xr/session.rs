@@ -296,7 +296,7 @@ pub struct SessionReport {
     pub frames_submitted: u64,
     /// Pacing of the person layer.
     pub pacing: PacingStats,
-    /// Median per-eye render time (ms).
+    /// Median per-eye render time (ms; the CPU eyes draw a pair at once: its wall time divided between the eyes).
     pub eye_render_ms: Option<f64>,
     /// Number of eye renders.
     pub eye_renders: usize,
@@ -1305,7 +1305,7 @@ impl Eyes {
     fn neural_stats(&self) -> &NeuralEyeStats {
         match self {
             Eyes::Gpu(e) => &e.neural_stats,
-            Eyes::Cpu(e) => &e.neural_stats,
+            Eyes::Cpu(e) => &e.views.neural_stats,
         }
     }
 
@@ -1313,7 +1313,7 @@ impl Eyes {
     fn stages(&self) -> Vec<StageSummary> {
         match self {
             Eyes::Gpu(_) => Vec::new(),
-            Eyes::Cpu(e) => e.stages.summary(),
+            Eyes::Cpu(e) => e.views.stages.summary(),
         }
     }
 }
