@@ -685,8 +685,9 @@ mod tests {
                 (0..n * n).filter(|&i| a.mask[i] && b.mask[i]).map(|i| (a.depth[i] - b.depth[i]).abs()).collect();
             errors.sort_by(f32::total_cmp);
             let median = errors[errors.len() / 2];
-            // Measured: IoU 0.9958 / 0.9934 / 0.9958 (both outlines on the mask's edge), median depth difference
-            // 0.0004-0.0017 cube units.
+            // Measured: IoU 0.996 from the front and the back, above 0.99 from the side (both outlines on the mask's
+            // edge; 0.957-0.992 with the outline on the samples' centres), median depth difference under 0.002
+            // cube units.
             assert!(iou > 0.99, "yaw {yaw}: mask IoU {iou}");
             assert!(median < 0.005, "yaw {yaw}: median depth difference {median} cube units");
         }
