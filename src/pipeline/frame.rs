@@ -92,7 +92,7 @@ pub const PLACEMENT_EVERY: u64 = 8;
 pub const PLACEMENT_KEEP_IOU: f32 = 0.85;
 
 /// The new frame's weight in the average of the depth maps over time ([`SurfaceSmoother`]).
-pub const SURFACE_SMOOTHING: f32 = 0.6;
+pub const SURFACE_SMOOTHING: f32 = 0.45;
 
 /// Silhouette IoU between consecutive frames below which the average over time restarts.
 pub const SURFACE_RESET_IOU: f32 = 0.6;
