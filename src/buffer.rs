@@ -236,6 +236,15 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     }
 }
 
+/// An 8-bit sRGB value to linear light: [`srgb_to_linear`] of `v / 255`, looked up in a table of the 256 values
+/// (bit for bit the same; a 640×480 frame is 0.9M of them).
+#[inline]
+pub fn srgb8_to_linear(v: u8) -> f32 {
+    static TABLE: std::sync::LazyLock<[f32; 256]> =
+        std::sync::LazyLock::new(|| std::array::from_fn(|i| srgb_to_linear(i as f32 / 255.0)));
+    TABLE[v as usize]
+}
+
 /// Linear light to sRGB encoded value in `[0, 1]`; clamps out-of-range and maps NaN to 0.
 #[inline]
 pub fn linear_to_srgb(v: f32) -> f32 {
@@ -350,6 +359,13 @@ mod tests {
         assert!(floor_fast(f32::NAN).is_nan());
         assert_eq!(floor_fast(f32::INFINITY), f32::INFINITY);
         assert_eq!(floor_fast(f32::NEG_INFINITY), f32::NEG_INFINITY);
+    }
+
+    #[test]
+    fn the_srgb8_table_is_the_formula() {
+        for v in 0..=255u8 {
+            assert_eq!(srgb8_to_linear(v).to_bits(), srgb_to_linear(f32::from(v) / 255.0).to_bits(), "{v}");
+        }
     }
 
     #[test]

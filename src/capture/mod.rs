@@ -32,7 +32,7 @@ use std::time::Duration;
 
 use glam::Vec3;
 
-use crate::buffer::{srgb_to_linear, GrayImage, Image, RgbImage};
+use crate::buffer::{srgb8_to_linear, GrayImage, Image, RgbImage};
 
 pub use camera::{list_devices, CameraRequest, CameraSource, DeviceInfo};
 pub use segment::{SegmentMethod, Segmenter};
@@ -312,12 +312,6 @@ pub fn open_video_path(path: &Path, fps: f32) -> Result<Box<dyn FrameSource>, Ca
     }
 }
 
-/// sRGB 8-bit to linear lookup table.
-fn srgb8_lut() -> &'static [f32; 256] {
-    static LUT: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
-    LUT.get_or_init(|| std::array::from_fn(|i| srgb_to_linear(i as f32 / 255.0)))
-}
-
 /// Converts interleaved 8-bit sRGB(A) pixels (`channels` = 3 or 4, straight alpha) into a frame's linear RGB and
 /// optional alpha. `keep_alpha` = false drops the alpha channel. Returns `None` when `bytes` is too short.
 pub fn frame_from_srgb8(
@@ -330,7 +324,6 @@ pub fn frame_from_srgb8(
     if !(channels == 3 || channels == 4) || bytes.len() < width * height * channels {
         return None;
     }
-    let lut = srgb8_lut();
     let px = |i: usize| &bytes[i * channels..i * channels + channels];
     let rgb = Image {
         width,
@@ -338,7 +331,7 @@ pub fn frame_from_srgb8(
         data: (0..width * height)
             .map(|i| {
                 let p = px(i);
-                Vec3::new(lut[p[0] as usize], lut[p[1] as usize], lut[p[2] as usize])
+                Vec3::new(srgb8_to_linear(p[0]), srgb8_to_linear(p[1]), srgb8_to_linear(p[2]))
             })
             .collect(),
     };
@@ -367,7 +360,7 @@ mod tests {
         let (rgb, alpha) = frame_from_srgb8(&bytes, 2, 1, 4, true).unwrap();
         assert_eq!(rgb.data[0].x, 0.0);
         assert!((rgb.data[0].y - 1.0).abs() < 1e-6);
-        assert!((rgb.data[0].z - srgb_to_linear(128.0 / 255.0)).abs() < 1e-6);
+        assert!((rgb.data[0].z - crate::buffer::srgb_to_linear(128.0 / 255.0)).abs() < 1e-6);
         let a = alpha.unwrap();
         assert!((a.data[0] - 64.0 / 255.0).abs() < 1e-6);
         assert_eq!(a.data[1], 1.0);

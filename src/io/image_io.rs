@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use glam::{Vec3, Vec4};
 use image::{ImageFormat, ImageReader, Limits};
 
-use crate::buffer::{linear_to_srgb, srgb_to_linear, unpremultiply, GrayImage, Image, RgbImage, RgbaImage};
+use crate::buffer::{
+    linear_to_srgb, srgb8_to_linear, srgb_to_linear, unpremultiply, GrayImage, Image, RgbImage, RgbaImage,
+};
 
 /// The largest side accepted for an input image, in pixels. Larger photos are rejected with advice to downscale,
 /// instead of exhausting memory (a 20000x20000 RGBA photo alone needs 1.6 GB decoded).
@@ -304,14 +306,31 @@ pub fn load_image_bytes(bytes: &[u8], name: &str) -> Result<LoadedImage, IoError
 /// Converts a decoded image to linear RGB + optional alpha.
 pub fn from_dynamic(img: &image::DynamicImage) -> LoadedImage {
     let has_alpha = img.color().has_alpha();
+    // 8-bit files (most photos and frames) through the 256-value table, bit for bit the same as the general path.
+    if let image::DynamicImage::ImageRgb8(_) | image::DynamicImage::ImageRgba8(_) = img {
+        let rgba = img.to_rgba8();
+        let size = (rgba.width() as usize, rgba.height() as usize);
+        return linear_rgba(rgba.as_raw(), size, has_alpha, srgb8_to_linear, |a| f32::from(a) / 255.0);
+    }
     let rgba = img.to_rgba32f();
-    let (w, h) = (rgba.width() as usize, rgba.height() as usize);
-    let px = rgba.as_raw();
+    let size = (rgba.width() as usize, rgba.height() as usize);
+    linear_rgba(rgba.as_raw(), size, has_alpha, srgb_to_linear, |a| a.clamp(0.0, 1.0))
+}
+
+/// Interleaved RGBA samples of a `(width, height)` image to linear RGB (`to_linear` per colour sample) and, when
+/// `has_alpha`, the alpha (`to_alpha`).
+fn linear_rgba<T: Copy>(
+    px: &[T],
+    (w, h): (usize, usize),
+    has_alpha: bool,
+    to_linear: impl Fn(T) -> f32,
+    to_alpha: impl Fn(T) -> f32,
+) -> LoadedImage {
     let rgb = Image::from_fn(w, h, |c, r| {
         let i = (r * w + c) * 4;
-        Vec3::new(srgb_to_linear(px[i]), srgb_to_linear(px[i + 1]), srgb_to_linear(px[i + 2]))
+        Vec3::new(to_linear(px[i]), to_linear(px[i + 1]), to_linear(px[i + 2]))
     });
-    let alpha = has_alpha.then(|| Image::from_fn(w, h, |c, r| px[(r * w + c) * 4 + 3].clamp(0.0, 1.0)));
+    let alpha = has_alpha.then(|| Image::from_fn(w, h, |c, r| to_alpha(px[(r * w + c) * 4 + 3])));
     LoadedImage { rgb, alpha }
 }
 
@@ -434,6 +453,28 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_8_bit_image_loads_as_the_general_path_loads_it() {
+        // The table's path for 8-bit files against the 32-bit float path every other depth takes, with and without
+        // alpha: the same bits.
+        let rgba = image::RgbaImage::from_fn(16, 16, |x, y| {
+            image::Rgba([(x * 16) as u8, (y * 16) as u8, (x * y) as u8, (255 - x * 9) as u8])
+        });
+        for img in [
+            image::DynamicImage::ImageRgba8(rgba.clone()),
+            image::DynamicImage::ImageRgb8(image::DynamicImage::ImageRgba8(rgba).to_rgb8()),
+        ] {
+            let fast = from_dynamic(&img);
+            let general = from_dynamic(&image::DynamicImage::ImageRgba32F(img.to_rgba32f()));
+            assert_eq!(fast.rgb, general.rgb);
+            match (fast.alpha, img.color().has_alpha()) {
+                (Some(a), true) => assert_eq!(Some(a), general.alpha),
+                (None, false) => {}
+                (a, has) => panic!("alpha {:?} for an image with alpha {has}", a.is_some()),
+            }
+        }
+    }
 
     #[test]
     fn atomic_write_leaves_nothing_on_failure() {

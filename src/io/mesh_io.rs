@@ -11,7 +11,7 @@ use std::sync::Arc;
 use glam::{Mat4, Vec2, Vec3};
 use serde_json::json;
 
-use crate::buffer::{linear_to_srgb, srgb_to_linear};
+use crate::buffer::{linear_to_srgb, srgb8_to_linear, srgb_to_linear};
 use crate::geometry::mesh::{MeshError, TriMesh};
 use crate::io::image_io::{check_plausible, check_webp_frames, HeaderError};
 
@@ -432,17 +432,12 @@ pub fn sample_texture(tex: &image::RgbImage, uv: Vec2) -> Vec3 {
     let (fx, fy) = (x - x0, y - y0);
     let texel = |xi: i64, yi: i64| {
         let p = tex.get_pixel(xi.rem_euclid(w) as u32, yi.rem_euclid(h) as u32);
-        Vec3::new(SRGB_LUT[p[0] as usize], SRGB_LUT[p[1] as usize], SRGB_LUT[p[2] as usize])
+        Vec3::new(srgb8_to_linear(p[0]), srgb8_to_linear(p[1]), srgb8_to_linear(p[2]))
     };
     let (xi, yi) = (x0 as i64, y0 as i64);
     let top = texel(xi, yi).lerp(texel(xi + 1, yi), fx);
     let bottom = texel(xi, yi + 1).lerp(texel(xi + 1, yi + 1), fx);
     top.lerp(bottom, fy)
-}
-
-/// Linear value of an 8-bit sRGB level.
-pub fn srgb8_to_linear(v: u8) -> f32 {
-    SRGB_LUT[v as usize]
 }
 
 /// Decodes a texture file (PNG, JPEG, BMP, TGA, WebP, GIF; format from the content, then the extension), at
@@ -501,9 +496,6 @@ fn resolve_texture(dir: &Path, given: &Path) -> Option<PathBuf> {
         .map(|e| e.path())
         .find(|p| p.is_file() && p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.to_lowercase() == lower))
 }
-
-static SRGB_LUT: std::sync::LazyLock<[f32; 256]> =
-    std::sync::LazyLock::new(|| std::array::from_fn(|i| srgb_to_linear(i as f32 / 255.0)));
 
 /// Reads a textured mesh, choosing the reader by extension (`.obj`, `.gltf`, `.glb`, `.ply`, case-insensitive).
 pub fn read_mesh(path: &Path) -> Result<TexturedMesh, MeshIoError> {
