@@ -777,3 +777,28 @@ fn the_live_mask_of_a_bundled_photo_is_the_still_mask() {
         }
     }
 }
+
+/// `bench-live --person-model` plays the clip with the person model kept across the frames: its stage is reported
+/// (it is what the model costs a frame); without the flag there is no such stage.
+#[test]
+fn bench_live_reports_the_person_models_cost_when_asked() {
+    use r2human::app::live_bench::{bench_live, LiveBenchOptions};
+    use r2human::app::neural::NeuralSetup;
+    use r2human::pipeline::RendererChoice;
+    for person_model in [false, true] {
+        let report = bench_live(&LiveBenchOptions {
+            video: PathBuf::from("synthetic:160x120@15"),
+            fps: 15.0,
+            segment: SegmentMethod::Alpha,
+            neural: NeuralSetup { choice: RendererChoice::Geometric, ..Default::default() },
+            seconds: Some(2.0),
+            resolution: 128,
+            person_model,
+            ..Default::default()
+        })
+        .unwrap();
+        assert!(report.stats.completed >= 1, "{person_model}: nothing completed: {:?}", report.stats);
+        let stage = report.stats.stages.iter().find(|s| s.name == "person model");
+        assert_eq!(stage.is_some_and(|s| s.total >= 1), person_model, "{:?}", report.stats.stages);
+    }
+}

@@ -16,7 +16,7 @@ use crate::capture::stats::median;
 use crate::capture::SegmentMethod;
 use crate::geometry::Camera;
 use crate::pipeline::warp::OcclusionFill;
-use crate::pipeline::{auto_frame_options, ViewRenderer};
+use crate::pipeline::{auto_frame_options, PrepareOptions, ViewRenderer};
 
 /// What `bench-live` plays and how.
 #[derive(Clone, Debug)]
@@ -39,6 +39,8 @@ pub struct LiveBenchOptions {
     pub views: bool,
     /// Source resolution (512 like the reference).
     pub resolution: usize,
+    /// Keep the person model across the frames ([`crate::pipeline::PrepareOptions::person_model`]).
+    pub person_model: bool,
 }
 
 impl Default for LiveBenchOptions {
@@ -53,6 +55,7 @@ impl Default for LiveBenchOptions {
             yaw: 30.0,
             views: false,
             resolution: crate::geometry::SOURCE_RESOLUTION,
+            person_model: false,
         }
     }
 }
@@ -142,7 +145,10 @@ pub fn bench_live(opts: &LiveBenchOptions) -> anyhow::Result<LiveBenchReport> {
         None => None,
     };
     let neural = load_interactive(&opts.neural, true)?;
-    let prepare = auto_frame_options(opts.neural.models.as_deref(), opts.resolution, &opts.neural.options)?;
+    let prepare = PrepareOptions {
+        person_model: opts.person_model,
+        ..auto_frame_options(opts.neural.models.as_deref(), opts.resolution, &opts.neural.options)?
+    };
     let worker = neural.second_instance().context("loading the neural models for the live worker")?;
     let processor = EncodeProcessor::new(prepare, worker);
     let encodes = processor.encode_counter();

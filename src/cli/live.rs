@@ -172,6 +172,10 @@ pub struct BenchLiveArgs {
     /// Which renderer draws the views (neural: the worker also runs the encoder on every frame).
     #[command(flatten)]
     pub neural: NeuralArgs,
+    /// Keep the person model across the frames, as `view --person-model` does (its cost is the stage "person
+    /// model").
+    #[arg(long)]
+    pub person_model: bool,
 }
 
 /// `r2human bench-live`.
@@ -186,6 +190,7 @@ pub fn run_bench_live(args: &BenchLiveArgs) -> Result<()> {
         yaw: args.yaw,
         views: args.views,
         resolution: args.resolution,
+        person_model: args.person_model,
     })?;
     println!("{report}");
     Ok(())
