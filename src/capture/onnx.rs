@@ -422,7 +422,8 @@ impl OnnxSegmenter {
             // the frame.
             let same_person =
                 self.presence >= GROW_SQUARE_PRESENCE && pose_object.data.iter().zip(&keep.data).any(|(&p, &k)| p && k);
-            let grid_box = match (bounding_box(&pose_object), bounding_box(&keep).filter(|_| same_person)) {
+            let keep_box = bounding_box(&keep);
+            let grid_box = match (bounding_box(&pose_object), keep_box.filter(|_| same_person)) {
                 (Some((a0, b0, a1, b1)), Some((c0, r0, c1, r1))) => {
                     Some((a0.min(c0), b0.min(r0), a1.max(c1), b1.max(r1)))
                 }
@@ -435,7 +436,7 @@ impl OnnxSegmenter {
             });
             // Only the frame pixels whose bilinear cells reach a kept cell can be above 0: the rest stay 0.
             let mut mask = GrayImage::new(w, h, 0.0);
-            if let Some((c0, r0, c1, r1)) = bounding_box(&keep) {
+            if let Some((c0, r0, c1, r1)) = keep_box {
                 let reach = |v: f32, lo: usize, hi: usize| v + 0.5 >= lo as f32 && v - 0.5 <= hi as f32;
                 let columns: Vec<usize> = (0..w).filter(|&c| reach(us[c], c0, c1)).collect();
                 let rows: Vec<usize> = (0..h).filter(|&r| reach(vs[r], r0, r1)).collect();

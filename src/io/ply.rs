@@ -16,8 +16,7 @@ use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{PropertyAccess, PropertyAccessResult};
 
 use super::mesh_io::{check_mesh, load_texture, Material, MeshIoError, TexturedMesh};
-use crate::buffer::srgb8_to_linear;
-use crate::buffer::srgb_to_linear;
+use crate::buffer::{srgb8_to_linear, srgb_to_linear};
 use crate::geometry::mesh::TriMesh;
 
 /// Largest polygon accepted (vertices per face).
