@@ -85,6 +85,8 @@ pub struct XrOptions {
     pub export_at_frames: Vec<u64>,
     /// Live sources keep a person model across the frames ([`PrepareOptions::person_model`]).
     pub person_model: bool,
+    /// Source resolution live frames are prepared at (`None`: [`live_frame_resolution`] of the eye size).
+    pub live_resolution: Option<usize>,
 }
 
 impl Default for XrOptions {
@@ -103,6 +105,7 @@ impl Default for XrOptions {
             export: ExportOptions::default(),
             export_at_frames: Vec::new(),
             person_model: false,
+            live_resolution: None,
         }
     }
 }
@@ -305,6 +308,7 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
         bail!("--frames 0 shows nothing: give at least 1, or leave it out to run until the headset session ends");
     }
     opts.export.validate()?;
+    check_live_resolution(opts.live_resolution)?;
     if let Some(0) = opts.export_at_frames.iter().copied().min() {
         bail!("--export-at-frame 0 is before the person is shown: give 1 or more");
     }
@@ -388,15 +392,48 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
     Ok(XrRunReport { session: report, live })
 }
 
-/// The options the session's live frames are prepared with ([`crate::pipeline::auto_frame_options`]), with the
-/// coarse mesh the eyes draw when their pixels are that large.
+/// The options the session's live frames are prepared with ([`crate::pipeline::auto_frame_options`]) at
+/// `--live-resolution` or [`live_frame_resolution`], with the coarse mesh the eyes draw when their pixels are that
+/// large.
 fn frame_options(opts: &XrOptions) -> Result<PrepareOptions> {
-    let frames = crate::pipeline::auto_frame_options(
-        opts.neural.models.as_deref(),
-        crate::geometry::SOURCE_RESOLUTION,
-        &opts.neural.options,
-    )?;
+    check_live_resolution(opts.live_resolution)?;
+    let resolution = opts.live_resolution.unwrap_or_else(|| live_frame_resolution(opts.eye_size));
+    tracing::info!(
+        "live frames are prepared at {resolution}x{resolution} ({} holds what eyes of at most {} pixels show of the \
+         person at the default distance; --live-resolution changes it)",
+        live_frame_resolution(opts.eye_size),
+        opts.eye_size
+    );
+    let frames = crate::pipeline::auto_frame_options(opts.neural.models.as_deref(), resolution, &opts.neural.options)?;
     Ok(PrepareOptions { coarse_views: true, person_model: opts.person_model, ..frames })
+}
+
+/// An error saying the range when `--live-resolution` is outside 64 to the still photos' resolution.
+fn check_live_resolution(resolution: Option<usize>) -> Result<()> {
+    match resolution {
+        Some(r) if !(LIVE_RESOLUTION_STEP..=crate::geometry::SOURCE_RESOLUTION).contains(&r) => bail!(
+            "--live-resolution {r} is out of range: use {LIVE_RESOLUTION_STEP} to {} pixels",
+            crate::geometry::SOURCE_RESOLUTION
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// Live frame resolutions are multiples of this many pixels (and at least this many).
+pub const LIVE_RESOLUTION_STEP: usize = 64;
+
+/// The smallest resolution (a multiple of [`LIVE_RESOLUTION_STEP`] from 256, at most the still photos'
+/// [`crate::geometry::SOURCE_RESOLUTION`]) at which a live frame holds every detail an eye whose largest side is
+/// `eye_side` pixels can show of the person at the default placement distance
+/// ([`crate::xr::placement::DEFAULT_DISTANCE`]): one source pixel of the 2 m body cube no larger than one eye pixel
+/// there, for a 90° field of view over that side (headsets' are wider, so their pixels are larger). A live frame
+/// costs about the square of its resolution (`bench-live --resolution`), and what the eye cannot show only takes
+/// the cores the eyes draw with; nearer than the default distance the person gets softer (docs/xr.md).
+pub fn live_frame_resolution(eye_side: u32) -> usize {
+    // Eye pixel at distance D over a 90° field of view: D * 2 * tan(45°) / side metres; source pixel: 2 m / res.
+    let needed = eye_side as f32 / crate::xr::placement::DEFAULT_DISTANCE;
+    let steps = (needed / LIVE_RESOLUTION_STEP as f32).ceil().max(0.0) as usize;
+    (steps * LIVE_RESOLUTION_STEP).clamp(4 * LIVE_RESOLUTION_STEP, crate::geometry::SOURCE_RESOLUTION)
 }
 
 #[cfg(test)]
@@ -425,5 +462,26 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("--fps"));
+        let opts = XrOptions { input: image("missing.png"), live_resolution: Some(8), ..Default::default() };
+        assert!(run_xr_session(&opts).unwrap_err().to_string().contains("--live-resolution 8"));
+    }
+
+    #[test]
+    fn live_frames_hold_what_the_eye_shows_at_the_default_distance() {
+        // An eye pixel of a 90° view over `side` pixels at 1.75 m: 3.5 / side metres; a source pixel: 2 / res.
+        let eye_pixel = |side: u32| 2.0 * crate::xr::placement::DEFAULT_DISTANCE / side as f32;
+        for side in [16, 64, 200, 342, 384, 512, 700, 768, 900, 1024, 2048, 4096] {
+            let res = live_frame_resolution(side);
+            assert_eq!(res % LIVE_RESOLUTION_STEP, 0, "eye {side}: {res}");
+            assert!((256..=crate::geometry::SOURCE_RESOLUTION).contains(&res), "eye {side}: {res}");
+            // Fine enough, unless capped at the stills' resolution...
+            assert!(2.0 / res as f32 <= eye_pixel(side) || res == crate::geometry::SOURCE_RESOLUTION, "eye {side}");
+            // ...and no finer than it needs to be, unless at the floor.
+            let coarser = res - LIVE_RESOLUTION_STEP;
+            assert!(2.0 / coarser as f32 > eye_pixel(side) || res == 256, "eye {side}: {res}");
+        }
+        assert_eq!(live_frame_resolution(384), 256);
+        assert_eq!(live_frame_resolution(768), 448);
+        assert_eq!(live_frame_resolution(2048), crate::geometry::SOURCE_RESOLUTION);
     }
 }

@@ -139,6 +139,10 @@ pub struct XrArgs {
     /// from each side and the colours of the sides and back the camera saw; docs/live.md "The person model").
     #[arg(long)]
     pub person_model: bool,
+    /// Live sources: the resolution frames are prepared at (64 to 512; default: the least that holds what the
+    /// eyes show of the person at the default distance, 256 for eyes of 384 pixels; docs/xr.md).
+    #[arg(long, value_name = "PIXELS")]
+    pub live_resolution: Option<usize>,
 }
 
 /// Arguments of `bench-live`.
@@ -316,6 +320,7 @@ pub fn run_xr(args: &XrArgs) -> Result<()> {
         export_at_frames: args.export_at_frame.clone(),
         backend: args.backend,
         person_model: args.person_model,
+        live_resolution: args.live_resolution,
         ..Default::default()
     })?;
     println!("{report}");
