@@ -8,7 +8,10 @@
 //! Run: `cargo run --release --example live_resolution -- [PHOTO...]` (default: every photo in assets/photos). With
 //! `LIVE_RESOLUTION_OUT=DIR` it also writes each view as `DIR/<photo>_<resolution>_<distance>m_yaw<yaw>.png`.
 
-use std::path::{Path, PathBuf};
+#[path = "common/photos.rs"]
+mod photos;
+
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use glam::{Quat, Vec3};
@@ -58,15 +61,7 @@ fn eye_views(input: &PreparedInput) -> anyhow::Result<Vec<RgbaImage>> {
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut photos: Vec<PathBuf> = std::env::args_os().skip(1).map(PathBuf::from).collect();
-    if photos.is_empty() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/photos");
-        photos = std::fs::read_dir(&dir)?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "png" || x == "jpg"))
-            .collect();
-        photos.sort();
-    }
+    let photos = photos::from_args_or_bundled()?;
     let runtime = RuntimeOptions::default();
     let options: Vec<PrepareOptions> = RESOLUTIONS
         .iter()

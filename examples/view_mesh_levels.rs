@@ -7,7 +7,9 @@
 //!
 //! Run: `cargo run --release --example view_mesh_levels -- [PHOTO...]` (default: every photo in assets/photos).
 
-use std::path::{Path, PathBuf};
+#[path = "common/photos.rs"]
+mod photos;
+
 use std::time::{Duration, Instant};
 
 use glam::{Quat, Vec3};
@@ -29,15 +31,7 @@ fn median_ms(mut v: Vec<Duration>) -> f64 {
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut photos: Vec<PathBuf> = std::env::args_os().skip(1).map(PathBuf::from).collect();
-    if photos.is_empty() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/photos");
-        photos = std::fs::read_dir(&dir)?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "png" || x == "jpg"))
-            .collect();
-        photos.sort();
-    }
+    let photos = photos::from_args_or_bundled()?;
     let (w, h) = (342, 384);
     let head = Vec3::new(0.0, 1.6, 0.0);
     let placement = Placement::in_front_of(head, Quat::IDENTITY, 0.0, 1.75);
