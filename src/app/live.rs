@@ -133,7 +133,9 @@ impl PrepareProcessor {
     pub fn new(options: PrepareOptions) -> Self {
         // The model reads the body's orientation with the back image's pose network when it is loaded.
         let model = options.person_model.then(|| Box::new(PersonModel::new().with_pose(options.back_pose.clone())));
-        Self { path: FramePath::new(options), model, body: None, segmenter_reads_body: false }
+        // With the model, a frame is meshed once, after the model has changed its surfaces.
+        let path = if model.is_some() { FramePath::new(options).without_meshes() } else { FramePath::new(options) };
+        Self { path, model, body: None, segmenter_reads_body: false }
     }
 
     /// The options frames are prepared with.
@@ -163,6 +165,7 @@ impl FrameProcessor for PrepareProcessor {
             if step.restarted || !step.reset_bands.is_empty() {
                 tracing::info!("frame {}: person model {}", frame.index, step.describe());
             }
+            crate::pipeline::frame::finish_meshes(&mut prepared, self.path.options())?;
         }
         for (name, d) in &prepared.timings.0 {
             stats.record(name, *d);
@@ -1126,6 +1129,65 @@ mod tests {
         .join()
         .expect("thread");
         assert_eq!(same, before);
+    }
+
+    #[test]
+    fn with_the_person_model_a_frame_is_meshed_once_from_the_models_surfaces() {
+        use crate::geometry::surface_mesh::mesh_from_surfaces;
+        use crate::pipeline::{frame::FRAME_MESH_STEP, GeometryMode};
+        // A striped ellipse moving sideways, as frames of a source with no alpha.
+        let (w, h) = (96, 128);
+        let frame = |index: u64| {
+            let centre = 48.0 + index as f32;
+            let inside = |c: usize, r: usize| {
+                let (x, y) = ((c as f32 + 0.5 - centre) / 22.0, (r as f32 + 0.5 - 64.0) / 52.0);
+                x * x + y * y <= 1.0
+            };
+            let mut rgb = crate::buffer::RgbImage::new(w, h, glam::Vec3::splat(0.2));
+            let mut mask = GrayImage::new(w, h, 0.0);
+            for r in 0..h {
+                for c in 0..w {
+                    if inside(c, r) {
+                        rgb.data[r * w + c] = glam::Vec3::new(0.8, 0.3 + 0.4 * ((c / 4) % 2) as f32, 0.1);
+                        mask.data[r * w + c] = 1.0;
+                    }
+                }
+            }
+            (Frame { index, timestamp: Duration::from_millis(33 * index), rgb, alpha: None }, mask)
+        };
+        let options = |person_model: bool| PrepareOptions {
+            resolution: 128,
+            depth_samples: 128,
+            geometry: GeometryMode::Inflate,
+            coarse_views: true,
+            person_model,
+            ..PrepareOptions::default()
+        };
+        let (mut with, mut without) = (PrepareProcessor::new(options(true)), PrepareProcessor::new(options(false)));
+        let (mut stats, mut other) = (StageStats::new(8), StageStats::new(8));
+        for index in 0..4 {
+            let (f, mask) = frame(index);
+            let a = with.process(&f, &mask, &mut stats).expect("frame with the model");
+            let b = without.process(&f, &mask, &mut other).expect("frame without it");
+            for (p, what) in [(&a, "with the model"), (&b, "without")] {
+                let surfaces = p.surfaces.as_ref().expect("one-shell surfaces");
+                // The mesh and the coarse mesh are the frame's final surfaces', whoever changed them last.
+                let mesh = mesh_from_surfaces(surfaces, FRAME_MESH_STEP).expect("mesh");
+                assert_eq!(p.mesh.positions, mesh.positions, "frame {index} {what}: mesh");
+                let coarse = p.coarse.as_ref().expect("a coarse mesh for coarse views");
+                let expected = mesh_from_surfaces(surfaces, 2 * FRAME_MESH_STEP).expect("coarse mesh");
+                assert_eq!(coarse.mesh.positions, expected.positions, "frame {index} {what}: coarse");
+                assert_eq!(p.source_gbuffer.width, 128, "frame {index} {what}: source view");
+                assert!(p.source_gbuffer.depth.iter().all(|d| !d.is_nan()), "frame {index} {what}: NaN depth");
+            }
+        }
+        // With the model the frame path meshes nothing (the model meshes its surfaces; the coarse mesh follows).
+        let runs =
+            |stats: &StageStats, name: &str| stats.summary().into_iter().find(|s| s.name == name).map(|s| s.total);
+        assert_eq!(runs(&stats, "mesh (depth maps)"), None);
+        assert_eq!(runs(&stats, "source view (depth maps)"), None);
+        assert_eq!(runs(&stats, "coarse mesh (depth maps)"), Some(4));
+        assert_eq!(runs(&other, "mesh (depth maps)"), Some(4));
     }
 
     #[test]

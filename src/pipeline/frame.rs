@@ -39,8 +39,9 @@ use super::{
 use crate::body::pose::PoseRegion;
 use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::inflate::InflatedSurfaces;
+use crate::geometry::raster::GBuffer;
 use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer, SurfaceMeshError};
-use crate::geometry::Camera;
+use crate::geometry::{Camera, TriMesh};
 
 /// The frame mesh's sampling step in source pixels: at 512² a step of 2 keeps every facet near a pixel of a
 /// 512² view of the whole body cube (the largest view the evaluation and the XR eyes draw the person at); a step
@@ -53,6 +54,46 @@ fn coarse_frame_mesh(surfaces: &InflatedSurfaces, resolution: usize) -> Option<C
     let step = 2 * FRAME_MESH_STEP;
     let mesh = mesh_from_surfaces(surfaces, step).ok()?;
     Some(CoarseMesh::new(mesh, step as f32 * 2.0 / resolution.max(1) as f32))
+}
+
+/// A frame's mesh (every [`FRAME_MESH_STEP`] pixels), its source view and, with `opts.coarse_views`, its coarse
+/// mesh, all straight from the one-shell `surfaces`, timed into `t`.
+fn meshes_of(
+    surfaces: &InflatedSurfaces,
+    opts: &PrepareOptions,
+    t: &mut StageTimings,
+) -> Result<(TriMesh, GBuffer, Option<CoarseMesh>), PipelineError> {
+    let mesh = t.time("mesh (depth maps)", || mesh_from_surfaces(surfaces, FRAME_MESH_STEP));
+    let mesh = mesh.map_err(|e| match e {
+        SurfaceMeshError::Empty { .. } => PipelineError::EmptyGeometry,
+        _ => PipelineError::NonFinite("frame geometry"),
+    })?;
+    let source = t.time("source view (depth maps)", || source_gbuffer(surfaces));
+    let coarse = opts
+        .coarse_views
+        .then(|| t.time("coarse mesh (depth maps)", || coarse_frame_mesh(surfaces, opts.resolution)))
+        .flatten();
+    Ok((mesh, source, coarse))
+}
+
+/// Makes what a frame of a [`FramePath::without_meshes`] path (or a frame whose surfaces changed after it was
+/// meshed, which then holds no coarse mesh) lacks, from its surfaces: the mesh and source view when its mesh is
+/// empty, the coarse mesh when `opts.coarse_views` asks for one. Timed into the frame's timings under the frame
+/// path's names. A frame without surfaces (the still path's) is left as it is.
+pub fn finish_meshes(prepared: &mut PreparedInput, opts: &PrepareOptions) -> Result<(), PipelineError> {
+    let Some(surfaces) = prepared.surfaces.as_ref() else { return Ok(()) };
+    let mut t = StageTimings::default();
+    if prepared.mesh.is_empty() {
+        let (mesh, source, coarse) = meshes_of(surfaces, opts, &mut t)?;
+        prepared.mesh = mesh;
+        prepared.source_gbuffer = source;
+        prepared.mesh_closed = true;
+        prepared.coarse = coarse;
+    } else if opts.coarse_views && prepared.coarse.is_none() {
+        prepared.coarse = t.time("coarse mesh (depth maps)", || coarse_frame_mesh(surfaces, opts.resolution));
+    }
+    prepared.timings.0.extend(t.0);
+    Ok(())
 }
 
 /// How much coarser than the source grid a frame's silhouette is inflated
@@ -157,6 +198,8 @@ pub struct FramePath {
     placement: Option<Placement>,
     pending: Option<std::thread::JoinHandle<PlacementResult>>,
     refresh: PlacementRefresh,
+    /// Whether frames come with their mesh, source view and coarse mesh ([`FramePath::without_meshes`]).
+    meshes: bool,
 }
 
 /// Where a frame path makes a new body placement once the first frame has one ([`FramePath::set_refresh`]).
@@ -300,7 +343,17 @@ impl FramePath {
             placement: None,
             pending: None,
             refresh: PlacementRefresh::Background,
+            meshes: true,
         }
+    }
+
+    /// This path preparing frames without their mesh, source view and coarse mesh (an empty mesh and source view,
+    /// no coarse mesh), for a caller that changes the surfaces first (the person model,
+    /// [`super::person_model::PersonModel::update`]) and then makes them once with [`finish_meshes`]: a frame's
+    /// meshing costs about as much as the person model's own.
+    pub fn without_meshes(mut self) -> Self {
+        self.meshes = false;
+        self
     }
 
     /// Where this path makes a new body placement once the first frame has one (default
@@ -372,19 +425,15 @@ impl FramePath {
         let opts = &self.options;
         let source_camera = Camera::source(opts.resolution);
         let mut colour_timings = StageTimings::default();
+        let meshes = self.meshes;
         let (geometry, (normalised, kept, side)) = rayon::join(
             || -> Result<_, PipelineError> {
                 let mut t = StageTimings::default();
-                let mesh = t.time("mesh (depth maps)", || mesh_from_surfaces(&surfaces, FRAME_MESH_STEP));
-                let mesh = mesh.map_err(|e| match e {
-                    SurfaceMeshError::Empty { .. } => PipelineError::EmptyGeometry,
-                    _ => PipelineError::NonFinite("frame geometry"),
-                })?;
-                let source = t.time("source view (depth maps)", || source_gbuffer(&surfaces));
-                let coarse = opts
-                    .coarse_views
-                    .then(|| t.time("coarse mesh (depth maps)", || coarse_frame_mesh(&surfaces, opts.resolution)));
-                Ok((mesh, source, coarse.flatten(), t))
+                if !meshes {
+                    return Ok((TriMesh::default(), GBuffer::default(), None, t));
+                }
+                let (mesh, source, coarse) = meshes_of(&surfaces, opts, &mut t)?;
+                Ok((mesh, source, coarse, t))
             },
             || {
                 let kept = match kept {

@@ -583,21 +583,27 @@ impl PersonModel {
         out.hull_weight = hull_weight;
         stage.lap("depths");
         let centred = crate::body::placed::centred(surfaces.clone());
-        // Colours: keep what this frame sees, then draw the back from the model.
-        let gbuffer = source_gbuffer(&centred);
-        stage.lap("source view");
-        self.keep_colours(prepared, &surfaces, &gbuffer.normal, &hold, &place, &suspect);
-        stage.lap("colours kept");
-        out.back_from_model = self.back_from_model(prepared, &surfaces, &hold, &place);
-        stage.lap("back image");
-        if let Ok(mesh) = mesh_from_surfaces(&centred, super::frame::FRAME_MESH_STEP) {
+        // The mesh beside the colours: keep what this frame sees, then draw the back from the model.
+        let (mesh, (gbuffer, back_from_model)) = rayon::join(
+            || mesh_from_surfaces(&centred, super::frame::FRAME_MESH_STEP),
+            || {
+                let gbuffer = source_gbuffer(&centred);
+                self.keep_colours(prepared, &surfaces, &gbuffer.normal, &hold, &place, &suspect);
+                let back = self.back_from_model(prepared, &surfaces, &hold, &place);
+                (gbuffer, back)
+            },
+        );
+        out.back_from_model = back_from_model;
+        stage.lap("source view, colours kept, back image | mesh");
+        if let Ok(mesh) = mesh {
             prepared.mesh = mesh;
             prepared.source_gbuffer = gbuffer;
             prepared.surfaces = Some(centred);
-            // The encoder's FOF, if any, no longer matches the geometry: drop it (it is encoded on demand).
+            // The encoder's FOF and the coarse mesh, if any, no longer match the geometry: drop them (the FOF is
+            // encoded on demand, the coarse mesh made by `frame::finish_meshes`).
             prepared.fof = None;
+            prepared.coarse = None;
         }
-        stage.lap("mesh");
         self.frames += 1;
         stage.log();
         out.yaw_degrees = self.yaw.to_degrees();
@@ -1189,7 +1195,10 @@ impl PersonModel {
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         if taken > 0 {
-            prepared.side.back = Some(super::warp::SideImages::of(&back.rgb, None, &prepared.normalised.mask).rgb);
+            // On the frame path's grid for side images (a blur of 4 px at 512² loses nothing twice as coarse).
+            let mask = &prepared.normalised.mask;
+            let side = super::warp::SideImages::with_back_side(&back.rgb, None, mask, super::frame::FRAME_SIDE_FACTOR);
+            prepared.side.back = Some(side.rgb);
         }
         // Untouched, a frame without a back image keeps none.
         prepared.back = (had_back || taken > 0).then_some(back);
