@@ -196,6 +196,9 @@ pub struct ModelTrackRow {
     pub hull_weight: f32,
     /// Milliseconds the model's update took (with the pose read).
     pub ms: f32,
+    /// The frame's colour difference with the model averaged over the bands holding colour, and its largest band
+    /// ([`crate::pipeline::person_model::ModelFrame::band_error_roots`]; NaN where no band holds colour).
+    pub band_error: (f32, f32),
     /// Milliseconds of it the pose network's read took.
     pub pose_ms: f32,
 }
@@ -341,6 +344,11 @@ fn eval_clip(
             hull_weight: step.hull_weight,
             ms: step.ms,
             pose_ms: step.pose_ms,
+            band_error: {
+                let held: Vec<f32> = step.band_error_roots.iter().copied().filter(|e| !e.is_nan()).collect();
+                let mean = held.iter().sum::<f32>() / held.len() as f32;
+                (mean, held.iter().copied().fold(f32::NAN, f32::max))
+            },
         });
         // The ground truth of this moment in the frame path's normalisation, centred in depth.
         let transform = prepared.normalised.transform;
@@ -790,7 +798,7 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
     }
     let p = opts.out.join("turn.csv");
     write_atomic(&p, csv.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
-    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,body_error_deg,body_used,restarted,reset_bands,hull_weight,ms,pose_ms\n");
+    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,body_error_deg,body_used,restarted,reset_bands,hull_weight,ms,pose_ms,band_error_mean,band_error_max\n");
     for r in &rep.tracking {
         let fields = [
             format!("\"{}\"", r.clip.replace('"', "\"\"")),
@@ -805,6 +813,8 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
             format!("{:.3}", r.hull_weight),
             format!("{:.2}", r.ms),
             format!("{:.2}", r.pose_ms),
+            format!("{:.4}", r.band_error.0),
+            format!("{:.4}", r.band_error.1),
         ];
         track.push_str(&fields.join(","));
         track.push('\n');

@@ -37,10 +37,12 @@
 //! colours.
 //!
 //! **Forgetting**: per horizontal band of the body ([`BANDS`]), the colours the frame shows are compared with the
-//! kept ones at the tracked yaw; a band whose mean difference exceeds [`RESET_COLOUR_ERROR`] on
-//! [`RESET_STRIKES`] frames in a row is reset (hull, colours and the directions seen); when half the bands holding
-//! colour reset at once, or the mean over the bands exceeds the threshold as long (another person, a cut), the
-//! whole model restarts from this frame. A band that disagrees once keeps what it holds (nothing of that frame is
+//! kept ones at the tracked yaw; a band whose mean difference exceeds
+//! [`RESET_COLOUR_ERROR`] on [`RESET_STRIKES`] frames in a row is reset (hull, colours and the directions seen); when
+//! half the bands holding colour reset at once, or the mean over the bands (of the colours' square roots, about as
+//! the eye weighs them) jumps above [`RESTART_JUMP`] times its usual value and [`RESTART_COLOUR_ERROR`], with
+//! three quarters of the bands each jumping ([`RESTART_BAND_JUMP`]), as long (another person, a cut), the whole
+//! model restarts from this frame. A band that disagrees once keeps what it holds (nothing of that frame is
 //! carved or kept there) until the next frame decides. A turn keeps the colours in step with the tracked yaw and
 //! does not reset.
 //!
@@ -119,6 +121,26 @@ pub const MAX_TURN_DEGREES: f32 = 25.0;
 /// Mean absolute colour difference (linear RGB, averaged over the channels) between a band of the frame and the
 /// model above which the band counts as changed.
 pub const RESET_COLOUR_ERROR: f32 = 0.16;
+
+/// The colour difference of the square roots of linear RGB ([`ModelFrame::band_error_roots`]) averaged over the
+/// bands holding colour: the floor under which the whole person never counts as changed. The whole person counts as changed above it and above [`RESTART_JUMP`] times what the person's
+/// frames have differed by so far. On the turning synthetic people (`eval --turn`, seed 0, frames without an
+/// event) the mean stays under 0.042; on the textured column of the tests it climbs to 0.09 over a turn as the
+/// yaw runs ahead; a cut to another person gave 0.12–0.39 on the two frames after it, 4 to 12 times the frames
+/// before.
+pub const RESTART_COLOUR_ERROR: f32 = 0.05;
+
+/// How many times the person's usual difference ([`RESTART_COLOUR_ERROR`]) the mean over the bands must exceed for
+/// the whole person to count as changed: a cut jumps, a turn drifts (2.5 restarted the textured column's turn).
+pub const RESTART_JUMP: f32 = 3.0;
+
+/// How many times a band's usual difference its difference must exceed to count as jumped; the whole person counts
+/// as changed only when three quarters of the bands holding colour jumped (on the cuts of `eval --turn` every band
+/// but one jumped 2 to 90 times its value before).
+pub const RESTART_BAND_JUMP: f32 = 2.0;
+
+/// The new frame's weight in the person's usual difference (an exponential average over the unchanged frames).
+pub const RESTART_BASELINE_WEIGHT: f32 = 0.2;
 
 /// Frames in a row a band must count as changed before it is reset.
 pub const RESET_STRIKES: u8 = 2;
@@ -242,6 +264,14 @@ impl Placement {
     }
 }
 
+/// A frame's colour difference with the model per band at the tracked yaw ([`ModelFrame::band_error`],
+/// [`ModelFrame::band_error_roots`]).
+#[derive(Clone, Copy, Debug)]
+struct BandErrors {
+    linear: [f32; BANDS],
+    roots: [f32; BANDS],
+}
+
 /// The time each step of an update took, for the log (at trace level: `R2HUMAN_LOG=r2human::pipeline::person_model=trace`).
 struct StageClock {
     last: std::time::Instant,
@@ -310,8 +340,11 @@ pub struct ModelFrame {
     pub reset_bands: Vec<usize>,
     /// Whether the whole model restarted on this frame.
     pub restarted: bool,
-    /// Per band, the mean colour difference between the frame and the model (NaN where too few samples).
+    /// Per band, the mean colour difference between the frame and the model (linear RGB; NaN where too few samples).
     pub band_error: [f32; BANDS],
+    /// The same of the square roots of linear RGB, about as the eye weighs differences (a dark garment changed for
+    /// another differs as much as a light one): the whole person's test ([`RESTART_COLOUR_ERROR`]).
+    pub band_error_roots: [f32; BANDS],
     /// Mean over the current silhouette's slices of how far the hull replaced the frame's own depths (0..1).
     pub hull_weight: f32,
     /// Fraction of the back image's pixels that took the kept colours.
@@ -348,6 +381,11 @@ pub struct PersonModel {
     strikes: [u8; BANDS],
     /// Frames in a row the mean over the bands has counted as changed.
     whole_strikes: u8,
+    /// The mean over the bands on the frames that counted as unchanged, averaged over time
+    /// ([`RESTART_BASELINE_WEIGHT`]); `None` before the first.
+    whole_baseline: Option<f32>,
+    /// The same per band, over the frames its difference did not jump ([`RESTART_BAND_JUMP`]).
+    band_baseline: [Option<f32>; BANDS],
     frames: u64,
     /// The pose network the body's orientation is read with on every frame ([`PersonModel::with_pose`]).
     pose: Option<super::SharedPose>,
@@ -379,6 +417,8 @@ impl PersonModel {
             velocity: 0.0,
             strikes: [0; BANDS],
             whole_strikes: 0,
+            whole_baseline: None,
+            band_baseline: [None; BANDS],
             frames: 0,
             pose: None,
             pose_region: None,
@@ -427,6 +467,8 @@ impl PersonModel {
         self.velocity = 0.0;
         self.strikes = [0; BANDS];
         self.whole_strikes = 0;
+        self.whole_baseline = None;
+        self.band_baseline = [None; BANDS];
         self.frames = 0;
         self.pose_region = None;
         self.body_offset = None;
@@ -471,7 +513,12 @@ impl PersonModel {
         started: std::time::Instant,
         pose_ms: f32,
     ) -> ModelFrame {
-        let mut out = ModelFrame { band_error: [f32::NAN; BANDS], pose_ms, ..Default::default() };
+        let mut out = ModelFrame {
+            band_error: [f32::NAN; BANDS],
+            band_error_roots: [f32::NAN; BANDS],
+            pose_ms,
+            ..Default::default()
+        };
         let mut stage = StageClock::start();
         let Some(guess) = prepared.surfaces.clone() else { return out };
         let size = prepared.normalised.mask.width;
@@ -539,9 +586,10 @@ impl PersonModel {
                 .and_then(|(yaw, _)| self.track(&points, &Placement { yaw, ..place }, -2..=2, 0))
                 .filter(|(yaw, _)| (yaw - place.yaw).abs() <= (search as f32).to_radians());
             match fine.or(coarse) {
-                Some((yaw, band_error)) => {
+                Some((yaw, errors)) => {
                     out.tracked = search > 0;
-                    out.band_error = band_error;
+                    out.band_error = errors.linear;
+                    out.band_error_roots = errors.roots;
                     place.yaw = if search > 0 { yaw } else { place.yaw };
                 }
                 None if !out.body_used => self.velocity *= 0.8,
@@ -664,9 +712,32 @@ impl PersonModel {
                 self.strikes[b] = 0;
             }
         }
-        let errors: Vec<f32> = out.band_error.iter().copied().filter(|e| !e.is_nan()).collect();
+        let errors: Vec<f32> = out.band_error_roots.iter().copied().filter(|e| !e.is_nan()).collect();
         let whole = errors.iter().sum::<f32>() / errors.len().max(1) as f32;
-        self.whole_strikes = if holding > 0 && whole > RESET_COLOUR_ERROR { self.whole_strikes + 1 } else { 0 };
+        // Changed: well above what this person's frames have differed by so far (a textured garment a few degrees
+        // off the tracked yaw differs a lot all the time), and above a floor; before the first unchanged frame there
+        // is no usual difference: the bands' own threshold. And broadly: most bands jumped (a top taken off changes
+        // the torso's bands and leaves the legs', which then stay; their bands are reset one by one).
+        let limit = self.whole_baseline.map_or(RESET_COLOUR_ERROR, |b| RESTART_COLOUR_ERROR.max(RESTART_JUMP * b));
+        let mut jumped = 0;
+        for (b, e) in out.band_error_roots.iter().enumerate().filter(|(_, e)| !e.is_nan()) {
+            if self.band_baseline[b].is_none_or(|base| *e > RESTART_BAND_JUMP * base) {
+                jumped += 1;
+            } else {
+                let w = RESTART_BASELINE_WEIGHT;
+                self.band_baseline[b] = self.band_baseline[b].map(|base| (1.0 - w) * base + w * e);
+            }
+            if self.band_baseline[b].is_none() {
+                self.band_baseline[b] = Some(*e);
+            }
+        }
+        let broadly = 4 * jumped >= 3 * errors.len();
+        let changed_whole = holding > 0 && whole > limit && broadly;
+        self.whole_strikes = if changed_whole { self.whole_strikes + 1 } else { 0 };
+        if holding > 0 && !changed_whole {
+            let w = RESTART_BASELINE_WEIGHT;
+            self.whole_baseline = Some(self.whole_baseline.map_or(whole, |b| (1.0 - w) * b + w * whole));
+        }
         if self.whole_strikes > 0 && self.whole_strikes < RESET_STRIKES {
             // The whole person may have changed: every band waits for the next frame.
             self.strikes.iter_mut().for_each(|s| *s = (*s).max(1));
@@ -693,8 +764,9 @@ impl PersonModel {
         out.reset_bands = changed;
     }
 
-    /// Forgets band `b`: its hull slices, their directions and its colour rows.
+    /// Forgets band `b`: its hull slices, their directions, its colour rows and its usual difference.
     fn reset_band(&mut self, b: usize) {
+        self.band_baseline[b] = None;
         let cells = HULL_SIDE * HULL_SIDE;
         for j in (0..HULL_SLICES).filter(|&j| band_of(slice_height(j)) == b) {
             self.hull[j * cells..(j + 1) * cells].iter_mut().for_each(|c| *c = [f32::INFINITY; 2]);
@@ -733,18 +805,19 @@ impl PersonModel {
         place: &Placement,
         range: std::ops::RangeInclusive<i32>,
         blur: usize,
-    ) -> Option<(f32, [f32; BANDS])> {
+    ) -> Option<(f32, BandErrors)> {
         if points.is_empty() {
             return None;
         }
         let first = *range.start();
-        let candidates: Vec<(f32, usize, [f32; BANDS], [usize; BANDS])> = range
+        let candidates: Vec<(f32, usize, BandErrors)> = range
             .into_par_iter()
             .map(|d| {
                 let yaw = place.yaw + (d as f32).to_radians();
                 let p = Placement { yaw, ..*place }.turn();
                 let (mut sum, mut n) = (0.0f32, 0usize);
                 let (mut band_sum, mut band_n) = ([0.0f32; BANDS], [0usize; BANDS]);
+                let mut band_root_sum = [0.0f32; BANDS];
                 for pt in points {
                     let (u, w) = p.model_of(pt.x, pt.z);
                     let Some(kept) = self.colour_at(u, w, pt.y, blur) else { continue };
@@ -753,16 +826,19 @@ impl PersonModel {
                     sum += e;
                     n += 1;
                     band_sum[pt.band] += e;
+                    let root = |v: Vec3| v.max(Vec3::ZERO).powf(0.5);
+                    band_root_sum[pt.band] += (root(seen) - root(kept)).abs().element_sum() / 3.0;
                     band_n[pt.band] += 1;
                 }
                 let mean = if n > 0 { sum / n as f32 } else { f32::INFINITY };
-                let mut band = [f32::NAN; BANDS];
+                let (mut band, mut roots) = ([f32::NAN; BANDS], [f32::NAN; BANDS]);
                 for b in 0..BANDS {
                     if band_n[b] >= MIN_BAND_SAMPLES {
                         band[b] = band_sum[b] / band_n[b] as f32;
+                        roots[b] = band_root_sum[b] / band_n[b] as f32;
                     }
                 }
-                (mean, n, band, band_n)
+                (mean, n, BandErrors { linear: band, roots })
             })
             .collect();
         let most = candidates.iter().map(|c| c.1).max().unwrap_or(0);
@@ -1634,6 +1710,11 @@ mod tests {
     /// A `size`² orthographic frame of the column turned by `yaw` (radians; the model's convention), with a head
     /// (a narrower column on top) so that the silhouette has a torso band: linear RGB and the mask.
     fn frame(size: usize, yaw: f32, other: bool) -> (RgbImage, GrayImage) {
+        frame_with(size, yaw, |phi, y| pattern(phi, y, other))
+    }
+
+    /// [`frame`] with the column's colours `pattern(angle about the axis, height)`.
+    fn frame_with(size: usize, yaw: f32, pattern: impl Fn(f32, f32) -> Vec3) -> (RgbImage, GrayImage) {
         let mut rgb = RgbImage::new(size, size, Vec3::ZERO);
         let mut mask = GrayImage::new(size, size, 0.0);
         let (s, c) = yaw.sin_cos();
@@ -1657,7 +1738,7 @@ mod tests {
                 let z = (-qb + disc.sqrt()) / (2.0 * qa);
                 let (u, w) = (c * x - s * z, s * x + c * z);
                 let phi = (u / a).atan2(w / b);
-                rgb.set(col, r, pattern(phi, y, other));
+                rgb.set(col, r, pattern(phi, y));
                 mask.set(col, r, 1.0);
             }
         }
@@ -1864,6 +1945,42 @@ mod tests {
         }
         let at = restarted_at.expect("the model restarted after the cut");
         assert!(at < RESET_STRIKES as usize + 1, "restarted {at} frames after the cut");
+    }
+
+    /// Two people in dark clothes differ little in linear RGB (navy against brown: 0.045 mean, under a third of the
+    /// bands' threshold) but as much as any two garments to the eye: the whole person's test reads square roots and a jump
+    /// over what the person's own frames differed by. A turn of the dark person alone never restarts.
+    #[test]
+    fn a_cut_between_two_people_in_dark_clothes_restarts_the_model() {
+        let navy = |phi: f32, y: f32| {
+            Vec3::new(0.02, 0.03, 0.08) * (1.0 + 0.3 * (3.0 * phi).sin()) + Vec3::splat(0.01 * (6.0 * y).cos())
+        };
+        let brown = |phi: f32, y: f32| {
+            Vec3::new(0.08, 0.04, 0.02) * (1.0 + 0.3 * (2.0 * phi).cos()) + Vec3::splat(0.01 * (5.0 * y).sin())
+        };
+        let linear_gap = (0..64)
+            .map(|k| {
+                let (phi, y) = (k as f32 * 0.1, (k % 8) as f32 * 0.2 - 0.8);
+                (navy(phi, y) - brown(phi, y)).abs().element_sum() / 3.0
+            })
+            .sum::<f32>()
+            / 64.0;
+        assert!(linear_gap < RESET_COLOUR_ERROR / 3.0, "the two garments differ by {linear_gap} in linear RGB");
+        let mut model = PersonModel::new();
+        let mut path = path();
+        let mut restarted_at = None;
+        for i in 0..30 {
+            let yaw = (i as f32 * 10.0).to_radians();
+            let (rgb, mask) = if i < 24 { frame_with(SIZE, yaw, navy) } else { frame_with(SIZE, yaw, brown) };
+            let mut p = path.prepare(&rgb, &mask).expect("a frame");
+            let f = model.update_with_world(&mut p, Some(&torso(yaw, false)));
+            if f.restarted {
+                assert!(i >= 24, "frame {i}: the turn of one person restarted the model");
+                restarted_at = restarted_at.or(Some(i));
+            }
+        }
+        let at = restarted_at.expect("the model restarted after the cut");
+        assert!(at < 24 + RESET_STRIKES as usize + 1, "restarted {} frames after the cut", at - 24);
     }
 
     #[test]
