@@ -8,9 +8,10 @@
 # not dropped) and the display loop's frame-time histogram (CSV and PNG). The script exits non-zero when a run was
 # dropped or validation spoke.
 #
-# Usage: scripts/soak.sh [--frames N] [--view-only | --xr-only] [--faults] [--release] [--out DIR]
+# Usage: scripts/soak.sh [--frames N] [--view-only | --xr-only] [--faults] [--person-model] [--release] [--out DIR]
 #   --frames N   frames per run (default 10000: about 10-20 minutes on this 2-core machine)
 #   --faults     the source stalls, vanishes and changes resolution every 12 s (synthetic:…+faults)
+#   --person-model  keep the person model across the frames (view and xr --person-model)
 #   --release    build and run the release profile (default: dev)
 #   --out DIR    where the logs and summaries go (default target/soak)
 # The XR run needs root and the Monado root of scripts/xr/make-root.sh (skipped with a message otherwise).
@@ -24,12 +25,14 @@ PROFILE=debug
 CARGO_PROFILE=()
 OUT=target/soak
 FAILED=0
+EXTRA=()
 while [ $# -gt 0 ]; do
     case "$1" in
         --frames) FRAMES=$2; shift 2 ;;
         --view-only) RUN_XR=0; shift ;;
         --xr-only) RUN_VIEW=0; shift ;;
         --faults) SOURCE="synthetic:320x240@30+faults"; shift ;;
+        --person-model) EXTRA+=(--person-model); shift ;;
         --release) PROFILE=release; CARGO_PROFILE=(--release); shift ;;
         --out) OUT=$2; shift 2 ;;
         *) echo "unknown option $1 (see the header of $0)" >&2; exit 2 ;;
@@ -68,7 +71,7 @@ if [ "$RUN_VIEW" = 1 ]; then
     echo "soak: view, $FRAMES frames of $SOURCE under Xvfb :$DISPLAY_NUM (validation on)"
     DISPLAY=":$DISPLAY_NUM" R2HUMAN_VULKAN_VALIDATION=1 R2HUMAN_LOG=warn R2HUMAN_HEAP_LOG="$OUT/view_heap.csv" \
         "$BIN" view --video "$SOURCE" \
-        --segment alpha --frames "$FRAMES" --size 256 --spin 0.5 --frame-log "$OUT/view_frames.csv" \
+        --segment alpha --frames "$FRAMES" --size 256 --spin 0.5 --frame-log "$OUT/view_frames.csv" "${EXTRA[@]}" \
         > "$OUT/view.log" 2>&1 &
     VIEW_PID=$!
     sample_rss "$VIEW_PID" "$OUT/view_rss.csv" &
@@ -92,7 +95,7 @@ if [ "$RUN_XR" = 1 ]; then
         HEAP_LOG=$PWD/target/soak-xr-heap.$$.csv
         XR_ENABLE_API_LAYERS=XR_APILAYER_LUNARG_core_validation VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation \
             R2HUMAN_LOG=warn R2HUMAN_HEAP_LOG="$HEAP_LOG" scripts/xr/run-in-root.sh "$BIN" xr --video "$SOURCE" --segment alpha \
-            --frames "$FRAMES" --eye-size 192 --no-mirror > "$OUT/xr.log" 2>&1 &
+            --frames "$FRAMES" --eye-size 192 --no-mirror "${EXTRA[@]}" > "$OUT/xr.log" 2>&1 &
         RUNNER=$!
         XR_PID=""
         for _ in $(seq 600); do
