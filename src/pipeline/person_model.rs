@@ -1983,6 +1983,53 @@ mod tests {
         assert!(at < 24 + RESET_STRIKES as usize + 1, "restarted {} frames after the cut", at - 24);
     }
 
+    /// What the export action writes from a live source with the model on (`view`'s E key, `xr`'s export: the
+    /// prepared frame the eyes show) is the accumulated person: the model's mesh, and on the surfaces facing away
+    /// the back colours the turn showed — truer to the column's back than the frame's front, which the frame path's
+    /// export puts there without a back image.
+    #[test]
+    fn the_export_writes_the_accumulated_person() {
+        use crate::pipeline::export::{person_mesh, ExportOptions};
+        let mut model = PersonModel::new();
+        let (guess, modelled, _) = turn(&mut model, 36, 10.0);
+        let opts = ExportOptions::default();
+        let mask = &modelled.normalised.mask;
+        let (exported, report) = person_mesh(&modelled, mask, &opts).expect("the model's person exports");
+        let res = mask.width;
+        assert_eq!(report.texture, (2 * res as u32, res as u32), "the photo and the kept back as textures");
+        assert!(report.back_triangles > 0, "{report:?}");
+        assert_eq!(report.source_triangles, modelled.mesh.triangle_count());
+        assert!(!exported.mesh.positions.is_empty());
+        let (_, plain) = person_mesh(&guess, &guess.normalised.mask, &opts).expect("the frame exports");
+        assert_eq!(plain.texture, (res as u32, res as u32), "the frame alone has no back image here");
+        // The column's true back colour at each pixel of the torso, against the kept back and the frame's front.
+        let back = modelled.back.as_ref().expect("a back image from the model");
+        let t = modelled.normalised.transform;
+        let (mut kept, mut front, mut n) = (0.0f32, 0.0f32, 0usize);
+        for row in 0..res {
+            for col in 0..res {
+                let i = row * res + col;
+                if mask.data[i] < 0.99 {
+                    continue;
+                }
+                let photo = (Vec2::new(col as f32 + 0.5, row as f32 + 0.5) - t.offset) / t.scale;
+                let (x, y) = (2.0 * photo.x / SIZE as f32 - 1.0, 1.0 - 2.0 * photo.y / SIZE as f32);
+                if !(-0.8..=0.5).contains(&y) || x.abs() > 0.8 * A {
+                    continue;
+                }
+                let z_back = -B * (1.0 - x * x / (A * A)).max(0.0).sqrt();
+                let truth = pattern((x / A).atan2(z_back / B), y, false);
+                let m = mask.data[i];
+                kept += (back.rgb.data[i] / m - truth).abs().element_sum() / 3.0;
+                front += (modelled.normalised.rgb.data[i] / m - truth).abs().element_sum() / 3.0;
+                n += 1;
+            }
+        }
+        assert!(n > 200, "{n} torso pixels");
+        let (kept, front) = (kept / n as f32, front / n as f32);
+        assert!(kept < 0.6 * front, "kept back {kept} against the front's {front} (mean |difference|)");
+    }
+
     #[test]
     fn the_fast_angle_is_the_angle() {
         for k in 0..2000 {
