@@ -142,6 +142,16 @@ pub const RESTART_BAND_JUMP: f32 = 2.0;
 /// The new frame's weight in the person's usual difference (an exponential average over the unchanged frames).
 pub const RESTART_BASELINE_WEIGHT: f32 = 0.2;
 
+/// How far (degrees) the tracked yaw must have turned since the hull was last carved and the colours last kept for
+/// a frame to carve and keep again at once: a frame from the direction of the last adds little to either (the
+/// hull is carved by the second smallest over frames, the colours are the camera's own where it looks), and the
+/// two are 7–8 ms of a 512² update.
+pub const REFRESH_DEGREES: f32 = 2.5;
+
+/// Frames after which the hull is carved and the colours kept again even without a turn (a moved arm, a new
+/// expression).
+pub const REFRESH_EVERY: u64 = 4;
+
 /// Frames in a row a band must count as changed before it is reset.
 pub const RESET_STRIKES: u8 = 2;
 
@@ -386,6 +396,8 @@ pub struct PersonModel {
     whole_baseline: Option<f32>,
     /// The same per band, over the frames its difference did not jump ([`RESTART_BAND_JUMP`]).
     band_baseline: [Option<f32>; BANDS],
+    /// The yaw and frame number the hull was last carved and the colours kept at (`None`: at the next frame).
+    last_refresh: Option<(f32, u64)>,
     frames: u64,
     /// The pose network the body's orientation is read with on every frame ([`PersonModel::with_pose`]).
     pose: Option<super::SharedPose>,
@@ -419,6 +431,7 @@ impl PersonModel {
             whole_strikes: 0,
             whole_baseline: None,
             band_baseline: [None; BANDS],
+            last_refresh: None,
             frames: 0,
             pose: None,
             pose_region: None,
@@ -469,6 +482,7 @@ impl PersonModel {
         self.whole_strikes = 0;
         self.whole_baseline = None;
         self.band_baseline = [None; BANDS];
+        self.last_refresh = None;
         self.frames = 0;
         self.pose_region = None;
         self.body_offset = None;
@@ -615,15 +629,22 @@ impl PersonModel {
         // A band that disagrees with the model but is not reset yet keeps what it holds: nothing of this frame is
         // carved or kept there until the next frame says whether it changed.
         let suspect: [bool; BANDS] = std::array::from_fn(|b| self.strikes[b] > 0);
-        // Carve with this frame's silhouette, mark the direction seen.
-        let profiles = RowProfiles::of(&guess.mask, &place);
-        self.carve(&profiles, &place, &suspect);
-        let bin = yaw_bin(place.yaw);
-        for j in 0..HULL_SLICES {
-            let q = place.row(slice_height(j));
-            if !suspect[band_of(slice_height(j))] && q >= place.frame.0.y && q <= place.frame.1.y {
-                self.seen[j] |= 1 << bin;
+        // Carve with this frame's silhouette and keep its colours when it shows the person from a new direction, else
+        // every few frames ([`REFRESH_DEGREES`], [`REFRESH_EVERY`]).
+        let refresh = self.last_refresh.is_none_or(|(yaw, frame)| {
+            (place.yaw - yaw).abs() >= REFRESH_DEGREES.to_radians() || self.frames >= frame + REFRESH_EVERY
+        });
+        if refresh {
+            let profiles = RowProfiles::of(&guess.mask, &place);
+            self.carve(&profiles, &place, &suspect);
+            let bin = yaw_bin(place.yaw);
+            for j in 0..HULL_SLICES {
+                let q = place.row(slice_height(j));
+                if !suspect[band_of(slice_height(j))] && q >= place.frame.0.y && q <= place.frame.1.y {
+                    self.seen[j] |= 1 << bin;
+                }
             }
+            self.last_refresh = Some((place.yaw, self.frames));
         }
         stage.lap("carve");
         // Depths: the hull's where it has been seen from enough directions, else the frame's own.
@@ -636,7 +657,9 @@ impl PersonModel {
             || mesh_from_surfaces(&centred, super::frame::FRAME_MESH_STEP),
             || {
                 let gbuffer = source_gbuffer(&centred);
-                self.keep_colours(prepared, &surfaces, &gbuffer.normal, &hold, &place, &suspect);
+                if refresh {
+                    self.keep_colours(prepared, &surfaces, &gbuffer.normal, &hold, &place, &suspect);
+                }
                 let back = self.back_from_model(prepared, &surfaces, &hold, &place);
                 (gbuffer, back)
             },
@@ -767,6 +790,7 @@ impl PersonModel {
     /// Forgets band `b`: its hull slices, their directions, its colour rows and its usual difference.
     fn reset_band(&mut self, b: usize) {
         self.band_baseline[b] = None;
+        self.last_refresh = None;
         let cells = HULL_SIDE * HULL_SIDE;
         for j in (0..HULL_SLICES).filter(|&j| band_of(slice_height(j)) == b) {
             self.hull[j * cells..(j + 1) * cells].iter_mut().for_each(|c| *c = [f32::INFINITY; 2]);
