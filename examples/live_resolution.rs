@@ -10,48 +10,32 @@
 
 #[path = "common/photos.rs"]
 mod photos;
+#[path = "common/xr_eye.rs"]
+mod xr_eye;
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use glam::{Quat, Vec3};
 use r2human::buffer::RgbaImage;
 use r2human::capture::segment::{segment_photo, SegmentMethod};
+use r2human::capture::stats::median;
 use r2human::eval::metrics::{mask_iou, psnr_frame, SrgbImage};
-use r2human::geometry::Fov;
 use r2human::neural::RuntimeOptions;
 use r2human::pipeline::frame::FramePath;
 use r2human::pipeline::view::CpuView;
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{auto_frame_options, Neural, PrepareOptions, PreparedInput, SourceView};
-use r2human::xr::placement::Placement;
 
 const RESOLUTIONS: [usize; 3] = [512, 384, 256];
 const DISTANCES: [f32; 3] = [1.75, 1.2, 0.9];
 const YAWS: [f32; 3] = [0.0, 30.0, 90.0];
 
-fn median_ms(mut v: Vec<Duration>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort();
-    v[v.len() / 2].as_secs_f64() * 1e3
-}
-
 /// The eye views of one prepared frame: distances outer, yaws inner.
 fn eye_views(input: &PreparedInput) -> anyhow::Result<Vec<RgbaImage>> {
-    let (w, h) = (342, 384);
-    let head = Vec3::new(0.0, 1.6, 0.0);
     let mut out = Vec::new();
     for distance in DISTANCES {
-        let placement = Placement::in_front_of(head, Quat::IDENTITY, 0.0, distance);
         for yaw in YAWS {
-            // The viewer walks around the person: the eye turns about the person's vertical axis.
-            let turn = Quat::from_rotation_y(yaw.to_radians());
-            let eye = placement.position + turn * (head - placement.position);
-            let look = turn * Quat::from_rotation_x(-(0.7f32 / distance).atan());
-            let camera =
-                placement.eye_camera(eye, look, Fov::symmetric(std::f32::consts::FRAC_PI_2, w as f32 / h as f32), w, h);
+            let camera = xr_eye::around_the_person(distance, yaw, (342, 384));
             out.push(
                 CpuView::new(OcclusionFill::default(), true).draw(SourceView::of(input), Neural::Off, 0, &camera)?.0,
             );
@@ -116,7 +100,7 @@ fn main() -> anyhow::Result<()> {
                     .join(" · ")
             };
             let (psnr, iou) = if k == 0 { ("-".into(), "-".into()) } else { (groups(&psnrs, 1), groups(&ious, 3)) };
-            println!("| {name} | {r}² | {:.1} | {psnr} | {iou} |", median_ms(times[k].clone()));
+            println!("| {name} | {r}² | {:.1} | {psnr} | {iou} |", median(&times[k]).as_secs_f64() * 1e3);
         }
     }
     Ok(())

@@ -9,18 +9,18 @@
 
 #[path = "common/photos.rs"]
 mod photos;
+#[path = "common/xr_eye.rs"]
+mod xr_eye;
 
 use std::time::{Duration, Instant};
 
-use glam::{Quat, Vec3};
 use r2human::capture::segment::{segment_photo, SegmentMethod};
 use r2human::eval::metrics::{mask_iou, psnr_frame, SrgbImage};
 use r2human::geometry::raster::{rasterize_front_into, rasterize_into, GBuffer};
-use r2human::geometry::Fov;
 use r2human::pipeline::view::CpuView;
 use r2human::pipeline::warp::OcclusionFill;
 use r2human::pipeline::{Neural, PrepareOptions, PreparedInput, SourceView};
-use r2human::xr::placement::Placement;
+use r2human::xr::placement::DEFAULT_DISTANCE;
 
 fn median_ms(mut v: Vec<Duration>) -> f64 {
     if v.is_empty() {
@@ -33,8 +33,6 @@ fn median_ms(mut v: Vec<Duration>) -> f64 {
 fn main() -> anyhow::Result<()> {
     let photos = photos::from_args_or_bundled()?;
     let (w, h) = (342, 384);
-    let head = Vec3::new(0.0, 1.6, 0.0);
-    let placement = Placement::in_front_of(head, Quat::IDENTITY, 0.0, 1.75);
     println!("| photo | triangles full / coarse | coarse closed | raster full / coarse / coarse front faces (ms) | PSNR coarse vs full, yaw 0 / 30 / 90 / 180 (dB) | mask IoU, same yaws |");
     println!("|---|---|---|---|---|---|");
     for photo in &photos {
@@ -46,12 +44,7 @@ fn main() -> anyhow::Result<()> {
         let (mut full_t, mut coarse_t, mut front_t) = (Vec::new(), Vec::new(), Vec::new());
         let (mut ga, mut gb) = (GBuffer::new(0, 0), GBuffer::new(0, 0));
         for yaw in [0.0f32, 30.0, 90.0, 180.0] {
-            // The viewer walks around the person: the eye turns about the person's vertical axis.
-            let turn = Quat::from_rotation_y(yaw.to_radians());
-            let eye = placement.position + turn * (head - placement.position);
-            let look = turn * Quat::from_rotation_x(-(0.7f32 / 1.75).atan());
-            let camera =
-                placement.eye_camera(eye, look, Fov::symmetric(std::f32::consts::FRAC_PI_2, w as f32 / h as f32), w, h);
+            let camera = xr_eye::around_the_person(DEFAULT_DISTANCE, yaw, (w, h));
             for _ in 0..9 {
                 let t = Instant::now();
                 rasterize_into(&mut ga, &input.mesh, &camera);

@@ -396,12 +396,12 @@ pub fn run_xr_session(opts: &XrOptions) -> Result<XrRunReport> {
 /// `--live-resolution` or [`live_frame_resolution`], with the coarse mesh the eyes draw when their pixels are that
 /// large.
 fn frame_options(opts: &XrOptions) -> Result<PrepareOptions> {
-    check_live_resolution(opts.live_resolution)?;
-    let resolution = opts.live_resolution.unwrap_or_else(|| live_frame_resolution(opts.eye_size));
+    // `--live-resolution` was checked with the other options (`run_xr_session`).
+    let suited = live_frame_resolution(opts.eye_size);
+    let resolution = opts.live_resolution.unwrap_or(suited);
     tracing::info!(
-        "live frames are prepared at {resolution}x{resolution} ({} holds what eyes of at most {} pixels show of the \
-         person at the default distance; --live-resolution changes it)",
-        live_frame_resolution(opts.eye_size),
+        "live frames are prepared at {resolution}x{resolution} ({suited} holds what eyes of at most {} pixels show of \
+         the person at the default distance; --live-resolution changes it)",
         opts.eye_size
     );
     let frames = crate::pipeline::auto_frame_options(opts.neural.models.as_deref(), resolution, &opts.neural.options)?;

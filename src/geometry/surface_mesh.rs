@@ -16,7 +16,7 @@ use glam::Vec3;
 use super::inflate::InflatedSurfaces;
 use super::mesh::TriMesh;
 use super::raster::{GBuffer, BACKGROUND_DEPTH};
-use crate::buffer::GrayImage;
+use crate::buffer::{sample_bilinear, GrayImage};
 
 /// Why [`mesh_from_surfaces`] made no mesh.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -84,7 +84,7 @@ fn point_at(x: f32, y: f32, w: usize, h: usize, z: f32) -> Vec3 {
 /// centres, [`crate::geometry::Camera::source`]).
 #[inline]
 fn point(col: usize, row: usize, w: usize, h: usize, z: f32) -> Vec3 {
-    Vec3::new((col as f32 + 0.5) / (w as f32 * 0.5) - 1.0, 1.0 - (row as f32 + 0.5) / (h as f32 * 0.5), z)
+    point_at(col as f32 + 0.5, row as f32 + 0.5, w, h, z)
 }
 
 /// A closed mesh of `surfaces` sampled at every `step`-th pixel centre of the mask: the front height field
@@ -235,23 +235,6 @@ fn outline_edges(index: &[u32], gw: usize, gh: usize) -> Vec<(u32, u32)> {
     outline
 }
 
-/// The mask bilinearly interpolated between pixel centres at `(x, y)` pixels from the top-left corner; 0 beyond
-/// the grid, so a mask touching the border ends at the border.
-fn mask_at(mask: &GrayImage, x: f32, y: f32) -> f32 {
-    let (u, v) = (x - 0.5, y - 0.5);
-    let (c0, r0) = (u.floor(), v.floor());
-    let (fu, fv) = (u - c0, v - r0);
-    let value = |c: f32, r: f32| -> f32 {
-        if c < 0.0 || r < 0.0 || c >= mask.width as f32 || r >= mask.height as f32 {
-            return 0.0;
-        }
-        mask.data.get(r as usize * mask.width + c as usize).copied().unwrap_or(0.0)
-    };
-    let top = value(c0, r0) * (1.0 - fu) + value(c0 + 1.0, r0) * fu;
-    let bottom = value(c0, r0 + 1.0) * (1.0 - fu) + value(c0 + 1.0, r0 + 1.0) * fu;
-    top * (1.0 - fv) + bottom * fv
-}
-
 /// Where the outline samples of [`mesh_from_surfaces`] move to: each outline vertex (`pixels`: every front
 /// vertex's sample pixel; `outline`: the front's outline edges) goes along its outward normal (the mean of its two
 /// outline edges' normals) to where the mask, bilinear between pixel centres, first falls to 0.5: the mask's edge,
@@ -298,7 +281,8 @@ fn rim_positions(
         }
         let (dx, dy) = (nx / length, ny / length);
         let [x0, y0] = position[v];
-        let at = |t: f32| mask_at(mask, x0 + t * dx, y0 + t * dy);
+        // The mask bilinear between pixel centres, 0 beyond the grid (a mask touching the border ends there).
+        let at = |t: f32| sample_bilinear(mask, x0 + t * dx, y0 + t * dy, 0.0);
         // The first step along the normal where the mask is no longer inside, then bisection down to 1/1000 px.
         let mut t = 0.0f32;
         let mut out = None;

@@ -274,6 +274,13 @@ impl Placement {
     }
 }
 
+/// The usual difference `baseline` (`None`: none yet) after a frame that differed by `value`: the exponential
+/// average with the new frame's weight [`RESTART_BASELINE_WEIGHT`], or `value` itself to start.
+fn usual_difference(baseline: Option<f32>, value: f32) -> f32 {
+    let w = RESTART_BASELINE_WEIGHT;
+    baseline.map_or(value, |b| (1.0 - w) * b + w * value)
+}
+
 /// A frame's colour difference with the model per band at the tracked yaw ([`ModelFrame::band_error`],
 /// [`ModelFrame::band_error_roots`]).
 #[derive(Clone, Copy, Debug)]
@@ -743,23 +750,20 @@ impl PersonModel {
         // the torso's bands and leaves the legs', which then stay; their bands are reset one by one).
         let limit = self.whole_baseline.map_or(RESET_COLOUR_ERROR, |b| RESTART_COLOUR_ERROR.max(RESTART_JUMP * b));
         let mut jumped = 0;
-        for (b, e) in out.band_error_roots.iter().enumerate().filter(|(_, e)| !e.is_nan()) {
-            if self.band_baseline[b].is_none_or(|base| *e > RESTART_BAND_JUMP * base) {
-                jumped += 1;
-            } else {
-                let w = RESTART_BASELINE_WEIGHT;
-                self.band_baseline[b] = self.band_baseline[b].map(|base| (1.0 - w) * base + w * e);
-            }
-            if self.band_baseline[b].is_none() {
-                self.band_baseline[b] = Some(*e);
+        for (b, &e) in out.band_error_roots.iter().enumerate().filter(|(_, e)| !e.is_nan()) {
+            let base = self.band_baseline[b];
+            let jump = base.is_none_or(|base| e > RESTART_BAND_JUMP * base);
+            jumped += usize::from(jump);
+            // A jump does not move the usual difference (the first value starts it).
+            if !jump || base.is_none() {
+                self.band_baseline[b] = Some(usual_difference(base, e));
             }
         }
         let broadly = 4 * jumped >= 3 * errors.len();
         let changed_whole = holding > 0 && whole > limit && broadly;
         self.whole_strikes = if changed_whole { self.whole_strikes + 1 } else { 0 };
         if holding > 0 && !changed_whole {
-            let w = RESTART_BASELINE_WEIGHT;
-            self.whole_baseline = Some(self.whole_baseline.map_or(whole, |b| (1.0 - w) * b + w * whole));
+            self.whole_baseline = Some(usual_difference(self.whole_baseline, whole));
         }
         if self.whole_strikes > 0 && self.whole_strikes < RESET_STRIKES {
             // The whole person may have changed: every band waits for the next frame.
@@ -2036,7 +2040,7 @@ mod tests {
                 if mask.data[i] < 0.99 {
                     continue;
                 }
-                let photo = (Vec2::new(col as f32 + 0.5, row as f32 + 0.5) - t.offset) / t.scale;
+                let photo = t.inverse(Vec2::new(col as f32 + 0.5, row as f32 + 0.5));
                 let (x, y) = (2.0 * photo.x / SIZE as f32 - 1.0, 1.0 - 2.0 * photo.y / SIZE as f32);
                 if !(-0.8..=0.5).contains(&y) || x.abs() > 0.8 * A {
                     continue;

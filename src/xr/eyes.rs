@@ -499,8 +499,7 @@ impl EyeRenderer for CpuEyes {
     }
 
     fn render_eye(&mut self, eye: &EyeRequest) -> Result<vk::Buffer, EyeError> {
-        // Nobody when the person has left (the scene stays for their return).
-        let person = self.scene.as_deref().filter(|_| !self.feed.person_absent()).map(|s| (s, self.scene_count));
+        let person = shown(self.scene.as_deref(), &*self.feed, self.scene_count);
         self.views.draw_eye(person, eye.eye, &eye.body_camera)?;
         self.stage(eye.eye, eye.set)
     }
@@ -515,7 +514,7 @@ impl EyeRenderer for CpuEyes {
         }
         let start = Instant::now();
         let cameras: Vec<Camera> = eyes.iter().map(|e| e.body_camera).collect();
-        let person = self.scene.as_deref().filter(|_| !self.feed.person_absent()).map(|s| (s, self.scene_count));
+        let person = shown(self.scene.as_deref(), &*self.feed, self.scene_count);
         self.views.draw_eyes(person, &cameras)?;
         let buffers = eyes.iter().map(|e| self.stage(e.eye, e.set)).collect::<Result<Vec<_>, _>>()?;
         let share = start.elapsed() / eyes.len().max(1) as u32;
@@ -532,6 +531,12 @@ impl EyeRenderer for CpuEyes {
 }
 
 /// VR shows the person in a panorama: an error without one.
+/// The person the CPU eyes draw: the feed's last scene with its number, or nobody when the person has left (the
+/// scene stays for their return).
+fn shown<'a>(scene: Option<&'a Scene>, feed: &dyn SceneFeed, number: u64) -> Option<(&'a Scene, u64)> {
+    scene.filter(|_| !feed.person_absent()).map(|s| (s, number))
+}
+
 fn needs_panorama(mode: Mode, environment: Option<&Environment>) -> Result<(), gpu::GpuError> {
     match (mode, environment) {
         (Mode::Vr, None) => Err(gpu::GpuError::Invalid("VR needs a panorama to show around the person".into())),
