@@ -388,6 +388,9 @@ impl ModelFrame {
 pub struct PersonModel {
     /// Per slice, per cell: the two smallest carving distances (model units; infinity = not carved).
     hull: Vec<[f32; 2]>,
+    /// Per slice, how far from the axis its hull reaches ([`slice_radii`]): made again whenever the hull changes,
+    /// read by every ray.
+    radii: Vec<f32>,
     /// Per slice, the directions seen (bit per [`YAW_BINS`] bin).
     seen: Vec<u16>,
     /// Per texel: linear RGB and the confidence.
@@ -427,8 +430,10 @@ impl Default for PersonModel {
 impl PersonModel {
     /// An empty model.
     pub fn new() -> Self {
+        let hull = vec![[f32::INFINITY; 2]; HULL_SLICES * HULL_SIDE * HULL_SIDE];
         Self {
-            hull: vec![[f32::INFINITY; 2]; HULL_SLICES * HULL_SIDE * HULL_SIDE],
+            radii: slice_radii(&hull),
+            hull,
             seen: vec![0; HULL_SLICES],
             map: vec![[0.0; 4]; MAP_ANGLES * MAP_ROWS],
             reference: None,
@@ -480,6 +485,7 @@ impl PersonModel {
     /// Forgets everything (a new shot, a new source size).
     pub fn reset(&mut self) {
         self.hull.iter_mut().for_each(|c| *c = [f32::INFINITY; 2]);
+        self.radii = slice_radii(&self.hull);
         self.seen.iter_mut().for_each(|s| *s = 0);
         self.map.iter_mut().for_each(|t| *t = [0.0; 4]);
         self.reference = None;
@@ -800,6 +806,7 @@ impl PersonModel {
             self.hull[j * cells..(j + 1) * cells].iter_mut().for_each(|c| *c = [f32::INFINITY; 2]);
             self.seen[j] = 0;
         }
+        self.radii = slice_radii(&self.hull);
         for row in (0..MAP_ROWS).filter(|&r| band_of(map_height(r)) == b) {
             self.map[row * MAP_ANGLES..(row + 1) * MAP_ANGLES].iter_mut().for_each(|t| *t = [0.0; 4]);
         }
@@ -809,7 +816,7 @@ impl PersonModel {
     /// as its slice is measured ([`PersonModel::slice_weight`]): the angle a point has about the axis depends on
     /// its depth, and the guess is only a guess.
     fn hull_depths(&self, points: &mut [TrackPoint], place: &Placement) {
-        let radii = self.slice_radii();
+        let radii = &self.radii;
         points.par_iter_mut().for_each(|p| {
             let Some(j) = slice_of(p.y) else { return };
             let weight = self.slice_weight(j);
@@ -946,6 +953,7 @@ impl PersonModel {
                 }
             }
         });
+        self.radii = slice_radii(&self.hull);
     }
 
     /// The hull's field on slice `j` at model `(u, w)` (bilinear; outside the slice: empty).
@@ -965,33 +973,9 @@ impl PersonModel {
         top * (1.0 - tz) + bottom * tz
     }
 
-    /// Per slice, how far from the axis its hull can reach (model units): past the farthest cell inside it by the
-    /// field's interpolation (a cell's diagonal); 0 for a slice carved away.
-    fn slice_radii(&self) -> Vec<f32> {
-        let cells = HULL_SIDE * HULL_SIDE;
-        let diagonal = 2.0 * HULL_HALF / HULL_SIDE as f32 * std::f32::consts::SQRT_2;
-        self.hull
-            .par_chunks(cells)
-            .map(|slice| {
-                let mut far = f32::NEG_INFINITY;
-                for (i, cell) in slice.iter().enumerate() {
-                    if cell[1] > 0.0 {
-                        let (u, w) = (cell_centre(i % HULL_SIDE), cell_centre(i / HULL_SIDE));
-                        far = far.max(u * u + w * w);
-                    }
-                }
-                if far.is_finite() {
-                    far.sqrt() + diagonal
-                } else {
-                    0.0
-                }
-            })
-            .collect()
-    }
-
     /// The hull's front and back (camera-aligned z about the axis, model units) along the ray at camera-aligned
     /// `x` through slice `j`; `None` when the ray misses it.
-    /// `radius`: how far from the axis the slice's hull reaches ([`PersonModel::slice_radii`]); the ray is
+    /// `radius`: how far from the axis the slice's hull reaches ([`slice_radii`]); the ray is
     /// marched only within it.
     fn ray(&self, j: usize, x: f32, place: &Placement, radius: f32) -> Option<(f32, f32)> {
         if x.is_nan() || radius.is_nan() || x.abs() >= radius {
@@ -1039,7 +1023,7 @@ impl PersonModel {
         let mut out = guess.clone();
         let (gw, gh) = (size.div_ceil(step), size.div_ceil(step));
         let px = place.px();
-        let radii = self.slice_radii();
+        let radii = &self.radii;
         // A hull cell in pixels: the hull's outline falls up to about that far inside the silhouette's on a row.
         let rim = (px * 2.0 * HULL_HALF / HULL_SIDE as f32).ceil().max(1.0) as usize;
         // Rays on a coarse grid of pixel centres, over the rows and columns that hold the person: `Some(None)` a
@@ -1312,6 +1296,29 @@ impl PersonModel {
             0.0
         }
     }
+}
+
+/// Per slice of `hull`, how far from the axis its hull can reach (model units): past the farthest cell inside it by
+/// the field's interpolation (a cell's diagonal); 0 for a slice carved away.
+fn slice_radii(hull: &[[f32; 2]]) -> Vec<f32> {
+    let cells = HULL_SIDE * HULL_SIDE;
+    let diagonal = 2.0 * HULL_HALF / HULL_SIDE as f32 * std::f32::consts::SQRT_2;
+    hull.par_chunks(cells)
+        .map(|slice| {
+            let mut far = f32::NEG_INFINITY;
+            for (i, cell) in slice.iter().enumerate() {
+                if cell[1] > 0.0 {
+                    let (u, w) = (cell_centre(i % HULL_SIDE), cell_centre(i / HULL_SIDE));
+                    far = far.max(u * u + w * w);
+                }
+            }
+            if far.is_finite() {
+                far.sqrt() + diagonal
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 /// A filter over the person's yaw from the body's readings: a probability over [`YAW_CELLS`] yaws around the turn
