@@ -84,6 +84,9 @@ pub enum ModelBody {
     Own,
     /// No body read: the yaw from the colours alone.
     Colour,
+    /// The true turn of each frame (the clip's ground truth): not a source a camera has, but what the model gives
+    /// with perfect tracking, the ceiling of every way of reading the yaw.
+    Truth,
 }
 
 impl ModelBody {
@@ -93,6 +96,7 @@ impl ModelBody {
             ModelBody::Segmenter => "segmenter",
             ModelBody::Own => "own",
             ModelBody::Colour => "colour",
+            ModelBody::Truth => "truth",
         }
     }
 }
@@ -186,6 +190,9 @@ pub struct ModelTrackRow {
     /// The body's reading (degrees, the model's frame) minus the true turn, wrapped; empty when the pose network read
     /// no torso.
     pub body_error: Option<f32>,
+    /// The turn since the frame before read from the image (degrees, [`crate::pipeline::person_model::ModelFrame`]'s
+    /// `image_turn_degrees`) minus the true one; empty when none was read.
+    pub image_turn_error: Option<f32>,
     /// Whether the body's reading moved the yaw.
     pub body_used: bool,
     /// Whether the whole model restarted on this frame.
@@ -324,6 +331,11 @@ fn eval_clip(
                 };
                 model.update_with_world(&mut modelled, world)
             }
+            None if opts.model_body == ModelBody::Truth => {
+                // Since the model (re)started; on its first frame (or a restart) that is 0.
+                let since = if model.frames() == 0 { 0.0 } else { clip.options.yaw(i) - turn_at_start };
+                model.update_with_yaw(&mut modelled, since)
+            }
             None => model.update(&mut modelled),
         };
         if step.restarted || model.frames() == 1 {
@@ -338,6 +350,9 @@ fn eval_clip(
             yaw: step.yaw_degrees,
             yaw_error: wrapped(step.yaw_degrees - truth_turn),
             body_error: step.body_yaw_degrees.map(|b| wrapped(b - truth_turn)),
+            image_turn_error: step
+                .image_turn_degrees
+                .map(|t| wrapped(t - (clip.options.yaw(i) - clip.options.yaw(i.saturating_sub(1))))),
             body_used: step.body_used,
             restarted: step.restarted,
             reset_bands: step.reset_bands.len(),
@@ -698,7 +713,10 @@ fn tracking_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
     let restarts: Vec<String> =
         t.iter().filter(|r| r.restarted).map(|r| format!("{} frame {}", r.clip, r.frame)).collect();
     let band_resets = t.iter().filter(|r| !r.restarted && r.reset_bands > 0).count();
-    let source = if opts.model_body != ModelBody::Colour {
+    let source = if opts.model_body == ModelBody::Truth {
+        "from the clip's true turn (perfect tracking: the ceiling of every way of reading the yaw, not a camera's)"
+            .to_string()
+    } else if opts.model_body != ModelBody::Colour {
         let read = match opts.model_body {
             ModelBody::Segmenter => "the live segmenter's pose read of each frame",
             _ => "one read of its own a frame",
@@ -798,7 +816,7 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
     }
     let p = opts.out.join("turn.csv");
     write_atomic(&p, csv.as_bytes()).map_err(|e| EvalError::io(&p, e))?;
-    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,body_error_deg,body_used,restarted,reset_bands,hull_weight,ms,pose_ms,band_error_mean,band_error_max\n");
+    let mut track = String::from("clip,frame,turn_deg,yaw_deg,yaw_error_deg,body_error_deg,image_turn_error_deg,body_used,restarted,reset_bands,hull_weight,ms,pose_ms,band_error_mean,band_error_max\n");
     for r in &rep.tracking {
         let fields = [
             format!("\"{}\"", r.clip.replace('"', "\"\"")),
@@ -807,6 +825,7 @@ fn write_turn_reports(opts: &TurnEvalOptions, rep: &TurnReport) -> Result<(), Ev
             format!("{:.2}", r.yaw),
             format!("{:.2}", r.yaw_error),
             r.body_error.map_or(String::new(), |e| format!("{e:.2}")),
+            r.image_turn_error.map_or(String::new(), |e| format!("{e:.2}")),
             r.body_used.to_string(),
             r.restarted.to_string(),
             r.reset_bands.to_string(),

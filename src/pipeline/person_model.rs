@@ -53,7 +53,7 @@ use rayon::prelude::*;
 
 use super::back::BackImage;
 use super::PreparedInput;
-use crate::buffer::GrayImage;
+use crate::buffer::{GrayImage, RgbImage};
 use crate::geometry::inflate::InflatedSurfaces;
 use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer};
 
@@ -157,6 +157,17 @@ pub const RESET_STRIKES: u8 = 2;
 
 /// Most pixels the tracker reads per frame.
 const MAX_TRACK_POINTS: usize = 1500;
+
+/// The turn between two frames read from the image ([`turn_between`]): the standard deviation (degrees) of its
+/// weight on the yaw filter's turning speeds, about a speed cell.
+pub const FLOW_SIGMA_DEGREES: f32 = 10.0;
+
+/// The weight of a turning speed the image's turn does not support (a reading can be wrong: an arm's swing taken for
+/// the turn), as [`BODY_OUTLIER`] is for the body.
+pub const FLOW_OUTLIER: f32 = 0.2;
+
+/// Tracked pixels a frame's turn is read from at most ([`turn_between`]): those with the most texture.
+const FLOW_POINTS: usize = 600;
 
 /// Texels either side around the colour cylinder the tracker's coarse step averages (8 degrees).
 const COARSE_BLUR: usize = 6;
@@ -351,6 +362,9 @@ pub struct ModelFrame {
     pub body_yaw_degrees: Option<f32>,
     /// Whether a body reading went into the yaw (`YawFilter`).
     pub body_used: bool,
+    /// The turn between the frame before and this one read from the image (degrees, [`turn_between`]), when it
+    /// could be read.
+    pub image_turn_degrees: Option<f32>,
     /// Milliseconds the pose network's read took (inside `ms`).
     pub pose_ms: f32,
     /// Bands reset on this frame (0 = the top band).
@@ -417,6 +431,8 @@ pub struct PersonModel {
     body_offset: Option<f32>,
     /// The yaw filter over the body's readings (from the first reading on).
     filter: Option<YawFilter>,
+    /// The frame before (its normalised colours and placement), which the turn between frames is read against.
+    previous: Option<PreviousFrame>,
     /// Degrees either side of the body's yaw the colours refine it.
     colour_refine: i32,
 }
@@ -449,6 +465,7 @@ impl PersonModel {
             pose_region: None,
             body_offset: None,
             filter: None,
+            previous: None,
             colour_refine: COLOUR_REFINE_DEGREES,
         }
     }
@@ -469,12 +486,13 @@ impl PersonModel {
         self
     }
 
-    /// Bytes the model holds (fixed: it does not grow with the frames).
+    /// Bytes the model holds: fixed, and the frame before's colours (it does not grow with the frames).
     pub fn memory_bytes(&self) -> usize {
         std::mem::size_of_val(self.hull.as_slice())
             + std::mem::size_of_val(self.seen.as_slice())
             + std::mem::size_of_val(self.map.as_slice())
             + YAW_CELLS * YawFilter::SPEEDS * std::mem::size_of::<f32>()
+            + self.previous.as_ref().map_or(0, |p| std::mem::size_of_val(p.rgb.data.as_slice()))
     }
 
     /// Frames the model has taken since it (re)started.
@@ -500,6 +518,7 @@ impl PersonModel {
         self.pose_region = None;
         self.body_offset = None;
         self.filter = None;
+        self.previous = None;
     }
 
     /// The yaw the model tracked last (degrees).
@@ -523,23 +542,35 @@ impl PersonModel {
         let started = std::time::Instant::now();
         let body = if prepared.surfaces.is_some() { self.read_body(prepared) } else { None };
         let pose_ms = started.elapsed().as_secs_f32() * 1e3;
-        self.update_from(prepared, body, started, pose_ms)
+        self.update_from(prepared, Orientation::Body(body), started, pose_ms)
     }
 
     /// [`PersonModel::update`] with the body's world landmarks already read on this frame (the pose network's,
     /// [`crate::body::pose::PoseLandmarks::world`], e.g. by the segmenter), or `None` (the yaw from the colours).
     pub fn update_with_world(&mut self, prepared: &mut PreparedInput, world: Option<&[Vec3]>) -> ModelFrame {
-        self.update_from(prepared, world.and_then(body_yaw), std::time::Instant::now(), 0.0)
+        self.update_from(prepared, Orientation::Body(world.and_then(body_yaw)), std::time::Instant::now(), 0.0)
     }
 
-    /// The update with the body's yaw `body` (radians, [`body_yaw`]) read on this frame.
+    /// [`PersonModel::update`] with the person's yaw known (degrees, turned since the model (re)started; a
+    /// restart on this frame starts again at 0): an evaluation's ground truth, which shows what the model gives with
+    /// perfect tracking (`eval --turn --model-body truth`). No body is read; the colours are compared at that yaw only
+    /// (for forgetting).
+    pub fn update_with_yaw(&mut self, prepared: &mut PreparedInput, yaw_degrees: f32) -> ModelFrame {
+        self.update_from(prepared, Orientation::Known(yaw_degrees.to_radians()), std::time::Instant::now(), 0.0)
+    }
+
+    /// The update with what this frame says of the person's orientation.
     fn update_from(
         &mut self,
         prepared: &mut PreparedInput,
-        body: Option<f32>,
+        orientation: Orientation,
         started: std::time::Instant,
         pose_ms: f32,
     ) -> ModelFrame {
+        let (body, known) = match orientation {
+            Orientation::Body(body) => (body, None),
+            Orientation::Known(yaw) => (None, Some(yaw)),
+        };
         let mut out = ModelFrame {
             band_error: [f32::NAN; BANDS],
             band_error_roots: [f32::NAN; BANDS],
@@ -595,10 +626,16 @@ impl PersonModel {
         if self.frames > 0 {
             let mut points = track_points(prepared, &guess, &place, step(TRACK_STEP_512));
             self.hull_depths(&mut points, &place);
-            if let (Some(filter), Some(offset)) = (self.filter.as_mut(), self.body_offset) {
-                // Both readings the image allows go into the filter; its most likely yaw is the frame's.
+            if let Some(yaw) = known {
+                place.yaw = yaw;
+                out.body_used = true;
+            } else if let (Some(filter), Some(offset)) = (self.filter.as_mut(), self.body_offset) {
+                // Both readings the image allows go into the filter, with the turn the image shows since the
+                // frame before; its most likely yaw is the frame's.
                 let reading = body.map(|m| (wrap_pi(m - offset), wrap_pi(std::f32::consts::PI - m - offset)));
-                let yaw = filter.step(reading);
+                let turned = self.previous.as_ref().and_then(|p| turn_between(p, prepared, &points));
+                out.image_turn_degrees = turned.map(f32::to_degrees);
+                let yaw = filter.step(reading, turned);
                 out.body_yaw_degrees = reading.map(|(a, b)| {
                     let (a, b) = (yaw + wrap_pi(a - yaw), yaw + wrap_pi(b - yaw));
                     if (a - yaw).abs() <= (b - yaw).abs() { a } else { b }.to_degrees()
@@ -606,7 +643,11 @@ impl PersonModel {
                 out.body_used = reading.is_some();
                 place.yaw = yaw;
             }
-            let search = if out.body_used { self.colour_refine } else { SEARCH_DEGREES };
+            let search = match known {
+                Some(_) => 0,
+                None if out.body_used => self.colour_refine,
+                None => SEARCH_DEGREES,
+            };
             let coarse = self.track(&points, &place, -search..=search, COARSE_BLUR);
             let fine = coarse
                 .filter(|_| search > 0)
@@ -688,6 +729,7 @@ impl PersonModel {
             prepared.fof = None;
             prepared.coarse = None;
         }
+        self.previous = Some(PreviousFrame { rgb: prepared.normalised.rgb.clone(), place });
         self.frames += 1;
         stage.log();
         out.yaw_degrees = self.yaw.to_degrees();
@@ -1321,6 +1363,15 @@ fn slice_radii(hull: &[[f32; 2]]) -> Vec<f32> {
         .collect()
 }
 
+/// What a frame says of the person's orientation ([`PersonModel::update_from`]).
+#[derive(Clone, Copy, Debug)]
+enum Orientation {
+    /// The body's yaw read on this frame (radians, [`body_yaw`]), if any: through the yaw filter.
+    Body(Option<f32>),
+    /// The yaw known (radians, since the model (re)started).
+    Known(f32),
+}
+
 /// A filter over the person's yaw from the body's readings: a probability over [`YAW_CELLS`] yaws around the turn
 /// and `2 YAW_SPEEDS + 1` turning speeds. Each frame it moves every yaw by its speed (plus a drift of a cell, and
 /// the speed changing by a step now and then), then weighs each yaw by the reading: both branches the image
@@ -1357,7 +1408,7 @@ impl YawFilter {
     }
 
     /// One frame: the motion, then the reading's two branches `(a, b)` (radians), if any. Returns the yaw.
-    fn step(&mut self, reading: Option<(f32, f32)>) -> f32 {
+    fn step(&mut self, reading: Option<(f32, f32)>, turned: Option<f32>) -> f32 {
         let (n, s) = (YAW_CELLS, Self::SPEEDS);
         let mut moved = vec![0.0f32; n * s];
         for y in 0..n {
@@ -1378,6 +1429,21 @@ impl YawFilter {
                 let slower = if v > 0 { row[v - 1] } else { row[v] };
                 let faster = if v + 1 < s { row[v + 1] } else { row[v] };
                 self.p[y * s + v] = KEEP_SPEED * row[v] + change * (slower + faster);
+            }
+        }
+        if let Some(turned) = turned.filter(|t| t.is_finite()) {
+            // The speed is this frame's turn: each speed weighed by the image's, whatever the yaw (the image's turn
+            // is the same on either branch of the body's reading, so it tells them apart where they cross).
+            let spread = 2.0 * FLOW_SIGMA_DEGREES.to_radians().powi(2);
+            let cell = std::f32::consts::TAU / n as f32;
+            let weights: Vec<f32> = (0..s)
+                .map(|v| {
+                    let speed = (v as f32 - YAW_SPEEDS as f32) * cell;
+                    FLOW_OUTLIER + (-(speed - turned).powi(2) / spread).exp()
+                })
+                .collect();
+            for y in 0..n {
+                self.p[y * s..(y + 1) * s].iter_mut().zip(&weights).for_each(|(p, w)| *p *= w);
             }
         }
         if let Some((a, b)) = reading.filter(|(a, b)| a.is_finite() && b.is_finite()) {
@@ -1553,6 +1619,8 @@ fn axis_column(mask: &GrayImage) -> Option<f32> {
 /// units), its colour (sharp and blurred) and its band.
 #[derive(Clone, Copy, Debug)]
 struct TrackPoint {
+    /// Its pixel (column, row) in the normalised frame.
+    pixel: (usize, usize),
     x: f32,
     y: f32,
     z: f32,
@@ -1609,12 +1677,133 @@ fn track_points(prepared: &PreparedInput, guess: &InflatedSurfaces, place: &Plac
                 }
             }
             let blurred = if n > 0.0 { blurred / n } else { rgb };
-            points.push(TrackPoint { x, y, z: guess.front.data[i] / place.k, rgb, blurred, band: band_of(y) });
+            let z = guess.front.data[i] / place.k;
+            points.push(TrackPoint { pixel: (c, r), x, y, z, rgb, blurred, band: band_of(y) });
         }
     }
     // At most MAX_TRACK_POINTS, spread over the silhouette.
     let every = points.len().div_ceil(MAX_TRACK_POINTS).max(1);
     points.into_iter().step_by(every).collect()
+}
+
+/// What the turn between two frames is read against: the frame before's normalised colours and placement.
+#[derive(Clone, Debug)]
+struct PreviousFrame {
+    rgb: RgbImage,
+    place: Placement,
+}
+
+/// The person's turn (radians) between the frame before and this one, read from the image: under a turn about the
+/// vertical axis a point of the front moves sideways by its depth times the turn (`x = u cos + w sin`, so
+/// `dx/dyaw = z`), while the whole person may also shift. Each tracked pixel with texture across the row is found
+/// again in the frame before (a patch of 5 x 5 samples compared along the row of the same model height, a sideways
+/// move of up to 0.5 rad times the deepest point's depth, refined by a parabola); the moves against the points'
+/// depths (the hull's where it is measured, else the frame's guess) are fitted by `dx = turn z` (least squares,
+/// then again without the points more than 3 median deviations off it). `None` with too few textured points or a
+/// turn past 0.5 rad (29 degrees) a frame.
+///
+/// The pose network reads the torso's yaw from one image and confuses front and back; this reads how far and which
+/// way the person turned, on either side of them: the two together decide the branch.
+fn turn_between(previous: &PreviousFrame, prepared: &PreparedInput, points: &[TrackPoint]) -> Option<f32> {
+    let now = &prepared.normalised.rgb;
+    let before = &previous.rgb;
+    let size = now.width;
+    if before.width != size || before.height != now.height || points.is_empty() {
+        return None;
+    }
+    let spacing = (size / 256).max(1) as i64;
+    let reach = 2 * spacing;
+    let sample = |img: &RgbImage, c: i64, r: i64| -> Option<Vec3> {
+        (c >= 0 && r >= 0 && (c as usize) < img.width && (r as usize) < img.height)
+            .then(|| img.data[r as usize * img.width + c as usize])
+    };
+    // Texture across the row: the patch's sideways differences.
+    let texture = |c: usize, r: usize| -> f32 {
+        let (c, r) = (c as i64, r as i64);
+        let mut sum = 0.0;
+        for dr in [-reach, 0, reach] {
+            match (sample(now, c - reach, r + dr), sample(now, c + reach, r + dr)) {
+                (Some(a), Some(b)) => sum += (a - b).abs().element_sum(),
+                _ => return 0.0,
+            }
+        }
+        sum
+    };
+    let mut ranked: Vec<(f32, usize)> =
+        points.iter().enumerate().map(|(k, p)| (texture(p.pixel.0, p.pixel.1), k)).collect();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    ranked.truncate(FLOW_POINTS);
+    ranked.retain(|&(t, _)| t > 0.05);
+    let deepest = points.iter().map(|p| p.z).fold(0.0f32, f32::max);
+    let before_px = previous.place.px();
+    let max_shift = (0.5 * deepest * before_px).ceil() as i64 + 1;
+    if ranked.len() < 24 || max_shift < 2 || max_shift > size as i64 / 4 {
+        return None;
+    }
+    let moves: Vec<(f32, f32)> = ranked
+        .par_iter()
+        .filter_map(|&(_, k)| {
+            let p = &points[k];
+            let (c, r) = (p.pixel.0 as i64, p.pixel.1 as i64);
+            let patch: Vec<Vec3> = (-2..=2)
+                .flat_map(|dr| (-2..=2).map(move |dc| (dc, dr)))
+                .map(|(dc, dr)| sample(now, c + dc * spacing, r + dr * spacing))
+                .collect::<Option<Vec<_>>>()?;
+            // Where the point would be in the frame before had it not moved.
+            // Pixel indices: the continuous position less the half pixel to the centre, rounded; the rounding is
+            // added back to the move.
+            let row = (previous.place.row(p.y) - 0.5).round() as i64;
+            let expected = previous.place.axis + p.x * before_px - 0.5;
+            let column = expected.round() as i64;
+            let rounding = expected - column as f32;
+            let costs: Vec<f32> = (-max_shift..=max_shift)
+                .map(|d| {
+                    let mut cost = 0.0;
+                    for (k, &v) in patch.iter().enumerate() {
+                        let (dc, dr) = ((k % 5) as i64 - 2, (k / 5) as i64 - 2);
+                        match sample(before, column - d + dc * spacing, row + dr * spacing) {
+                            Some(b) => cost += (v - b).abs().element_sum(),
+                            None => return f32::INFINITY,
+                        }
+                    }
+                    cost
+                })
+                .collect();
+            let best = (0..costs.len()).min_by(|&a, &b| costs[a].total_cmp(&costs[b]))?;
+            let finite: Vec<f32> = costs.iter().copied().filter(|c| c.is_finite()).collect();
+            let mean = finite.iter().sum::<f32>() / finite.len().max(1) as f32;
+            // A clear minimum inside the range.
+            if best == 0 || best + 1 == costs.len() || costs[best] >= 0.6 * mean || costs[best].is_nan() {
+                return None;
+            }
+            let (a, b, cc) = (costs[best - 1], costs[best], costs[best + 1]);
+            let denom = a - 2.0 * b + cc;
+            let sub = if denom > 1e-9 { (0.5 * (a - cc) / denom).clamp(-0.5, 0.5) } else { 0.0 };
+            let shift_px = (best as f32 - max_shift as f32) + sub + rounding;
+            Some((p.z, shift_px / before_px))
+        })
+        .collect();
+    if moves.len() < 24 {
+        return None;
+    }
+    // The slope through the origin: the points sit at the placement's axis, which follows the person, and their
+    // depths span too little of the cross-section to fit a sideways shift beside the turn (tried: a line with a
+    // shift read the turn 6-14 degrees off, median over the clips' frames, against 1-6 without).
+    let fit = |pts: &[(f32, f32)]| -> Option<f32> {
+        let (szd, szz) = pts.iter().fold((0.0, 0.0), |(a, b), &(z, d)| (a + z * d, b + z * z));
+        (szz > 0.0).then(|| szd / szz)
+    };
+    let turn = fit(&moves)?;
+    let mut residuals: Vec<f32> = moves.iter().map(|&(z, d)| (d - turn * z).abs()).collect();
+    let mid = residuals.len() / 2;
+    let spread = *residuals.select_nth_unstable_by(mid, f32::total_cmp).1;
+    let limit = 3.0 * spread.max(0.5 / before_px);
+    let kept: Vec<(f32, f32)> = moves.iter().copied().filter(|&(z, d)| (d - turn * z).abs() <= limit).collect();
+    if kept.len() < 24 {
+        return None;
+    }
+    let turn = fit(&kept)?;
+    (turn.is_finite() && turn.abs() <= 0.5).then_some(turn)
 }
 
 /// Per row of a silhouette, the signed distance along the row (source pixels, inside positive) from each pixel
@@ -1844,8 +2033,9 @@ mod tests {
         // The back image comes from the model, and nothing reset on a turn.
         assert!(last.back_from_model > 0.5, "{}", last.back_from_model);
         assert!(frames.iter().all(|f| !f.restarted && f.reset_bands.is_empty()), "a turn reset the model");
-        // Memory is what the model was made with.
-        assert_eq!(model.memory_bytes(), PersonModel::new().memory_bytes());
+        // Memory is what the model was made with and the frame before's colours.
+        let frame_colours = SIZE * SIZE * std::mem::size_of::<Vec3>();
+        assert_eq!(model.memory_bytes(), PersonModel::new().memory_bytes() + frame_colours);
     }
 
     /// World landmarks (the pose network's axes: x right, y up, z toward the camera) of a torso turned by `yaw`
@@ -1907,6 +2097,36 @@ mod tests {
         let truth = 2.0 * B * p.normalised.transform.scale;
         let thickness = centre_thickness(&p);
         assert!((thickness - truth).abs() < 0.2 * truth, "model {thickness} vs truth {truth}");
+    }
+
+    /// The turn read from the image between frames is the column's turn, whichever way it turns, and with
+    /// body readings that always take the mirror branch (front and back swapped: `180° − yaw`) the model still
+    /// follows the turn: the image's turn says which way the person went where the two branches cross.
+    #[test]
+    fn the_image_turn_is_the_turn_and_keeps_the_branch() {
+        for degrees in [6.0f32, -6.0] {
+            let mut model = PersonModel::new();
+            let mut path = path();
+            let (mut errors, mut worst_yaw) = (Vec::new(), 0.0f32);
+            for i in 0..=60 {
+                let yaw = (i as f32 * degrees).to_radians();
+                let (rgb, mask) = frame(SIZE, yaw, false);
+                let mut p = path.prepare(&rgb, &mask).expect("a frame");
+                let f = model.update_with_world(&mut p, Some(&torso(yaw, i > 0)));
+                if let Some(t) = f.image_turn_degrees {
+                    errors.push((t - degrees).abs());
+                }
+                if i > 0 {
+                    let error = (f.yaw_degrees - i as f32 * degrees + 180.0).rem_euclid(360.0) - 180.0;
+                    worst_yaw = worst_yaw.max(error.abs());
+                }
+            }
+            assert!(errors.len() >= 50, "{degrees}: the turn read on {} of 60 frames", errors.len());
+            errors.sort_by(f32::total_cmp);
+            let median = errors[errors.len() / 2];
+            assert!(median < 1.0, "{degrees}: the image's turn {median} degrees off (median)");
+            assert!(worst_yaw < 20.0, "{degrees}: the tracked yaw {worst_yaw} degrees off at worst");
+        }
     }
 
     /// The colour of the test's arm: 0.2 (RGB distance) from every colour of the column's `pattern`, so that a
