@@ -225,6 +225,12 @@ pub fn floor_fast(x: f32) -> f32 {
     }
 }
 
+/// The luminance of a linear RGB colour (Rec. 709 / sRGB primaries: 0.2126 R + 0.7152 G + 0.0722 B).
+#[inline]
+pub fn luminance(v: Vec3) -> f32 {
+    0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z
+}
+
 /// sRGB (IEC 61966-2-1) encoded value in `[0, 1]` to linear light.
 #[inline]
 pub fn srgb_to_linear(v: f32) -> f32 {

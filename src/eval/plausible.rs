@@ -388,7 +388,7 @@ impl Reference {
         }
         let mask = mask_of(front);
         let reach = (0.5 * head.width) as usize;
-        let luminance = |p: glam::Vec4| 0.2126 * p.x + 0.7152 * p.y + 0.0722 * p.z;
+        let luminance = |p: glam::Vec4| crate::buffer::luminance(p.truncate());
         let mut pairs = Vec::new();
         for r in head.likeness.clone() {
             let Some((left, right)) = run_at(&mask, w, r, head.nose_x, reach) else { continue };

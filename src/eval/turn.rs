@@ -721,10 +721,15 @@ fn tracking_markdown(opts: &TurnEvalOptions, rep: &TurnReport) -> String {
             ModelBody::Segmenter => "the live segmenter's pose read of each frame",
             _ => "one read of its own a frame",
         };
+        let image: Vec<f32> = t.iter().filter_map(|r| r.image_turn_error).map(f32::abs).collect();
+        let (image_frames, image_median) = (image.len(), median_of(image));
         format!(
             "from the body (the pose network's torso, {read}; {body_frames} of {} frames moved by it; \
-             the reading alone {body_median:.1} degrees median |error|), refined by the colours within {} degrees",
+             the reading alone {body_median:.1} degrees median |error|) and the turn between frames read from the \
+             image ({} frames; {:.1} degrees median |error| per frame), refined by the colours within {} degrees",
             t.len(),
+            image_frames,
+            image_median,
             opts.model_colour_refine
         )
     } else {

@@ -276,7 +276,7 @@ pub fn tone_map(linear: &RgbImage) -> RgbImage {
         let weight = (std::f64::consts::PI * (r as f64 + 0.5) / h as f64).sin();
         for c in 0..w {
             let v = linear.get(c, r);
-            let lum = 0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z;
+            let lum = crate::buffer::luminance(*v);
             sum_log += weight * (1e-6 + lum as f64).ln();
             sum_w += weight;
         }

@@ -53,7 +53,7 @@ use rayon::prelude::*;
 
 use super::back::BackImage;
 use super::PreparedInput;
-use crate::buffer::{GrayImage, RgbImage};
+use crate::buffer::{luminance, GrayImage, RgbImage};
 use crate::geometry::inflate::InflatedSurfaces;
 use crate::geometry::surface_mesh::{mesh_from_surfaces, source_gbuffer};
 
@@ -167,7 +167,7 @@ pub const FLOW_SIGMA_DEGREES: f32 = 10.0;
 pub const FLOW_OUTLIER: f32 = 0.2;
 
 /// Tracked pixels a frame's turn is read from at most ([`turn_between`]): those with the most texture.
-const FLOW_POINTS: usize = 600;
+const FLOW_POINTS: usize = 300;
 
 /// Texels either side around the colour cylinder the tracker's coarse step averages (8 degrees).
 const COARSE_BLUR: usize = 6;
@@ -486,13 +486,13 @@ impl PersonModel {
         self
     }
 
-    /// Bytes the model holds: fixed, and the frame before's colours (it does not grow with the frames).
+    /// Bytes the model holds: fixed, and the frame before's brightness (it does not grow with the frames).
     pub fn memory_bytes(&self) -> usize {
         std::mem::size_of_val(self.hull.as_slice())
             + std::mem::size_of_val(self.seen.as_slice())
             + std::mem::size_of_val(self.map.as_slice())
             + YAW_CELLS * YawFilter::SPEEDS * std::mem::size_of::<f32>()
-            + self.previous.as_ref().map_or(0, |p| std::mem::size_of_val(p.rgb.data.as_slice()))
+            + self.previous.as_ref().map_or(0, |p| std::mem::size_of_val(p.brightness.data.as_slice()))
     }
 
     /// Frames the model has taken since it (re)started.
@@ -633,7 +633,7 @@ impl PersonModel {
                 // Both readings the image allows go into the filter, with the turn the image shows since the
                 // frame before; its most likely yaw is the frame's.
                 let reading = body.map(|m| (wrap_pi(m - offset), wrap_pi(std::f32::consts::PI - m - offset)));
-                let turned = self.previous.as_ref().and_then(|p| turn_between(p, prepared, &points));
+                let turned = self.previous.as_ref().and_then(|p| turn_between(p, prepared, &points, &place, axis));
                 out.image_turn_degrees = turned.map(f32::to_degrees);
                 let yaw = filter.step(reading, turned);
                 out.body_yaw_degrees = reading.map(|(a, b)| {
@@ -729,7 +729,7 @@ impl PersonModel {
             prepared.fof = None;
             prepared.coarse = None;
         }
-        self.previous = Some(PreviousFrame { rgb: prepared.normalised.rgb.clone(), place });
+        self.previous = Some(PreviousFrame { brightness: brightness(&prepared.normalised.rgb), place, axis });
         self.frames += 1;
         stage.log();
         out.yaw_degrees = self.yaw.to_degrees();
@@ -1686,44 +1686,65 @@ fn track_points(prepared: &PreparedInput, guess: &InflatedSurfaces, place: &Plac
     points.into_iter().step_by(every).collect()
 }
 
-/// What the turn between two frames is read against: the frame before's normalised colours and placement.
+/// What the turn between two frames is read against: the frame before's brightness ([`brightness`]) and placement.
 #[derive(Clone, Debug)]
 struct PreviousFrame {
-    rgb: RgbImage,
+    brightness: GrayImage,
     place: Placement,
+    /// The frame's own axis column ([`axis_column`], not smoothed over frames).
+    axis: f32,
+}
+
+/// The brightness ([`luminance`]) a turn between frames is read on: one channel instead of three.
+fn brightness(rgb: &RgbImage) -> GrayImage {
+    let data = rgb.data.par_iter().map(|&v| luminance(v)).collect();
+    GrayImage { width: rgb.width, height: rgb.height, data }
 }
 
 /// The person's turn (radians) between the frame before and this one, read from the image: under a turn about the
 /// vertical axis a point of the front moves sideways by its depth times the turn (`x = u cos + w sin`, so
-/// `dx/dyaw = z`), while the whole person may also shift. Each tracked pixel with texture across the row is found
-/// again in the frame before (a patch of 5 x 5 samples compared along the row of the same model height, a sideways
+/// `dx/dyaw = z`). Each tracked pixel with texture across the row is found again in the frame before (a patch of
+/// 5 x 5 brightness samples compared along the row of the same model height, a sideways
 /// move of up to 0.5 rad times the deepest point's depth, refined by a parabola); the moves against the points'
 /// depths (the hull's where it is measured, else the frame's guess) are fitted by `dx = turn z` (least squares,
-/// then again without the points more than 3 median deviations off it). `None` with too few textured points or a
+/// then again without the points more than 3 median deviations off it). Positions are taken about each frame's own
+/// axis (`axis`, the current one; the placement's follows it smoothly, a frame late on a person moving sideways,
+/// which read as a turn). `None` with too few textured points or a
 /// turn past 0.5 rad (29 degrees) a frame.
 ///
 /// The pose network reads the torso's yaw from one image and confuses front and back; this reads how far and which
 /// way the person turned, on either side of them: the two together decide the branch.
-fn turn_between(previous: &PreviousFrame, prepared: &PreparedInput, points: &[TrackPoint]) -> Option<f32> {
-    let now = &prepared.normalised.rgb;
-    let before = &previous.rgb;
-    let size = now.width;
-    if before.width != size || before.height != now.height || points.is_empty() {
+fn turn_between(
+    previous: &PreviousFrame,
+    prepared: &PreparedInput,
+    points: &[TrackPoint],
+    place: &Placement,
+    axis: f32,
+) -> Option<f32> {
+    let rgb = &prepared.normalised.rgb;
+    let before = &previous.brightness;
+    let size = rgb.width;
+    if before.width != size || before.height != rgb.height || points.is_empty() {
         return None;
     }
+    // Only the tracked pixels' patches are read in this frame: their brightness on the fly.
+    let now = |c: i64, r: i64| -> Option<f32> {
+        (c >= 0 && r >= 0 && (c as usize) < rgb.width && (r as usize) < rgb.height)
+            .then(|| luminance(rgb.data[r as usize * rgb.width + c as usize]))
+    };
     let spacing = (size / 256).max(1) as i64;
     let reach = 2 * spacing;
-    let sample = |img: &RgbImage, c: i64, r: i64| -> Option<Vec3> {
-        (c >= 0 && r >= 0 && (c as usize) < img.width && (r as usize) < img.height)
-            .then(|| img.data[r as usize * img.width + c as usize])
+    let sample = |c: i64, r: i64| -> Option<f32> {
+        (c >= 0 && r >= 0 && (c as usize) < before.width && (r as usize) < before.height)
+            .then(|| before.data[r as usize * before.width + c as usize])
     };
     // Texture across the row: the patch's sideways differences.
     let texture = |c: usize, r: usize| -> f32 {
         let (c, r) = (c as i64, r as i64);
         let mut sum = 0.0;
         for dr in [-reach, 0, reach] {
-            match (sample(now, c - reach, r + dr), sample(now, c + reach, r + dr)) {
-                (Some(a), Some(b)) => sum += (a - b).abs().element_sum(),
+            match (now(c - reach, r + dr), now(c + reach, r + dr)) {
+                (Some(a), Some(b)) => sum += (a - b).abs(),
                 _ => return 0.0,
             }
         }
@@ -1733,11 +1754,13 @@ fn turn_between(previous: &PreviousFrame, prepared: &PreparedInput, points: &[Tr
         points.iter().enumerate().map(|(k, p)| (texture(p.pixel.0, p.pixel.1), k)).collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
     ranked.truncate(FLOW_POINTS);
-    ranked.retain(|&(t, _)| t > 0.05);
+    ranked.retain(|&(t, _)| t > 0.02);
     let deepest = points.iter().map(|p| p.z).fold(0.0f32, f32::max);
     let before_px = previous.place.px();
-    let max_shift = (0.5 * deepest * before_px).ceil() as i64 + 1;
-    if ranked.len() < 24 || max_shift < 2 || max_shift > size as i64 / 4 {
+    // Moves tried in steps of the patch's sample spacing (a pixel at 256², two at 512²; the parabola refines
+    // between them), up to 0.5 rad times the deepest point's depth.
+    let steps = (0.5 * deepest * before_px / spacing as f32).ceil() as i64 + 1;
+    if ranked.len() < 24 || steps < 2 || steps * spacing > size as i64 / 4 {
         return None;
     }
     let moves: Vec<(f32, f32)> = ranked
@@ -1745,24 +1768,28 @@ fn turn_between(previous: &PreviousFrame, prepared: &PreparedInput, points: &[Tr
         .filter_map(|&(_, k)| {
             let p = &points[k];
             let (c, r) = (p.pixel.0 as i64, p.pixel.1 as i64);
-            let patch: Vec<Vec3> = (-2..=2)
-                .flat_map(|dr| (-2..=2).map(move |dc| (dc, dr)))
-                .map(|(dc, dr)| sample(now, c + dc * spacing, r + dr * spacing))
-                .collect::<Option<Vec<_>>>()?;
+            let mut patch = [0.0f32; 25];
+            for (k, v) in patch.iter_mut().enumerate() {
+                let (dc, dr) = ((k % 5) as i64 - 2, (k / 5) as i64 - 2);
+                *v = now(c + dc * spacing, r + dr * spacing)?;
+            }
             // Where the point would be in the frame before had it not moved.
             // Pixel indices: the continuous position less the half pixel to the centre, rounded; the rounding is
             // added back to the move.
             let row = (previous.place.row(p.y) - 0.5).round() as i64;
-            let expected = previous.place.axis + p.x * before_px - 0.5;
+            // About each frame's own axis: a person who moves sideways (or a camera that pans) does not turn.
+            let x = p.x + (place.axis - axis) / place.px();
+            let expected = previous.axis + x * before_px - 0.5;
             let column = expected.round() as i64;
             let rounding = expected - column as f32;
-            let costs: Vec<f32> = (-max_shift..=max_shift)
-                .map(|d| {
+            let costs: Vec<f32> = (-steps..=steps)
+                .map(|step| {
+                    let d = step * spacing;
                     let mut cost = 0.0;
                     for (k, &v) in patch.iter().enumerate() {
                         let (dc, dr) = ((k % 5) as i64 - 2, (k / 5) as i64 - 2);
-                        match sample(before, column - d + dc * spacing, row + dr * spacing) {
-                            Some(b) => cost += (v - b).abs().element_sum(),
+                        match sample(column - d + dc * spacing, row + dr * spacing) {
+                            Some(b) => cost += (v - b).abs(),
                             None => return f32::INFINITY,
                         }
                     }
@@ -1779,7 +1806,7 @@ fn turn_between(previous: &PreviousFrame, prepared: &PreparedInput, points: &[Tr
             let (a, b, cc) = (costs[best - 1], costs[best], costs[best + 1]);
             let denom = a - 2.0 * b + cc;
             let sub = if denom > 1e-9 { (0.5 * (a - cc) / denom).clamp(-0.5, 0.5) } else { 0.0 };
-            let shift_px = (best as f32 - max_shift as f32) + sub + rounding;
+            let shift_px = (best as f32 - steps as f32 + sub) * spacing as f32 + rounding;
             Some((p.z, shift_px / before_px))
         })
         .collect();
@@ -2033,9 +2060,9 @@ mod tests {
         // The back image comes from the model, and nothing reset on a turn.
         assert!(last.back_from_model > 0.5, "{}", last.back_from_model);
         assert!(frames.iter().all(|f| !f.restarted && f.reset_bands.is_empty()), "a turn reset the model");
-        // Memory is what the model was made with and the frame before's colours.
-        let frame_colours = SIZE * SIZE * std::mem::size_of::<Vec3>();
-        assert_eq!(model.memory_bytes(), PersonModel::new().memory_bytes() + frame_colours);
+        // Memory is what the model was made with and the frame before's brightness.
+        let frame_brightness = SIZE * SIZE * std::mem::size_of::<f32>();
+        assert_eq!(model.memory_bytes(), PersonModel::new().memory_bytes() + frame_brightness);
     }
 
     /// World landmarks (the pose network's axes: x right, y up, z toward the camera) of a torso turned by `yaw`
