@@ -21,7 +21,10 @@
 //! region) — ([`body_yaw`]: the normal of shoulders and hips). The network confuses a person's front and back away from profile (the same image read with depths negated and sides swapped: yaw
 //! `pi - m` instead of `m`), so both readings go into a filter over yaw and turning speed (`YawFilter`) that
 //! counts them alike: the branch is decided by the motion (a person turning on would have to reverse at profile to
-//! follow the mirror branch), and the first reading is taken to face the camera. Never from any ground truth.
+//! follow the mirror branch), which the image itself measures: the turn since the frame before, read from how the
+//! front's textured points moved against their depths ([`turn_between`]), weighs the filter's turning speeds. The
+//! first reading is taken to face the camera. Never from any ground truth ([`PersonModel::update_with_yaw`], the
+//! true yaw, is for evaluation only).
 //! The colours can refine the filter's yaw within [`COLOUR_REFINE_DEGREES`] (0 by default: on the turning clips
 //! 4 or 10 degrees changed nothing measurable). Without a pose network or a torso read, the yaw is tracked from
 //! the colours alone: each candidate turn around the constant-velocity prediction scored by how well the frame's
