@@ -22,7 +22,7 @@
 //! `pi - m` instead of `m`), so both readings go into a filter over yaw and turning speed (`YawFilter`) that
 //! counts them alike: the branch is decided by the motion (a person turning on would have to reverse at profile to
 //! follow the mirror branch), which the image itself measures: the turn since the frame before, read from how the
-//! front's textured points moved against their depths ([`turn_between`]), weighs the filter's turning speeds. The
+//! front's textured points moved against their depths (`turn_between`), weighs the filter's turning speeds. The
 //! first reading is taken to face the camera. Never from any ground truth ([`PersonModel::update_with_yaw`], the
 //! true yaw, is for evaluation only).
 //! The colours can refine the filter's yaw within [`COLOUR_REFINE_DEGREES`] (0 by default: on the turning clips
@@ -161,7 +161,7 @@ pub const RESET_STRIKES: u8 = 2;
 /// Most pixels the tracker reads per frame.
 const MAX_TRACK_POINTS: usize = 1500;
 
-/// The turn between two frames read from the image ([`turn_between`]): the standard deviation (degrees) of its
+/// The turn between two frames read from the image (`turn_between`): the standard deviation (degrees) of its
 /// weight on the yaw filter's turning speeds, about a speed cell.
 pub const FLOW_SIGMA_DEGREES: f32 = 10.0;
 
@@ -365,7 +365,7 @@ pub struct ModelFrame {
     pub body_yaw_degrees: Option<f32>,
     /// Whether a body reading went into the yaw (`YawFilter`).
     pub body_used: bool,
-    /// The turn between the frame before and this one read from the image (degrees, [`turn_between`]), when it
+    /// The turn between the frame before and this one read from the image (degrees, `turn_between`), when it
     /// could be read.
     pub image_turn_degrees: Option<f32>,
     /// Milliseconds the pose network's read took (inside `ms`).
