@@ -434,7 +434,7 @@ pub struct PersonModel {
     body_offset: Option<f32>,
     /// The yaw filter over the body's readings (from the first reading on).
     filter: Option<YawFilter>,
-    /// The frame before (its normalised colours and placement), which the turn between frames is read against.
+    /// The frame before (its brightness, placement and own axis), which the turn between frames is read against.
     previous: Option<PreviousFrame>,
     /// Degrees either side of the body's yaw the colours refine it.
     colour_refine: i32,
@@ -626,6 +626,8 @@ impl PersonModel {
         }
         // Track the yaw: the body's readings through the yaw filter, refined by the kept colours (without a reading,
         // the colours around the prediction); read each band's difference at it.
+        // This frame's brightness: read against the frame before's, then kept for the next.
+        let this_brightness = brightness(&prepared.normalised.rgb);
         if self.frames > 0 {
             let mut points = track_points(prepared, &guess, &place, step(TRACK_STEP_512));
             self.hull_depths(&mut points, &place);
@@ -636,7 +638,8 @@ impl PersonModel {
                 // Both readings the image allows go into the filter, with the turn the image shows since the
                 // frame before; its most likely yaw is the frame's.
                 let reading = body.map(|m| (wrap_pi(m - offset), wrap_pi(std::f32::consts::PI - m - offset)));
-                let turned = self.previous.as_ref().and_then(|p| turn_between(p, prepared, &points, &place, axis));
+                let turned =
+                    self.previous.as_ref().and_then(|p| turn_between(p, &this_brightness, &points, &place, axis));
                 out.image_turn_degrees = turned.map(f32::to_degrees);
                 let yaw = filter.step(reading, turned);
                 out.body_yaw_degrees = reading.map(|(a, b)| {
@@ -732,7 +735,7 @@ impl PersonModel {
             prepared.fof = None;
             prepared.coarse = None;
         }
-        self.previous = Some(PreviousFrame { brightness: brightness(&prepared.normalised.rgb), place, axis });
+        self.previous = Some(PreviousFrame { brightness: this_brightness, place, axis });
         self.frames += 1;
         stage.log();
         out.yaw_degrees = self.yaw.to_degrees();
@@ -1719,28 +1722,26 @@ fn brightness(rgb: &RgbImage) -> GrayImage {
 /// way the person turned, on either side of them: the two together decide the branch.
 fn turn_between(
     previous: &PreviousFrame,
-    prepared: &PreparedInput,
+    brightness: &GrayImage,
     points: &[TrackPoint],
     place: &Placement,
     axis: f32,
 ) -> Option<f32> {
-    let rgb = &prepared.normalised.rgb;
     let before = &previous.brightness;
-    let size = rgb.width;
-    if before.width != size || before.height != rgb.height || points.is_empty() {
+    let size = brightness.width;
+    if (before.width, before.height) != (size, brightness.height) || points.is_empty() {
         return None;
     }
-    // Only the tracked pixels' patches are read in this frame: their brightness on the fly.
-    let now = |c: i64, r: i64| -> Option<f32> {
-        (c >= 0 && r >= 0 && (c as usize) < rgb.width && (r as usize) < rgb.height)
-            .then(|| luminance(rgb.data[r as usize * rgb.width + c as usize]))
+    // A pixel of either frame (same size), `None` outside.
+    let at = |img: &GrayImage, c: i64, r: i64| -> Option<f32> {
+        (c >= 0 && r >= 0 && (c as usize) < size && (r as usize) < img.height)
+            .then(|| img.data[r as usize * size + c as usize])
     };
+    let now = |c: i64, r: i64| at(brightness, c, r);
     let spacing = (size / 256).max(1) as i64;
     let reach = 2 * spacing;
-    let sample = |c: i64, r: i64| -> Option<f32> {
-        (c >= 0 && r >= 0 && (c as usize) < before.width && (r as usize) < before.height)
-            .then(|| before.data[r as usize * before.width + c as usize])
-    };
+    // The patch's 5 x 5 samples, `spacing` apart, about its pixel.
+    let offsets: Vec<(i64, i64)> = (0..25).map(|k| (((k % 5) - 2) * spacing, ((k / 5) - 2) * spacing)).collect();
     // Texture across the row: the patch's sideways differences.
     let texture = |c: usize, r: usize| -> f32 {
         let (c, r) = (c as i64, r as i64);
@@ -1772,9 +1773,8 @@ fn turn_between(
             let p = &points[k];
             let (c, r) = (p.pixel.0 as i64, p.pixel.1 as i64);
             let mut patch = [0.0f32; 25];
-            for (k, v) in patch.iter_mut().enumerate() {
-                let (dc, dr) = ((k % 5) as i64 - 2, (k / 5) as i64 - 2);
-                *v = now(c + dc * spacing, r + dr * spacing)?;
+            for (v, &(dc, dr)) in patch.iter_mut().zip(&offsets) {
+                *v = now(c + dc, r + dr)?;
             }
             // Where the point would be in the frame before had it not moved.
             // Pixel indices: the continuous position less the half pixel to the centre, rounded; the rounding is
@@ -1789,9 +1789,8 @@ fn turn_between(
                 .map(|step| {
                     let d = step * spacing;
                     let mut cost = 0.0;
-                    for (k, &v) in patch.iter().enumerate() {
-                        let (dc, dr) = ((k % 5) as i64 - 2, (k / 5) as i64 - 2);
-                        match sample(column - d + dc * spacing, row + dr * spacing) {
+                    for (&v, &(dc, dr)) in patch.iter().zip(&offsets) {
+                        match at(before, column - d + dc, row + dr) {
                             Some(b) => cost += (v - b).abs(),
                             None => return f32::INFINITY,
                         }
@@ -1816,9 +1815,9 @@ fn turn_between(
     if moves.len() < 24 {
         return None;
     }
-    // The slope through the origin: the points sit at the placement's axis, which follows the person, and their
-    // depths span too little of the cross-section to fit a sideways shift beside the turn (tried: a line with a
-    // shift read the turn 6-14 degrees off, median over the clips' frames, against 1-6 without).
+    // The slope through the origin: the positions are about each frame's own axis, and the points' depths span too
+    // little of the cross-section to fit a sideways shift beside the turn (tried: a line with a shift read the turn
+    // 6-14 degrees off, median over the clips' frames, against 1-6 without).
     let fit = |pts: &[(f32, f32)]| -> Option<f32> {
         let (szd, szz) = pts.iter().fold((0.0, 0.0), |(a, b), &(z, d)| (a + z * d, b + z * z));
         (szz > 0.0).then(|| szd / szz)
